@@ -1,0 +1,24 @@
+# Two commands do all set-up on a fresh machine:
+#   make demo   -- build .venv, install, run the main job
+#   make test   -- build .venv, install, run the test suite
+PY ?= python3
+VENV := .venv
+BIN := $(VENV)/bin
+# The CPU build of torch 2.13.0 is installed first and explicitly: an unpinned
+# torch would pull a multi-GB CUDA build.
+TORCH := torch==2.13.0
+
+$(BIN)/.installed: pyproject.toml
+	$(PY) -m venv $(VENV)
+	$(BIN)/pip install -q $(TORCH)
+	$(BIN)/pip install -q -e '.[test]'
+	touch $@
+
+.PHONY: install demo test
+install: $(BIN)/.installed
+
+demo: install
+	$(BIN)/pdeinv demo
+
+test: install
+	$(BIN)/python -m pytest -q

@@ -1,0 +1,32 @@
+"""pdeinv: PDE inverse problems on finite elements.
+
+The pipeline, upstream to downstream: mesh → forms → physics (operators with
+exact adjoints) → autograd bridge / inverse simulators → update rules → trainer.
+"""
+
+from . import mesh
+from .autograd import apply
+from .forms import Discretization, discretize
+from .physics import Heat, LinearOperator, Matrix, Modal, Stepping, Wave
+from .problem import Problem, available, load_problem
+from .solvers import AMGCG, SuperLU, amg_cg
+
+__all__ = [
+    "AMGCG",
+    "Discretization",
+    "Heat",
+    "LinearOperator",
+    "Matrix",
+    "Modal",
+    "Problem",
+    "Stepping",
+    "SuperLU",
+    "Wave",
+    "amg_cg",
+    "apply",
+    "available",
+    "discretize",
+    "load_problem",
+    "mesh",
+]
+__version__ = "0.1.0"

@@ -1,0 +1,76 @@
+"""Input checks shared by the public entry points.
+
+Every check raises a ``ValueError`` whose message names the offending value and
+what is allowed, so a user can act on it without reading a traceback.
+"""
+
+from __future__ import annotations
+
+import math
+from numbers import Integral, Real
+
+import numpy as np
+
+
+def batch(X, n: int, name: str = "X") -> tuple[np.ndarray, bool]:
+    """Return ``X`` as a C-contiguous float64 ``(B, n)`` array and whether it was 1-D.
+
+    A 1-D ``(n,)`` input is accepted as a batch of one; the caller squeezes the
+    result back with the returned flag.
+    """
+    if hasattr(X, "detach"):  # a torch tensor slipped in: say what to use instead
+        raise ValueError(
+            f"{name} is a torch tensor; operators take numpy arrays "
+            "(use pdeinv.apply(operator, x) for torch)"
+        )
+    A = np.asarray(X)
+    if A.dtype == object or not (np.issubdtype(A.dtype, np.number)):
+        raise ValueError(f"{name} has dtype {A.dtype}; expected a real numeric array")
+    if np.iscomplexobj(A):
+        raise ValueError(f"{name} is complex; expected a real array")
+    single = A.ndim == 1
+    if single:
+        A = A[None, :]
+    if A.ndim != 2 or A.shape[1] != n:
+        raise ValueError(f"{name} has shape {np.shape(X)}; expected (B, {n}) or ({n},)")
+    A = np.ascontiguousarray(A, dtype=np.float64)
+    if not np.isfinite(A).all():
+        bad = np.argwhere(~np.isfinite(A))[0]
+        raise ValueError(
+            f"{name} contains NaN or Inf (first at index {tuple(int(i) for i in bad)}); "
+            "expected finite values"
+        )
+    return A, single
+
+
+def positive(value, name: str) -> float:
+    """A finite real number > 0."""
+    if isinstance(value, bool) or not isinstance(value, Real) or not math.isfinite(value):
+        raise ValueError(f"{name}={value!r} is not allowed; expected a finite number > 0")
+    if value <= 0:
+        raise ValueError(f"{name}={value!r} is not allowed; expected a number > 0")
+    return float(value)
+
+
+def nonnegative(value, name: str) -> float:
+    """A finite real number >= 0."""
+    if isinstance(value, bool) or not isinstance(value, Real) or not math.isfinite(value):
+        raise ValueError(f"{name}={value!r} is not allowed; expected a finite number >= 0")
+    if value < 0:
+        raise ValueError(f"{name}={value!r} is not allowed; expected a number >= 0")
+    return float(value)
+
+
+def count(value, name: str, minimum: int = 1) -> int:
+    """An integer >= ``minimum``."""
+    if isinstance(value, bool) or not isinstance(value, Integral) or value < minimum:
+        raise ValueError(f"{name}={value!r} is not allowed; expected an integer >= {minimum}")
+    return int(value)
+
+
+def choice(value, name: str, allowed) -> str:
+    if value not in allowed:
+        raise ValueError(
+            f"{name}={value!r} is not allowed; expected one of {', '.join(map(repr, allowed))}"
+        )
+    return value

@@ -1,0 +1,119 @@
+"""``Problem``: one inverse-problem scene, and ``load_problem`` to get one by name or path.
+
+Contract (DESIGN.md): ``points`` ``(dim, N)``; ``operator.forward/adjoint``
+(numpy ``(B, N)``); ``inverse(y, x0)``; ``sample(n, seed) -> (x, y)``; ``model()``.
+"""
+
+from __future__ import annotations
+
+import importlib.util
+import os
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Callable
+
+import numpy as np
+
+from ._checks import batch, count
+from .forms import Discretization
+from .physics.base import LinearOperator
+from .sampling import add_noise
+
+#: where ``load_problem('name')`` looks, in order (PDEINV_PROBLEMS is os.pathsep-separated)
+PROBLEM_DIRS = [Path(__file__).resolve().parents[1] / "problems"]
+
+
+@dataclass
+class Problem:
+    """A scene: discretization, forward operator, data distribution, defaults.
+
+    ``sampler(n, rng) -> (n, N)`` draws true initial fields; observations are
+    ``y = P x`` plus relative Gaussian noise of level ``noise`` (see
+    :func:`pdeinv.sampling.add_noise`).
+    """
+
+    name: str
+    disc: Discretization
+    operator: LinearOperator
+    sampler: Callable[[int, np.random.Generator], np.ndarray]
+    settings: dict = field(default_factory=dict)
+    noise: float = 0.0
+    inverse_simulator: Callable | None = None
+    model_factory: Callable | None = None
+
+    @property
+    def points(self) -> np.ndarray:
+        return self.disc.points
+
+    @property
+    def N(self) -> int:
+        return self.operator.n_in
+
+    def sample(self, n: int, seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
+        """``(x, y)`` with ``x`` from the sampler and ``y = P x`` (+ noise); seeded."""
+        n = count(n, "n")
+        rng = np.random.default_rng(seed)
+        x = self.sampler(n, rng)
+        return x, add_noise(self.operator.forward(x), self.noise, rng)
+
+    def inverse(self, y, x0) -> np.ndarray:
+        """Local inverse simulator ``P⁻¹_(x0, P x0)(y)``; returns ``x0`` when ``y = P x0``."""
+        if self.inverse_simulator is None:
+            raise NotImplementedError(f"problem {self.name!r} has no inverse simulator")
+        return self.inverse_simulator(y, x0)
+
+    def model(self):
+        """A fresh default network ``y -> x`` (torch.nn.Module)."""
+        if self.model_factory is not None:
+            return self.model_factory(self)
+        from .nets import default_model
+
+        return default_model(self)
+
+    def relative_error(self, xhat, x) -> np.ndarray:
+        """Relative L²(Ω) error per sample, ``‖x̂ − x‖_M / ‖x‖_M``."""
+        xhat, _ = batch(xhat, self.N, "xhat")
+        x, _ = batch(x, self.N, "x")
+        return self.disc.relative_error(xhat, x)
+
+    def __repr__(self):
+        return f"Problem({self.name!r}, N={self.N}, operator={self.operator!r})"
+
+
+def _problem_dirs() -> list[Path]:
+    extra = [Path(p) for p in os.environ.get("PDEINV_PROBLEMS", "").split(os.pathsep) if p]
+    return extra + [Path.cwd() / "problems"] + PROBLEM_DIRS
+
+
+def available() -> list[str]:
+    """Names of the problem modules ``load_problem`` can find."""
+    names = set()
+    for d in _problem_dirs():
+        if d.is_dir():
+            names |= {p.stem for p in d.glob("*.py") if not p.stem.startswith("_")}
+    return sorted(names)
+
+
+def load_problem(name_or_path: str | os.PathLike, **overrides) -> Problem:
+    """Import ``problems/<name>.py`` (or a module file by path) and call ``make(**overrides)``."""
+    spec = os.fspath(name_or_path)
+    if spec.endswith(".py") or os.sep in spec or "/" in spec:
+        path = Path(spec)
+        if not path.is_file():
+            raise FileNotFoundError(f"problem module {spec!r} does not exist")
+    else:
+        found = [d / f"{spec}.py" for d in _problem_dirs() if (d / f"{spec}.py").is_file()]
+        if not found:
+            raise ValueError(f"unknown problem {spec!r}; available: {', '.join(available())} "
+                             "(or give the path of a module file)")
+        path = found[0]
+    mod_spec = importlib.util.spec_from_file_location(f"pdeinv_problem_{path.stem}", path)
+    module = importlib.util.module_from_spec(mod_spec)
+    mod_spec.loader.exec_module(module)
+    make = getattr(module, "make", None)
+    if not callable(make):
+        raise ValueError(f"problem module {str(path)!r} has no function make(**overrides)")
+    problem = make(**overrides)
+    if not isinstance(problem, Problem):
+        raise ValueError(f"{str(path)}: make() returned {type(problem).__name__}; expected pdeinv.Problem")
+    return problem

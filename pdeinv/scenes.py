@@ -1,0 +1,54 @@
+"""Builders shared by the problem modules: a mesh and resolved settings in, a Problem out.
+
+Problem modules stay a dozen readable lines: declare settings, make a mesh,
+call one of these.
+"""
+
+from __future__ import annotations
+
+from functools import partial
+
+from . import settings as s
+from .forms import discretize
+from .physics import Heat, Wave
+from .problem import Problem
+from .sampling import gaussian_bumps
+
+#: settings every scene has
+COMMON = {
+    "element": ("P1", s.one_of("P1", "P2")),
+    "T": (1.0, s.positive),
+    "steps": (100, s.positive_int),
+    "noise": (0.0, s.nonnegative),
+}
+
+HEAT = {**COMMON, "kappa": (0.01, s.positive), "scheme": ("be", s.one_of("be", "cn")),
+        "backend": ("auto", s.one_of("auto", "steps", "modal"))}
+
+WAVE = {**COMMON, "c": (1.0, s.positive)}
+
+
+def heat(name: str, mesh, cfg: dict) -> Problem:
+    """Heat scene: θ-scheme final-field observation, homogeneous Dirichlet boundary."""
+    disc = discretize(mesh, cfg["element"])
+    op = Heat(disc.M, disc.K, kappa=cfg["kappa"], T=cfg["T"], steps=cfg["steps"],
+              scheme=cfg["scheme"], backend=cfg["backend"], measure=disc.measure, dim=disc.dim)
+    return Problem(name, disc, op, partial(gaussian_bumps, disc.points), settings=cfg,
+                   noise=cfg["noise"], inverse_simulator=_inverse(op, disc))
+
+
+def wave(name: str, mesh, cfg: dict) -> Problem:
+    """Wave scene: Newmark, ``x = u₀``, ``v₀ = 0``, observe ``u(T)``; Dirichlet boundary."""
+    disc = discretize(mesh, cfg["element"])
+    op = Wave(disc.M, disc.K, c=cfg["c"], T=cfg["T"], steps=cfg["steps"])
+    return Problem(name, disc, op, partial(gaussian_bumps, disc.points), settings=cfg,
+                   noise=cfg["noise"], inverse_simulator=_inverse(op, disc))
+
+
+def _inverse(op, disc):
+    """The scene's default local inverse simulator (None until one is available)."""
+    try:
+        from .inverse import default_inverse
+    except ImportError:
+        return None
+    return default_inverse(op, disc)
