@@ -1,0 +1,39 @@
+"""Separable exact solutions shared by the physics tests (torchdiffeq ``tests/problems.py`` style).
+
+On the unit square with u = 0 on the boundary, ``u₀ = sin(πx) sin(πy)`` is a
+Laplace eigenfunction with λ = 2π²; in 1-D ``sin(πx)`` has λ = π². Hence
+
+    heat:  u(T) = exp(−κ λ T) u₀,          wave (v₀ = 0):  u(T) = cos(c √λ T) u₀.
+"""
+
+import numpy as np
+from skfem import Functional
+
+import pdeinv
+
+
+def mode(points):
+    return np.prod(np.sin(np.pi * points), axis=0)
+
+
+def eigenvalue(dim):
+    return dim * np.pi**2
+
+
+def l2_error(disc, x, factor):
+    """‖u_h − factor·u₀‖_{L²(Ω)} by quadrature, ``u_h`` from the free coefficients ``x``."""
+    full = disc.extend(x)[0]
+
+    @Functional
+    def err2(w):
+        return (w["uh"] - factor * np.prod(np.sin(np.pi * w.x), axis=0)) ** 2
+
+    return np.sqrt(err2.assemble(disc.basis, uh=disc.basis.interpolate(full)))
+
+
+def fitted_rate(hs, errs):
+    return np.polyfit(np.log(hs), np.log(errs), 1)[0]
+
+
+def load(name, **kw):
+    return pdeinv.load_problem(name, **kw)
