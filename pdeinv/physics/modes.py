@@ -20,14 +20,14 @@ class TooManyModes(ValueError):
     """The modal representation would need a large fraction of all modes."""
 
 
-def lowest_modes(M, K, enough, max_fraction: float = 0.5, dense_max: int = DENSE_MAX):
+def lowest_modes(M, K, enough, max_fraction: float = 0.5, dense_max: int | None = None):
     """Return ``(lam, Phi)`` sorted ascending, covering at least the modes ``enough`` needs.
 
     ``enough(lam) -> bool`` gets the ascending eigenvalues computed so far and
     says whether they reach past the cut-off.
     """
     N = M.shape[0]
-    if N <= dense_max:
+    if N <= (DENSE_MAX if dense_max is None else dense_max):
         lam, Phi = la.eigh(K.toarray(), M.toarray())
         return lam, Phi
     # shift just below zero: scale-aware, keeps K - σM SPD for Neumann problems
@@ -47,8 +47,8 @@ def lowest_modes(M, K, enough, max_fraction: float = 0.5, dense_max: int = DENSE
         k = min(2 * k, N - 2)
 
 
-def largest_eigenvalue(M, K, dense_max: int = DENSE_MAX) -> float:
+def largest_eigenvalue(M, K) -> float:
     """``λ_max`` of ``K φ = λ M φ`` (relative accuracy ~1e-8)."""
-    if M.shape[0] <= dense_max:
+    if M.shape[0] <= DENSE_MAX:
         return float(la.eigh(K.toarray(), M.toarray(), eigvals_only=True, subset_by_index=[M.shape[0] - 1] * 2)[0])
     return float(sla.eigsh(sp.csc_matrix(K), 1, sp.csc_matrix(M), which="LA", tol=1e-8)[0][0])

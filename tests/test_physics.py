@@ -1,0 +1,165 @@
+"""Operators: exact adjoints, wave invariants, modal = stepping, batching."""
+
+import numpy as np
+import pytest
+from exact import load
+
+import pdeinv
+from pdeinv.physics import Heat
+
+# every operator and backend the problems can build, on small meshes
+OPERATORS = {
+    "heat_1d-be-steps": ("heat_1d", dict(n=32, backend="steps")),
+    "heat_1d-be-modal": ("heat_1d", dict(n=32, backend="modal")),
+    "heat_1d-cn-steps": ("heat_1d", dict(n=32, scheme="cn", backend="steps")),
+    "heat_1d-cn-modal": ("heat_1d", dict(n=32, scheme="cn", backend="modal")),
+    "heat_1d-P2": ("heat_1d", dict(n=16, element="P2")),
+    "heat_2d-be-steps": ("heat_2d", dict(n=12, backend="steps")),
+    "heat_2d-be-modal": ("heat_2d", dict(n=12, backend="modal")),
+    "heat_2d-cn-steps": ("heat_2d", dict(n=12, scheme="cn", backend="steps")),
+    "heat_2d-P2": ("heat_2d", dict(n=8, element="P2", backend="steps")),
+    "wave_1d": ("wave_1d", dict(n=32)),
+    "wave_1d-P2": ("wave_1d", dict(n=16, element="P2")),
+    "wave_2d": ("wave_2d", dict(n=12)),
+}
+
+
+@pytest.fixture(params=list(OPERATORS), scope="module")
+def op(request):
+    name, kw = OPERATORS[request.param]
+    return load(name, **kw).operator
+
+
+def dot_test(op, B=5, seed=0):
+    """|⟨Px, r⟩ − ⟨x, Pᵀr⟩| / (‖Px‖‖r‖), summed over a batch."""
+    rng = np.random.default_rng(seed)
+    x = rng.standard_normal((B, op.n_in))
+    r = rng.standard_normal((B, op.n_out))
+    Px = op.forward(x)
+    return abs(np.vdot(Px, r) - np.vdot(x, op.adjoint(r))) / (np.linalg.norm(Px) * np.linalg.norm(r))
+
+
+def test_dot_product(op):
+    assert dot_test(op) <= 1e-12
+
+
+def test_transposed_view(op):
+    assert dot_test(op.T) <= 1e-12
+    assert op.T.T is op
+
+
+def test_batched_equals_per_sample(op):
+    rng = np.random.default_rng(1)
+    X = rng.standard_normal((6, op.n_in))
+    for f in (op.forward, op.adjoint):
+        Y = f(X)
+        single = np.stack([f(x) for x in X])
+        assert Y.shape == (6, op.n_in)
+        np.testing.assert_allclose(Y, single, rtol=0, atol=1e-13 * np.abs(Y).max())
+
+
+def test_linearity(op):
+    rng = np.random.default_rng(2)
+    x, z = rng.standard_normal((2, 3, op.n_in))
+    lhs = op.forward(2.5 * x - z)
+    np.testing.assert_allclose(lhs, 2.5 * op.forward(x) - op.forward(z), atol=1e-12 * np.abs(lhs).max())
+
+
+@pytest.mark.parametrize("name", ["heat_1d", "heat_2d"])
+@pytest.mark.parametrize("scheme", ["be", "cn"])
+def test_modal_equals_stepping_on_defaults(name, scheme):
+    modal = load(name, scheme=scheme, backend="modal")
+    steps = load(name, scheme=scheme, backend="steps")
+    x, _ = modal.sample(16, seed=3)
+    ym, ys = modal.operator.forward(x), steps.operator.forward(x)
+    assert np.linalg.norm(ym - ys) / np.linalg.norm(ys) <= 1e-10
+    r = np.random.default_rng(4).standard_normal(ys.shape)
+    am, as_ = modal.operator.adjoint(r), steps.operator.adjoint(r)
+    assert np.linalg.norm(am - as_) / np.linalg.norm(as_) <= 1e-10
+
+
+def test_modal_keeps_few_modes_on_defaults():
+    """The default heat_2d problem is ill-conditioned: most modes are dead at T."""
+    op = load("heat_2d").operator
+    assert op.backend.name == "modal" and "auto" in op.choice
+    assert op.backend.k < 0.3 * op.n_in
+    g = np.abs(op.backend.g)
+    assert np.sum(g >= 1e-3 * g.max()) < 0.1 * op.n_in
+
+
+def test_auto_prefers_stepping_when_few_steps_and_slow_decay():
+    op = load("heat_2d", n=16, steps=2, kappa=1e-4).operator
+    assert op.backend.name == "steps", op.choice
+
+
+def test_cn_modal_refused_when_high_modes_undamped():
+    with pytest.raises(ValueError, match="Crank"):
+        load("heat_1d", n=64, scheme="cn", steps=1, backend="modal")
+
+
+def test_wave_energy_conserved_over_1e4_steps():
+    p = load("wave_1d", n=32, T=50.0, steps=10_000)
+    rng = np.random.default_rng(5)
+    u0, v0 = rng.standard_normal((2, 3, p.N))
+    uT, vT = p.operator.final_state(u0, v0)
+    E0, ET = p.operator.energy(u0, v0), p.operator.energy(uT, vT)
+    assert np.max(np.abs(ET - E0) / E0) <= 1e-12
+
+
+def test_wave_reverse_returns_initial_state():
+    op = load("wave_2d", n=16, steps=100).operator
+    rng = np.random.default_rng(6)
+    u0, v0 = rng.standard_normal((2, 4, op.n_in))
+    back = op.reverse(*op.final_state(u0, v0))
+    assert np.linalg.norm(back[0] - u0) / np.linalg.norm(u0) <= 1e-10
+    assert np.linalg.norm(back[1] - v0) / np.linalg.norm(v0) <= 1e-10
+
+
+def test_wave_forward_is_final_state_displacement():
+    p = load("wave_1d", n=16)
+    x, y = p.sample(3, seed=1)
+    np.testing.assert_array_equal(p.operator.final_state(x)[0], y)
+
+
+def test_amg_solver_matches_direct():
+    p = load("heat_2d", n=16, backend="steps")
+    direct = p.operator
+    amg = Heat(p.disc.M, p.disc.K, kappa=direct.kappa, T=1.0, steps=20, backend="steps",
+               solver=pdeinv.amg_cg(rtol=1e-13))
+    ref = Heat(p.disc.M, p.disc.K, kappa=direct.kappa, T=1.0, steps=20, backend="steps")
+    x, _ = p.sample(3, seed=0)
+    assert np.linalg.norm(amg.forward(x) - ref.forward(x)) / np.linalg.norm(ref.forward(x)) < 1e-10
+    assert dot_test(amg) < 1e-10  # AMG-CG solves to rtol, so the identity holds to ~rtol
+
+
+def test_lumped_mass_is_diagonal_and_conserves_mass():
+    m = pdeinv.mesh.unit_square(8)
+    full = pdeinv.discretize(m, dirichlet=False)
+    lumped = pdeinv.discretize(m, dirichlet=False, lumped=True)
+    assert (lumped.M - lumped.M.T).nnz == 0 and lumped.M.nnz == lumped.N
+    assert np.isclose(lumped.M.sum(), full.M.sum()) and np.isclose(full.M.sum(), 1.0)
+
+
+def test_neumann_heat_conserves_mass():
+    m = pdeinv.mesh.unit_square(8)
+    d = pdeinv.discretize(m, dirichlet=False)
+    for backend in ("steps", "modal"):
+        op = Heat(d.M, d.K, kappa=0.1, T=1.0, steps=20, backend=backend)
+        x = np.random.default_rng(0).standard_normal(d.N)
+        ones = np.ones(d.N)
+        assert np.isclose(ones @ d.M @ op.forward(x), ones @ d.M @ x, rtol=1e-10)
+
+
+@pytest.mark.parametrize("scheme", ["be", "cn"])
+def test_sparse_eigensolver_path_matches_stepping(monkeypatch, scheme):
+    """Force the eigsh (shift-invert, doubling k) path used on large meshes."""
+    from pdeinv.physics import modes
+
+    monkeypatch.setattr(modes, "DENSE_MAX", 10)
+    modal = load("heat_2d", n=24, scheme=scheme, backend="modal", kappa=0.005).operator
+    steps = load("heat_2d", n=24, scheme=scheme, backend="steps", kappa=0.005).operator
+    assert modal.backend.k > 64  # needed at least one doubling of the requested modes
+    x = np.random.default_rng(0).standard_normal((4, modal.n_in))
+    ys = steps.forward(x)
+    assert np.linalg.norm(modal.forward(x) - ys) / np.linalg.norm(ys) <= 1e-10
+    assert dot_test(modal) <= 1e-12
