@@ -45,7 +45,7 @@ def load(path: str | os.PathLike) -> skfem.Mesh:
         raise FileNotFoundError(f"mesh file {path!r} does not exist")
     try:
         m = meshio.read(path)
-    except Exception as err:  # meshio raises many types; one message for users
+    except (Exception, SystemExit) as err:  # meshio raises many types (even SystemExit)
         raise ValueError(
             f"mesh file {path!r} could not be read by meshio ({type(err).__name__}: {err}); "
             "expected a readable mesh format such as .msh, .vtu, .xdmf"
