@@ -46,3 +46,29 @@ class MLP(nn.Module):
 def default_model(problem) -> nn.Module:
     """An MLP sized to the problem (observations in, unknowns out)."""
     return MLP(problem.operator.n_out, problem.operator.n_in)
+
+
+def fit_input_scaling(model: nn.Module, y) -> nn.Module:
+    """Set ``model``'s input standardization from training observations ``y``.
+
+    Calls ``model.fit_input_scaling(y)`` if the model has one (e.g. :class:`MLP`);
+    other models are left alone (they handle their own input scale).
+    """
+    fit = getattr(model, "fit_input_scaling", None)
+    if callable(fit):
+        fit(y)
+    return model
+
+
+def mlp(hidden=(256, 256), activation=nn.Tanh):
+    """A ``model_factory`` for :class:`pdeinv.Problem`: ``Problem(..., model_factory=mlp((128, 128)))``.
+
+    The factory receives the problem and sizes the MLP to it (observations in,
+    unknowns out).
+    """
+
+    def factory(problem) -> nn.Module:
+        return MLP(problem.operator.n_out, problem.operator.n_in, hidden=tuple(hidden),
+                   activation=activation)
+
+    return factory
