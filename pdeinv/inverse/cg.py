@@ -46,7 +46,8 @@ class TikhonovCG:
     """
 
     def __init__(self, op, M=None, alpha=1e-8, M_out="auto", rtol=1e-10, maxiter=1000,
-                 scale=None, mass_solver=SuperLU):
+                 scale=None, mass_solver=SuperLU, reorth=True):
+        self.reorth = reorth
         self.op, self.M = op, M
         self.M_out = (M if op.n_out == op.n_in else None) if isinstance(M_out, str) else M_out
         self.rule = as_rule(alpha)
@@ -87,6 +88,7 @@ class TikhonovCG:
         goal = self.rtol * self._bnorm
         active = np.sqrt(np.abs(rz)) > goal
         D, it = Z, np.zeros(len(b), dtype=int)
+        hist = [_snapshot(Res, Z, np.arange(len(b)))] if self.reorth else []
         for _ in range(self.maxiter):
             idx = np.flatnonzero(active)
             if idx.size == 0:
@@ -96,7 +98,11 @@ class TikhonovCG:
             X[idx] += a[:, None] * D[idx]
             PX[idx] += a[:, None] * PD
             Res[idx] -= a[:, None] * AD
+            if self.reorth:
+                Res[idx] = _reorthogonalize(Res[idx], hist, idx)
             Zi = self._precond(Res[idx])
+            if self.reorth:
+                hist.append(_snapshot(Res, Zi, idx))
             rz_new = np.einsum("bi,bi->b", Res[idx], Zi)
             D[idx] = Zi + (rz_new / rz[idx])[:, None] * D[idx]
             rz[idx] = rz_new
@@ -156,3 +162,27 @@ class TikhonovCG:
 
     def __repr__(self):
         return f"TikhonovCG(op={self.op!r}, alpha={self.rule!r}, rtol={self.rtol:g})"
+
+
+
+def _reorthogonalize(R, hist, idx):
+    """Project out of the new residuals ``R`` (rows ``idx``) all earlier ones, M⁻¹-orthogonally.
+
+    Exact PCG residuals satisfy ``r_iᵀM⁻¹r_j = 0``; in floating point they drift
+    apart and CG re-discovers eigenvalues it already resolved (seen: 167
+    iterations instead of 40 on the 2-D heat operator, α=1e-8, rtol=1e-10).
+    Classical Gram–Schmidt, applied twice.
+    """
+    for _ in range(2):
+        for Rj, Zj, zr in hist:
+            R -= (np.einsum("bi,bi->b", Zj[idx], R) / zr[idx])[:, None] * Rj[idx]
+    return R
+
+
+def _snapshot(Res, Zi, idx):
+    """``(r, M⁻¹r, rᵀM⁻¹r)`` for the rows ``idx`` (zero rows elsewhere, which project out nothing)."""
+    R, Z, zr = np.zeros_like(Res), np.zeros_like(Res), np.ones(len(Res))
+    R[idx], Z[idx] = Res[idx], Zi
+    zr[idx] = np.einsum("bi,bi->b", Res[idx], Zi)
+    zr[zr == 0] = 1.0
+    return R, Z, zr
