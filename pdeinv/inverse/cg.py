@@ -62,7 +62,7 @@ class TikhonovCG:
         return X if M is None else np.asarray((M @ X.T).T)
 
     def _precond(self, R):
-        return R if self._Minv is None else np.ascontiguousarray(self._Minv.solve(R.T).T)
+        return R.copy() if self._Minv is None else np.ascontiguousarray(self._Minv.solve(R.T).T)
 
     def _count(self, kind, rows):
         self._calls[kind] += 1
