@@ -9,7 +9,7 @@ import torch
 
 from ..autograd import apply
 from ..physics.base import LinearOperator
-from .base import OptimizerFactory, adam, make_optimizer, optimizer_step, y_loss
+from .base import OptimizerFactory, adam, check_finite, make_optimizer, optimizer_step, y_loss
 
 
 class GDState(NamedTuple):
@@ -36,6 +36,8 @@ class GD:
         return GDState(make_optimizer(self.optimizer, model), problem.operator)
 
     def step(self, state: GDState, model: torch.nn.Module, y_target: torch.Tensor):
-        loss = y_loss(apply(state.operator, model(y_target)), y_target)
+        x = model(y_target)
+        check_finite("the network output x = f(y*)", x.detach())
+        loss = y_loss(apply(state.operator, x), y_target)
         optimizer_step(state.optimizer, model, loss, "the y-loss")
         return state._replace(steps=state.steps + 1), {"loss": float(loss.detach())}

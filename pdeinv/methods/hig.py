@@ -102,7 +102,9 @@ class HIG:
             return functional_call(model, (p, frozen), (y,))
 
         with torch.no_grad():
-            y = apply(op, f(params, y_target))
+            x = f(params, y_target)
+            check_finite("the network output x = f(y*)", x)
+            y = apply(op, x)
         r = (y - y_target).double()
         loss = 0.5 * float(r.pow(2).sum(-1).mean())
         check_finite("the y-loss", torch.tensor(loss))

@@ -54,6 +54,7 @@ class SIP:
 
     def step(self, state: SIPState, model: torch.nn.Module, y_target: torch.Tensor):
         x = model(y_target)
+        check_finite("the network output x = f(y*)", x.detach())
         x_np = x.detach().cpu().double().numpy()
         yt = y_target.detach().cpu().double().numpy()
         y = state.operator.forward(x_np)
@@ -68,4 +69,4 @@ class SIP:
         check_finite("the inverse simulator's x̃", target)
         proxy = y_loss(x, target)  # ½ mean ‖x − x̃‖², target carries no gradient
         optimizer_step(state.optimizer, model, proxy, "the SIP proxy loss")
-        return state._replace(steps=state.steps + 1), {"loss": loss, "proxy": float(proxy)}
+        return state._replace(steps=state.steps + 1), {"loss": loss, "proxy": float(proxy.detach())}
