@@ -14,7 +14,7 @@ from typing import Callable
 
 import numpy as np
 
-from .._checks import positive
+from .._checks import count, positive
 from .discrepancy import discrepancy_alpha
 
 
@@ -101,7 +101,7 @@ class Discrepancy:
         self.lo, self.hi = positive(lo, "lo"), positive(hi, "hi")
         if self.lo >= self.hi:
             raise ValueError(f"lo={lo!r} >= hi={hi!r}; expected lo < hi")
-        self.rtol, self.maxiter = positive(rtol, "rtol"), maxiter
+        self.rtol, self.maxiter = positive(rtol, "rtol"), count(maxiter, "maxiter")
 
     def target(self, fit: Fit) -> np.ndarray:
         rms = np.sqrt((fit.y**2).mean(axis=1)) / np.sqrt(1.0 + self.noise**2)
