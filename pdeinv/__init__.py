@@ -9,10 +9,11 @@ from .autograd import apply
 from .forms import Discretization, discretize
 from .physics import Heat, LinearOperator, Matrix, Modal, Stepping, Wave
 from .problem import Problem, available, load_problem
-from .solvers import AMGCG, SuperLU, amg_cg
+from .solvers import AMGCG, Cholesky, SuperLU, amg_cg, default_solver
 
 __all__ = [
     "AMGCG",
+    "Cholesky",
     "Discretization",
     "Heat",
     "LinearOperator",
@@ -24,6 +25,7 @@ __all__ = [
     "Wave",
     "amg_cg",
     "apply",
+    "default_solver",
     "available",
     "discretize",
     "load_problem",

@@ -5,6 +5,9 @@ columns are solved at once with one factorization. Every matrix our schemes
 factor (heat θ-scheme, Newmark) is symmetric positive definite, so a transposed
 solve is the plain solve: adjoints call ``solve`` too (SuperLU's
 ``trans='T'`` is ~40% slower for no gain).
+
+``default_solver`` takes a sparse Cholesky (cholespy) when installed and
+SuperLU otherwise; ``amg_cg`` is for meshes too large to factor.
 """
 
 from __future__ import annotations
@@ -36,6 +39,47 @@ class SuperLU:
     def fill(self) -> int:
         """Non-zeros in the factors (the cost of one solve per right-hand side)."""
         return self.lu.L.nnz + self.lu.U.nnz
+
+
+class Cholesky:
+    """Sparse Cholesky ``A = L Lᵀ`` (cholespy, CHOLMOD-style supernodal), for SPD ``A``.
+
+    Measured on 2 cores for the 2-D heat matrix, 64 right-hand sides: about 3x
+    faster than SuperLU at 961 unknowns and more at 3969 (see ``pdeinv bench``),
+    agreeing to ~1e-15. Optional dependency: ``pip install cholespy``.
+    """
+
+    name = "cholesky"
+
+    def __init__(self, A: sp.spmatrix):
+        import cholespy
+        import torch
+
+        C = sp.coo_matrix(A)
+        self.n = A.shape[0]
+        self.shape = A.shape
+        self._torch = torch
+        self.chol = cholespy.CholeskySolverD(
+            self.n,
+            torch.from_numpy(C.row.astype(np.int32)),
+            torch.from_numpy(C.col.astype(np.int32)),
+            torch.from_numpy(C.data.astype(np.float64)),
+            cholespy.MatrixType.COO,
+        )
+
+    def solve(self, B: np.ndarray) -> np.ndarray:
+        b = self._torch.from_numpy(np.ascontiguousarray(B, dtype=np.float64).reshape(self.n, -1))
+        x = self._torch.empty_like(b)
+        self.chol.solve(b, x)
+        return x.numpy().reshape(B.shape)
+
+
+def default_solver(A: sp.spmatrix):
+    """Sparse Cholesky if cholespy is installed, else SuperLU (always available)."""
+    try:
+        return Cholesky(A)
+    except ImportError:
+        return SuperLU(A)
 
 
 class AMGCG:

