@@ -7,11 +7,29 @@ exact adjoints) → autograd bridge / inverse simulators → update rules → tr
 from . import mesh
 from .autograd import apply
 from .forms import Discretization, discretize
+from .inverse import (
+    Discrepancy,
+    FixedAlpha,
+    ModalTikhonov,
+    RelativeAlpha,
+    StateReversal,
+    TikhonovCG,
+    TimeReversal,
+    default_inverse,
+)
 from .physics import Heat, LinearOperator, Matrix, Modal, Stepping, Wave
 from .problem import Problem, available, load_problem
 from .solvers import AMGCG, Cholesky, SuperLU, amg_cg, default_solver
 
 __all__ = [
+    "Discrepancy",
+    "FixedAlpha",
+    "ModalTikhonov",
+    "RelativeAlpha",
+    "StateReversal",
+    "TikhonovCG",
+    "TimeReversal",
+    "default_inverse",
     "AMGCG",
     "Cholesky",
     "Discretization",

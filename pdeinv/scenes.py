@@ -10,6 +10,7 @@ from functools import partial
 
 from . import settings as s
 from .forms import discretize
+from .inverse import default_inverse
 from .physics import Heat, Wave
 from .problem import Problem
 from .sampling import gaussian_bumps
@@ -34,7 +35,8 @@ def heat(name: str, mesh, cfg: dict) -> Problem:
     op = Heat(disc.M, disc.K, kappa=cfg["kappa"], T=cfg["T"], steps=cfg["steps"],
               scheme=cfg["scheme"], backend=cfg["backend"], measure=disc.measure, dim=disc.dim)
     return Problem(name, disc, op, partial(gaussian_bumps, disc.points), settings=cfg,
-                   noise=cfg["noise"], inverse_simulator=_inverse(op, disc))
+                   noise=cfg["noise"],
+                   inverse_simulator=default_inverse(op, disc, noise=cfg["noise"]))
 
 
 def wave(name: str, mesh, cfg: dict) -> Problem:
@@ -42,13 +44,5 @@ def wave(name: str, mesh, cfg: dict) -> Problem:
     disc = discretize(mesh, cfg["element"])
     op = Wave(disc.M, disc.K, c=cfg["c"], T=cfg["T"], steps=cfg["steps"])
     return Problem(name, disc, op, partial(gaussian_bumps, disc.points), settings=cfg,
-                   noise=cfg["noise"], inverse_simulator=_inverse(op, disc))
-
-
-def _inverse(op, disc):
-    """The scene's default local inverse simulator (None until one is available)."""
-    try:
-        from .inverse import default_inverse
-    except ImportError:
-        return None
-    return default_inverse(op, disc)
+                   noise=cfg["noise"],
+                   inverse_simulator=default_inverse(op, disc, noise=cfg["noise"]))

@@ -35,7 +35,8 @@ class Heat(LinearOperator):
     ``M``, ``K``: condensed mass and stiffness (sparse, symmetric); ``scheme``:
     'be' or 'cn'; ``backend``: 'auto', 'steps', 'modal' or a backend object;
     ``solver``: factory ``A -> object with solve`` (default: Cholesky if cholespy
-    is installed, else SuperLU); ``tol``: relative amplification below which modes are dropped (modal backend);
+    is installed, else SuperLU); ``tol``: relative amplification below which
+    modes are dropped (modal backend);
     ``measure``: |Ω|, used by the auto cost estimate (Weyl's law).
     """
 

@@ -50,5 +50,6 @@ def lowest_modes(M, K, enough, max_fraction: float = 0.5, dense_max: int | None 
 def largest_eigenvalue(M, K) -> float:
     """``λ_max`` of ``K φ = λ M φ`` (relative accuracy ~1e-8)."""
     if M.shape[0] <= DENSE_MAX:
-        return float(la.eigh(K.toarray(), M.toarray(), eigvals_only=True, subset_by_index=[M.shape[0] - 1] * 2)[0])
+        top = [M.shape[0] - 1] * 2
+        return float(la.eigh(K.toarray(), M.toarray(), eigvals_only=True, subset_by_index=top)[0])
     return float(sla.eigsh(sp.csc_matrix(K), 1, sp.csc_matrix(M), which="LA", tol=1e-8)[0][0])
