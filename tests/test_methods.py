@@ -159,7 +159,7 @@ def test_hig_step_matches_hand_formula(route, jacobian):
 
 
 def test_hig_exponent_minus_one_is_gauss_newton():
-    """e = −1, τ = 0, η = 1 on a tanh MLP: Δθ = −(JᵀJ)⁻¹ Jᵀ r with J from torch.autograd (full column rank)."""
+    """e = −1, τ = 0, η = 1 on a tanh MLP: Δθ = −(JᵀJ)⁻¹ Jᵀ r, J by torch.autograd (full column rank)."""
     problem, A, rng = toy(n=3, m=3)
     torch.manual_seed(3)
     model = nn.Sequential(nn.Linear(3, 2), nn.Tanh(), nn.Linear(2, 3)).double()  # 17 parameters

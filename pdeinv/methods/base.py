@@ -18,8 +18,9 @@ raises :class:`NonFiniteError` (the trainer adds the step number).
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from functools import partial
-from typing import Any, Callable, Protocol
+from typing import Any, Protocol
 
 import torch
 
