@@ -1,0 +1,203 @@
+"""Point sensors: the sensor matrix ``S`` and where to put the sensors.
+
+A sensor at ``p`` reads the finite-element field there, ``u_h(p) = Σ_j u_j φ_j(p)``,
+so a set of sensors is the sparse matrix ``S_kj = φ_j(p_k)`` (scikit-fem's
+``basis.probes``) restricted to the free unknowns ``disc.free``: Dirichlet
+unknowns are zero, so dropping their columns is exact. A sensor on a Dirichlet
+boundary would always read 0 and is refused.
+
+Placement helpers return coordinates of shape ``(n, dim)``:
+
+* :func:`boundary_points` — ``n`` points evenly spaced by arc length along the
+  mesh boundary (all boundary loops), optionally moved ``inset`` inward;
+* :func:`interior_points` — ``n`` well-spread points inside the mesh (Halton
+  sequence over the bounding box, kept if inside and at least ``margin`` from
+  the bounding box's edge).
+
+:func:`sensor_spec` is the settings rule for a ``sensors`` override: an int count
+or coordinates (a list/array of shape ``(n, dim)``, or its string form from ``--set``).
+"""
+
+from __future__ import annotations
+
+import ast
+from numbers import Integral
+
+import numpy as np
+import scipy.sparse as sp
+
+from ._checks import count
+
+
+def _as_points(points, dim: int) -> np.ndarray:
+    """Coordinates as a float64 ``(n, dim)`` array, or a ValueError saying what is allowed."""
+    try:
+        P = np.asarray(points, dtype=float)
+    except (TypeError, ValueError):
+        raise ValueError(f"sensors={points!r} is not allowed; expected coordinates of shape (n, {dim})") from None
+    if dim == 1 and P.ndim == 1:
+        P = P[:, None]
+    if P.ndim != 2 or P.shape[1] != dim:
+        raise ValueError(f"sensor coordinates have shape {P.shape}; expected (n, {dim}) with n >= 1")
+    if P.shape[0] == 0:
+        raise ValueError(f"the sensor list is empty (shape {P.shape}); expected at least one sensor")
+    if not np.isfinite(P).all():
+        raise ValueError(f"sensor coordinates contain NaN or Inf: {P[~np.isfinite(P).all(1)][:3].tolist()}")
+    return P
+
+
+def outside(mesh, points) -> np.ndarray:
+    """Indices of the ``points`` (``(n, dim)``) that lie outside ``mesh`` (the element finder's test)."""
+    P = _as_points(points, mesh.dim())
+    finder = mesh.element_finder()
+    try:
+        finder(*P.T)
+        return np.zeros(0, dtype=int)
+    except ValueError:  # the finder refuses the whole set: find the culprits one by one
+        pass
+    bad = []
+    for k, p in enumerate(P):
+        try:
+            finder(*p[:, None])
+        except ValueError:
+            bad.append(k)
+    return np.asarray(bad, dtype=int)
+
+
+def sensor_matrix(disc, points) -> sp.csr_matrix:
+    """``S`` of shape ``(n_sensors, disc.N)``: point evaluation of the field on the free unknowns.
+
+    Raises ``ValueError`` for an empty list, points outside the mesh, or points on
+    the Dirichlet boundary (where every free basis function vanishes).
+    """
+    P = _as_points(points, disc.dim)
+    bad = outside(disc.basis.mesh, P)
+    if len(bad):
+        lo, hi = disc.basis.mesh.p.min(axis=1), disc.basis.mesh.p.max(axis=1)
+        raise ValueError(
+            f"{len(bad)} sensor(s) lie outside the mesh, e.g. sensor {bad[0]} at "
+            f"{P[bad[0]].tolist()}; allowed: points inside the domain "
+            f"(bounding box {lo.tolist()} – {hi.tolist()})"
+        )
+    S = sp.csr_matrix(disc.basis.probes(P.T))[:, disc.free]
+    dead = np.flatnonzero(np.abs(S).sum(axis=1).A1 == 0)
+    if len(dead):
+        raise ValueError(
+            f"sensor {dead[0]} at {P[dead[0]].tolist()} lies on the Dirichlet boundary, where the field "
+            f"is fixed at 0 ({len(dead)} such sensor(s)); allowed: points where the field is free — move "
+            "it inside (e.g. boundary_points(mesh, n, inset=h)) or make that boundary natural (Neumann)"
+        )
+    S.eliminate_zeros()
+    return S
+
+
+# -- placement -----------------------------------------------------------------------------
+
+
+def _boundary_loops(mesh) -> list[np.ndarray]:
+    """Closed boundary polygons of a 2-D mesh as node-index arrays, each counter-clockwise
+    around the domain on its left (outer loop CCW, holes CW)."""
+    facets = mesh.boundary_facets()
+    edges = mesh.facets[:, facets].T.copy()
+    # orient every edge with the domain on its left: the opposite vertex must be to the left
+    tri = mesh.f2t[0, facets]
+    opp = mesh.t[:, tri].T
+    other = np.array([np.setdiff1d(o, e)[0] for o, e in zip(opp, edges)])
+    a, b, c = mesh.p[:, edges[:, 0]], mesh.p[:, edges[:, 1]], mesh.p[:, other]
+    cross = (b[0] - a[0]) * (c[1] - a[1]) - (b[1] - a[1]) * (c[0] - a[0])
+    edges[cross < 0] = edges[cross < 0, ::-1]
+    nxt = dict(zip(edges[:, 0], edges[:, 1]))
+    loops, seen = [], set()
+    for start in edges[:, 0]:
+        if start in seen:
+            continue
+        loop, n = [start], nxt[start]
+        seen.add(start)
+        while n != start:
+            loop.append(n)
+            seen.add(n)
+            n = nxt[n]
+        loops.append(np.asarray(loop))
+    return loops
+
+
+def boundary_points(mesh, n: int, inset: float = 0.0) -> np.ndarray:
+    """``n`` points at equal arc-length spacing along the whole boundary of a 2-D mesh.
+
+    Point ``k`` sits at arc length ``(k + ½) L/n`` of the concatenated boundary
+    loops (total length ``L``), moved ``inset`` along the inward normal of its
+    edge (``inset=0``: on the boundary, for natural boundaries; ``inset ≈ h``
+    for Dirichlet ones).
+    """
+    n = count(n, "sensors")
+    if mesh.dim() != 2:
+        raise ValueError(f"boundary_points needs a 2-D mesh; got dim={mesh.dim()}")
+    if not (np.isfinite(inset) and inset >= 0):
+        raise ValueError(f"inset={inset!r} is not allowed; expected a finite number >= 0")
+    starts, ends = [], []
+    for loop in _boundary_loops(mesh):
+        starts.append(mesh.p[:, loop].T)
+        ends.append(mesh.p[:, np.roll(loop, -1)].T)
+    a, b = np.concatenate(starts), np.concatenate(ends)
+    length = np.linalg.norm(b - a, axis=1)
+    cum = np.concatenate([[0.0], np.cumsum(length)])
+    s = (np.arange(n) + 0.5) * cum[-1] / n
+    e = np.clip(np.searchsorted(cum, s, side="right") - 1, 0, len(a) - 1)
+    t = ((s - cum[e]) / length[e])[:, None]
+    tangent = (b[e] - a[e]) / length[e][:, None]
+    inward = np.stack([-tangent[:, 1], tangent[:, 0]], axis=1)  # domain on the left
+    return a[e] + t * (b[e] - a[e]) + inset * inward
+
+
+def _halton(n: int, base: int) -> np.ndarray:
+    out = np.zeros(n)
+    for i in range(n):
+        f, k, x = 1.0, i + 1, 0.0
+        while k:
+            f /= base
+            x += f * (k % base)
+            k //= base
+        out[i] = x
+    return out
+
+
+def interior_points(mesh, n: int, margin: float = 0.1) -> np.ndarray:
+    """``n`` deterministic, well-spread points inside ``mesh`` (2-D Halton sequence).
+
+    Candidates fill the bounding box shrunk by ``margin`` (a fraction of its size)
+    on each side; those outside the mesh (holes, re-entrant corners) are skipped.
+    """
+    n = count(n, "sensors")
+    lo, hi = mesh.p.min(axis=1), mesh.p.max(axis=1)
+    lo, hi = lo + margin * (hi - lo), hi - margin * (hi - lo)
+    found, m = np.zeros((0, 2)), 0
+    while len(found) < n:
+        m = max(2 * m, 2 * n)
+        cand = lo + (hi - lo) * np.stack([_halton(m, 2), _halton(m, 3)], axis=1)
+        bad = outside(mesh, cand)
+        found = np.delete(cand, bad, axis=0)
+        if m > 1000 * n:
+            raise ValueError(f"could not place {n} sensors inside the mesh (margin={margin})")
+    return found[:n]
+
+
+def sensor_spec(value, name: str = "sensors"):
+    """Settings rule: an int ``>= 1`` (a count to place) or coordinates ``(n, 2)``.
+
+    Strings from ``--set`` are parsed: ``"16"`` → 16, ``"[[0.5, 0.5], [0.2, 0.3]]"``
+    → coordinates.
+    """
+    if isinstance(value, str):
+        try:
+            value = ast.literal_eval(value.strip())
+        except (ValueError, SyntaxError):
+            raise ValueError(f"{name}={value!r} is not allowed; expected an integer count >= 1 or "
+                             "coordinates such as [[0.5, 0.5], [0.2, 0.3]]") from None
+    if isinstance(value, bool):
+        raise ValueError(f"{name}={value!r} is not allowed; expected an integer count >= 1 or coordinates")
+    if isinstance(value, Integral):
+        return count(value, name)
+    if isinstance(value, float) and value.is_integer():
+        return count(int(value), name)
+    P = _as_points(value, 2)
+    return P
