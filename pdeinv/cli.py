@@ -111,6 +111,10 @@ def cmd_train(args) -> int:
     if out.exists() and not out.is_dir():
         raise UsageError(f"--out {str(out)!r} is a file; expected a directory")
     hidden = _hidden(args.hidden) if args.hidden else None
+    if args.threads is not None:
+        if args.threads < 1:
+            raise UsageError(f"--threads {args.threads} is not allowed; expected an integer >= 1")
+        torch.set_num_threads(args.threads)
     problem = pdeinv.load_problem(args.problem, **parse_sets(args.set))
     rule, hp = make_rule(args.method, problem.name, lr=args.lr, eta=args.eta, tau=args.tau,
                          batch_size=args.batch_size, hidden=hidden)
@@ -170,6 +174,9 @@ def build_parser() -> argparse.ArgumentParser:
     t.add_argument("--n-train", type=int, default=1024)
     t.add_argument("--n-test", type=int, default=128)
     t.add_argument("--eval-every", type=int, default=50)
+    t.add_argument("--threads", type=int, default=None,
+                   help="torch threads (small networks on a busy machine run faster with 1; "
+                        "set OMP_NUM_THREADS=1 to limit numpy's BLAS as well)")
     t.add_argument("--overwrite", action="store_true", help="replace an existing DIR/metrics.json")
     t.set_defaults(func=cmd_train)
     return p

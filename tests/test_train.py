@@ -88,6 +88,21 @@ def test_time_budget_and_callbacks_stop_training(heat):
     assert seen == list(range(1, 8)) and r.metrics["steps"] == 7 and "x_err" in r.history[-1]
 
 
+def test_default_model_comes_from_the_problem_and_learns_input_scaling():
+    """``model=None`` -> ``problem.model()`` (a module's ``model_factory``), scaled from y_train."""
+    from pdeinv.nets import mlp
+
+    problem = pdeinv.load_problem("heat_1d", n=16, backend="modal")
+    problem.model_factory = mlp(hidden=(8,))
+    trainer = Trainer(problem, GD(adam(1e-3)), steps=2, n_train=32, n_test=8, batch_size=8,
+                      progress=False)
+    model = trainer.fit().model
+    assert isinstance(model, MLP) and model.body[0].out_features == 8
+    y_train, _ = trainer._data()
+    np.testing.assert_allclose(model.shift.numpy(), y_train.mean(0).numpy(), rtol=1e-6)
+    assert float(model.scale) == pytest.approx(float((y_train - y_train.mean(0)).std()), rel=1e-6)
+
+
 def test_any_strategy_object_plugs_in(heat):
     """The trainer only calls rule.init / rule.step: a new rule needs no trainer change."""
 
