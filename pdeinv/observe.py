@@ -10,6 +10,7 @@ Placement helpers return coordinates of shape ``(n, dim)``:
 
 * :func:`boundary_points` — ``n`` points evenly spaced by arc length along the
   mesh boundary (all boundary loops), optionally moved ``inset`` inward;
+* :func:`place` — either of the two for a count, or given coordinates as they are;
 * :func:`interior_points` — ``n`` well-spread points inside the mesh (Halton
   sequence over the bounding box, kept if inside and at least ``margin`` from
   the bounding box's edge).
@@ -94,7 +95,7 @@ def sensor_matrix(disc, points) -> sp.csr_matrix:
 # -- placement -----------------------------------------------------------------------------
 
 
-def _boundary_loops(mesh) -> list[np.ndarray]:
+def boundary_loops(mesh) -> list[np.ndarray]:
     """Closed boundary polygons of a 2-D mesh as node-index arrays, each counter-clockwise
     around the domain on its left (outer loop CCW, holes CW)."""
     facets = mesh.boundary_facets()
@@ -135,7 +136,7 @@ def boundary_points(mesh, n: int, inset: float = 0.0) -> np.ndarray:
     if not (np.isfinite(inset) and inset >= 0):
         raise ValueError(f"inset={inset!r} is not allowed; expected a finite number >= 0")
     starts, ends = [], []
-    for loop in _boundary_loops(mesh):
+    for loop in boundary_loops(mesh):
         starts.append(mesh.p[:, loop].T)
         ends.append(mesh.p[:, np.roll(loop, -1)].T)
     a, b = np.concatenate(starts), np.concatenate(ends)
@@ -179,6 +180,19 @@ def interior_points(mesh, n: int, margin: float = 0.1) -> np.ndarray:
         if m > 1000 * n:
             raise ValueError(f"could not place {n} sensors inside the mesh (margin={margin})")
     return found[:n]
+
+
+def place(mesh, spec, where: str = "boundary", inset: float = 0.0) -> np.ndarray:
+    """Coordinates ``(n, dim)`` from a :func:`sensor_spec` value: a count is placed by
+    :func:`boundary_points` (``where='boundary'``, moved ``inset`` inward) or
+    :func:`interior_points` (``where='inside'``); coordinates pass through."""
+    if isinstance(spec, Integral) and not isinstance(spec, bool):
+        if where == "boundary":
+            return boundary_points(mesh, spec, inset=inset)
+        if where == "inside":
+            return interior_points(mesh, spec)
+        raise ValueError(f"where={where!r} is not allowed; expected 'boundary' or 'inside'")
+    return _as_points(spec, mesh.dim())
 
 
 def sensor_spec(value, name: str = "sensors"):

@@ -1,0 +1,47 @@
+"""Heat on the unit square (or a mesh file), u = 0 on the boundary: recover u(0) from sensor time series.
+
+``sensors`` point sensors inside the domain record u every ``record_every``
+θ-scheme steps (record-major ``y.reshape(B, R, n_s)``, see
+:mod:`pdeinv.physics.sensors`). Sensor runs always time-step (no modal
+backend, hence no ``backend`` setting). Given coordinates on the Dirichlet
+boundary are refused: the field is 0 there.
+
+Defaults: κ = 0.05, T = 1 (diffusion length √(κT) ≈ 0.22, about the sensor
+spacing, so every point of the domain reaches a sensor), 32×32×2 P1 triangles
+(961 unknowns), 100 backward-Euler steps, 25 sensors (Halton points in the
+inner 80% of the box), every 10th step recorded (10 records, 250 observations).
+
+Inverse simulator: :func:`pdeinv.inverse.default_inverse` — for this generic
+operator a Tikhonov-regularized block-CG solve on ``(PᵀP + αM)Δx = Pᵀ(y − y₀)``,
+``α`` relative to ``λ_max(P*P)`` (power iteration on first use). Measured on the
+defaults (8 bump samples from x₀ = 0, noise-free): default α (1e-8 relative)
+~60 iterations, 2.3 s, relative L² error 0.065 — 25 sensors see the smooth part only.
+"""
+
+from functools import partial
+
+from pdeinv import mesh, observe, scenes
+from pdeinv import settings as s
+from pdeinv.forms import discretize
+from pdeinv.inverse import default_inverse
+from pdeinv.physics import Heat
+from pdeinv.physics.sensors import HeatSensors
+from pdeinv.problem import Problem
+from pdeinv.sampling import gaussian_bumps
+
+SETTINGS = {**{k: v for k, v in scenes.HEAT.items() if k != "backend"},
+            "kappa": (0.05, s.positive), "n": (32, s.positive_int), "mesh": (None, s.optional_path),
+            "sensors": (25, observe.sensor_spec), "record_every": (10, s.positive_int)}
+
+
+def make(**overrides):
+    cfg = s.resolve(SETTINGS, overrides, "heat_sensors_2d")
+    m = mesh.load(cfg["mesh"]) if cfg["mesh"] else mesh.unit_square(cfg["n"])
+    disc = discretize(m, cfg["element"])
+    points = observe.place(m, cfg["sensors"], "inside")
+    heat = Heat(disc.M, disc.K, kappa=cfg["kappa"], T=cfg["T"], steps=cfg["steps"],
+                scheme=cfg["scheme"], backend="steps", measure=disc.measure, dim=disc.dim)
+    op = HeatSensors(heat, observe.sensor_matrix(disc, points), cfg["record_every"])
+    return Problem("heat_sensors_2d", disc, op, partial(gaussian_bumps, disc.points),
+                   settings={**cfg, "sensor_points": points}, noise=cfg["noise"],
+                   inverse_simulator=default_inverse(op, disc, noise=cfg["noise"]))
