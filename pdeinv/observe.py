@@ -35,7 +35,9 @@ def _as_points(points, dim: int) -> np.ndarray:
     try:
         P = np.asarray(points, dtype=float)
     except (TypeError, ValueError):
-        raise ValueError(f"sensors={points!r} is not allowed; expected coordinates of shape (n, {dim})") from None
+        raise ValueError(
+            f"sensors={points!r} is not allowed; expected coordinates of shape (n, {dim})"
+        ) from None
     if dim == 1 and P.ndim == 1:
         P = P[:, None]
     if P.ndim != 2 or P.shape[1] != dim:

@@ -145,7 +145,8 @@ def test_heat_sensors_reuse_a_stepping_backend():
     stepping = Heat(d.M, d.K, backend="steps")
     assert HeatSensors(stepping, S).stepping is stepping.backend
     modal = Heat(d.M, d.K, kappa=0.05, steps=10, backend="modal")
-    op, ref = HeatSensors(modal, S, 10), HeatSensors(Heat(d.M, d.K, kappa=0.05, steps=10, backend="steps"), S, 10)
+    stepped = Heat(d.M, d.K, kappa=0.05, steps=10, backend="steps")
+    op, ref = HeatSensors(modal, S, 10), HeatSensors(stepped, S, 10)
     x = np.random.default_rng(0).standard_normal((2, d.N))
     np.testing.assert_allclose(op.forward(x), ref.forward(x), rtol=1e-12)
 
@@ -171,7 +172,8 @@ def test_string_overrides_from_the_cli():
 # -- bad input --------------------------------------------------------------------------------------
 
 @pytest.mark.parametrize("name, overrides, match", [
-    ("wave_sensors_2d", dict(sensors=[[0.5, 0.5], [1.5, 0.5]]), r"outside the mesh.*sensor 1 at \[1.5, 0.5\]"),
+    ("wave_sensors_2d", dict(sensors=[[0.5, 0.5], [1.5, 0.5]]),
+     r"outside the mesh.*sensor 1 at \[1.5, 0.5\]"),
     ("heat_sensors_2d", dict(sensors=[[-0.1, 0.2]]), r"outside the mesh.*allowed: points inside"),
     ("heat_sensors_2d", dict(sensors=[[0.0, 0.5]]), r"sensor 0 at \[0.0, 0.5\].*Dirichlet boundary"),
     ("wave_sensors_2d", dict(boundary="dirichlet", sensors=[[0.5, 1.0]]), r"Dirichlet boundary"),
@@ -182,7 +184,8 @@ def test_string_overrides_from_the_cli():
     ("heat_sensors_2d", dict(sensors=[[0.5, 0.5, 0.5]]), r"shape \(1, 3\); expected \(n, 2\)"),
     ("heat_sensors_2d", dict(sensors=[[np.nan, 0.5]]), r"NaN"),
     ("wave_sensors_2d", dict(record_every=0), r"record_every=0.*integer >= 1"),
-    ("wave_sensors_2d", dict(steps=10, record_every=3), r"record_every=3 does not divide steps=10.*1, 2, 5, 10"),
+    ("wave_sensors_2d", dict(steps=10, record_every=3),
+     r"record_every=3 does not divide steps=10.*1, 2, 5, 10"),
     ("heat_sensors_2d", dict(backend="modal"), r"unknown setting.*'backend'"),
     ("heat_plate", dict(refine=-1), r"refine=-1.*integer >= 0"),
 ])
