@@ -87,7 +87,7 @@ class Trainer:
     fit_scaling: bool = True
     callbacks: list[Callback] = field(default_factory=list)
     progress: bool | None = None
-    dtype: torch.dtype = torch.float32
+    dtype: torch.dtype | None = None  # None: the model's own parameter dtype (float32 for the default MLP)
     history: list[dict] = field(default_factory=list, init=False)
 
     def __post_init__(self):
@@ -108,7 +108,8 @@ class Trainer:
     def _data(self):
         x, y = self.problem.sample(self.n_train, _seed(self.seed, 1))
         xt, yt = self.problem.sample(self.n_test, _seed(self.seed, 2))
-        t = lambda a: torch.as_tensor(a, dtype=self.dtype)  # noqa: E731
+        dtype = self.dtype or torch.float32
+        t = lambda a: torch.as_tensor(a, dtype=dtype)  # noqa: E731
         return t(y), (xt, yt, t(yt))
 
     @torch.no_grad()
@@ -132,6 +133,8 @@ class Trainer:
         if self.model is None:
             torch.manual_seed(self.seed)
             self.model = self.problem.model()
+        if self.dtype is None:
+            self.dtype = getattr(next(iter(self.model.parameters()), None), "dtype", torch.float32)
         model = self.model.to(self.dtype)
         y_train, test = self._data()
         if self.fit_scaling:
