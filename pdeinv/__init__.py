@@ -4,7 +4,7 @@ The pipeline, upstream to downstream: mesh → forms → physics (operators with
 exact adjoints) → autograd bridge / inverse simulators → update rules → trainer.
 """
 
-from . import mesh
+from . import mesh, observe
 from .autograd import apply
 from .forms import Discretization, discretize
 from .inverse import (
@@ -17,7 +17,8 @@ from .inverse import (
     TimeReversal,
     default_inverse,
 )
-from .physics import Heat, LinearOperator, Matrix, Modal, Stepping, Wave
+from .observe import sensor_matrix
+from .physics import Heat, HeatSensors, LinearOperator, Matrix, Modal, Stepping, Wave, WaveSensors
 from .problem import Problem, available, load_problem
 from .solvers import AMGCG, Cholesky, SuperLU, amg_cg, default_solver
 
@@ -34,6 +35,7 @@ __all__ = [
     "Cholesky",
     "Discretization",
     "Heat",
+    "HeatSensors",
     "LinearOperator",
     "Matrix",
     "Modal",
@@ -41,6 +43,7 @@ __all__ = [
     "Stepping",
     "SuperLU",
     "Wave",
+    "WaveSensors",
     "amg_cg",
     "apply",
     "default_solver",
@@ -48,5 +51,7 @@ __all__ = [
     "discretize",
     "load_problem",
     "mesh",
+    "observe",
+    "sensor_matrix",
 ]
 __version__ = "0.1.0"
