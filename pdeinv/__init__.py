@@ -17,12 +17,25 @@ from .inverse import (
     TimeReversal,
     default_inverse,
 )
+from .methods import GD, HIG, SIP, NonFiniteError, adam, sgd
+from .nets import mlp
 from .observe import sensor_matrix
 from .physics import Heat, HeatSensors, LinearOperator, Matrix, Modal, Stepping, Wave, WaveSensors
 from .problem import Problem, available, load_problem
 from .solvers import AMGCG, Cholesky, SuperLU, amg_cg, default_solver
+from .train import Result, Trainer, train
 
 __all__ = [
+    "GD",
+    "HIG",
+    "SIP",
+    "NonFiniteError",
+    "Result",
+    "Trainer",
+    "adam",
+    "mlp",
+    "sgd",
+    "train",
     "Discrepancy",
     "FixedAlpha",
     "ModalTikhonov",

@@ -81,7 +81,9 @@ def test_heat_cg_agrees_with_modal():
 
 
 def test_generic_fallback_for_any_operator():
-    """A plain matrix operator gets a CG inverse from default_inverse; exact at y₀, inverts when well posed."""
+    """A plain matrix operator gets a CG inverse from default_inverse.
+
+    It is exact at y₀ and inverts when the problem is well posed."""
     A = np.random.default_rng(0).standard_normal((30, 20))
     op = pdeinv.Matrix(A)
     inv = default_inverse(op)
@@ -94,7 +96,9 @@ def test_generic_fallback_for_any_operator():
 
 
 def test_discrepancy_principle():
-    """Morozov on noisy heat_1d: residual ≈ τ·noise (within 10%), x-error within 1.5× the best α on a log grid."""
+    """Morozov on noisy heat_1d: residual ≈ τ·noise (within 10%).
+
+    The x-error is within 1.5× that of the best α on a log grid."""
     noise = 0.01
     p = pdeinv.load_problem("heat_1d", n=128, noise=noise)
     op = p.operator

@@ -8,9 +8,9 @@ modal backend). A rule returns Î± of shape ``(B,)``. Pass a number for a fixed Î
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 from numbers import Real
-from typing import Callable
 
 import numpy as np
 
