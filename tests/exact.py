@@ -37,3 +37,12 @@ def fitted_rate(hs, errs):
 
 def load(name, **kw):
     return pdeinv.load_problem(name, **kw)
+
+
+def dot_test(op, B=5, seed=0):
+    """|⟨Px, r⟩ − ⟨x, Pᵀr⟩| / (‖Px‖‖r‖), summed over a random batch."""
+    rng = np.random.default_rng(seed)
+    x = rng.standard_normal((B, op.n_in))
+    r = rng.standard_normal((B, op.n_out))
+    Px = op.forward(x)
+    return abs(np.vdot(Px, r) - np.vdot(x, op.adjoint(r))) / (np.linalg.norm(Px) * np.linalg.norm(r))

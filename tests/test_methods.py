@@ -18,12 +18,8 @@ from pdeinv.methods import GD, HIG, SIP, NonFiniteError, adam, sgd
 
 
 @pytest.fixture(autouse=True)
-def _one_thread():
-    """Small dense work: one thread avoids OpenMP oversubscription on a shared 2-core box."""
-    n = torch.get_num_threads()
-    torch.set_num_threads(1)
+def _one_thread(one_thread):
     yield
-    torch.set_num_threads(n)
 
 
 def toy(n=5, m=5, seed=0):

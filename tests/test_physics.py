@@ -2,7 +2,7 @@
 
 import numpy as np
 import pytest
-from exact import load
+from exact import dot_test, load
 
 import pdeinv
 from pdeinv.physics import Heat
@@ -28,15 +28,6 @@ OPERATORS = {
 def op(request):
     name, kw = OPERATORS[request.param]
     return load(name, **kw).operator
-
-
-def dot_test(op, B=5, seed=0):
-    """|⟨Px, r⟩ − ⟨x, Pᵀr⟩| / (‖Px‖‖r‖), summed over a batch."""
-    rng = np.random.default_rng(seed)
-    x = rng.standard_normal((B, op.n_in))
-    r = rng.standard_normal((B, op.n_out))
-    Px = op.forward(x)
-    return abs(np.vdot(Px, r) - np.vdot(x, op.adjoint(r))) / (np.linalg.norm(Px) * np.linalg.norm(r))
 
 
 def test_dot_product(op):

@@ -13,7 +13,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import torch
-from exact import load
+from exact import dot_test, load
 
 import pdeinv
 from pdeinv import observe
@@ -38,15 +38,6 @@ SCENES = {
 def problem(request):
     name, kw = SCENES[request.param]
     return load(name, **kw)
-
-
-def dot_test(op, B=4, seed=0):
-    """|⟨Px, r⟩ − ⟨x, Pᵀr⟩| / (‖Px‖‖r‖)."""
-    rng = np.random.default_rng(seed)
-    x = rng.standard_normal((B, op.n_in))
-    r = rng.standard_normal((B, op.n_out))
-    Px = op.forward(x)
-    return abs(np.vdot(Px, r) - np.vdot(x, op.adjoint(r))) / (np.linalg.norm(Px) * np.linalg.norm(r))
 
 
 def test_shapes(problem):
