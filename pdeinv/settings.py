@@ -27,6 +27,7 @@ def _number(cast, check):
 
 
 positive_int = _number(int, _checks.count)
+nonnegative_int = _number(int, lambda value, name: _checks.count(value, name, minimum=0))
 positive = _number(float, _checks.positive)
 nonnegative = _number(float, _checks.nonnegative)
 

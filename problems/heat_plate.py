@@ -19,7 +19,7 @@ from pathlib import Path
 
 import numpy as np
 
-from pdeinv import _checks, mesh, scenes
+from pdeinv import mesh, scenes
 from pdeinv import settings as s
 from pdeinv.forms import discretize
 from pdeinv.inverse import default_inverse
@@ -31,17 +31,7 @@ from pdeinv.sampling import gaussian_bumps
 PLATE = Path(__file__).resolve().parent / "meshes" / "plate.msh"
 
 
-def refinements(value, name):
-    """Settings rule: an integer >= 0 (strings from ``--set`` are converted)."""
-    if isinstance(value, str):
-        try:
-            value = int(value)
-        except ValueError:
-            raise ValueError(f"{name}={value!r} is not an integer; expected an integer >= 0") from None
-    return _checks.count(value, name, minimum=0)
-
-
-SETTINGS = {**scenes.HEAT, "refine": (1, refinements), "mesh": (None, s.optional_path)}
+SETTINGS = {**scenes.HEAT, "refine": (1, s.nonnegative_int), "mesh": (None, s.optional_path)}
 
 
 def outer_dirichlet_dofs(basis) -> np.ndarray:
