@@ -1,0 +1,116 @@
+"""``pdeinv train``: train the default network on a problem and write its results to ``--out``."""
+
+from __future__ import annotations
+
+import json
+
+from . import UsageError, add_set_argument, parse_sets
+
+
+def _hidden(text: str) -> tuple[int, ...]:
+    try:
+        widths = tuple(int(w) for w in text.split(","))
+    except ValueError:
+        raise UsageError(f"--hidden {text!r} is not a comma-separated list of widths, e.g. 64,64") from None
+    if not widths or min(widths) < 1:
+        raise UsageError(f"--hidden {text!r}: widths must be integers >= 1")
+    return widths
+
+
+def _plot(history: list, path, title: str) -> None:
+    """y-loss and test errors against training wall time."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    t = [h["wall_s"] for h in history]
+    ev = [h for h in history if "x_err" in h]
+    fig, (a, b) = plt.subplots(1, 2, figsize=(9, 3.5), layout="constrained")
+    a.semilogy(t, [h["loss"] for h in history], lw=0.8)
+    a.set(xlabel="training wall time [s]", ylabel="batch y-loss ½‖P f(y*) − y*‖²", title=title)
+    b.semilogy([h["wall_s"] for h in ev], [h["x_err"] for h in ev], "o-", label="x error")
+    b.semilogy([h["wall_s"] for h in ev], [h["y_err"] for h in ev], "s-", label="y error")
+    b.set(xlabel="training wall time [s]", ylabel="relative L²(Ω) error (test set)")
+    b.legend()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def cmd_train(args) -> int:
+    """Train the default network on a problem; write metrics.json, history.csv, training.png."""
+    from pathlib import Path
+
+    import torch
+
+    import pdeinv
+    from pdeinv.methods.base import NonFiniteError
+    from pdeinv.methods.presets import make_rule
+    from pdeinv.nets import MLP
+    from pdeinv.train import Trainer, write_csv
+
+    out = Path(args.out)
+    if (out / "metrics.json").exists() and not args.overwrite:
+        raise UsageError(f"{out / 'metrics.json'} exists; choose another --out or pass --overwrite")
+    if out.exists() and not out.is_dir():
+        raise UsageError(f"--out {str(out)!r} is a file; expected a directory")
+    hidden = _hidden(args.hidden) if args.hidden else None
+    if args.threads is not None:
+        if args.threads < 1:
+            raise UsageError(f"--threads {args.threads} is not allowed; expected an integer >= 1")
+        torch.set_num_threads(args.threads)
+    problem = pdeinv.load_problem(args.problem, **parse_sets(args.set))
+    rule, hp = make_rule(args.method, problem.name, lr=args.lr, eta=args.eta, tau=args.tau,
+                         batch_size=args.batch_size, hidden=hidden)
+    torch.manual_seed(args.seed)
+    if hp["hidden"] is not None:
+        model = MLP(problem.operator.n_out, problem.operator.n_in, hidden=tuple(hp["hidden"]))
+    else:
+        model = problem.model()
+    trainer = Trainer(problem, rule, model, steps=args.steps, time_budget=args.time_budget,
+                      n_train=args.n_train, n_test=args.n_test, batch_size=hp["batch_size"],
+                      seed=args.seed, eval_every=args.eval_every)
+    out.mkdir(parents=True, exist_ok=True)
+    try:
+        result = trainer.fit()
+    except NonFiniteError:
+        if trainer.history:
+            write_csv(trainer.history, out / "history.csv")
+        raise
+    metrics = {**result.metrics, "method": args.method, "hyperparameters": hp,
+               "settings": {k: v for k, v in problem.settings.items()},
+               "route": result.history[-1].get("route"), "torch_threads": torch.get_num_threads()}
+    (out / "metrics.json").write_text(json.dumps(metrics, indent=2, default=str))
+    write_csv(result.history, out / "history.csv")
+    _plot(result.history, out / "training.png", f"{problem.name}, {args.method}")
+    torch.save(result.model.state_dict(), out / "model.pt")
+    print(f"{problem.name} {args.method}: {metrics['steps']} steps in {metrics['wall_s']:.2f} s, "
+          f"x_err {metrics['x_err']:.4f}, y_err {metrics['y_err']:.4f} -> {out}")
+    return 0
+
+
+def add_parser(sub) -> None:
+    from pdeinv.methods.presets import METHODS
+
+    t = sub.add_parser("train", help="train a network with GD, Adam, SIP or HIG; write metrics.json")
+    t.add_argument("problem")
+    t.add_argument("--method", choices=sorted(METHODS), default="adam")
+    t.add_argument("--steps", type=int, default=1000)
+    t.add_argument("--time-budget", type=float, default=None, metavar="SECONDS",
+                   help="also stop once training wall time exceeds this")
+    t.add_argument("--seed", type=int, default=0)
+    t.add_argument("--out", required=True, metavar="DIR")
+    add_set_argument(t)
+    t.add_argument("--lr", type=float, default=None, help="optimizer learning rate (gd, adam, sip)")
+    t.add_argument("--eta", type=float, default=None, help="step scale η (sip, hig)")
+    t.add_argument("--tau", type=float, default=None, help="relative singular-value cut (hig)")
+    t.add_argument("--batch-size", type=int, default=None)
+    t.add_argument("--hidden", default=None, metavar="W,W", help="MLP hidden widths, e.g. 64,64")
+    t.add_argument("--n-train", type=int, default=1024)
+    t.add_argument("--n-test", type=int, default=128)
+    t.add_argument("--eval-every", type=int, default=50)
+    t.add_argument("--threads", type=int, default=None,
+                   help="torch threads (small networks on a busy machine run faster with 1; "
+                        "set OMP_NUM_THREADS=1 to limit numpy's BLAS as well)")
+    t.add_argument("--overwrite", action="store_true", help="replace an existing DIR/metrics.json")
+    t.set_defaults(func=cmd_train)
