@@ -1,4 +1,4 @@
-"""Command line: ``pdeinv demo | train``, one module per subcommand in :mod:`pdeinv.commands`.
+"""Command line: ``pdeinv demo | train | ...``, one module per subcommand in :mod:`pdeinv.commands`.
 
 Errors a user can fix (bad settings, missing files) end with exit code 2 and a
 one-line message on stderr, never a traceback.
@@ -7,20 +7,28 @@ one-line message on stderr, never a traceback.
 from __future__ import annotations
 
 import argparse
+import importlib
+import pkgutil
 import sys
 
-from .commands import UsageError, demo, parse_sets, train
+from . import commands
+from .commands import UsageError, parse_sets
 
 __all__ = ["UsageError", "build_parser", "main", "parse_sets"]
 
-#: subcommand modules, in the order ``pdeinv --help`` lists them
-COMMANDS = (demo, train)
+
+def command_modules() -> list:
+    """Every module in :mod:`pdeinv.commands` with an ``add_parser``, ordered by its ``ORDER``."""
+    found = [importlib.import_module(f"{commands.__name__}.{m.name}")
+             for m in pkgutil.iter_modules(commands.__path__)]
+    found = [m for m in found if hasattr(m, "add_parser")]
+    return sorted(found, key=lambda m: (getattr(m, "ORDER", 100), m.__name__))
 
 
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="pdeinv", description=__doc__.splitlines()[0])
     sub = p.add_subparsers(dest="command", required=True)
-    for module in COMMANDS:
+    for module in command_modules():
         module.add_parser(sub)
     return p
 

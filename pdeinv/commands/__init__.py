@@ -1,5 +1,6 @@
 """One module per ``pdeinv`` subcommand; each exposes ``add_parser(subparsers)``.
 
+``pdeinv.cli`` finds them by themselves (sorted by a module-level ``ORDER``).
 ``add_parser`` registers the subcommand's arguments and sets ``func`` (``args -> exit code``).
 Modules import their heavy dependencies inside ``func`` so ``pdeinv --help`` stays fast.
 """

@@ -6,6 +6,8 @@ import time
 
 from . import add_set_argument, parse_sets
 
+ORDER = 0
+
 
 def cmd_demo(args) -> int:
     """Build a heat problem, run forward and adjoint on a batch, print what happened."""

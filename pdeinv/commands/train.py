@@ -6,6 +6,8 @@ import json
 
 from . import UsageError, add_set_argument, parse_sets
 
+ORDER = 1
+
 
 def _hidden(text: str) -> tuple[int, ...]:
     try:
