@@ -26,7 +26,7 @@ def command_modules() -> list:
 
 
 def build_parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(prog="pdeinv", description=__doc__.splitlines()[0])
+    p = argparse.ArgumentParser(prog="pdeinv", description="PDE inverse problems on finite elements.")
     sub = p.add_subparsers(dest="command", required=True)
     for module in command_modules():
         module.add_parser(sub)
