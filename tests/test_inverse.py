@@ -16,8 +16,8 @@ from pdeinv.inverse import (
     default_inverse,
 )
 
-SMALL = {"heat_1d": {}, "heat_2d": {"n": 16}, "heat_2d_modal": {"n": 16, "backend": "modal"},
-         "wave_1d": {}, "wave_2d": {"n": 16}}
+SMALL = {"heat_1d": {}, "heat_2d": {"n": 16, "backend": "steps"},
+         "heat_2d_modal": {"n": 16, "backend": "modal"}, "wave_1d": {}, "wave_2d": {"n": 16}}
 
 
 def load(key):

@@ -78,8 +78,14 @@ def test_modal_keeps_few_modes_on_defaults():
     assert np.sum(g >= 1e-3 * g.max()) < 0.1 * op.n_in
 
 
+def test_auto_takes_modal_on_a_coarse_mesh_where_weyl_over_counts():
+    """n=16: Weyl's law predicts more modes than unknowns, yet all 225 dense modes beat 100 steps."""
+    op = load("heat_2d", n=16).operator
+    assert op.backend.name == "modal", op.choice
+
+
 def test_auto_prefers_stepping_when_few_steps_and_slow_decay():
-    op = load("heat_2d", n=16, steps=2, kappa=1e-4).operator
+    op = load("heat_2d", n=48, steps=2, kappa=1e-4).operator  # N = 2209: beyond dense modes
     assert op.backend.name == "steps", op.choice
 
 

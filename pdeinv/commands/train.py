@@ -40,7 +40,7 @@ def _plot(history: list, path, title: str) -> None:
 
 
 def cmd_train(args) -> int:
-    """Train the default network on a problem; write metrics.json, history.csv, training.png."""
+    """Train the default network; write metrics.json, history.csv, training.png, fields.vtu/png."""
     from pathlib import Path
 
     import torch
@@ -57,6 +57,8 @@ def cmd_train(args) -> int:
     if out.exists() and not out.is_dir():
         raise UsageError(f"--out {str(out)!r} is a file; expected a directory")
     hidden = _hidden(args.hidden) if args.hidden else None
+    if args.export_samples < 0:
+        raise UsageError(f"--export-samples {args.export_samples} is not allowed; expected an integer >= 0")
     if args.threads is not None:
         if args.threads < 1:
             raise UsageError(f"--threads {args.threads} is not allowed; expected an integer >= 1")
@@ -86,6 +88,12 @@ def cmd_train(args) -> int:
     write_csv(result.history, out / "history.csv")
     _plot(result.history, out / "training.png", f"{problem.name}, {args.method}")
     torch.save(result.model.state_dict(), out / "model.pt")
+    if args.export_samples:  # ParaView files and a picture of a few held-out samples
+        from pdeinv.export import export_run
+        from pdeinv.train import _seed
+
+        export_run(out, problem, result.model, *problem.sample(args.n_test, _seed(args.seed, 2)),
+                   samples=min(args.export_samples, args.n_test))
     print(f"{problem.name} {args.method}: {metrics['steps']} steps in {metrics['wall_s']:.2f} s, "
           f"x_err {metrics['x_err']:.4f}, y_err {metrics['y_err']:.4f} -> {out}")
     return 0
@@ -114,5 +122,7 @@ def add_parser(sub) -> None:
     t.add_argument("--threads", type=int, default=None,
                    help="torch threads (small networks on a busy machine run faster with 1; "
                         "set OMP_NUM_THREADS=1 to limit numpy's BLAS as well)")
+    t.add_argument("--export-samples", type=int, default=3, metavar="K",
+                   help="write fields.vtu (ParaView) and fields.png for K test samples (0: none)")
     t.add_argument("--overwrite", action="store_true", help="replace an existing DIR/metrics.json")
     t.set_defaults(func=cmd_train)

@@ -10,7 +10,7 @@ import math
 
 import numpy as np
 
-from .modes import TooManyModes, largest_eigenvalue, lowest_modes
+from .modes import DENSE_MAX, TooManyModes, largest_eigenvalue, lowest_modes
 
 
 def amplification(z, theta: float):
@@ -115,8 +115,11 @@ def choose(heat):
     """Pick the cheaper backend for one application of ``P`` per batch column.
 
     stepping ≈ n·(2·fill(LU) + 2·nnz(B)) flops;  modal ≈ 4·N·k / BLAS_ADVANTAGE, with
-    ``k`` from Weyl's law at the cut-off ``|r(dtκλ)|ⁿ = tol``. Modal is tried only if
-    ``k ≤ N/2``; if building it fails (too many modes, CN not truncatable) we step.
+    ``k = min(N, Weyl's count at the cut-off |r(dtκλ)|ⁿ = tol)``. Modal is tried if
+    ``k ≤ N/2`` or the mesh is small enough for a dense eigendecomposition (all modes,
+    ``N ≤ DENSE_MAX``: Weyl over-estimates on coarse meshes, and a dense N×N product
+    still beats stepping there); if building it fails (too many modes, CN not
+    truncatable) we step.
     """
     N = heat.n_in
     # cut-off eigenvalue: solve |r(z)|^n = tol for z on the damped branch (z ≤ 2/(1-θ) region)
@@ -124,14 +127,14 @@ def choose(heat):
     th = heat.theta
     z_cut = (1.0 - rho) / (th * rho + (1.0 - th))  # r(z) = rho, decreasing branch
     lam_cut = z_cut / (heat.dt * heat.kappa)
-    k_est = weyl_count(heat, lam_cut)
+    k_est = min(weyl_count(heat, lam_cut), N)
     stepping = Stepping(heat)
     fill = getattr(stepping.lu, "fill", 10 * heat.M.nnz)
     cost_steps = heat.steps * (2 * fill + 2 * stepping.B.nnz)
     cost_modal = 4 * N * k_est / BLAS_ADVANTAGE
     why = (f"modal≈{cost_modal:.3g} flops/column with ~{k_est:.0f} of {N} modes (Weyl) vs "
            f"steps≈{cost_steps:.3g}")
-    if k_est <= N / 2 and cost_modal < cost_steps:
+    if (k_est <= N / 2 or N <= DENSE_MAX) and cost_modal < cost_steps:
         try:
             modal = Modal(heat)
         except (TooManyModes, ValueError) as err:
