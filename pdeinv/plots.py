@@ -79,3 +79,13 @@ def save_fields_png(path, points, cells, fields: dict, samples=None, title: str 
     fig.savefig(path, dpi=dpi)
     plt.close(fig)
     return path
+
+
+def plot_prediction(problem, x_true, x_pred, samples=None, title: str = ""):
+    """:func:`plot_fields` for free-unknown fields ``(B, N)`` of ``problem`` (no file needed)."""
+    from .export import vertex_values
+
+    mesh = problem.disc.basis.mesh
+    fields = {"x_true": vertex_values(problem.disc, np.atleast_2d(x_true)),
+              "x_pred": vertex_values(problem.disc, np.atleast_2d(x_pred))}
+    return plot_fields(mesh.p.T, mesh.t.T, fields, samples=samples, title=title)
