@@ -16,7 +16,8 @@ def test_notebooks_are_found_and_stripped():
     assert len(NOTEBOOKS) >= 3
     for path in NOTEBOOKS:
         nb = nbformat.read(path, as_version=4)
-        dirty = [i for i, c in enumerate(nb.cells) if c.cell_type == "code" and (c.outputs or c.execution_count)]
+        code = [(i, c) for i, c in enumerate(nb.cells) if c.cell_type == "code"]
+        dirty = [i for i, c in code if c.outputs or c.execution_count]
         assert not dirty, f"{path.name}: cells {dirty} keep outputs; strip them before committing"
 
 
@@ -28,4 +29,6 @@ def test_notebook_runs(path, monkeypatch, tmp_path):
     monkeypatch.setenv("PDEINV_QUICK", "1")
     monkeypatch.setenv("MPLBACKEND", "Agg")
     nb = nbformat.read(path, as_version=4)
-    NotebookClient(nb, timeout=300, kernel_name="python3", resources={"metadata": {"path": str(tmp_path)}}).execute()
+    client = NotebookClient(nb, timeout=300, kernel_name="python3",
+                            resources={"metadata": {"path": str(tmp_path)}})
+    client.execute()
