@@ -4,7 +4,7 @@ The pipeline, upstream to downstream: mesh → forms → physics (operators with
 exact adjoints) → autograd bridge / inverse simulators → update rules → trainer.
 """
 
-from . import mesh, observe
+from . import export, mesh, observe, plots
 from .autograd import apply
 from .forms import Discretization, discretize
 from .inverse import (
@@ -63,8 +63,10 @@ __all__ = [
     "available",
     "discretize",
     "load_problem",
+    "export",
     "mesh",
     "observe",
+    "plots",
     "sensor_matrix",
 ]
 __version__ = "0.1.0"
