@@ -128,28 +128,40 @@ def boundary_points(mesh, n: int, inset: float = 0.0) -> np.ndarray:
     """``n`` points at equal arc-length spacing along the whole boundary of a 2-D mesh.
 
     Point ``k`` sits at arc length ``(k + ½) L/n`` of the concatenated boundary
-    loops (total length ``L``), moved ``inset`` along the inward normal of its
-    edge (``inset=0``: on the boundary, for natural boundaries; ``inset ≈ h``
-    for Dirichlet ones).
+    loops (total length ``L``), moved ``inset`` inward (``inset=0``: on the
+    boundary, for natural boundaries; ``inset ≈ h`` for Dirichlet ones). The
+    move is interpolated along each edge between *vertex offsets*
+    ``o = inset (n₁ + n₂)/(1 + n₁·n₂)`` (``n₁, n₂`` the unit inward normals of the
+    two edges meeting there), so every moved point is exactly ``inset`` from the
+    line of its own edge, and a point at a corner is ``inset`` from both edges
+    instead of sliding along the neighbouring one (which, on a Dirichlet
+    boundary, would leave it reading 0).
     """
     n = count(n, "sensors")
     if mesh.dim() != 2:
         raise ValueError(f"boundary_points needs a 2-D mesh; got dim={mesh.dim()}")
     if not (np.isfinite(inset) and inset >= 0):
         raise ValueError(f"inset={inset!r} is not allowed; expected a finite number >= 0")
-    starts, ends = [], []
+    starts, ends, offs_a, offs_b = [], [], [], []
     for loop in boundary_loops(mesh):
-        starts.append(mesh.p[:, loop].T)
-        ends.append(mesh.p[:, np.roll(loop, -1)].T)
+        a, b = mesh.p[:, loop].T, mesh.p[:, np.roll(loop, -1)].T
+        tangent = (b - a) / np.linalg.norm(b - a, axis=1)[:, None]
+        normal = np.stack([-tangent[:, 1], tangent[:, 0]], axis=1)  # domain on the left
+        prev = np.roll(normal, 1, axis=0)  # the edge ending at vertex a
+        cos = np.einsum("ij,ij->i", prev, normal)
+        vertex = inset * (prev + normal) / np.maximum(1.0 + cos, 0.1)[:, None]  # offset at vertex a
+        starts.append(a)
+        ends.append(b)
+        offs_a.append(vertex)
+        offs_b.append(np.roll(vertex, -1, axis=0))
     a, b = np.concatenate(starts), np.concatenate(ends)
+    oa, ob = np.concatenate(offs_a), np.concatenate(offs_b)
     length = np.linalg.norm(b - a, axis=1)
     cum = np.concatenate([[0.0], np.cumsum(length)])
     s = (np.arange(n) + 0.5) * cum[-1] / n
     e = np.clip(np.searchsorted(cum, s, side="right") - 1, 0, len(a) - 1)
     t = ((s - cum[e]) / length[e])[:, None]
-    tangent = (b[e] - a[e]) / length[e][:, None]
-    inward = np.stack([-tangent[:, 1], tangent[:, 0]], axis=1)  # domain on the left
-    return a[e] + t * (b[e] - a[e]) + inset * inward
+    return a[e] + t * (b[e] - a[e]) + (1 - t) * oa[e] + t * ob[e]
 
 
 def _halton(n: int, base: int) -> np.ndarray:

@@ -148,10 +148,19 @@ def test_boundary_sensors_sit_on_the_boundary_and_inset_moves_them_inside():
     assert np.allclose(np.min(np.stack([on, 1 - on]), axis=(0, 2)), 0)
     inset = observe.boundary_points(m, 12, inset=0.125)
     dist = np.min(np.stack([inset, 1 - inset]), axis=(0, 2))  # to the nearest side
-    assert np.all((dist > 0) & (dist <= 0.125 + 1e-12))  # inside; nearer only to a corner's other side
-    assert np.sum(np.isclose(dist, 0.125)) >= 8
+    np.testing.assert_allclose(dist, 0.125)  # exactly inset from every side, corners included
     inside = observe.interior_points(m, 7)
     assert inside.shape == (7, 2) and len(observe.outside(m, inside)) == 0
+
+
+@pytest.mark.parametrize("n, sensors", [(3, 3), (4, 8), (5, 4)])
+def test_dirichlet_sensors_near_corners_are_moved_off_both_sides(n, sensors):
+    """Regression (found by the property tests): a sensor at a corner, moved along one side's
+    normal only, stayed on the other side and read 0 on a Dirichlet wall."""
+    p = load("wave_sensors_2d", n=n, sensors=sensors, boundary="dirichlet", steps=2, record_every=1)
+    P = p.settings["sensor_points"]
+    np.testing.assert_allclose(np.min(np.stack([P, 1 - P]), axis=(0, 2)), 1 / n)
+    assert np.all(np.abs(p.operator.S).sum(axis=1) > 0)
 
 
 def test_string_overrides_from_the_cli():
