@@ -36,11 +36,12 @@ Callback = Callable[[dict, torch.nn.Module], "bool | None"]
 
 @dataclass
 class Result:
-    """A finished run: the trained model, the per-step history and the final metrics."""
+    """A finished run: the trained model, the per-step history, the final metrics and rule state."""
 
     model: torch.nn.Module
     history: list[dict]
     metrics: dict
+    state: object = None
 
     def write_history(self, path) -> None:
         write_csv(self.history, path)
@@ -302,7 +303,7 @@ class Trainer:
             "n_params": sum(p.numel() for p in model.parameters() if p.requires_grad),
             "rejected_steps": sum(1 for h in self.history if "rejected" in h),
         }
-        return Result(model, self.history, metrics)
+        return Result(model, self.history, metrics, state)
 
 
 def _progress(total, enabled, initial=0):
