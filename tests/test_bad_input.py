@@ -163,7 +163,7 @@ CLI = [
     ("sensor-outside", ["heat_sensors_2d", "--set", "sensors=[[0.5, 0.5], [1.5, 0.5]]", "--set",
                         "record_every=1"], r"outside the mesh.*sensor 1 at \[1\.5, 0\.5\]"),
     ("batch-above-data", ["heat_1d", "--batch-size", "64"], r"batch_size=64 is larger than n_train=16"),
-    ("hig-over-budget", ["heat_2d", "--method", "hig", "--hidden", "256,256", "--batch-size", "64",
+    ("hig-over-budget", ["heat_1d", "--method", "hig", "--hidden", "2048,2048", "--batch-size", "64",
                          "--n-train", "64"],
      r"HIG Jacobian .* GB .*max_jacobian_gb"),
     ("lr-nan", ["heat_1d", "--lr", "nan"], r"lr=nan is not allowed; expected a finite number > 0"),

@@ -22,7 +22,7 @@ from pdeinv import Checkpoint
 from pdeinv.cli import main
 
 ROOT = Path(__file__).resolve().parents[1]
-STEPS = 150
+STEPS = 100
 ARGS = ["train", "heat_1d", "--set", "n=16", "--set", "steps=10", "--hidden", "16", "--steps", str(STEPS),
         "--n-train", "64", "--n-test", "16", "--batch-size", "8", "--eval-every", "40", "--threads", "1",
         "--seed", "3"]
@@ -41,16 +41,34 @@ def _temporaries(out: Path) -> set:
     return {n for n in os.listdir(out) if n.startswith(".checkpoint.pt.") and n.endswith(".tmp")}
 
 
+def _inode(path: Path):
+    try:
+        return path.stat().st_ino  # os.replace gives every new checkpoint a new inode
+    except FileNotFoundError:
+        return None
+
+
 def _wait_and_kill(proc, out: Path, stale: set, during_save: bool, rng) -> bool:
     """Kill ``proc`` once it is training: right as a new save's temporary appears (not one a
-    killed predecessor left), or at a random moment after that. False if it finished first."""
+    killed predecessor left), or a random number of saves (steps) later plus a random few ms --
+    counted in saves, not seconds, so a fast machine cannot finish the run first. False if it
+    finished anyway."""
     deadline = time.monotonic() + 60
-    while not ((out / "checkpoint.pt").exists() and _temporaries(out) - stale):
+    ckpt = out / "checkpoint.pt"
+    while not (ckpt.exists() and _temporaries(out) - stale):
         if proc.poll() is not None or time.monotonic() > deadline:
             return False
-        time.sleep(0.0005)
+        time.sleep(0.0002)
     if not during_save:
-        time.sleep(rng.uniform(0.0, 0.25))
+        saves, last = rng.randint(1, 12), _inode(ckpt)
+        while saves:
+            if proc.poll() is not None or time.monotonic() > deadline:
+                return False
+            now = _inode(ckpt)
+            saves -= now != last
+            last = now
+            time.sleep(0.0002)
+        time.sleep(rng.uniform(0.0, 0.004))
     if proc.poll() is not None:
         return False
     proc.send_signal(signal.SIGKILL)
