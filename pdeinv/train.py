@@ -198,6 +198,10 @@ class Trainer:
             raise FileNotFoundError(f"resume: there is no checkpoint at {str(ckpt.path)!r} to resume from "
                                     "(start without resume / --resume)")
         saved = ckpt.load()
+        missing = sorted({"identity", "model", "rule_state", "position", "rng", "history"} - set(saved))
+        if missing:
+            raise ValueError(f"checkpoint {str(ckpt.path)!r} lacks {', '.join(missing)}: not written by "
+                             "pdeinv.Trainer; delete it to start over")
         check_identity(saved["identity"], self.identity(model), ckpt.path)
         model.load_state_dict(saved["model"])  # copies into the same Parameters the optimizer holds
         state = self.rule.load_state_dict(state, saved["rule_state"])

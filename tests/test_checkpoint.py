@@ -119,6 +119,9 @@ def test_missing_and_corrupt_checkpoints(heat, tmp_path):
     torch.save({"something": 1}, ckpt.path)
     with pytest.raises(ValueError, match="is not a pdeinv checkpoint"):
         ckpt.load()
+    ckpt.save({"model": {}})  # a pdeinv file, but not a training run's
+    with pytest.raises(ValueError, match="lacks history, identity, position, rng, rule_state"):
+        trainer(heat, GD(), 2, ckpt, resume=True).fit()
 
 
 def test_save_is_atomic_and_cleans_up_after_a_killed_save(tmp_path):
