@@ -14,6 +14,7 @@ not evaluations, so runs can be compared at equal wall-clock time.
 from __future__ import annotations
 
 import csv
+import io
 import math
 import os
 import sys
@@ -26,7 +27,15 @@ import numpy as np
 import torch
 
 from ._checks import count, nonnegative, positive
-from .checkpoint import Checkpoint, check_identity, network_identity, plain, rng_states, set_rng_states
+from .checkpoint import (
+    Checkpoint,
+    atomic_write,
+    check_identity,
+    network_identity,
+    plain,
+    rng_states,
+    set_rng_states,
+)
 from .methods.base import NonFiniteError, Resumable, UpdateRule
 from .nets import fit_input_scaling
 
@@ -48,11 +57,13 @@ class Result:
 
 
 def write_csv(history: list[dict], path) -> None:
+    """Write ``history`` as CSV, atomically (a reader or a kill never sees half a file)."""
     keys = list(dict.fromkeys(k for row in history for k in row))
-    with open(path, "w", newline="") as fh:
-        writer = csv.DictWriter(fh, fieldnames=keys)
-        writer.writeheader()
-        writer.writerows(history)
+    text = io.StringIO(newline="")
+    writer = csv.DictWriter(text, fieldnames=keys)
+    writer.writeheader()
+    writer.writerows(history)
+    atomic_write(path, lambda fh: fh.write(text.getvalue().encode()))
 
 
 def _seed(seed: int, stream: int) -> int:
