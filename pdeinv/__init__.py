@@ -6,6 +6,7 @@ exact adjoints) → autograd bridge / inverse simulators → update rules → tr
 
 from . import export, mesh, observe, plots
 from .autograd import apply
+from .checkpoint import Checkpoint
 from .forms import Discretization, discretize
 from .inverse import (
     Discrepancy,
@@ -26,6 +27,7 @@ from .solvers import AMGCG, Cholesky, SuperLU, amg_cg, default_solver
 from .train import Result, Trainer, train
 
 __all__ = [
+    "Checkpoint",
     "GD",
     "HIG",
     "SIP",

@@ -2,6 +2,7 @@
 
 import numpy as np
 import pytest
+import torch
 from exact import load
 
 import pdeinv
@@ -97,3 +98,184 @@ def test_cli_reports_one_line_and_exit_code_2(capsys):
     assert len(err) == 1 and "T=-1.0" in err[0] and "Traceback" not in err[0]
     assert main(["demo", "heat_1d", "--set", "oops"]) == 2
     assert "KEY=VALUE" in capsys.readouterr().err
+
+
+# -- the catalogue: one row per wrong input, through the Python API and through the CLI ------------
+#
+# Cases elsewhere: tests above (overrides, arrays, problems, meshes, cells), tests/test_sensors.py
+# (sensor positions and layouts), tests/test_train.py (trainer settings, CLI method settings),
+# tests/test_checkpoint.py (checkpoints of other runs, corrupt files) and tests/test_nan_guard.py.
+# No explicit time-stepping scheme exists (heat: θ-scheme with θ >= ½, wave: Newmark β = ¼), so
+# there is no dt stability limit to exceed: every dt is accepted.
+
+@pytest.fixture(scope="module")
+def files(tmp_path_factory):
+    """Bad files of every kind, and a finished CLI run (heat_1d, n=16, hidden 8) to resume from."""
+    import meshio
+
+    d = tmp_path_factory.mktemp("bad")
+    (d / "file.txt").write_text("a file, not a folder")
+    (d / "nomake.py").write_text("x = 1\n")
+    (d / "wrongtype.py").write_text("def make(**kw):\n    return 42\n")
+    pts = np.array([[0, 0], [1, 0], [1, 1], [0, 1.0]])
+    meshio.write(d / "ok.msh", meshio.Mesh(pts, [("triangle", np.array([[0, 1, 2], [0, 2, 3]]))]),
+                 file_format="gmsh22", binary=False)
+    text = (d / "ok.msh").read_bytes()
+    (d / "truncated.msh").write_bytes(text[: len(text) // 2])
+    (d / "empty.msh").write_bytes(b"")
+    meshio.write(d / "quads.vtu", meshio.Mesh(pts, [("quad", np.array([[0, 1, 2, 3]]))]))
+    assert main(["train", "heat_1d", *SMALL, "--steps", "2", "--checkpoint-every", "1",
+                 "--out", str(d / "run")]) == 0
+    (d / "corrupt").mkdir()
+    good = (d / "run" / "checkpoint.pt").read_bytes()
+    (d / "corrupt" / "checkpoint.pt").write_bytes(good[: len(good) // 3])
+    return d
+
+
+#: a small, valid training run; each CLI row changes one thing
+SMALL = ["--set", "n=16", "--set", "steps=10", "--hidden", "8", "--n-train", "16", "--n-test", "8",
+         "--batch-size", "8", "--steps", "3", "--threads", "1"]
+OPTIONS = dict(zip(SMALL[4::2], SMALL[5::2]))  # --hidden 8, --n-train 16, ...
+
+#: (id, argv after ``pdeinv train``, the message (regex)); "{d}" is the folder of bad files
+CLI = [
+    ("unknown-problem", ["heat_3d"], r"unknown problem 'heat_3d'; available: .*heat_1d"),
+    ("missing-module", ["{d}/nope.py"], r"problem module '.*nope\.py' does not exist"),
+    ("module-without-make", ["{d}/nomake.py"], r"has no function make"),
+    ("make-returns-wrong-type", ["{d}/wrongtype.py"], r"make\(\) returned int; expected pdeinv\.Problem"),
+    ("unknown-override", ["heat_1d", "--set", "kapa=1"], r"unknown setting.*'kapa'.*allowed:.*kappa"),
+    ("override-not-a-number", ["heat_1d", "--set", "T=soon"], r"T='soon' is not a number"),
+    ("override-not-key-value", ["heat_1d", "--set", "kappa"], r"--set 'kappa' is not KEY=VALUE"),
+    ("T-negative", ["heat_1d", "--set", "T=-1"], r"T=-1\.0 is not allowed; expected a number > 0"),
+    ("T-zero", ["wave_1d", "--set", "T=0"], r"T=0\.0 is not allowed"),
+    ("steps-zero", ["heat_1d", "--set", "steps=0"], r"steps=0 is not allowed; expected an integer >= 1"),
+    ("n-negative", ["heat_1d", "--set", "n=-4"], r"n=-4 is not allowed"),
+    ("kappa-zero", ["heat_1d", "--set", "kappa=0"], r"kappa=0\.0 is not allowed; expected a number > 0"),
+    ("kappa-nan", ["heat_1d", "--set", "kappa=nan"], r"kappa=nan is not allowed; expected a finite"),
+    ("T-inf", ["heat_1d", "--set", "T=inf"], r"T=inf is not allowed; expected a finite"),
+    ("c-negative", ["wave_1d", "--set", "c=-1"], r"c=-1\.0 is not allowed"),
+    ("noise-negative", ["heat_1d", "--set", "noise=-0.1"], r"noise=-0\.1 is not allowed; expected .*>= 0"),
+    ("mesh-missing", ["heat_2d", "--set", "mesh={d}/missing.msh"], r"missing\.msh"),
+    ("mesh-empty", ["heat_2d", "--set", "mesh={d}/empty.msh"], r"could not be read"),
+    ("mesh-truncated", ["heat_2d", "--set", "mesh={d}/truncated.msh"], r"could not be read"),
+    ("mesh-corrupt", ["heat_2d", "--set", "mesh={d}/file.txt"], r"could not be read"),
+    ("mesh-quads", ["heat_2d", "--set", "mesh={d}/quads.vtu"], r"cell types \['quad'\]"),
+    ("sensor-outside", ["heat_sensors_2d", "--set", "sensors=[[0.5, 0.5], [1.5, 0.5]]", "--set",
+                        "record_every=1"], r"outside the mesh.*sensor 1 at \[1\.5, 0\.5\]"),
+    ("batch-above-data", ["heat_1d", "--batch-size", "64"], r"batch_size=64 is larger than n_train=16"),
+    ("hig-over-budget", ["heat_1d", "--method", "hig", "--hidden", "2048,2048", "--batch-size", "64",
+                         "--n-train", "64"],
+     r"HIG Jacobian .* GB .*max_jacobian_gb"),
+    ("lr-nan", ["heat_1d", "--lr", "nan"], r"lr=nan is not allowed; expected a finite number > 0"),
+    ("lr-negative", ["heat_1d", "--method", "sip", "--lr=-1e-3"], r"lr=-0\.001 is not allowed"),
+    ("max-failures-zero", ["heat_1d", "--max-failures", "0"], r"max_failures=0 is not allowed"),
+    ("checkpoint-every-negative", ["heat_1d", "--checkpoint-every", "-1"], r"--checkpoint-every -1"),
+    ("threads-zero", ["heat_1d", "--threads", "0"], r"--threads 0 is not allowed"),
+    ("out-is-a-file", ["heat_1d", "--out", "{d}/file.txt"], r"is a file; expected a directory"),
+    ("out-under-a-file", ["heat_1d", "--out", "{d}/file.txt/sub"], r"not a writable directory"),
+    ("out-not-writable", ["heat_1d", "--out", "/proc/pdeinv-test"], r"not a writable directory"),
+    ("out-has-a-run", ["heat_1d", "--out", "{d}/run"], r"metrics\.json exists; .*--resume.*--overwrite"),
+    ("resume-nothing", ["heat_1d", "--resume"], r"no checkpoint at '.*checkpoint\.pt' to resume from"),
+    ("resume-corrupt", ["heat_1d", "--resume", "--out", "{d}/corrupt"], r"corrupt or not a pdeinv"),
+    ("resume-other-problem", ["wave_1d", "--resume", "--out", "{d}/run"],
+     r"is of problem 'heat_1d', this run is 'wave_1d'"),
+    ("resume-other-settings", ["heat_1d", "--set", "kappa=0.02", "--resume", "--out", "{d}/run"],
+     r"kappa=0\.01 \(checkpoint\) vs 0\.02 \(this run\)"),
+    ("resume-other-network", ["heat_1d", "--hidden", "16", "--resume", "--out", "{d}/run"],
+     r"holds network MLP \(.*\(8, 15\).*this run's network is MLP \(.*\(16, 15\)"),
+    ("resume-other-method", ["heat_1d", "--method", "sip", "--resume", "--out", "{d}/run"],
+     r"written with rule 'adam'; this run has 'sip'"),
+    ("resume-without-checkpoints", ["heat_1d", "--resume", "--checkpoint-every", "0"], r"--resume needs"),
+]
+
+
+def _argv(argv, d, tmp_path):
+    """``argv`` completed with SMALL's options and (1-D scenes) settings that it does not set itself."""
+    argv = [a.replace("{d}", str(d)) for a in argv]
+    extra = [x for k, v in OPTIONS.items() if k not in argv for x in (k, v)]
+    if argv[0] in ("heat_1d", "wave_1d"):
+        extra += [x for kv in ("n=16", "steps=10") if not any(a.startswith(kv[:2]) for a in argv)
+                  for x in ("--set", kv)]
+    out = [] if "--out" in argv else ["--out", str(tmp_path / "out")]
+    return ["train", *argv, *extra, *out]
+
+
+@pytest.mark.parametrize("argv, match", [pytest.param(a, m, id=i) for i, a, m in CLI])
+def test_cli_bad_input_exits_2_with_one_line(files, tmp_path, capsys, argv, match):
+    import re
+
+    before = {p: p.read_bytes() for p in files.rglob("*") if p.is_file()}
+    code = main(_argv(argv, files, tmp_path))
+    err = capsys.readouterr().err
+    assert code == 2, err
+    assert err.count("\n") == 1 and err.startswith("pdeinv train: error: ") and "Traceback" not in err
+    assert re.search(match, err), err
+    after = {p: p.read_bytes() for p in files.rglob("*") if p.is_file()}
+    assert after == before  # nothing already written is lost, truncated or left behind
+
+
+def test_the_catalogue_is_long_enough():
+    assert len(CLI) + len(API) >= 20
+
+
+#: (id, call, exception, message); the Python API raises what the CLI reports
+API = [
+    ("kappa-negative", lambda: load("heat_1d", n=8, kappa=-1.0), ValueError, r"kappa=-1\.0 is not allowed"),
+    ("c-string-nan", lambda: load("wave_1d", n=8, c="nan"), ValueError, r"c=nan is not allowed"),
+    ("relative-error-nan", lambda: load("heat_1d", n=8).relative_error(np.full((2, 7), np.nan),
+                                                                       np.ones((2, 7))),
+     ValueError, r"xhat contains NaN or Inf"),
+    ("relative-error-shape", lambda: load("heat_1d", n=8).relative_error(np.ones((2, 6)), np.ones((2, 7))),
+     ValueError, r"xhat has shape \(2, 6\); expected \(B, 7\)"),
+    ("adjoint-inf", lambda: load("wave_1d", n=8).operator.adjoint(np.full((1, 7), np.inf)), ValueError,
+     r"R contains NaN or Inf"),
+    ("operator-torch-input", lambda: load("heat_1d", n=8).operator.forward(torch.zeros(1, 7)), ValueError,
+     r"torch tensor; operators take numpy arrays"),
+    ("inverse-nan", lambda: load("heat_1d", n=8).inverse(np.full((1, 7), np.nan), np.zeros((1, 7))),
+     ValueError, r"NaN or Inf"),
+    ("sample-zero", lambda: load("heat_1d", n=8).sample(0), ValueError, r"n=0 is not allowed"),
+    ("hig-over-budget", lambda: _hig_step(max_jacobian_gb=1e-9), ValueError, r"HIG Jacobian .*GB"),
+    ("hig-tau-one", lambda: pdeinv.HIG(tau=1.0), ValueError,
+     r"tau=1\.0 is not allowed; expected 0 <= tau < 1"),
+    ("sip-eta-zero", lambda: pdeinv.SIP(eta=0), ValueError, r"eta=0 is not allowed"),
+    ("trainer-max-failures", lambda: _trainer(max_failures=0), ValueError, r"max_failures=0 is not allowed"),
+    ("trainer-step-factor", lambda: _trainer(step_factor=2.0), ValueError, r"step_factor=2\.0 .*<= 1"),
+    ("trainer-resume-no-checkpoint", lambda: _trainer(resume=True), ValueError,
+     r"resume=True needs checkpoint="),
+    ("checkpoint-every-zero", lambda: pdeinv.Checkpoint("c.pt", every=0), ValueError,
+     r"checkpoint every=0 is not allowed"),
+    ("batch-above-data", lambda: _trainer(batch_size=9, n_train=8), ValueError,
+     r"batch_size=9 is larger than n_train=8"),
+]
+
+
+def _trainer(**kw):
+    return pdeinv.Trainer(load("heat_1d", n=8), pdeinv.GD(), steps=1, **kw)
+
+
+def _hig_step(**kw):
+    p = load("heat_1d", n=8)
+    model = p.model()
+    rule = pdeinv.HIG(**kw)
+    return rule.step(rule.init(p, model), model, torch.zeros(4, p.operator.n_out))
+
+
+@pytest.mark.parametrize("call, exc, match", [pytest.param(c, e, m, id=i) for i, c, e, m in API])
+def test_api_bad_input_names_the_value(call, exc, match):
+    with pytest.raises(exc, match=match):
+        call()
+
+
+def test_a_failing_run_keeps_what_was_written(files, tmp_path, capsys):
+    """--overwrite / --resume runs that fail leave metrics.json and the checkpoint byte for byte."""
+    import shutil
+
+    run = tmp_path / "run"
+    shutil.copytree(files / "run", run)
+    before = {p.name: p.read_bytes() for p in run.iterdir()}
+    for extra in (["--overwrite", "--set", "kappa=-1"], ["--resume", "--hidden", "4"],
+                  ["--overwrite", "--method", "hig", "--set", "n=4000", "--batch-size", "16",
+                   "--hidden", "256,256"]):
+        assert main(["train", "heat_1d", *SMALL, "--out", str(run), *extra]) == 2
+    capsys.readouterr()
+    assert {p.name: p.read_bytes() for p in run.iterdir()} == before

@@ -117,13 +117,18 @@ def test_any_strategy_object_plugs_in(heat):
 
 
 def test_divergence_is_reported_with_the_step_and_never_trained_on(heat):
+    """Each non-finite step is rejected (lr halved); max_failures in a row raise, naming the step."""
     torch.manual_seed(0)
     model = MLP(heat.operator.n_out, heat.operator.n_in, hidden=(32, 32))
     trainer = Trainer(heat, GD(sgd(1e6)), model, steps=50, n_train=64, n_test=8, batch_size=8,
-                      progress=False)
-    with pytest.raises(NonFiniteError, match=r"^step \d+ \(gd\): .* not finite"):
+                      progress=False, max_failures=3)
+    with pytest.warns(RuntimeWarning, match=r"step \d+ \(gd\): .* not finite.*scaled by 0.5"), \
+            pytest.raises(NonFiniteError, match=r"^step \d+ \(gd\): .* not finite.*3 consecutive"):
         trainer.fit()
-    assert trainer.history and all(math.isfinite(h["loss"]) for h in trainer.history)
+    good = [h for h in trainer.history if "rejected" not in h]
+    bad = trainer.history[len(good):]
+    assert good and all(math.isfinite(h["loss"]) for h in good)
+    assert len(bad) == 3 and {h["step"] for h in bad} == {len(good) + 1}
     assert all(bool(torch.isfinite(p).all()) for p in model.parameters())
 
 
@@ -210,10 +215,11 @@ def test_cli_bad_input_exits_2_with_one_line(tmp_path, capsys, argv, match):
     code = main(["train", *argv, "--out", str(tmp_path / "o"), "--n-train", "64", "--n-test", "8",
                  "--batch-size", "8", "--steps", "20"] if "--steps" not in argv else
                 ["train", *argv, "--out", str(tmp_path / "o")])
-    err = capsys.readouterr().err
+    *warned, err = capsys.readouterr().err.splitlines()
     assert code == 2
-    assert err.count("\n") == 1 and "Traceback" not in err
-    assert err.startswith("pdeinv train: error: ")
+    assert "Traceback" not in err and err.startswith("pdeinv train: error: ")
+    # before the error only one-line notices of rejected (non-finite) steps, if any
+    assert all(w.startswith("pdeinv train: warning: step ") for w in warned)
     import re
 
     assert re.search(match, err), err

@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import json
+import sys
+import warnings
 
 from . import UsageError, add_set_argument, parse_sets
 
@@ -17,6 +19,23 @@ def _hidden(text: str) -> tuple[int, ...]:
     if not widths or min(widths) < 1:
         raise UsageError(f"--hidden {text!r}: widths must be integers >= 1")
     return widths
+
+
+def _prepare_out(out) -> None:
+    """Create ``out`` and prove it writable before any training time is spent."""
+    import tempfile
+
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+        with tempfile.TemporaryFile(dir=out):
+            pass
+    except OSError as err:
+        raise UsageError(f"--out {str(out)!r} is not a writable directory ({err.strerror or err}); "
+                         "choose another --out") from None
+
+
+def _one_line(message, category, filename, lineno, file=None, line=None) -> None:
+    print(f"pdeinv train: warning: {message}", file=sys.stderr)
 
 
 def _plot(history: list, path, title: str) -> None:
@@ -46,16 +65,27 @@ def cmd_train(args) -> int:
     import torch
 
     import pdeinv
+    from pdeinv.checkpoint import Checkpoint, atomic_write
     from pdeinv.methods.base import NonFiniteError
     from pdeinv.methods.presets import make_rule
     from pdeinv.nets import MLP
     from pdeinv.train import Trainer, write_csv
 
     out = Path(args.out)
-    if (out / "metrics.json").exists() and not args.overwrite:
-        raise UsageError(f"{out / 'metrics.json'} exists; choose another --out or pass --overwrite")
+    ckpt = out / "checkpoint.pt"
+    if (out / "metrics.json").exists() and not (args.overwrite or args.resume):
+        raise UsageError(f"{out / 'metrics.json'} exists; choose another --out, pass --resume to "
+                         "continue that run or --overwrite to replace it")
+    if ckpt.exists() and not (args.overwrite or args.resume):
+        raise UsageError(f"{ckpt} exists (an unfinished or finished run); pass --resume to continue it, "
+                         "--overwrite to start over, or choose another --out")
     if out.exists() and not out.is_dir():
         raise UsageError(f"--out {str(out)!r} is a file; expected a directory")
+    if args.checkpoint_every < 0:
+        raise UsageError(f"--checkpoint-every {args.checkpoint_every} is not allowed; "
+                         "expected an integer >= 1, or 0 for no checkpoints")
+    if args.resume and args.checkpoint_every == 0:
+        raise UsageError("--resume needs checkpoints; drop --checkpoint-every 0")
     hidden = _hidden(args.hidden) if args.hidden else None
     if args.export_samples < 0:
         raise UsageError(f"--export-samples {args.export_samples} is not allowed; expected an integer >= 0")
@@ -73,21 +103,32 @@ def cmd_train(args) -> int:
         model = problem.model()
     trainer = Trainer(problem, rule, model, steps=args.steps, time_budget=args.time_budget,
                       n_train=args.n_train, n_test=args.n_test, batch_size=hp["batch_size"],
-                      seed=args.seed, eval_every=args.eval_every)
-    out.mkdir(parents=True, exist_ok=True)
+                      seed=args.seed, eval_every=args.eval_every, max_failures=args.max_failures,
+                      checkpoint=Checkpoint(ckpt, args.checkpoint_every) if args.checkpoint_every else None,
+                      resume=args.resume)
+    _prepare_out(out)
     try:
-        result = trainer.fit()
+        with warnings.catch_warnings():  # a rejected step: one line on stderr, not a warning's two
+            warnings.simplefilter("always", RuntimeWarning)
+            warnings.showwarning = _one_line
+            result = trainer.fit()
     except NonFiniteError:
         if trainer.history:
             write_csv(trainer.history, out / "history.csv")
         raise
+    except KeyboardInterrupt:
+        saved = f"continue from {ckpt} with --resume" if ckpt.exists() else "no checkpoint was written"
+        print(f"pdeinv train: interrupted; {saved}", file=sys.stderr)
+        return 130
     metrics = {**result.metrics, "method": args.method, "hyperparameters": hp,
                "settings": {k: v for k, v in problem.settings.items()},
                "route": result.history[-1].get("route"), "torch_threads": torch.get_num_threads()}
-    (out / "metrics.json").write_text(json.dumps(metrics, indent=2, default=str))
+    # atomic: a kill while writing never leaves a truncated metrics.json or model.pt
+    text = json.dumps(metrics, indent=2, default=str).encode()
+    atomic_write(out / "metrics.json", lambda fh: fh.write(text))
     write_csv(result.history, out / "history.csv")
     _plot(result.history, out / "training.png", f"{problem.name}, {args.method}")
-    torch.save(result.model.state_dict(), out / "model.pt")
+    atomic_write(out / "model.pt", lambda fh: torch.save(result.model.state_dict(), fh))
     if args.export_samples:  # ParaView files and a picture of a few held-out samples
         from pdeinv.export import export_run
         from pdeinv.train import _seed
@@ -124,5 +165,13 @@ def add_parser(sub) -> None:
                         "set OMP_NUM_THREADS=1 to limit numpy's BLAS as well)")
     t.add_argument("--export-samples", type=int, default=3, metavar="K",
                    help="write fields.vtu (ParaView) and fields.png for K test samples (0: none)")
-    t.add_argument("--overwrite", action="store_true", help="replace an existing DIR/metrics.json")
+    t.add_argument("--overwrite", action="store_true",
+                   help="replace an existing DIR/metrics.json and DIR/checkpoint.pt")
+    t.add_argument("--checkpoint-every", type=int, default=100, metavar="K",
+                   help="save DIR/checkpoint.pt atomically every K steps and at the end (0: never)")
+    t.add_argument("--resume", action="store_true",
+                   help="continue from DIR/checkpoint.pt (same problem, settings, network and seed)")
+    t.add_argument("--max-failures", type=int, default=5, metavar="K",
+                   help="stop after K consecutive steps with a NaN/Inf loss or update "
+                        "(each rejected step halves the learning rate / eta)")
     t.set_defaults(func=cmd_train)

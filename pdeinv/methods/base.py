@@ -14,13 +14,20 @@ holds at least ``loss`` — the y-loss of the batch *before* the update,
 the same number for every rule, so rules can be compared step by step. A rule
 checks its loss and its update for NaN/Inf *before* touching the parameters and
 raises :class:`NonFiniteError` (the trainer adds the step number).
+
+Rules whose runs can be checkpointed and guarded against divergence also offer
+(see :class:`Resumable`; the trainer asks for them by capability, never by name)::
+
+    sd = rule.state_dict(state)                 # plain dicts / tensors, torch.save-able
+    state = rule.load_state_dict(state, sd)     # onto a fresh ``rule.init(...)`` state
+    state = rule.scale_step(state, factor)      # multiply the step size (lr or η) by ``factor``
 """
 
 from __future__ import annotations
 
 from collections.abc import Callable
 from functools import partial
-from typing import Any, Protocol
+from typing import Any, Protocol, runtime_checkable
 
 import torch
 
@@ -40,6 +47,37 @@ class UpdateRule(Protocol):
     def step(self, state, model: torch.nn.Module, y: torch.Tensor) -> tuple[Any, dict]: ...
 
 
+@runtime_checkable
+class Resumable(Protocol):
+    """A rule whose state can be saved, restored and whose step size can be scaled."""
+
+    def state_dict(self, state) -> dict: ...
+
+    def load_state_dict(self, state, sd: dict) -> Any: ...
+
+    def scale_step(self, state, factor: float) -> Any: ...
+
+
+class OptimizerState:
+    """``state_dict`` / ``load_state_dict`` / ``scale_step`` for rules whose state is a NamedTuple
+    with a torch ``optimizer`` and a ``steps`` count (GD, SIP).
+
+    The optimizer's ``state_dict`` holds its moments *and* its param-group
+    hyper-parameters, so a step size reduced by :meth:`scale_step` survives a
+    checkpoint; restoring it is bitwise.
+    """
+
+    def state_dict(self, state) -> dict:
+        return {"optimizer": state.optimizer.state_dict(), "steps": state.steps}
+
+    def load_state_dict(self, state, sd: dict):
+        state.optimizer.load_state_dict(sd["optimizer"])
+        return state._replace(steps=int(sd["steps"]))
+
+    def scale_step(self, state, factor: float):
+        for group in state.optimizer.param_groups:
+            group["lr"] = group["lr"] * factor
+        return state
 
 
 def adam(lr: float = 1e-3, **kw) -> OptimizerFactory:

@@ -9,7 +9,15 @@ import torch
 
 from ..autograd import apply
 from ..physics.base import LinearOperator
-from .base import OptimizerFactory, adam, check_finite, make_optimizer, optimizer_step, y_loss
+from .base import (
+    OptimizerFactory,
+    OptimizerState,
+    adam,
+    check_finite,
+    make_optimizer,
+    optimizer_step,
+    y_loss,
+)
 
 
 class GDState(NamedTuple):
@@ -19,7 +27,7 @@ class GDState(NamedTuple):
 
 
 @dataclass(frozen=True)
-class GD:
+class GD(OptimizerState):
     """``θ ← optimizer(∇_θ L)`` with ``L = ½ · mean_i ‖P(f(y*_i; θ)) − y*_i‖²``.
 
     The norm is the Euclidean norm of the observation coefficients (as in the
@@ -27,6 +35,7 @@ class GD:
     exact: back-propagation runs through the discrete adjoint ``Pᵀ`` via
     :func:`pdeinv.apply`. ``optimizer`` is any ``params -> torch.optim.Optimizer``
     (default Adam with lr 1e-3; ``methods.sgd(lr)`` gives textbook GD).
+    ``scale_step`` multiplies the optimizer's lr; ``state_dict`` is the optimizer's.
     """
 
     optimizer: OptimizerFactory = field(default_factory=adam)

@@ -21,6 +21,7 @@ _BYTES = {"gram": 4 + 8, "svd": 4 + 8 + 8}
 class HIGState(NamedTuple):
     operator: LinearOperator
     steps: int = 0
+    scale: float = 1.0  # the step is ``scale · η``; lowered by :meth:`HIG.scale_step`
 
 
 @dataclass(frozen=True)
@@ -58,6 +59,7 @@ class HIG:
       ≲ 2e-4 in the smallest kept direction), else ``svd`` (recorded as
       ``"svd"``; ``info["gram_rejected"]`` says the Gram route was tried first).
 
+    ``scale_step`` lowers the effective η in the state (checkpointed with it).
     A Jacobian above ``max_jacobian_gb`` is refused with a ``ValueError`` before
     anything is computed.
     """
@@ -120,7 +122,7 @@ class HIG:
             J = cols.reshape(B, n_params, op.n_out).transpose(1, 2)
         J = J.reshape(rows, n_params).double()
         check_finite("the HIG Jacobian", J)
-        delta, info = self._direction(J, r.reshape(rows), rows, n_params)
+        delta, info = self._direction(J, r.reshape(rows), rows, n_params, self.eta * state.scale)
         check_finite("the HIG update", delta)
         with torch.no_grad():
             offset = 0
@@ -131,7 +133,17 @@ class HIG:
         info.update(loss=loss, jacobian=jac_route)
         return state._replace(steps=state.steps + 1), info
 
-    def _direction(self, J, g, rows, n_params):
+    def state_dict(self, state: HIGState) -> dict:
+        return {"steps": state.steps, "scale": state.scale}
+
+    def load_state_dict(self, state: HIGState, sd: dict) -> HIGState:
+        return state._replace(steps=int(sd["steps"]), scale=float(sd["scale"]))
+
+    def scale_step(self, state: HIGState, factor: float) -> HIGState:
+        """The effective η becomes ``η · scale · factor`` (the rule object stays immutable)."""
+        return state._replace(scale=state.scale * factor)
+
+    def _direction(self, J, g, rows, n_params, eta: float | None = None):
         """``−η V Λ^e Uᵀ g`` over the kept singular values, and what was used.
 
         The products with ``J`` run in torch (float64, torch's thread setting);
@@ -139,6 +151,7 @@ class HIG:
         ``eigh`` and ``svd`` of a 248×3103 problem took 0.2 s and 0.3–6.7 s (first
         call), numpy 0.03 s and 0.2 s.
         """
+        eta = self.eta if eta is None else eta
         info = {}
         if self.route == "gram" or (self.route == "auto" and rows <= n_params):
             lam2, U = np.linalg.eigh((J @ J.T).numpy())
@@ -148,12 +161,12 @@ class HIG:
             if self.route == "gram" or cond <= self.gram_cond_max:
                 Uk, sk = U[:, keep], s[keep]
                 coef = torch.from_numpy(Uk @ (sk ** (self.exponent - 1) * (Uk.T @ g.numpy())))
-                return -self.eta * (J.T @ coef), dict(route="gram", rank=int(keep.sum()), cond=cond)
+                return -eta * (J.T @ coef), dict(route="gram", rank=int(keep.sum()), cond=cond)
             info["gram_rejected"] = cond
         U, s, Vt = np.linalg.svd(J.numpy(), full_matrices=False)
         keep = (s > self.tau * s[0]) & (s > 0)
         Uk, sk, Vk = U[:, keep], s[keep], Vt[keep]
-        delta = -self.eta * (Vk.T @ (sk ** self.exponent * (Uk.T @ g.numpy())))
+        delta = -eta * (Vk.T @ (sk ** self.exponent * (Uk.T @ g.numpy())))
         info.update(route="svd", rank=int(keep.sum()), cond=float(s[0] / sk.min()))
         return torch.from_numpy(delta), info
 

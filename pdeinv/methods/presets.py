@@ -35,6 +35,7 @@ with any useful batch: use a small ``--hidden`` and ``--batch-size``.
 
 from __future__ import annotations
 
+from .._checks import positive
 from .base import adam, sgd
 from .gd import GD
 from .hig import HIG
@@ -75,6 +76,9 @@ def hyperparameters(method: str, problem: str, **overrides) -> dict:
         raise ValueError(f"{', '.join(bad)} does not apply to method {method!r} "
                          f"(its settings: {', '.join(sorted(hp))})")
     hp.update({k: v for k, v in overrides.items() if v is not None})
+    for key in ("lr", "eta"):  # torch would say "Invalid learning rate: nan" without naming the flag
+        if key in hp:
+            positive(hp[key], key)
     return hp
 
 

@@ -11,7 +11,15 @@ import torch
 
 from .._checks import positive
 from ..physics.base import LinearOperator
-from .base import OptimizerFactory, adam, check_finite, make_optimizer, optimizer_step, y_loss
+from .base import (
+    OptimizerFactory,
+    OptimizerState,
+    adam,
+    check_finite,
+    make_optimizer,
+    optimizer_step,
+    y_loss,
+)
 
 #: ``(y_target, x0) -> x̃`` on numpy ``(B, ·)`` arrays: a local inverse ``P⁻¹_(x0, P x0)``
 InverseSimulator = Callable[[np.ndarray, np.ndarray], np.ndarray]
@@ -25,7 +33,7 @@ class SIPState(NamedTuple):
 
 
 @dataclass(frozen=True)
-class SIP:
+class SIP(OptimizerState):
     """One SIP step (Holl et al. 2022, Alg. 1)::
 
         x  = f(y*; θ),   y = P(x),   Δy = η (y* − y),
@@ -38,7 +46,8 @@ class SIP:
     own (``problem.inverse(y_target, x0)``), which for linear ``P`` and η = 1 with
     an exact inverse makes ``x̃`` the exact solution. The y-loss reported in
     ``info["loss"]`` is the GD loss at ``x`` (before the update); ``info["proxy"]``
-    is ``L̃``.
+    is ``L̃``. ``scale_step`` multiplies the optimizer's lr (η stays: it sets the
+    target, not the step); ``state_dict`` is the optimizer's.
     """
 
     inverse: InverseSimulator | None = None

@@ -1,0 +1,156 @@
+"""Checkpoints: a resumed run repeats the uninterrupted one bitwise (same machine, same thread
+counts), files are replaced atomically, and a checkpoint of another run is refused naming both."""
+
+from __future__ import annotations
+
+import pytest
+import torch
+
+import pdeinv
+from pdeinv import Checkpoint, Trainer
+from pdeinv.methods import GD, HIG, SIP, adam, sgd
+from pdeinv.nets import MLP
+
+
+@pytest.fixture(autouse=True)
+def _one_thread(one_thread):
+    yield
+
+
+@pytest.fixture(scope="module")
+def heat():
+    return pdeinv.load_problem("heat_1d", n=16, steps=10, backend="modal")
+
+
+def trainer(problem, rule, steps, ckpt=None, resume=False, hidden=(16,), **kw):
+    torch.manual_seed(0)
+    model = MLP(problem.operator.n_out, problem.operator.n_in, hidden=hidden)
+    kw = {"n_train": 24, "n_test": 16, "batch_size": 8, "eval_every": 4, **kw}  # 3 batches an epoch
+    return Trainer(problem, rule, model, steps=steps, progress=False, checkpoint=ckpt, resume=resume, **kw)
+
+
+def losses(result):
+    return [(h["step"], h["loss"], h.get("x_err"), h.get("y_err")) for h in result.history]
+
+
+@pytest.mark.parametrize("rule", [GD(sgd(0.05)), GD(adam(1e-3), name="adam"), SIP(optimizer=adam(1e-3)),
+                                  HIG(eta=0.1, tau=1e-5)], ids=["gd", "adam", "sip", "hig"])
+def test_resumed_run_equals_the_uninterrupted_one_bitwise(heat, rule, tmp_path):
+    steps = 6 if rule.name == "hig" else 10
+    ref = trainer(heat, rule, steps).fit()
+    ckpt = Checkpoint(tmp_path / "c.pt", every=3)
+
+    def kill(record, model):
+        if record["step"] == steps - 1:
+            raise KeyboardInterrupt  # "killed" during the step before the last, after its update
+
+    with pytest.raises(KeyboardInterrupt):
+        trainer(heat, rule, steps, ckpt, callbacks=[kill]).fit()
+    assert ckpt.load()["position"]["step"] == 3 * ((steps - 2) // 3)
+    resumed = trainer(heat, rule, steps, ckpt, resume=True).fit()
+    assert losses(resumed) == losses(ref)  # bitwise: floats compared with ==
+    assert all(torch.equal(a, b) for a, b in zip(ref.model.state_dict().values(),
+                                                 resumed.model.state_dict().values()))
+    assert {k: v for k, v in resumed.metrics.items() if "wall" not in k and k != "step_s"} == \
+           {k: v for k, v in ref.metrics.items() if "wall" not in k and k != "step_s"}
+    assert ckpt.load()["position"]["step"] == steps
+
+
+def test_resuming_a_finished_run_returns_it_and_more_steps_extend_it(heat, tmp_path):
+    ckpt = Checkpoint(tmp_path / "c.pt", every=100)
+    done = trainer(heat, GD(adam(1e-3)), 5, ckpt).fit()
+    again = trainer(heat, GD(adam(1e-3)), 5, ckpt, resume=True).fit()
+    assert losses(again) == losses(done) and again.metrics["x_err"] == done.metrics["x_err"]
+    longer = trainer(heat, GD(adam(1e-3)), 8, ckpt, resume=True).fit()
+    ref = trainer(heat, GD(adam(1e-3)), 8).fit()
+    assert [h["loss"] for h in longer.history] == [h["loss"] for h in ref.history]
+    assert longer.metrics["x_err"] == ref.metrics["x_err"]
+
+
+def test_global_rng_states_are_restored(heat, tmp_path):
+    import random
+
+    import numpy as np
+
+    ckpt = Checkpoint(tmp_path / "c.pt", every=1)
+    trainer(heat, GD(adam(1e-3)), 3, ckpt).fit()
+    after = (torch.rand(3), np.random.rand(3), random.random())
+    torch.manual_seed(123), np.random.seed(123), random.seed(123)
+    trainer(heat, GD(adam(1e-3)), 3, ckpt, resume=True).fit()
+    again = (torch.rand(3), np.random.rand(3), random.random())
+    assert torch.equal(after[0], again[0]) and (after[1] == again[1]).all() and after[2] == again[2]
+
+
+@pytest.mark.parametrize("change, match", [
+    (dict(problem=("wave_1d", dict(n=16, steps=10))),
+     r"checkpoint '.*c\.pt' is of problem 'heat_1d', this run is 'wave_1d'"),
+    (dict(problem=("heat_1d", dict(n=16, steps=10, kappa=0.02, backend="modal"))),
+     r"other settings: kappa=0\.01 \(checkpoint\) vs 0\.02 \(this run\)"),
+    (dict(hidden=(8,)), r"holds network MLP \(.*body\.0\.weight \(16, 15\).*this run's network is "
+                        r"MLP \(.*body\.0\.weight \(8, 15\)"),
+    (dict(rule=SIP()), r"written with rule 'gd'; this run has 'sip'"),
+    (dict(seed=1), r"written with trainer .*'seed': 0.*this run has .*'seed': 1"),
+])
+def test_a_checkpoint_of_another_run_is_refused_naming_both(heat, tmp_path, change, match):
+    ckpt = Checkpoint(tmp_path / "c.pt", every=1)
+    trainer(heat, GD(adam(1e-3)), 2, ckpt).fit()
+    before = ckpt.path.read_bytes()
+    name, over = change.pop("problem", ("heat_1d", dict(n=16, steps=10, backend="modal")))
+    t = trainer(pdeinv.load_problem(name, **over), change.pop("rule", GD(adam(1e-3))), 4, ckpt,
+                resume=True, **change)
+    with pytest.raises(ValueError, match=match):
+        t.fit()
+    assert ckpt.path.read_bytes() == before  # a refused run leaves the checkpoint alone
+
+
+def test_missing_and_corrupt_checkpoints(heat, tmp_path):
+    ckpt = Checkpoint(tmp_path / "c.pt")
+    with pytest.raises(FileNotFoundError, match=r"no checkpoint at '.*c\.pt' to resume from"):
+        trainer(heat, GD(), 2, ckpt, resume=True).fit()
+    with pytest.raises(ValueError, match="resume=True needs checkpoint="):
+        trainer(heat, GD(), 2, None, resume=True)
+    trainer(heat, GD(), 2, Checkpoint(ckpt.path, every=1)).fit()
+    good = ckpt.path.read_bytes()
+    scrambled = good[:100] + b"\0" * 100 + good[200:]
+    for bad in (good[: len(good) // 2], b"", b"not a checkpoint at all", scrambled):
+        ckpt.path.write_bytes(bad)
+        with pytest.raises(ValueError, match=r"checkpoint '.*c\.pt' is corrupt or not a pdeinv checkpoint"):
+            ckpt.load()
+    torch.save({"something": 1}, ckpt.path)
+    with pytest.raises(ValueError, match="is not a pdeinv checkpoint"):
+        ckpt.load()
+    ckpt.save({"model": {}})  # a pdeinv file, but not a training run's
+    with pytest.raises(ValueError, match="lacks history, identity, position, rng, rule_state"):
+        trainer(heat, GD(), 2, ckpt, resume=True).fit()
+
+
+def test_save_is_atomic_and_cleans_up_after_a_killed_save(tmp_path):
+    ckpt = Checkpoint(tmp_path / "c.pt")
+    ckpt.save({"n": 1})
+    stale = tmp_path / ".c.pt.abc123.tmp"  # what a save killed halfway leaves
+    stale.write_bytes(b"half")
+
+    class Boom:
+        def __reduce__(self):
+            raise RuntimeError("disk full")
+
+    with pytest.raises(RuntimeError, match="disk full"):  # a save failing halfway ...
+        ckpt.save({"n": 2, "x": Boom()})
+    assert ckpt.load()["n"] == 1  # ... leaves the previous checkpoint
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["c.pt"]  # and no temporaries
+    ckpt.save({"n": 3})
+    assert ckpt.load()["n"] == 3
+
+
+def test_rules_without_state_dict_cannot_be_checkpointed(heat, tmp_path):
+    class Frozen:
+        name = "frozen"
+
+        def init(self, problem, model):
+            return 0
+
+        def step(self, state, model, y):
+            return state, {"loss": 1.0}
+
+    with pytest.raises(ValueError, match="'frozen' cannot be checkpointed.*Resumable"):
+        trainer(heat, Frozen(), 2, Checkpoint(tmp_path / "c.pt")).fit()

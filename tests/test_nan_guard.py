@@ -1,0 +1,117 @@
+"""The NaN/Inf guard: a bad step is rejected (parameters and optimizer untouched), the step size is
+multiplied by ``step_factor`` (½), training goes on; ``max_failures`` consecutive rejections stop it
+with a message naming the step and the last good checkpoint, which stays intact."""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+
+import pytest
+import torch
+
+import pdeinv
+from pdeinv import Checkpoint, NonFiniteError, Trainer
+from pdeinv.cli import main
+from pdeinv.methods import GD, HIG, SIP, adam, sgd
+from pdeinv.nets import MLP
+
+FAULTS = str(Path(__file__).with_name("faults.py"))
+
+
+@pytest.fixture(autouse=True)
+def _one_thread(one_thread):
+    yield
+
+
+def trainer(rule, poison="", steps=6, **kw):
+    problem = pdeinv.load_problem(FAULTS, poison=poison, n=16, steps=10)
+    torch.manual_seed(0)
+    model = MLP(problem.operator.n_out, problem.operator.n_in, hidden=(16,))
+    return Trainer(problem, rule, model, steps=steps, n_train=32, n_test=16, batch_size=8, eval_every=100,
+                   progress=False, **kw)
+
+
+def snapshots(into: dict):
+    """A callback keeping a copy of the parameters after every accepted step."""
+    return lambda rec, model: into.__setitem__(rec["step"], [p.detach().clone() for p in model.parameters()])
+
+
+@pytest.mark.parametrize("rule", [GD(sgd(0.05)), SIP(optimizer=adam(1e-3))], ids=["gd", "sip"])
+def test_a_poisoned_step_is_rejected_the_lr_halved_and_training_continues(rule):
+    t = trainer(rule, poison="3")
+    with pytest.warns(RuntimeWarning, match=r"step 3 \(.*\): .*not finite.*step size scaled by 0.5"):
+        r = t.fit()
+    steps = [(h["step"], "rejected" in h) for h in r.history]
+    assert steps == [(1, False), (2, False), (3, True), (3, False), (4, False), (5, False), (6, False)]
+    assert math.isnan(r.history[2]["loss"]) and all(math.isfinite(h["loss"]) for h in r.history if
+                                                    "rejected" not in h)
+    assert r.metrics["steps"] == 6 and r.metrics["rejected_steps"] == 1
+    opt = r.state.optimizer
+    base = 0.05 if rule.name == "gd" else 1e-3
+    assert opt.param_groups[0]["lr"] == pytest.approx(0.5 * base)
+    if rule.name == "sip":  # Adam's moments saw only the 6 accepted steps
+        assert all(int(s["step"]) == 6 for s in opt.state.values())
+
+
+def test_rejected_step_leaves_the_parameters_of_the_last_good_step():
+    kept = {}
+    t = trainer(GD(adam(1e-3)), poison="4", max_failures=1, callbacks=[snapshots(kept)])
+    with pytest.raises(NonFiniteError, match=r"^step 4 \(gd\): .*not finite.*max_failures=1"):
+        t.fit()
+    assert sorted(kept) == [1, 2, 3]
+    assert all(torch.equal(a, b) for a, b in zip(kept[3], t.model.parameters()))
+
+
+def test_hig_scale_step_scales_its_update():
+    deltas = []
+    for factor in (1.0, 0.5):
+        t = trainer(HIG(eta=0.1, tau=1e-5))
+        model = t.model
+        rule = t.rule
+        state = rule.scale_step(rule.init(t.problem, model), factor)
+        before = [p.detach().clone() for p in model.parameters()]
+        y = torch.as_tensor(t.problem.sample(8, 0)[1], dtype=torch.float32)
+        rule.step(state, model, y)
+        deltas.append(torch.cat([(p.detach() - b).ravel() for p, b in zip(model.parameters(), before)]))
+    assert torch.linalg.norm(deltas[0]) > 0
+    torch.testing.assert_close(deltas[1], 0.5 * deltas[0], rtol=1e-5, atol=1e-8)
+
+
+def test_consecutive_failures_stop_with_the_last_good_checkpoint(tmp_path):
+    ckpt = Checkpoint(tmp_path / "c.pt", every=1)
+    t = trainer(GD(adam(1e-3)), poison="3,4,5", max_failures=3, checkpoint=ckpt)
+    with pytest.warns(RuntimeWarning), pytest.raises(
+            NonFiniteError, match=r"step 3 \(gd\).*3 consecutive rejected steps \(max_failures=3\); "
+                                  r"last good checkpoint: '.*c\.pt'"):
+        t.fit()
+    saved = ckpt.load()
+    assert saved["position"]["step"] == 2 and [h["step"] for h in saved["history"]] == [1, 2]
+    # non-consecutive failures do not add up
+    with pytest.warns(RuntimeWarning):
+        r = trainer(GD(adam(1e-3)), poison="2,4", max_failures=2).fit()
+    assert r.metrics["steps"] == 6 and r.metrics["rejected_steps"] == 2
+
+
+def test_cli_gives_up_with_one_line_and_keeps_the_checkpoint(tmp_path, capsys):
+    out = tmp_path / "run"
+    argv = ["train", FAULTS, "--set", "n=16", "--set", "steps=10", "--hidden", "16", "--n-train", "32",
+            "--n-test", "16", "--batch-size", "8", "--steps", "8", "--checkpoint-every", "1",
+            "--out", str(out), "--threads", "1"]
+    code = main([*argv, "--set", "poison=4,5,6", "--max-failures", "3"])
+    *warned, err = capsys.readouterr().err.splitlines()
+    assert code == 2 and err.startswith("pdeinv train: error: step 4 (adam)")
+    assert "last good checkpoint" in err and "checkpoint.pt" in err
+    assert [w[:40] for w in warned] == ["pdeinv train: warning: step 4 (adam): th"] * 2  # one line each
+    assert Checkpoint(out / "checkpoint.pt").load()["position"]["step"] == 3
+    assert not (out / "metrics.json").exists()
+    assert "rejected" in (out / "history.csv").read_text()
+    # the same run without the fault, resumed from the surviving checkpoint, is refused: the
+    # settings differ (poison) -- and with the same settings it resumes and finishes
+    assert main([*argv, "--set", "poison=", "--resume"]) == 2
+    assert "poison='4,5,6' (checkpoint) vs '' (this run)" in capsys.readouterr().err
+    # max_failures=5 lets this run through the three bad calls
+    assert main([*argv, "--set", "poison=4,5,6", "--resume"]) == 0
+    assert capsys.readouterr().err.count("warning: step 7 (adam)") == 3
+    assert json.loads((out / "metrics.json").read_text())["steps"] == 8
