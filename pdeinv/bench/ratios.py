@@ -6,19 +6,10 @@ interference from other processes better than the mean.
 
 from __future__ import annotations
 
-import time
-
 import numpy as np
 import scipy.sparse.linalg as sla
 
-
-def _best(fn, repeats: int) -> float:
-    best = np.inf
-    for _ in range(repeats):
-        t = time.perf_counter()
-        fn()
-        best = min(best, time.perf_counter() - t)
-    return best
+from .timing import best as _best
 
 
 def operator_ratios(problem, batch: int = 64, repeats: int = 5, seed: int = 0) -> dict:
@@ -33,7 +24,7 @@ def operator_ratios(problem, batch: int = 64, repeats: int = 5, seed: int = 0) -
     * ``modal_speedup`` (heat only): time-stepping forward / modal forward, with
       ``modal_agreement`` the relative difference of their results.
     """
-    from .physics import Heat
+    from ..physics import Heat
 
     op = problem.operator
     rng = np.random.default_rng(seed)
