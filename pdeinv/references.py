@@ -4,16 +4,19 @@ Both are fitted on a training set ``(X, Y)`` and evaluated on a test set, with t
 relative L²(Ω) error of :meth:`pdeinv.Problem.relative_error`.
 
 **Linear MMSE** (the optimal linear estimator for the training distribution):
-with the training mean ``μ`` and covariance ``C_x``, and ``Ȳ = P(X − μ)`` the
-noise-free images of the centred samples (so ``P C_x Pᵀ = ȲᵀȲ/(n−1)`` and
-``C_x Pᵀ = X̄ᵀȲ/(n−1)`` need no explicit ``P``),
+with the training mean ``μ`` and covariance ``C_x = L Lᵀ``, ``L = X̄ᵀ/√(n−1)``
+(``X̄`` the centred samples), and ``G = P L`` (the noise-free images of the centred
+samples, no explicit ``P`` needed),
 
-    x̂ = μ + W (y − Pμ),    W = C_x Pᵀ (P C_x Pᵀ + σ² I)⁻¹,
+    x̂ = μ + W (y − Pμ),    W = C_x Pᵀ (P C_x Pᵀ + σ² I)⁻¹ = L V diag(s/(s²+σ²)) Uᵀ,
 
-where ``σ² = noise² · mean_i rms(P x_i)²`` is the variance of the problem's relative
-noise (:func:`pdeinv.sampling.add_noise`). With ``noise = 0`` the inverse is
-singular; we then use the *tiny σ* ``σ² = 1e-12 · λ_max(P C_x Pᵀ)`` (not a
-pseudo-inverse): a regularized pseudo-inverse that drops nothing abruptly.
+with the thin SVD ``G = U diag(s) Vᵀ`` (the push-through identity; it avoids forming
+``P C_x Pᵀ``, which would square the condition number and lose the weakly observed
+modes to rounding). ``σ² = noise² · mean_i rms(P x_i)²`` is the variance of the
+problem's relative noise (:func:`pdeinv.sampling.add_noise`). With ``noise = 0``
+the inverse is singular; we then use the *tiny σ* ``σ = 1e-8 · s_max`` (not a
+hard pseudo-inverse): a smooth cut where rounding in ``y`` (~1e-16) would start
+to dominate.
 The MMSE estimator minimizes ``E‖x̂ − x‖²_G`` for every SPD weight ``G``, so it is
 the same in the Euclidean and the L²(Ω) norm.
 
@@ -30,8 +33,8 @@ from __future__ import annotations
 import numpy as np
 import scipy.linalg as sla
 
-#: relative σ² floor used when the problem is noise-free (see the module docstring)
-TINY_SIGMA2 = 1e-12
+#: σ / s_max used when the problem is noise-free (see the module docstring)
+TINY_SIGMA = 1e-8
 #: α / s_max² tried by :func:`tikhonov_best`
 ALPHA_GRID = tuple(10.0 ** -k for k in range(0, 15))
 
@@ -47,22 +50,20 @@ def mmse(problem, X: np.ndarray, sigma2: float | None = None):
     if n < 2:
         raise ValueError(f"the MMSE needs at least 2 training samples; got {n}")
     mu = X.mean(0)
-    Xc = X - mu
-    Yc = problem.operator.forward(Xc)
-    S = Yc.T @ Yc / (n - 1)  # P C_x Pᵀ
-    lam_max = float(np.linalg.eigvalsh(S)[-1]) if S.size else 0.0
+    L = (X - mu).T / np.sqrt(n - 1)  # (N, n)
+    G = problem.operator.forward(L.T).T  # P L, (m, n)
+    U, s, Vt = np.linalg.svd(G, full_matrices=False)
     if sigma2 is None:
         sigma2 = _noise_variance(problem, problem.operator.forward(X)) if problem.noise else 0.0
-    floor = TINY_SIGMA2 * lam_max
+    floor = (TINY_SIGMA * s[0]) ** 2
     used = max(float(sigma2), floor)
-    # W = C_x Pᵀ (S + σ²I)⁻¹, i.e. Wᵀ = (S + σ²I)⁻¹ P C_x (S is symmetric)
-    Wt = sla.solve(S + used * np.eye(S.shape[0]), Yc.T @ Xc / (n - 1), assume_a="pos")
+    Wt = (U * (s / (s**2 + used))) @ (Vt @ L.T)  # Wᵀ = U diag(s/(s²+σ²)) Vᵀ Lᵀ
     Pmu = problem.operator.forward(mu[None])[0]
 
     def estimate(Y):
         return mu + (np.asarray(Y) - Pmu) @ Wt
 
-    info = {"sigma2": used, "sigma2_rule": "noise" if sigma2 >= floor else "tiny (1e-12·λmax)",
+    info = {"sigma2": used, "sigma2_rule": "noise" if sigma2 >= floor else "tiny σ = 1e-8·s_max",
             "n_train": n}
     return estimate, info
 

@@ -15,20 +15,37 @@ setting (e.g. the modal backend needing too many modes) is recorded as refused.
 from __future__ import annotations
 
 import time
+from types import SimpleNamespace
 
 import numpy as np
 
 from .. import mesh as meshes
 from ..forms import discretize
 from ..physics import Heat, Wave
+from ..physics.heat_backends import weyl_count
 from ..physics.modes import TooManyModes
 from .timing import best
+
+
+def modal(d, c, k):
+    """BE modal backend, refused up front when Weyl's law predicts more than N/2 live modes.
+
+    (Building it would compute thousands of eigenpairs only to refuse; the same
+    estimate as :func:`pdeinv.physics.heat_backends.choose`.)
+    """
+    dt, tol = c["T"] / k, 1e-14
+    rho = tol ** (1.0 / k)
+    k_est = weyl_count(SimpleNamespace(dim=d.dim, measure=d.measure), (1.0 - rho) / rho / (dt * c["kappa"]))
+    if k_est > d.N / 2:
+        raise ValueError(f"modal: Weyl's law predicts ~{k_est:.0f} of {d.N} modes above tol (> N/2)")
+    return Heat(d.M, d.K, c["kappa"], c["T"], k, "be", "modal")
+
 
 #: backend name -> (discretization, settings, steps) -> operator; per physics type
 HEAT_BACKENDS = {
     "BE steps": lambda d, c, k: Heat(d.M, d.K, c["kappa"], c["T"], k, "be", "steps"),
     "CN steps": lambda d, c, k: Heat(d.M, d.K, c["kappa"], c["T"], k, "cn", "steps"),
-    "BE modal": lambda d, c, k: Heat(d.M, d.K, c["kappa"], c["T"], k, "be", "modal"),
+    "BE modal": modal,
 }
 WAVE_BACKENDS = {"Newmark": lambda d, c, k: Wave(d.M, d.K, c["c"], c["T"], k)}
 
