@@ -14,7 +14,7 @@ import copy
 import torch
 
 from ..methods import GD, HIG, SIP, adam
-from .timing import best
+from .timing import best, interleaved
 
 
 def _stepper(rule, problem, model, y):
@@ -34,8 +34,8 @@ def step_ratios(problem, model, hig_model, batch: int = 32, hig_batch: int = 1,
     y = torch.as_tensor(y, dtype=torch.float32)
     gd = _stepper(GD(optimizer=adam(1e-4)), problem, model, y[:batch])
     sip = _stepper(SIP(optimizer=adam(1e-4)), problem, model, y[:batch])
-    gd(), sip()  # warm-up (optimizer state, caches)
-    t_gd, t_sip = best(gd, repeats), best(sip, repeats)
+    t = interleaved({"gd": gd, "sip": sip}, repeats)
+    t_gd, t_sip = t["gd"], t["sip"]
     hig = _stepper(HIG(eta=1e-3, tau=1e-5), problem, hig_model, y[:hig_batch])
     gd_small = _stepper(GD(optimizer=adam(1e-4)), problem, hig_model, y[:hig_batch])
     gd_small()
@@ -45,4 +45,4 @@ def step_ratios(problem, model, hig_model, batch: int = 32, hig_batch: int = 1,
     n_params = sum(p.numel() for p in hig_model.parameters() if p.requires_grad)
     return {"gd_step_s": t_gd, "sip_step_s": t_sip, "sip_vs_gd_step": t_sip / t_gd,
             "hig_step_s": t_hig, "gd_step_s_hig_net": t_gd_small, "hig_jacobian": [rows, n_params],
-            "hig_jacobian_mb": rows * n_params * 8 / 2**20, "batch": batch, "hig_batch": hig_batch}
+            "hig_jacobian_mb": rows * n_params * 8 / 2**20, "step_batch": batch, "hig_batch": hig_batch}

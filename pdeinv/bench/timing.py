@@ -24,6 +24,19 @@ def best(fn, repeats: int = 3) -> float:
     return out
 
 
+def interleaved(fns: dict, repeats: int = 3) -> dict:
+    """``{name: minimum time}`` with the functions run round-robin, ``repeats`` rounds (after one warm-up)."""
+    for fn in fns.values():
+        fn()
+    out = dict.fromkeys(fns, np.inf)
+    for _ in range(max(1, repeats)):
+        for name, fn in fns.items():
+            t = time.perf_counter()
+            fn()
+            out[name] = min(out[name], time.perf_counter() - t)
+    return out
+
+
 def peak_bytes(fn) -> int:
     """Peak of the memory traced by ``tracemalloc`` while ``fn()`` runs (numpy arrays are traced)."""
     was = tracemalloc.is_tracing()
