@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import json
 import math
+import resource
 import time
 from pathlib import Path
 
@@ -41,8 +42,27 @@ def _finite(obj):
 
 
 def bench(problem, out, quick: bool = False, budget_s: float = 20.0, seed: int = 0,
-          log=print) -> dict:
-    """Run all sections on ``problem`` (a :class:`pdeinv.Problem`); return and write the results."""
+          log=print, threads: int | None = 1) -> dict:
+    """Run all sections on ``problem`` (a :class:`pdeinv.Problem`); return and write the results.
+
+    ``threads``: torch threads during the run (restored after; None leaves them). One
+    thread by default: on a shared 2-core machine a second process on one core stalls
+    torch's 2-thread kernels at every barrier (measured: Adam steps on heat_2d varied
+    from 0.03 s to 1 s within one run), which would make equal-wall-clock comparisons
+    a lottery.
+    """
+    before = torch.get_num_threads()
+    if threads is not None:
+        if int(threads) < 1:
+            raise ValueError(f"threads={threads!r} is not allowed; expected an integer >= 1")
+        torch.set_num_threads(int(threads))
+    try:
+        return _bench(problem, out, quick, budget_s, seed, log)
+    finally:
+        torch.set_num_threads(before)
+
+
+def _bench(problem, out, quick, budget_s, seed, log) -> dict:
     if not budget_s > 0:
         raise ValueError(f"budget_s={budget_s!r} is not allowed; expected a number of seconds > 0")
     out = Path(out)
@@ -91,6 +111,7 @@ def bench(problem, out, quick: bool = False, budget_s: float = 20.0, seed: int =
     log("[bench] skips")
     res["skips"] = skips.measure(problem, st, repeats=repeats, seed=seed, modal_info=op_r)
     res["total_s"] = time.perf_counter() - t0
+    res["peak_rss_mb"] = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024  # Linux: KiB
     (out / "bench.json").write_text(json.dumps(_finite(res), indent=2, default=str))
     return res
 

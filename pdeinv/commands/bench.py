@@ -19,7 +19,9 @@ def cmd_bench(args) -> int:
     if out.exists() and not out.is_dir():
         raise UsageError(f"--out {str(out)!r} is a file; expected a directory")
     problem = pdeinv.load_problem(args.problem, **parse_sets(args.set))
-    res = bench(problem, out, quick=args.quick, budget_s=args.budget_s, seed=args.seed)
+    if args.threads < 1:
+        raise UsageError(f"--threads {args.threads} is not allowed; expected an integer >= 1")
+    res = bench(problem, out, quick=args.quick, budget_s=args.budget_s, seed=args.seed, threads=args.threads)
     print(summary(res))
     print(f"-> {out / 'bench.json'}")
     return 0
@@ -33,5 +35,7 @@ def add_parser(sub) -> None:
     b.add_argument("--budget-s", type=float, default=20.0, metavar="S",
                    help="training wall time per method (default 20)")
     b.add_argument("--seed", type=int, default=0)
+    b.add_argument("--threads", type=int, default=1,
+                   help="torch threads during the run (default 1: steadier timings on a shared machine)")
     add_set_argument(b)
     b.set_defaults(func=cmd_bench)
