@@ -30,14 +30,14 @@ from .timing import machine
 SIZES = {False: (1024, 128, 5, 64, True), True: (64, 16, 1, 8, False)}
 
 
-def _finite(obj):
+def jsonable(obj):
     """JSON-safe: NaN/Inf become strings, so a reader sees them instead of a parse error."""
     if isinstance(obj, float) and not math.isfinite(obj):
         return str(obj)
     if isinstance(obj, dict):
-        return {k: _finite(v) for k, v in obj.items()}
+        return {k: jsonable(v) for k, v in obj.items()}
     if isinstance(obj, (list, tuple)):
-        return [_finite(v) for v in obj]
+        return [jsonable(v) for v in obj]
     return obj
 
 
@@ -112,7 +112,7 @@ def _bench(problem, out, quick, budget_s, seed, log) -> dict:
     res["skips"] = skips.measure(problem, st, repeats=repeats, seed=seed, modal_info=op_r)
     res["total_s"] = time.perf_counter() - t0
     res["peak_rss_mb"] = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024  # Linux: KiB
-    (out / "bench.json").write_text(json.dumps(_finite(res), indent=2, default=str))
+    (out / "bench.json").write_text(json.dumps(jsonable(res), indent=2, default=str))
     return res
 
 

@@ -12,7 +12,7 @@ def cmd_stress(args) -> int:
     from pathlib import Path
 
     from pdeinv.bench import cases, stress
-    from pdeinv.bench.run import _finite
+    from pdeinv.bench.run import jsonable
     from pdeinv.bench.timing import machine
 
     out = Path(args.out)
@@ -22,7 +22,7 @@ def cmd_stress(args) -> int:
     out.mkdir(parents=True, exist_ok=True)
     rows = stress.run(todo, log=print)
     summary = stress.counts(rows)
-    (out / "stress.json").write_text(json.dumps(_finite(
+    (out / "stress.json").write_text(json.dumps(jsonable(
         {"problem": args.problem, "quick": args.quick, "machine": machine(), "counts": summary,
          "cases": rows}), indent=2, default=str))
     print(" ".join(f"{k} {n}" for k, n in summary.items()) + f" -> {out / 'stress.json'}")
