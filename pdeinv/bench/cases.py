@@ -122,6 +122,7 @@ def cases(name: str, overrides: dict, quick: bool = False) -> list[Case]:
                                                       "dt": base.settings["T"] / k}) for k in v["steps"]]
     out.append(Case("explicit", "fe" if heat else "leapfrog",
                     lambda: mode_error(load(scheme="fe" if heat else "leapfrog"))))
+
     def mesh(n):  # heat steps: the sweep is about the mesh, and n = 64 modal setup takes minutes
         p = load(n=n, **({"backend": "steps"} if heat else {}))
         return {**mode_error(p), "N": p.N, "dot_err": dot_err(p.operator)}

@@ -9,8 +9,8 @@
   baseline refactorizes ``A`` every step;
 * ``hig_jacobian_only_for_hig``: GD and SIP never build ``∂y/∂θ``; its size is what they save.
 
-Each entry holds the measured cost with and without the skip and ``saved`` (a
-factor, or bytes), all from one run.
+Each entry holds the measured cost with and without the skip and ``saved``, the
+factor the skip gains (time or traced memory), all from one run.
 """
 
 from __future__ import annotations
@@ -41,7 +41,7 @@ class Counting(LinearOperator):
 
 
 def _stepping(op):
-    """``(A, B, solver, steps)`` of a time-stepping operator, or None."""
+    """``(A, B, solver factory, steps, stepping operator)`` of a time-stepping operator, or None."""
     if isinstance(op, Heat):
         if op.backend.name != "steps":
             op = Heat(op.M, op.K, op.kappa, op.t_end, op.steps, op.scheme, backend="steps")
