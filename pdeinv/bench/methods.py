@@ -11,8 +11,8 @@ again, for ``budget_s`` seconds with ``seed`` on the reported test set.
 Networks: Adam, SGD and SIP train the problem's default network. HIG and
 Gauss–Newton (HIG with exponent −1) build the stacked Jacobian ``∂y/∂θ`` of
 ``batch · n_out`` rows × ``n_params`` columns every step; on a 961-unknown scene
-with the default MLP that is ~7700 × 510 000 (tens of GB), and even a one-layer
-MLP of width 32 with batch 4 took 79 s per step (measured), so they train a
+with the default MLP (559 041 parameters) and batch 8 that is 7688 × 559 041
+(tens of GB), and even a one-layer MLP of width 32 with batch 4 took 79 s per step (measured), so they train a
 one-hidden-layer MLP of width 16 with batch 1 (``HIG_NET``). The JSON records each
 method's network and batch.
 
