@@ -1,9 +1,23 @@
-"""The cost-ratio probe runs and returns finite ratios (no timing assertions: CI machines are noisy)."""
+"""Benchmark smoke tests: every contract key present and finite (or a documented null); bad input.
+
+No timing assertions: CI machines are noisy.
+"""
+
+import json
+import math
 
 import numpy as np
+import pytest
 from exact import load
 
-from pdeinv.bench import operator_ratios
+import pdeinv
+from pdeinv.bench import bench, operator_ratios
+from pdeinv.bench.forward import pareto
+from pdeinv.cli import main
+
+RATIOS = ("forward_vs_splu", "adjoint_vs_forward", "modal_speedup", "sip_vs_gd_step", "hig_step_s")
+METHODS = ("adam", "sgd", "sip", "hig", "gauss_newton")
+TINY = ["--set", "n=8", "--set", "steps=10"]
 
 
 def test_operator_ratios_heat_and_wave():
@@ -13,3 +27,63 @@ def test_operator_ratios_heat_and_wave():
     assert heat["modal_agreement"] < 1e-10
     wave = operator_ratios(load("wave_1d", n=8), batch=4, repeats=1)
     assert np.isfinite(wave["adjoint_vs_forward"]) and "modal_speedup" not in wave
+
+
+def _finite(v):
+    return isinstance(v, (int, float)) and math.isfinite(v)
+
+
+def check_contract(res: dict, nulls=()):
+    for key in RATIOS:
+        assert key in res["ratios"], key
+        v = res["ratios"][key]
+        assert (v is None and key in nulls) or (_finite(v) and v > 0), (key, v)
+    for name in METHODS:
+        for key in ("x_err", "y_err", "wall_s"):
+            assert _finite(res["methods"][name][key]), (name, key)
+    for key in ("mmse_x_err", "tikhonov_best_x_err"):
+        assert _finite(res["reference"][key]), key
+    for key in ("cores", "torch", "scipy", "numpy", "platform"):
+        assert res["machine"][key], key
+    assert res["skips"] and all(isinstance(v, dict) for v in res["skips"].values())
+
+
+def test_bench_cli_quick_heat(tmp_path):
+    assert main(["bench", "heat_2d", "--quick", *TINY, "--budget-s", "0.2", "--out", str(tmp_path)]) == 0
+    res = json.loads((tmp_path / "bench.json").read_text())
+    check_contract(res)
+    assert (tmp_path / "forward.png").stat().st_size > 0 and (tmp_path / "methods.png").stat().st_size > 0
+    assert res["skips"]["no_adjoint_under_no_grad"]["adjoint_calls_under_no_grad"] == 0
+    assert res["skips"]["no_trajectory"]["saved"] > 1  # the stored trajectory takes more memory
+    ok = [p for p in res["forward"]["points"] if p["outcome"] == "ok"]
+    assert {p["backend"] for p in ok} >= {"BE steps", "CN steps"}  # modal: refused on so few unknowns
+    assert all(p["message"] for p in res["forward"]["points"] if p["outcome"] == "refused")
+    assert all(p["error"] < 0.05 for p in ok)  # n = 8 already gets the mode to a few percent
+
+
+def test_bench_api_quick_wave(tmp_path):
+    res = bench(pdeinv.load_problem("wave_1d", n=8, steps=10), tmp_path, quick=True, budget_s=0.2,
+                log=lambda *_: None)
+    check_contract(res, nulls=("modal_speedup",))
+    assert any("modal_speedup" in note for note in res["notes"])
+    assert json.loads((tmp_path / "bench.json").read_text())["ratios"]["modal_speedup"] is None
+
+
+def test_pareto_front():
+    pts = [{"outcome": "ok", "time_s": t, "error": e} for t, e in ((1, 1), (2, 0.5), (3, 0.7), (0.5, 2))]
+    pts.append({"outcome": "refused"})
+    assert sorted(pareto(pts)) == [0, 1, 3]
+
+
+@pytest.mark.parametrize("argv, words", [
+    (["bench", "no_such_problem", "--out", "{d}/o"], "unknown problem"),
+    (["bench", "heat_2d", "--budget-s", "0", "--out", "{d}/o"], "--budget-s"),
+    (["bench", "heat_2d", "--budget-s", "-3", "--out", "{d}/o"], "--budget-s"),
+    (["bench", "heat_2d", "--out", "{d}/file"], "is a file"),
+    (["bench", "heat_2d", "--set", "kappa=-1", "--out", "{d}/o"], "kappa"),
+])
+def test_bench_bad_input(tmp_path, capsys, argv, words):
+    (tmp_path / "file").write_text("x")
+    assert main([a.format(d=tmp_path) for a in argv]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and words in err

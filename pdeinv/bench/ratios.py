@@ -1,24 +1,16 @@
 """Cost ratios measured in one run (the machine is shared and noisy: ratios, not absolute times).
 
-Each timing is the minimum over ``repeats`` interleaved runs, which filters out
-interference from other processes better than the mean.
+Each timing is the minimum over ``repeats`` rounds, the functions compared run one
+after the other within each round (interleaved), so a burst of load from other
+processes hits all of them alike; the minimum filters interference better than the mean.
 """
 
 from __future__ import annotations
 
-import time
-
 import numpy as np
 import scipy.sparse.linalg as sla
 
-
-def _best(fn, repeats: int) -> float:
-    best = np.inf
-    for _ in range(repeats):
-        t = time.perf_counter()
-        fn()
-        best = min(best, time.perf_counter() - t)
-    return best
+from .timing import interleaved
 
 
 def operator_ratios(problem, batch: int = 64, repeats: int = 5, seed: int = 0) -> dict:
@@ -26,14 +18,15 @@ def operator_ratios(problem, batch: int = 64, repeats: int = 5, seed: int = 0) -
 
     * ``forward_vs_splu``: our batched time-stepping forward (default solver) / a
       bare loop ``U ← lu.solve(B @ U)`` with ``scipy.sparse.linalg.splu`` (default
-      options) on the same matrices and batch;
+      options) on the same matrices and batch (wave: the same Newmark update,
+      ``U' = lu.solve(B U + dt M V)``, ``V' = 2(U' − U)/dt − V``);
     * ``overhead_vs_bare``: the same with *our* stepping forced onto the bare
       loop's own SuperLU object: the pure overhead of the operator layer;
     * ``adjoint_vs_forward``: adjoint / forward time of the same operator;
     * ``modal_speedup`` (heat only): time-stepping forward / modal forward, with
       ``modal_agreement`` the relative difference of their results.
     """
-    from .physics import Heat
+    from ..physics import Heat, Wave
 
     op = problem.operator
     rng = np.random.default_rng(seed)
@@ -44,39 +37,48 @@ def operator_ratios(problem, batch: int = 64, repeats: int = 5, seed: int = 0) -
         steps = op if op.backend.name == "steps" else Heat(
             op.M, op.K, op.kappa, op.t_end, op.steps, op.scheme, backend="steps")
         A, B = steps.backend.A, steps.backend.B
-    else:
+    elif isinstance(op, Wave):
         steps, A, B = op, op.A, op.B
+    else:
+        t = interleaved({"fwd": lambda: op.forward(X), "adj": lambda: op.adjoint(R)}, repeats)
+        return {**out, "forward_s": t["fwd"], "adjoint_vs_forward": t["adj"] / t["fwd"]}
     lu = sla.splu(A.tocsc())
 
-    def bare():
+    def bare_heat():
         U = X.T.copy()
         for _ in range(steps.steps):
             U = lu.solve(B @ U)
         return U
 
-    if isinstance(op, Heat):  # the wave step has a second matvec: compare heat only
-        t_bare = _best(bare, repeats)
-        t_fwd = _best(lambda: steps.forward(X), repeats)
-        out["forward_vs_splu"] = t_fwd / t_bare
+    def bare_wave():  # the same Newmark step as Wave._step, written with scipy only
+        U, V, dt = X.T.copy(), np.zeros_like(X.T), op.dt
+        for _ in range(op.steps):
+            U1 = lu.solve(B @ U + dt * (op.M @ V))
+            U, V = U1, (2.0 / dt) * (U1 - U) - V
+        return U
+
+    fns = {"bare": bare_wave if isinstance(op, Wave) else bare_heat,
+           "fwd": lambda: steps.forward(X), "adj": lambda: steps.adjoint(R)}
+    if isinstance(op, Heat):
         same = Heat(op.M, op.K, op.kappa, op.t_end, op.steps, op.scheme, backend="steps",
                     solver=lambda _: lu)
-        out["overhead_vs_bare"] = _best(lambda: same.forward(X), repeats) / t_bare
-        out["solver"] = type(steps.backend.lu).__name__
-    t_fwd = _best(lambda: steps.forward(X), repeats)
-    t_adj = _best(lambda: steps.adjoint(R), repeats)
-    out.update(forward_s=t_fwd, adjoint_vs_forward=t_adj / t_fwd)
-    if isinstance(op, Heat):
+        fns["same"] = lambda: same.forward(X)
         modal = op if op.backend.name == "modal" else None
         if modal is None:
             try:
                 modal = Heat(op.M, op.K, op.kappa, op.t_end, op.steps, op.scheme, backend="modal")
             except ValueError:
-                return out
-        t_modal = _best(lambda: modal.forward(X), repeats)
+                modal = None
+        if modal is not None:
+            fns["modal"] = lambda: modal.forward(X)
+    t = interleaved(fns, repeats)
+    ours = steps.backend.lu if isinstance(op, Heat) else op.lu
+    out.update(forward_s=t["fwd"], forward_vs_splu=t["fwd"] / t["bare"],
+               adjoint_vs_forward=t["adj"] / t["fwd"], solver=type(ours).__name__)
+    if "same" in t:
+        out["overhead_vs_bare"] = t["same"] / t["bare"]
+    if "modal" in t:
         ys = steps.forward(X)
-        out.update(
-            modal_speedup=t_fwd / t_modal,
-            modal_modes=modal.backend.k,
-            modal_agreement=float(np.linalg.norm(modal.forward(X) - ys) / np.linalg.norm(ys)),
-        )
+        out.update(modal_speedup=t["fwd"] / t["modal"], modal_modes=modal.backend.k,
+                   modal_agreement=float(np.linalg.norm(modal.forward(X) - ys) / np.linalg.norm(ys)))
     return out

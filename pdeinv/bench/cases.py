@@ -1,0 +1,163 @@
+"""The stress cases for one problem: sweeps over physics, numerics and update-rule settings.
+
+Sweeps (values in quick mode are a subset): ``kappaT`` over four decades (heat);
+``noise`` 0–10 % (linear-MMSE and best-α Tikhonov x-errors); ``dt_<scheme>`` from
+one step to 10⁴ steps against the exact mode solution (BE/CN/Newmark are
+unconditionally stable, so the field must stay bounded: ``growth = ‖u_T‖_M/‖u₀‖_M``);
+``explicit`` (no explicit scheme exists: asking for one is refused); ``mesh_n``
+refinement with the dot-product test; ``precision`` float32 vs float64 through the
+torch bridge and for training; ``hig_tau`` 0…1e-2 and ``sip_eta``; ``alpha``
+Tikhonov regularization down to 1e-12 (relative to s_max²) without and with 1 % noise.
+
+Training cases run on a coarse copy of the scene (``n = 8``: 49 unknowns on the unit
+square) so the Jacobian-based rules finish in seconds. ``hig_tau`` trains HIG with
+η = 1 on an MLP (4,) with batch 16: 784 Jacobian rows against 445 parameters, so J has
+(near-)zero singular values, the regime where the HIG paper shows that the full
+inversion τ = 0 explodes. ``sip_eta`` uses SIP with plain SGD (lr 0.1): with Adam the
+proxy gradient's scale, hence η, cancels out (Adam is scale-invariant).
+"""
+
+from __future__ import annotations
+
+from functools import cache, partial
+
+import numpy as np
+import torch
+
+from .. import references as refs
+from ..autograd import apply
+from ..methods import GD, HIG, SIP, adam, sgd
+from ..physics import Heat
+from ..problem import load_problem
+from ..train import Trainer
+from .forward import applies, exact_factor
+from .methods import network
+from .stress import Case
+
+FULL = {"kappaT": (1e-3, 1e-2, 1e-1, 1.0), "noise": (0.0, 0.01, 0.03, 0.1),
+        "steps": (1, 10, 100, 1000, 10000), "n": (4, 8, 16, 32, 64), "precision": ("float32", "float64"),
+        "tau": (0.0, 1e-8, 1e-6, 1e-4, 1e-2), "eta": (0.1, 0.5, 1.0, 2.0, 5.0),
+        "alpha": (1e-2, 1e-4, 1e-6, 1e-8, 1e-10, 1e-12)}
+QUICK = {"kappaT": (1e-2, 1.0), "noise": (0.0, 0.1), "steps": (1, 10, 100), "n": (4, 8),
+         "precision": ("float32", "float64"), "tau": (0.0, 1e-2), "eta": (1.0, 5.0), "alpha": (1e-2, 1e-12)}
+
+
+def mode_error(problem) -> dict:
+    """Forward error against the exact mode solution and ``growth = ‖P u₀‖_M / ‖u₀‖_M``."""
+    disc = problem.disc
+    x0 = np.prod(np.sin(np.pi * disc.points), axis=0)[None]
+    y = problem.operator.forward(x0)
+    out = {"growth": float(disc.norm(y)[0] / disc.norm(x0)[0])}
+    if applies(problem) is None:
+        target = exact_factor(problem.operator, disc.dim) * x0
+        out["forward_err"] = float(disc.relative_error(y, target)[0])
+    return out
+
+
+def dot_err(op, seed: int = 0, dtype=torch.float64) -> float:
+    """``|⟨Px, r⟩ − ⟨x, Pᵀr⟩| / (‖Px‖‖r‖)`` through the torch bridge in ``dtype``."""
+    rng = np.random.default_rng(seed)
+    x = torch.tensor(rng.standard_normal((3, op.n_in)), dtype=dtype, requires_grad=True)
+    r = torch.tensor(rng.standard_normal((3, op.n_out)), dtype=dtype)
+    y = apply(op, x)
+    (g,) = torch.autograd.grad((y * r).sum(), x)
+    with torch.no_grad():
+        return float(abs((y * r).sum() - (x * g).sum()) / (y.norm() * r.norm()))
+
+
+def train(problem, rule, steps, hidden=None, batch=8, dtype=None) -> dict:
+    """A short training run.
+
+    ``loss_growth`` = mean of the last 3 batch losses / the first 3; ``param_growth`` =
+    ‖θ_end‖ / ‖θ_0‖ (a tanh network's output stays bounded while its first layer blows
+    up, so the x-error alone can hide an exploding update).
+    """
+    model = network(problem, hidden, 0)
+    if dtype is not None:
+        model = model.to(dtype)
+    norm = lambda: float(torch.cat([p.detach().double().flatten() for p in model.parameters()]).norm())  # noqa: E731
+    theta0 = norm()
+    res = Trainer(problem, rule, model, steps=steps, n_train=64, n_test=16, batch_size=batch,
+                  eval_every=steps, progress=False, dtype=dtype).fit()
+    losses = [h["loss"] for h in res.history]
+    return {"x_err": res.metrics["x_err"], "y_err": res.metrics["y_err"],
+            "loss_growth": float(np.mean(losses[-3:]) / np.mean(losses[:3])), "param_growth": norm() / theta0}
+
+
+def cases(name: str, overrides: dict, quick: bool = False) -> list[Case]:
+    """All stress cases for problem ``name`` with ``overrides`` (none runs until classified)."""
+    v = QUICK if quick else FULL
+    load = partial(load_problem, name, **overrides)
+    base = load()
+    heat = isinstance(base.operator, Heat)
+    has_n = "n" in base.settings and not base.settings.get("mesh")
+    small = partial(load, n=8) if has_n else load
+    n_tr, n_te = (32, 8) if quick else (256, 32)
+    out = []
+
+    def kappa(kt):
+        p = load(kappa=kt / base.settings["T"])
+        x = np.prod(np.sin(np.pi * p.disc.points), axis=0)[None]
+        back = p.inverse(p.operator.forward(x), x)
+        return {**mode_error(p), "dot_err": dot_err(p.operator), "backend": p.operator.backend.name,
+                "roundtrip_err": float(p.relative_error(back, x)[0])}
+
+    if heat:
+        out += [Case("kappaT", kt, partial(kappa, kt)) for kt in v["kappaT"]]
+
+    def noise(level):
+        p = load(noise=level)
+        x, _ = p.sample(n_tr, 1)
+        xt, yt = p.sample(n_te, 2)
+        r = refs.references(p, x, xt, yt)
+        return {"mmse_x_err": r["mmse_x_err"], "tikhonov_best_x_err": r["tikhonov_best_x_err"]}
+
+    out += [Case("noise", lv, partial(noise, lv)) for lv in v["noise"]]
+
+    schemes = ("be", "cn") if heat else (None,)
+    for scheme in schemes:
+        extra = {"scheme": scheme, "backend": "steps"} if heat else {}
+        label = f"dt_{scheme}" if heat else "dt_newmark"
+        out += [Case(label, k, lambda k=k, e=extra: {**mode_error(load(steps=k, **e)),
+                                                      "dt": base.settings["T"] / k}) for k in v["steps"]]
+    out.append(Case("explicit", "fe" if heat else "leapfrog",
+                    lambda: mode_error(load(scheme="fe" if heat else "leapfrog"))))
+
+    def mesh(n):  # heat steps: the sweep is about the mesh, and n = 64 modal setup takes minutes
+        p = load(n=n, **({"backend": "steps"} if heat else {}))
+        return {**mode_error(p), "N": p.N, "dot_err": dot_err(p.operator)}
+
+    if has_n:
+        out += [Case("mesh_n", n, partial(mesh, n)) for n in v["n"]]
+
+    steps = 5 if quick else 30
+
+    def precision(kind):
+        dtype = getattr(torch, kind)
+        p = small()
+        x = torch.tensor(p.sample(4, 0)[0], dtype=dtype)
+        ref = p.operator.forward(x.double().numpy())
+        bridge = float(np.linalg.norm(apply(p.operator, x).double().numpy() - ref) / np.linalg.norm(ref))
+        return {**train(p, GD(optimizer=adam(1e-3)), steps, dtype=dtype), "bridge_rel_diff": bridge,
+                "dot_err": dot_err(p.operator, dtype=dtype)}
+
+    out += [Case("precision", k, partial(precision, k)) for k in v["precision"]]
+    hig_steps = 2 if quick else 10  # τ = 0: ‖θ‖ grows ~7e7× within 2 steps (measured)
+    out += [Case("hig_tau", t, lambda t=t: train(small(), HIG(eta=1.0, tau=t), hig_steps, (4,), 16))
+            for t in v["tau"]]
+    out += [Case("sip_eta", e, lambda e=e: train(small(), SIP(eta=e, optimizer=sgd(0.1)), steps))
+            for e in v["eta"]]
+
+    @cache
+    def path(level):
+        p = load(noise=level)
+        xt, yt = p.sample(n_te, 2)
+        return p, refs.tikhonov_path(p), xt, yt
+
+    def alpha(level, a):
+        p, (solve, smax), xt, yt = path(level)
+        return {"x_err": float(np.mean(p.relative_error(solve(yt, a * smax**2), xt)))}
+
+    for level in (0.0, 0.01):
+        out += [Case(f"alpha@{level:g}", a, partial(alpha, level, a)) for a in v["alpha"]]
+    return out

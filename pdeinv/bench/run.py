@@ -1,0 +1,131 @@
+"""``bench(problem, out)``: every benchmark section in one run, written to ``out/bench.json`` + PNGs.
+
+JSON (**contract** keys marked *): ``machine``*, ``settings``, ``ratios``
+(``forward_vs_splu``*, ``adjoint_vs_forward``*, ``modal_speedup``*, ``sip_vs_gd_step``*,
+``hig_step_s``*, …), ``forward`` (the accuracy/cost ladder), ``methods.<name>``
+(``x_err``*, ``y_err``*, ``wall_s``*, …), ``reference`` (``mmse_x_err``*,
+``tikhonov_best_x_err``*), ``skips.<name>``, ``notes``. A ratio that does not apply
+is ``null`` with a note saying why.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import resource
+import time
+from pathlib import Path
+
+import torch
+
+from .. import references as refs
+from ..physics import Heat
+from ..train import _seed
+from . import forward, methods, plots, skips
+from .ratios import operator_ratios
+from .steps import step_ratios
+from .timing import machine
+
+#: run sizes: (n_train, n_test, repeats, ratio batch, sweep the hyper-parameters)
+SIZES = {False: (1024, 128, 5, 64, True), True: (64, 16, 1, 8, False)}
+
+
+def jsonable(obj):
+    """JSON-safe: NaN/Inf become strings, so a reader sees them instead of a parse error."""
+    if isinstance(obj, float) and not math.isfinite(obj):
+        return str(obj)
+    if isinstance(obj, dict):
+        return {k: jsonable(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [jsonable(v) for v in obj]
+    return obj
+
+
+def bench(problem, out, quick: bool = False, budget_s: float = 20.0, seed: int = 0,
+          log=print, threads: int | None = 1) -> dict:
+    """Run all sections on ``problem`` (a :class:`pdeinv.Problem`); return and write the results.
+
+    ``threads``: torch threads during the run (restored after; None leaves them). One
+    thread by default: on a shared 2-core machine a second process on one core stalls
+    torch's 2-thread kernels at every barrier (measured: Adam steps on heat_2d varied
+    from 0.03 s to 1 s within one run), which would make equal-wall-clock comparisons
+    a lottery.
+    """
+    before = torch.get_num_threads()
+    if threads is not None:
+        if int(threads) < 1:
+            raise ValueError(f"threads={threads!r} is not allowed; expected an integer >= 1")
+        torch.set_num_threads(int(threads))
+    try:
+        return _bench(problem, out, quick, budget_s, seed, log)
+    finally:
+        torch.set_num_threads(before)
+
+
+def _bench(problem, out, quick, budget_s, seed, log) -> dict:
+    if not budget_s > 0:
+        raise ValueError(f"budget_s={budget_s!r} is not allowed; expected a number of seconds > 0")
+    out = Path(out)
+    if out.exists() and not out.is_dir():
+        raise ValueError(f"out={str(out)!r} is a file; expected a directory")
+    out.mkdir(parents=True, exist_ok=True)
+    n_train, n_test, repeats, batch, sweep = SIZES[bool(quick)]
+    notes, t0 = [], time.perf_counter()
+    res = {"problem": problem.name, "settings": {k: str(v) for k, v in problem.settings.items()},
+           "machine": machine(), "quick": bool(quick), "budget_s": budget_s, "seed": seed, "notes": notes}
+
+    log(f"[bench] operator ratios ({problem.operator!r})")
+    op_r = operator_ratios(problem, batch=batch, repeats=repeats, seed=seed)
+    if not isinstance(problem.operator, Heat):
+        op_r.setdefault("forward_vs_splu", None)
+        op_r["modal_speedup"] = None
+        notes.append("modal_speedup: null, the modal backend exists for the heat operator only "
+                     "(the undamped wave keeps all its modes: nothing to truncate)")
+    hig_net = methods.network(problem, methods.HIG_NET, seed)
+    st = step_ratios(problem, methods.network(problem, None, seed), hig_net,
+                     batch=min(32, n_train), hig_batch=methods.HIG_BATCH, repeats=repeats, seed=seed)
+    res["ratios"] = {**op_r, **st}
+
+    log("[bench] forward accuracy ladder")
+    ns, ks = forward.default_ladder(problem, quick)
+    lad = forward.ladder(problem, ns, ks, repeats=max(1, repeats - 2))
+    front = forward.pareto(lad["points"])
+    res["forward"] = {**lad, "pareto": front}
+    if lad["points"]:
+        plots.forward_pareto(lad["points"], front, out / "forward.png", f"{problem.name}: forward accuracy")
+
+    log("[bench] references (linear MMSE, best-α Tikhonov)")
+    x_tr, _ = problem.sample(n_train, _seed(seed, 1))  # the trainer's own training and test data
+    x_te, y_te = problem.sample(n_test, _seed(seed, 2))
+    res["reference"] = refs.references(problem, x_tr, x_te, y_te)
+
+    log(f"[bench] methods, {budget_s:g} s each{' after a sweep' if sweep else ''}")
+    torch.manual_seed(seed)
+    res["methods"] = methods.compare(problem, budget_s, seed=seed, n_train=n_train, n_test=n_test,
+                                     sweep=sweep, eval_every=10 if not quick else 2)
+    notes.append(f"HIG and Gauss-Newton train MLP{methods.HIG_NET} with batch {methods.HIG_BATCH}: "
+                 "the stacked Jacobian of the default network does not fit (see pdeinv/bench/methods.py)")
+    plots.methods(res["methods"], res["reference"], out / "methods.png",
+                  f"{problem.name}: {budget_s:g} s per method")
+
+    log("[bench] skips")
+    res["skips"] = skips.measure(problem, st, repeats=repeats, seed=seed, modal_info=op_r)
+    res["total_s"] = time.perf_counter() - t0
+    res["peak_rss_mb"] = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024  # Linux: KiB
+    (out / "bench.json").write_text(json.dumps(jsonable(res), indent=2, default=str))
+    return res
+
+
+def summary(res: dict) -> str:
+    """A few lines for the terminal."""
+    r, ref = res["ratios"], res["reference"]
+    fmt = lambda v: "null" if v is None else f"{v:.3g}"  # noqa: E731
+    lines = [f"{res['problem']}: forward_vs_splu {fmt(r.get('forward_vs_splu'))}, adjoint_vs_forward "
+             f"{fmt(r['adjoint_vs_forward'])}, modal_speedup {fmt(r.get('modal_speedup'))}, sip_vs_gd_step "
+             f"{fmt(r['sip_vs_gd_step'])}, hig_step_s {fmt(r['hig_step_s'])}",
+             f"reference: MMSE x_err {ref['mmse_x_err']:.4f}, "
+             f"best-α Tikhonov x_err {ref['tikhonov_best_x_err']:.4f}"]
+    for name, m in res["methods"].items():
+        lines.append(f"  {name:13s} x_err {m['x_err']:.4f}  y_err {m['y_err']:.4f}  "
+                     f"wall {fmt(m['wall_s'])} s  steps {m.get('steps')}")
+    return "\n".join(lines)

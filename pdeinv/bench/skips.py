@@ -1,0 +1,135 @@
+""""Skip what a scene doesn't need", each skip measured against the work it avoids.
+
+* ``modal``: a truncated modal heat propagator instead of time stepping (dead modes skipped);
+* ``no_trajectory``: the adjoint of a linear scheme needs no stored trajectory; the
+  baseline stores every step's field, as a generic (nonlinear) adjoint must;
+* ``no_adjoint_under_no_grad``: ``pdeinv.apply`` under ``torch.no_grad`` runs no adjoint;
+  the baseline is forward + backward;
+* ``factorization_reuse``: one factorization for all steps and batch columns; the
+  baseline refactorizes ``A`` every step;
+* ``hig_jacobian_only_for_hig``: GD and SIP never build ``∂y/∂θ``; its size is what they save.
+
+Each entry holds the measured cost with and without the skip and ``saved``, the
+factor the skip gains (time or traced memory), all from one run.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import torch
+
+from ..autograd import apply
+from ..physics import Heat, Wave
+from ..physics.base import LinearOperator
+from .timing import best, peak_bytes
+
+
+class Counting(LinearOperator):
+    """Wraps an operator and counts forward and adjoint calls."""
+
+    def __init__(self, op):
+        self.op, self.n_in, self.n_out = op, op.n_in, op.n_out
+        self.calls = {"forward": 0, "adjoint": 0}
+
+    def _forward(self, X):
+        self.calls["forward"] += 1
+        return self.op._forward(X)
+
+    def _adjoint(self, R):
+        self.calls["adjoint"] += 1
+        return self.op._adjoint(R)
+
+
+def _stepping(op):
+    """``(A, B, solver factory, steps, stepping operator)`` of a time-stepping operator, or None."""
+    if isinstance(op, Heat):
+        if op.backend.name != "steps":
+            op = Heat(op.M, op.K, op.kappa, op.t_end, op.steps, op.scheme, backend="steps")
+        return op.backend.A, op.backend.B, op.solver, op.steps, op
+    if isinstance(op, Wave):
+        return op.A, op.B, type(op.lu), op.steps, op
+    return None
+
+
+def trajectory(op, X, R) -> dict:
+    """Peak traced memory of our adjoint vs a forward that stores every step (heat stepping)."""
+    st = _stepping(op)
+    if st is None or not isinstance(op, Heat):
+        return {"skipped": "measured on heat time stepping only"}
+    A, B, solver, steps, stepping = st
+    lu = stepping.backend.lu
+
+    def stored():  # np.array copies: solver outputs may live in torch memory tracemalloc cannot see
+        traj = [X.T.copy()]
+        for _ in range(steps):
+            traj.append(np.array(lu.solve(B @ traj[-1])))
+        return traj
+
+    ours = peak_bytes(lambda: np.array(stepping.adjoint(R)))
+    base = peak_bytes(stored)
+    return {"adjoint_peak_bytes": ours, "stored_trajectory_peak_bytes": base, "saved": base / max(ours, 1),
+            "note": "tracemalloc sees numpy memory only (not the solver's own)"}
+
+
+def no_grad(op, X, repeats) -> dict:
+    """Forward under ``no_grad`` (adjoint never runs) vs forward + backward."""
+    counting = Counting(op)
+    x = torch.as_tensor(X, dtype=torch.float64).requires_grad_(True)
+
+    def plain():
+        with torch.no_grad():
+            apply(counting, x)
+
+    def both():
+        apply(counting, x).sum().backward()
+
+    plain()
+    adj_after_no_grad = counting.calls["adjoint"]
+    t_plain, t_both = best(plain, repeats), best(both, repeats)
+    return {"adjoint_calls_under_no_grad": adj_after_no_grad, "no_grad_s": t_plain,
+            "with_backward_s": t_both, "saved": t_both / t_plain}
+
+
+def factorization(op, X, repeats) -> dict:
+    """One factorization for all steps vs refactorizing every step (same batch)."""
+    st = _stepping(op)
+    if st is None:
+        return {"skipped": "no time-stepping operator"}
+    A, B, solver, steps, stepping = st
+    k = min(steps, 20)  # the refactorizing baseline is slow: time k steps and scale
+
+    def refactor():
+        U, V = X.T, np.zeros_like(X.T)
+        for _ in range(k):
+            if isinstance(stepping, Wave):  # the Newmark step of Wave._step
+                U1 = solver(A).solve(B @ U + stepping.dt * (stepping.M @ V))
+                U, V = U1, (2.0 / stepping.dt) * (U1 - U) - V
+            else:
+                U = solver(A).solve(B @ U)
+
+    t_ours = best(lambda: stepping.forward(X), repeats)
+    t_base = best(refactor, max(1, repeats // 2)) * steps / k
+    return {"reused_s": t_ours, "refactorized_s": t_base, "saved": t_base / t_ours, "timed_steps": k}
+
+
+def measure(problem, steps_info: dict | None = None, batch: int = 16, repeats: int = 3, seed: int = 0,
+            modal_info: dict | None = None) -> dict:
+    """All skip measurements for ``problem``; ``steps_info``/``modal_info`` come from the ratio probes."""
+    rng = np.random.default_rng(seed)
+    op = problem.operator
+    X = rng.standard_normal((batch, op.n_in))
+    R = rng.standard_normal((batch, op.n_out))
+    out = {"no_trajectory": trajectory(op, X, R), "no_adjoint_under_no_grad": no_grad(op, X, repeats),
+           "factorization_reuse": factorization(op, X, repeats)}
+    if modal_info and modal_info.get("modal_speedup") is not None:
+        out["modal"] = {"modes_kept": modal_info.get("modal_modes"), "N": op.n_in,
+                        "saved": modal_info["modal_speedup"], "agreement": modal_info.get("modal_agreement")}
+    else:
+        out["modal"] = {"skipped": "the modal backend applies to heat final-field operators only"}
+    if steps_info:
+        rows, params = steps_info["hig_jacobian"]
+        out["hig_jacobian_only_for_hig"] = {
+            "jacobian_mb_avoided_by_gd_sip": steps_info["hig_jacobian_mb"], "jacobian_shape": [rows, params],
+            "hig_step_s": steps_info["hig_step_s"], "gd_step_s_same_net": steps_info["gd_step_s_hig_net"],
+            "saved": steps_info["hig_step_s"] / steps_info["gd_step_s_hig_net"]}
+    return out

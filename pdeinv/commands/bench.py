@@ -1,0 +1,41 @@
+"""``pdeinv bench``: run time against error, cost ratios and skips; writes DIR/bench.json and PNGs."""
+
+from __future__ import annotations
+
+from . import UsageError, add_set_argument, parse_sets
+
+ORDER = 2
+
+
+def cmd_bench(args) -> int:
+    from pathlib import Path
+
+    import pdeinv
+    from pdeinv.bench import bench, summary
+
+    if not args.budget_s > 0:
+        raise UsageError(f"--budget-s {args.budget_s!r} is not allowed; expected seconds > 0")
+    out = Path(args.out)
+    if out.exists() and not out.is_dir():
+        raise UsageError(f"--out {str(out)!r} is a file; expected a directory")
+    problem = pdeinv.load_problem(args.problem, **parse_sets(args.set))
+    if args.threads < 1:
+        raise UsageError(f"--threads {args.threads} is not allowed; expected an integer >= 1")
+    res = bench(problem, out, quick=args.quick, budget_s=args.budget_s, seed=args.seed, threads=args.threads)
+    print(summary(res))
+    print(f"-> {out / 'bench.json'}")
+    return 0
+
+
+def add_parser(sub) -> None:
+    b = sub.add_parser("bench", help="benchmark run time against error; write DIR/bench.json and plots")
+    b.add_argument("problem")
+    b.add_argument("--out", required=True, metavar="DIR")
+    b.add_argument("--quick", action="store_true", help="tiny sizes, no sweeps, one repeat (CI smoke test)")
+    b.add_argument("--budget-s", type=float, default=20.0, metavar="S",
+                   help="training wall time per method (default 20)")
+    b.add_argument("--seed", type=int, default=0)
+    b.add_argument("--threads", type=int, default=1,
+                   help="torch threads during the run (default 1: steadier timings on a shared machine)")
+    add_set_argument(b)
+    b.set_defaults(func=cmd_bench)

@@ -1,0 +1,38 @@
+"""``pdeinv stress``: sweeps that try to break the numerics; every case's outcome in DIR/stress.json."""
+
+from __future__ import annotations
+
+from . import UsageError, add_set_argument, parse_sets
+
+ORDER = 3
+
+
+def cmd_stress(args) -> int:
+    import json
+    from pathlib import Path
+
+    from pdeinv.bench import cases, stress
+    from pdeinv.bench.run import jsonable
+    from pdeinv.bench.timing import machine
+
+    out = Path(args.out)
+    if out.exists() and not out.is_dir():
+        raise UsageError(f"--out {str(out)!r} is a file; expected a directory")
+    todo = cases.cases(args.problem, parse_sets(args.set), quick=args.quick)
+    out.mkdir(parents=True, exist_ok=True)
+    rows = stress.run(todo, log=print)
+    summary = stress.counts(rows)
+    (out / "stress.json").write_text(json.dumps(jsonable(
+        {"problem": args.problem, "quick": args.quick, "machine": machine(), "counts": summary,
+         "cases": rows}), indent=2, default=str))
+    print(" ".join(f"{k} {n}" for k, n in summary.items()) + f" -> {out / 'stress.json'}")
+    return 0
+
+
+def add_parser(sub) -> None:
+    s = sub.add_parser("stress", help="numerical stress sweeps; write DIR/stress.json")
+    s.add_argument("problem")
+    s.add_argument("--out", required=True, metavar="DIR")
+    s.add_argument("--quick", action="store_true", help="fewer values per sweep, shorter training")
+    add_set_argument(s)
+    s.set_defaults(func=cmd_stress)

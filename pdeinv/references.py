@@ -1,0 +1,113 @@
+"""Linear reference reconstructions: the limits the trained networks are measured against.
+
+Both are fitted on a training set ``(X, Y)`` and evaluated on a test set, with the
+relative L²(Ω) error of :meth:`pdeinv.Problem.relative_error`.
+
+**Linear MMSE** (the optimal linear estimator for the training distribution):
+with the training mean ``μ`` and covariance ``C_x = L Lᵀ``, ``L = X̄ᵀ/√(n−1)``
+(``X̄`` the centred samples), and ``G = P L`` (the noise-free images of the centred
+samples, no explicit ``P`` needed),
+
+    x̂ = μ + W (y − Pμ),    W = C_x Pᵀ (P C_x Pᵀ + σ² I)⁻¹ = L V diag(s/(s²+σ²)) Uᵀ,
+
+with the thin SVD ``G = U diag(s) Vᵀ`` (the push-through identity; it avoids forming
+``P C_x Pᵀ``, which would square the condition number and lose the weakly observed
+modes to rounding). ``σ² = noise² · mean_i rms(P x_i)²`` is the variance of the
+problem's relative noise (:func:`pdeinv.sampling.add_noise`). With ``noise = 0``
+the inverse is singular; we then use the *tiny σ* ``σ = 1e-8 · s_max`` (not a
+hard pseudo-inverse): a smooth cut where rounding in ``y`` (~1e-16) would start
+to dominate.
+The MMSE estimator minimizes ``E‖x̂ − x‖²_G`` for every SPD weight ``G``, so it is
+the same in the Euclidean and the L²(Ω) norm.
+
+**Best-α Tikhonov**: ``x̂_α = argmin ½‖P x − y‖²_D + ½ α ‖x‖²_M`` with ``D = M`` when
+``y`` is a field on the mesh (else the identity), for ``α = a · s_max²`` on a grid
+of ``a``; the α with the lowest mean test x-error wins (an oracle choice: a
+lower bound for any α rule). With ``M = LLᵀ`` and ``z = Lᵀx``, ``Q = L_Dᵀ P L⁻ᵀ``
+has the SVD ``Q = U S Vᵀ`` and ``x̂_α = L⁻ᵀ V diag(s/(s²+α)) Uᵀ L_Dᵀ y`` for all α
+at once. ``P`` is formed densely (``N`` forward columns): meant for N ≲ 5000.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import scipy.linalg as sla
+
+#: σ / s_max used when the problem is noise-free (see the module docstring)
+TINY_SIGMA = 1e-8
+#: α / s_max² tried by :func:`tikhonov_best`
+ALPHA_GRID = tuple(10.0 ** -k for k in range(0, 15))
+
+
+def _noise_variance(problem, Y_clean: np.ndarray) -> float:
+    return float(problem.noise) ** 2 * float(np.mean(Y_clean**2))
+
+
+def mmse(problem, X: np.ndarray, sigma2: float | None = None):
+    """``(estimator, info)``: ``estimator(Y) -> X̂`` the linear MMSE fitted on training fields ``X``."""
+    X = np.asarray(X, dtype=float)
+    n = X.shape[0]
+    if n < 2:
+        raise ValueError(f"the MMSE needs at least 2 training samples; got {n}")
+    mu = X.mean(0)
+    L = (X - mu).T / np.sqrt(n - 1)  # (N, n)
+    G = problem.operator.forward(L.T).T  # P L, (m, n)
+    U, s, Vt = np.linalg.svd(G, full_matrices=False)
+    if sigma2 is None:
+        sigma2 = _noise_variance(problem, problem.operator.forward(X)) if problem.noise else 0.0
+    floor = (TINY_SIGMA * s[0]) ** 2
+    used = max(float(sigma2), floor)
+    Wt = (U * (s / (s**2 + used))) @ (Vt @ L.T)  # Wᵀ = U diag(s/(s²+σ²)) Vᵀ Lᵀ
+    Pmu = problem.operator.forward(mu[None])[0]
+
+    def estimate(Y):
+        return mu + (np.asarray(Y) - Pmu) @ Wt
+
+    info = {"sigma2": used, "sigma2_rule": "noise" if sigma2 >= floor else "tiny σ = 1e-8·s_max",
+            "n_train": n}
+    return estimate, info
+
+
+def dense_operator(problem, chunk: int = 256) -> np.ndarray:
+    """``P`` as a dense ``(n_out, n_in)`` array, from forward runs on identity columns."""
+    op = problem.operator
+    cols = [op.forward(np.eye(op.n_in)[i:i + chunk]) for i in range(0, op.n_in, chunk)]
+    return np.vstack(cols).T
+
+
+def tikhonov_path(problem, P: np.ndarray | None = None):
+    """``(solve, s_max)``: ``solve(Y, alpha) -> X̂`` for any α, from one SVD."""
+    P = dense_operator(problem) if P is None else P
+    M = problem.disc.M.toarray()
+    L = np.linalg.cholesky(M)
+    LD = L if P.shape[0] == M.shape[0] else np.eye(P.shape[0])
+    Q = LD.T @ sla.solve_triangular(L, P.T, lower=True).T  # L_Dᵀ P L⁻ᵀ
+    U, s, Vt = np.linalg.svd(Q, full_matrices=False)
+    back = sla.solve_triangular(L.T, Vt.T, lower=False)  # L⁻ᵀ V
+
+    def solve(Y, alpha):
+        coef = (np.asarray(Y) @ LD) @ U  # (L_Dᵀ y)ᵀ U
+        return (coef * (s / (s**2 + alpha))) @ back.T
+
+    return solve, float(s[0])
+
+
+def tikhonov_best(problem, Y_test, X_test, grid=ALPHA_GRID, P=None) -> dict:
+    """Sweep ``α = a · s_max²`` over ``grid``; the lowest mean relative test x-error wins."""
+    solve, smax = tikhonov_path(problem, P)
+    errs = []
+    for a in grid:
+        err = float(np.mean(problem.relative_error(solve(Y_test, a * smax**2), X_test)))
+        errs.append(err if np.isfinite(err) else np.inf)
+    best = int(np.argmin(errs))
+    return {"x_err": errs[best], "alpha_rel": grid[best], "alpha": grid[best] * smax**2,
+            "sweep": dict(zip([f"{a:.0e}" for a in grid], errs, strict=True))}
+
+
+def references(problem, X_train, X_test, Y_test) -> dict:
+    """``mmse_x_err``, ``tikhonov_best_x_err`` and what they used, on the given test set."""
+    est, info = mmse(problem, X_train)
+    mm = float(np.mean(problem.relative_error(est(Y_test), X_test)))
+    tk = tikhonov_best(problem, Y_test, X_test)
+    return {"mmse_x_err": mm, "mmse": info, "tikhonov_best_x_err": tk["x_err"],
+            "tikhonov": {k: v for k, v in tk.items() if k != "x_err"}}

@@ -1,0 +1,58 @@
+"""Stress sweeps: every outcome is classified; the HIG τ = 0 explosion is reproduced and τ > 0 is not."""
+
+import json
+import math
+
+import pytest
+
+from pdeinv.bench.stress import OUTCOMES, Case, classify, counts
+from pdeinv.cli import main
+from pdeinv.methods import NonFiniteError
+
+
+def _raise(err):
+    def run():
+        raise err
+
+    return run
+
+
+@pytest.mark.parametrize("run, outcome", [
+    (lambda: {"x_err": math.nan}, "nan"),  # an injected NaN
+    (lambda: {"growth": math.inf}, "nan"),
+    (_raise(NonFiniteError("step 3: the y-loss is inf")), "nan"),
+    (lambda: {"x_err": 1e6}, "diverged"),
+    (lambda: {"forward_err": 1e6, "growth": 0.5}, "ok"),  # accuracy is reported, not watched
+    (_raise(ValueError("scheme='fe' is not allowed")), "refused"),
+    (_raise(RuntimeError("boom")), "error"),
+    (lambda: {"x_err": 0.1, "backend": "modal"}, "ok"),
+])
+def test_classify(run, outcome):
+    row = classify(Case("s", 1, run))
+    assert row["outcome"] == outcome
+    if outcome in ("nan", "refused", "error", "diverged"):
+        assert row["message"]
+
+
+def test_stress_cli_quick(tmp_path):
+    assert main(["stress", "heat_2d", "--quick", "--set", "n=8", "--set", "steps=10",
+                 "--out", str(tmp_path)]) == 0
+    res = json.loads((tmp_path / "stress.json").read_text())
+    rows = res["cases"]
+    assert all(r["outcome"] in OUTCOMES for r in rows)
+    assert counts(rows)["error"] == 0 and sum(res["counts"].values()) == len(rows)
+    by = {(r["sweep"], r["value"]): r for r in rows}
+    assert by[("explicit", "fe")]["outcome"] == "refused" and "'be'" in by[("explicit", "fe")]["message"]
+    assert by[("hig_tau", 0.0)]["outcome"] in ("nan", "diverged")  # full inversion explodes
+    assert by[("hig_tau", 0.01)]["outcome"] == "ok"
+    for r in rows:
+        if r["sweep"].startswith("dt_"):
+            assert r["outcome"] == "ok" and r["growth"] <= 1.0  # BE and CN never amplify
+
+
+def test_stress_bad_input(tmp_path, capsys):
+    f = tmp_path / "file"
+    f.write_text("x")
+    assert main(["stress", "heat_2d", "--out", str(f)]) == 2
+    assert main(["stress", "nope", "--out", str(tmp_path / "o")]) == 2
+    assert len(capsys.readouterr().err.strip().splitlines()) == 2
