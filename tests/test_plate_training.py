@@ -11,10 +11,12 @@ import torch
 import pdeinv
 from pdeinv.nets import MLP
 
-RULES = {  # name: (rule, steps, hidden, batch, x_err bound, y_err bound); measured x .62/.51/.85
+# name: (rule, steps, hidden, batch, x_err bound, y_err bound); measured x/y .62/.34, .51/.34, .91/.79.
+# HIG at batch 1: its cost is the eigendecomposition of the (batch·640)² Gram matrix.
+RULES = {
     "adam": (lambda: pdeinv.GD(optimizer=pdeinv.adam(1e-3)), 60, (64,), 16, 0.75, 0.45),
     "sip": (lambda: pdeinv.SIP(eta=1.0, optimizer=pdeinv.adam(1e-3)), 60, (64,), 16, 0.65, 0.45),
-    "hig": (lambda: pdeinv.HIG(eta=0.1, tau=1e-5), 10, (4,), 2, 0.92, 0.85),
+    "hig": (lambda: pdeinv.HIG(eta=0.3, tau=1e-5), 10, (4,), 1, 0.95, 0.85),
 }
 
 
