@@ -21,7 +21,7 @@ from .inverse import (
 from .methods import GD, HIG, SIP, NonFiniteError, adam, sgd
 from .nets import mlp
 from .observe import sensor_matrix
-from .physics import Heat, HeatSensors, LinearOperator, Matrix, Modal, Stepping, Wave, WaveSensors
+from .physics import Heat, HeatSensors, Leapfrog, LinearOperator, Matrix, Modal, Stepping, Wave, WaveSensors
 from .problem import Problem, available, load_problem
 from .solvers import AMGCG, Cholesky, SuperLU, amg_cg, default_solver
 from .train import Result, Trainer, train
@@ -51,6 +51,7 @@ __all__ = [
     "Discretization",
     "Heat",
     "HeatSensors",
+    "Leapfrog",
     "LinearOperator",
     "Matrix",
     "Modal",

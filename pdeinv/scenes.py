@@ -11,7 +11,7 @@ from functools import partial
 from . import settings as s
 from .forms import discretize
 from .inverse import default_inverse
-from .physics import Heat, Wave
+from .physics import Heat, Leapfrog, Wave
 from .problem import Problem
 from .sampling import gaussian_bumps
 
@@ -29,6 +29,24 @@ HEAT = {**COMMON, "kappa": (0.01, s.positive), "scheme": ("be", s.one_of("be", "
 WAVE = {**COMMON, "c": (1.0, s.positive)}
 
 
+def _leapfrog(mesh, disc, cfg):
+    if cfg["element"] != "P1":
+        raise ValueError(f"scheme='leapfrog' with element={cfg['element']!r}: leapfrog needs a lumped "
+                         "mass, offered for 'P1' only; use element='P1' or scheme='newmark'")
+    lumped = discretize(mesh, "P1", lumped=True).M  # lumped before condensation, same free unknowns
+    return Leapfrog(lumped, disc.K, c=cfg["c"], T=cfg["T"], steps=cfg["steps"])
+
+
+#: wave time integrators for final-field scenes: name -> (mesh, disc, cfg) -> operator
+WAVE_SCHEMES = {
+    "newmark": lambda mesh, disc, cfg: Wave(disc.M, disc.K, c=cfg["c"], T=cfg["T"], steps=cfg["steps"]),
+    "leapfrog": _leapfrog,
+}
+
+#: settings of the final-field wave scenes (the sensor scene builds on Newmark's state step)
+WAVE_FINAL = {**WAVE, "scheme": ("newmark", s.one_of(*WAVE_SCHEMES))}
+
+
 def heat(name: str, mesh, cfg: dict) -> Problem:
     """Heat scene: θ-scheme final-field observation, homogeneous Dirichlet boundary."""
     disc = discretize(mesh, cfg["element"])
@@ -40,9 +58,14 @@ def heat(name: str, mesh, cfg: dict) -> Problem:
 
 
 def wave(name: str, mesh, cfg: dict) -> Problem:
-    """Wave scene: Newmark, ``x = u₀``, ``v₀ = 0``, observe ``u(T)``; Dirichlet boundary."""
+    """Wave scene: ``x = u₀``, ``v₀ = 0``, observe ``u(T)``; Dirichlet boundary.
+
+    ``cfg['scheme']``: 'newmark' (default; implicit, no stability limit, local inverse
+    by time reversal) or 'leapfrog' (explicit, lumped mass, refuses dt above its CFL
+    limit; local inverse: the generic Tikhonov CG solve).
+    """
     disc = discretize(mesh, cfg["element"])
-    op = Wave(disc.M, disc.K, c=cfg["c"], T=cfg["T"], steps=cfg["steps"])
+    op = WAVE_SCHEMES[cfg.get("scheme", "newmark")](mesh, disc, cfg)
     return Problem(name, disc, op, partial(gaussian_bumps, disc.points), settings=cfg,
                    noise=cfg["noise"],
                    inverse_simulator=default_inverse(op, disc, noise=cfg["noise"]))

@@ -7,7 +7,7 @@ Defaults: c = 1, T = 0.5 (a pulse travels half the domain), 64 P1 elements,
 from pdeinv import mesh, scenes
 from pdeinv import settings as s
 
-SETTINGS = {**scenes.WAVE, "n": (64, s.positive_int), "T": (0.5, s.positive)}
+SETTINGS = {**scenes.WAVE_FINAL, "n": (64, s.positive_int), "T": (0.5, s.positive)}
 
 
 def make(**overrides):

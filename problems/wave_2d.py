@@ -7,7 +7,7 @@ Defaults: c = 1, T = 0.5, 32×32×2 P1 triangles (961 unknowns), 50 Newmark step
 from pdeinv import mesh, scenes
 from pdeinv import settings as s
 
-SETTINGS = {**scenes.WAVE, "n": (32, s.positive_int), "T": (0.5, s.positive),
+SETTINGS = {**scenes.WAVE_FINAL, "n": (32, s.positive_int), "T": (0.5, s.positive),
             "steps": (50, s.positive_int), "mesh": (None, s.optional_path)}
 
 

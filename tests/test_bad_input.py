@@ -105,8 +105,8 @@ def test_cli_reports_one_line_and_exit_code_2(capsys):
 # Cases elsewhere: tests above (overrides, arrays, problems, meshes, cells), tests/test_sensors.py
 # (sensor positions and layouts), tests/test_train.py (trainer settings, CLI method settings),
 # tests/test_checkpoint.py (checkpoints of other runs, corrupt files) and tests/test_nan_guard.py.
-# No explicit time-stepping scheme exists (heat: θ-scheme with θ >= ½, wave: Newmark β = ¼), so
-# there is no dt stability limit to exceed: every dt is accepted.
+# The dt-above-stability-limit case (explicit leapfrog on wave scenes) is in tests/test_leapfrog.py;
+# the implicit schemes (heat θ-scheme with θ >= ½, Newmark β = ¼) accept every dt.
 
 @pytest.fixture(scope="module")
 def files(tmp_path_factory):

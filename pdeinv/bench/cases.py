@@ -4,7 +4,8 @@ Sweeps (values in quick mode are a subset): ``kappaT`` over four decades (heat);
 ``noise`` 0–10 % (linear-MMSE and best-α Tikhonov x-errors); ``dt_<scheme>`` from
 one step to 10⁴ steps against the exact mode solution (BE/CN/Newmark are
 unconditionally stable, so the field must stay bounded: ``growth = ‖u_T‖_M/‖u₀‖_M``);
-``explicit`` (no explicit scheme exists: asking for one is refused); ``mesh_n``
+``explicit`` (heat: no explicit scheme, asking for one is refused; wave: leapfrog
+with lumped mass at 0.9× and 1.1× its CFL limit, the latter refused); ``mesh_n``
 refinement with the dot-product test; ``precision`` float32 vs float64 through the
 torch bridge and for training; ``hig_tau`` 0…1e-2 and ``sip_eta``; ``alpha``
 Tikhonov regularization down to 1e-12 (relative to s_max²) without and with 1 % noise.
@@ -120,8 +121,16 @@ def cases(name: str, overrides: dict, quick: bool = False) -> list[Case]:
         label = f"dt_{scheme}" if heat else "dt_newmark"
         out += [Case(label, k, lambda k=k, e=extra: {**mode_error(load(steps=k, **e)),
                                                       "dt": base.settings["T"] / k}) for k in v["steps"]]
-    out.append(Case("explicit", "fe" if heat else "leapfrog",
-                    lambda: mode_error(load(scheme="fe" if heat else "leapfrog"))))
+    if heat:
+        out.append(Case("explicit", "fe", lambda: mode_error(load(scheme="fe"))))
+    else:  # leapfrog just below and just above its CFL limit (the limit from a stable build)
+        def leapfrog(factor):
+            limit = load(scheme="leapfrog", steps=100 * base.settings["steps"]).operator.dt_max
+            steps = max(1, round(base.settings["T"] / (factor * limit)))
+            return {**mode_error(load(scheme="leapfrog", steps=steps)),
+                    "dt_over_limit": base.settings["T"] / steps / limit}
+
+        out += [Case("explicit", f"leapfrog_{f:g}x_cfl", partial(leapfrog, f)) for f in (0.9, 1.1)]
 
     def mesh(n):  # heat steps: the sweep is about the mesh, and n = 64 modal setup takes minutes
         p = load(n=n, **({"backend": "steps"} if heat else {}))

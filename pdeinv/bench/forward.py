@@ -21,7 +21,7 @@ import numpy as np
 
 from .. import mesh as meshes
 from ..forms import discretize
-from ..physics import Heat, Wave
+from ..physics import Heat, Leapfrog, Wave
 from ..physics.heat_backends import weyl_count
 from ..physics.modes import TooManyModes
 from .timing import best
@@ -61,7 +61,7 @@ def exact_factor(op, dim: int) -> float:
 def applies(problem) -> str | None:
     """``None`` if the analytic ladder applies to ``problem``, else why not."""
     cfg = problem.settings
-    if type(problem.operator) not in (Heat, Wave):
+    if type(problem.operator) not in (Heat, Wave, Leapfrog):
         return f"no analytic solution for a {type(problem.operator).__name__} operator"
     if "n" not in cfg or cfg.get("mesh"):
         return "the analytic mode needs the built-in unit square / interval mesh (setting n)"
