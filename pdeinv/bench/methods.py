@@ -24,6 +24,7 @@ Adam and SIP lr 1e-4…3e-3, SGD lr 3e-3…0.1, HIG η 0.1…1, Gauss–Newton �
 from __future__ import annotations
 
 import math
+import warnings
 from collections.abc import Callable
 from dataclasses import dataclass
 
@@ -75,14 +76,17 @@ def train_once(problem, cand: Candidate, value: float, seed: int, budget_s: floa
                       time_budget=budget_s, n_train=n_train, n_test=n_test, batch_size=batch,
                       seed=seed, eval_every=eval_every, progress=False)
     try:
-        res = trainer.fit()
+        with warnings.catch_warnings():  # rejected steps are counted in the result, not printed
+            warnings.simplefilter("ignore", RuntimeWarning)
+            res = trainer.fit()
     except NonFiniteError as err:
         return {"x_err": math.inf, "y_err": math.inf, "wall_s": None, "outcome": "nan",
                 "message": str(err), "curve": []}
     m = res.metrics
     curve = [[h["wall_s"], h["x_err"], h["y_err"]] for h in res.history if "x_err" in h]
     return {"x_err": m["x_err"], "y_err": m["y_err"], "wall_s": m["wall_s"], "steps": m["steps"],
-            "step_s": m["step_s"], "n_params": m["n_params"], "outcome": "ok", "curve": curve}
+            "step_s": m["step_s"], "n_params": m["n_params"], "rejected_steps": m["rejected_steps"],
+            "outcome": "ok", "curve": curve}
 
 
 def compare(problem, budget_s: float, seed: int = 0, sweep_s: float | None = None,
