@@ -47,7 +47,14 @@ HEAT_BACKENDS = {
     "CN steps": lambda d, c, k: Heat(d.M, d.K, c["kappa"], c["T"], k, "cn", "steps"),
     "BE modal": modal,
 }
-WAVE_BACKENDS = {"Newmark": lambda d, c, k: Wave(d.M, d.K, c["c"], c["T"], k)}
+def leapfrog(d, c, k):
+    """Explicit leapfrog with the lumped P1 mass; below its CFL step count the point is 'refused'."""
+    if c["element"] != "P1":
+        raise ValueError(f"leapfrog needs a lumped mass, offered for P1 only (element={c['element']!r})")
+    return Leapfrog(discretize(d.basis.mesh, "P1", lumped=True).M, d.K, c["c"], c["T"], k)
+
+
+WAVE_BACKENDS = {"Newmark": lambda d, c, k: Wave(d.M, d.K, c["c"], c["T"], k), "leapfrog": leapfrog}
 
 
 def exact_factor(op, dim: int) -> float:
