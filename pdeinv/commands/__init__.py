@@ -26,3 +26,27 @@ def parse_sets(pairs: list[str]) -> dict:
 def add_set_argument(parser) -> None:
     parser.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
                         help="problem override, e.g. --set kappa=0.02 --set n=32")
+
+
+def prepare_out(out) -> None:
+    """Refuse an ``--out`` that is a file; create the folder and prove it writable before any work."""
+    import tempfile
+
+    if out.exists() and not out.is_dir():
+        raise UsageError(f"--out {str(out)!r} is a file; expected a directory")
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+        with tempfile.TemporaryFile(dir=out):
+            pass
+    except OSError as err:
+        raise UsageError(f"--out {str(out)!r} is not a writable directory ({err.strerror or err}); "
+                         "choose another --out") from None
+
+
+def set_threads(n: int) -> None:
+    """``torch.set_num_threads(n)`` for ``--threads``, refusing n < 1."""
+    if n < 1:
+        raise UsageError(f"--threads {n} is not allowed; expected an integer >= 1")
+    import torch
+
+    torch.set_num_threads(n)

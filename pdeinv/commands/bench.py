@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from . import UsageError, add_set_argument, parse_sets
+from . import UsageError, add_set_argument, parse_sets, prepare_out
 
 ORDER = 2
 
@@ -15,12 +15,11 @@ def cmd_bench(args) -> int:
 
     if not args.budget_s > 0:
         raise UsageError(f"--budget-s {args.budget_s!r} is not allowed; expected seconds > 0")
-    out = Path(args.out)
-    if out.exists() and not out.is_dir():
-        raise UsageError(f"--out {str(out)!r} is a file; expected a directory")
-    problem = pdeinv.load_problem(args.problem, **parse_sets(args.set))
     if args.threads < 1:
         raise UsageError(f"--threads {args.threads} is not allowed; expected an integer >= 1")
+    problem = pdeinv.load_problem(args.problem, **parse_sets(args.set))
+    out = Path(args.out)
+    prepare_out(out)
     res = bench(problem, out, quick=args.quick, budget_s=args.budget_s, seed=args.seed, threads=args.threads)
     print(summary(res))
     print(f"-> {out / 'bench.json'}")

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from . import UsageError, add_set_argument, parse_sets
+from . import add_set_argument, parse_sets, prepare_out
 
 ORDER = 3
 
@@ -15,11 +15,9 @@ def cmd_stress(args) -> int:
     from pdeinv.bench.run import jsonable
     from pdeinv.bench.timing import machine
 
-    out = Path(args.out)
-    if out.exists() and not out.is_dir():
-        raise UsageError(f"--out {str(out)!r} is a file; expected a directory")
     todo = cases.cases(args.problem, parse_sets(args.set), quick=args.quick)
-    out.mkdir(parents=True, exist_ok=True)
+    out = Path(args.out)
+    prepare_out(out)
     rows = stress.run(todo, log=print)
     summary = stress.counts(rows)
     (out / "stress.json").write_text(json.dumps(jsonable(

@@ -6,7 +6,7 @@ import json
 import sys
 import warnings
 
-from . import UsageError, add_set_argument, parse_sets
+from . import UsageError, add_set_argument, parse_sets, prepare_out, set_threads
 
 ORDER = 1
 
@@ -19,19 +19,6 @@ def _hidden(text: str) -> tuple[int, ...]:
     if not widths or min(widths) < 1:
         raise UsageError(f"--hidden {text!r}: widths must be integers >= 1")
     return widths
-
-
-def _prepare_out(out) -> None:
-    """Create ``out`` and prove it writable before any training time is spent."""
-    import tempfile
-
-    try:
-        out.mkdir(parents=True, exist_ok=True)
-        with tempfile.TemporaryFile(dir=out):
-            pass
-    except OSError as err:
-        raise UsageError(f"--out {str(out)!r} is not a writable directory ({err.strerror or err}); "
-                         "choose another --out") from None
 
 
 def _one_line(message, category, filename, lineno, file=None, line=None) -> None:
@@ -79,8 +66,6 @@ def cmd_train(args) -> int:
     if ckpt.exists() and not (args.overwrite or args.resume):
         raise UsageError(f"{ckpt} exists (an unfinished or finished run); pass --resume to continue it, "
                          "--overwrite to start over, or choose another --out")
-    if out.exists() and not out.is_dir():
-        raise UsageError(f"--out {str(out)!r} is a file; expected a directory")
     if args.checkpoint_every < 0:
         raise UsageError(f"--checkpoint-every {args.checkpoint_every} is not allowed; "
                          "expected an integer >= 1, or 0 for no checkpoints")
@@ -89,9 +74,7 @@ def cmd_train(args) -> int:
     hidden = _hidden(args.hidden) if args.hidden else None
     if args.export_samples < 0:
         raise UsageError(f"--export-samples {args.export_samples} is not allowed; expected an integer >= 0")
-    if args.threads < 1:
-        raise UsageError(f"--threads {args.threads} is not allowed; expected an integer >= 1")
-    torch.set_num_threads(args.threads)
+    set_threads(args.threads)
     problem = pdeinv.load_problem(args.problem, **parse_sets(args.set))
     rule, hp = make_rule(args.method, problem.name, lr=args.lr, eta=args.eta, tau=args.tau,
                          batch_size=args.batch_size, hidden=hidden)
@@ -105,7 +88,7 @@ def cmd_train(args) -> int:
                       seed=args.seed, eval_every=args.eval_every, max_failures=args.max_failures,
                       checkpoint=Checkpoint(ckpt, args.checkpoint_every) if args.checkpoint_every else None,
                       resume=args.resume)
-    _prepare_out(out)
+    prepare_out(out)
     try:
         with warnings.catch_warnings():  # a rejected step: one line on stderr, not a warning's two
             warnings.simplefilter("always", RuntimeWarning)
