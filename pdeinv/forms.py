@@ -12,6 +12,7 @@ boundaries keep all unknowns. The lumped mass is the row-sum diagonal.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -27,6 +28,17 @@ ELEMENTS = {
     ("tri", "P1"): skfem.ElementTriP1,
     ("tri", "P2"): skfem.ElementTriP2,
 }
+
+
+def boundary_names(mesh: skfem.Mesh, names: str | Sequence[str]) -> list[str]:
+    """``names`` as a list, each checked against the mesh's named boundaries."""
+    names = [names] if isinstance(names, str) else list(names)
+    known = sorted(mesh.boundaries or {})
+    for name in names:
+        if name not in known:
+            has = f"it has {known}" if known else "it has no named boundaries (no tags in its file)"
+            raise ValueError(f"boundary {name!r} is not a named boundary of the mesh; {has}")
+    return names
 
 
 def _shape(mesh: skfem.Mesh) -> str:
@@ -84,13 +96,15 @@ class Discretization:
 def discretize(
     mesh: skfem.Mesh,
     element: str = "P1",
-    dirichlet: bool | np.ndarray = True,
+    dirichlet: bool | str | Sequence[str] | np.ndarray = True,
     lumped: bool = False,
 ) -> Discretization:
     """Assemble mass and stiffness on ``mesh`` and condense Dirichlet unknowns.
 
-    ``dirichlet`` is ``True`` (whole boundary), ``False`` (pure Neumann) or an
-    array of boundary DOF indices (e.g. from ``basis.get_dofs(facets)``).
+    ``dirichlet`` is ``True`` (whole boundary), ``False`` (pure Neumann), the
+    name(s) of boundaries in ``mesh.boundaries`` (tags read from a mesh file, or
+    set with ``mesh.with_boundaries``), or an array of boundary DOF indices (e.g.
+    from ``basis.get_dofs(facets)``).
     ``lumped=True`` replaces ``M`` with its row-sum diagonal (exact for P1 only
     in the sense of mass conservation; P2 lumping has zero/negative weights and
     is refused).
@@ -108,6 +122,8 @@ def discretize(
         fixed = basis.get_dofs().all()
     elif dirichlet is False:
         fixed = np.zeros(0, dtype=int)
+    elif isinstance(dirichlet, str) or (len(dirichlet) and all(isinstance(d, str) for d in dirichlet)):
+        fixed = basis.get_dofs(boundary_names(mesh, dirichlet)).all()
     else:
         fixed = np.asarray(dirichlet, dtype=int)
     free = basis.complement_dofs(fixed) if len(fixed) else np.arange(basis.N)

@@ -215,6 +215,9 @@ def test_plate_file_is_what_the_script_makes():
     made, shipped = mod.plate(), pdeinv.mesh.load(ROOT / "problems/meshes/plate.msh")
     np.testing.assert_allclose(shipped.p, made.p, atol=1e-12)
     np.testing.assert_array_equal(shipped.t, made.t)
+    assert sorted(shipped.boundaries) == sorted(made.boundaries) == ["hole", "outer"]
+    for name in made.boundaries:
+        np.testing.assert_array_equal(np.sort(shipped.boundaries[name]), np.sort(made.boundaries[name]))
 
 
 def test_plate_dirichlet_on_outer_boundary_only(plate):

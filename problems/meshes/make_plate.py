@@ -10,6 +10,9 @@ toward the hole (``s = (j/N_RADIAL)^GRADING``), and each quad is split into two
 triangles along its shorter diagonal. The hole is a polygon
 with ``N_AROUND`` vertices; uniform refinement (``mesh.refined()``) keeps that
 polygon. Off-centre, so no symmetry hides an indexing error.
+
+The file is gmsh 2.2 with two named boundaries (physical line groups), found by
+geometry here: ``outer`` (the square) and ``hole`` (the circle).
 """
 
 from pathlib import Path
@@ -52,11 +55,14 @@ def plate() -> skfem.MeshTri:
     p = pts.reshape(-1, 2).T
     t = np.array(tris).T
     # orientation does not matter: scikit-fem sorts each triangle's nodes and uses |det J|
-    return skfem.MeshTri(np.ascontiguousarray(p), np.ascontiguousarray(t))
+    m = skfem.MeshTri(np.ascontiguousarray(p), np.ascontiguousarray(t))
+    on_square = lambda x: np.isclose(np.max(np.abs(x - 0.5), axis=0), 0.5)  # noqa: E731
+    return m.with_boundaries({"outer": on_square, "hole": lambda x: ~on_square(x)})
 
 
 if __name__ == "__main__":
     m = plate()
     out = Path(__file__).with_name("plate.msh")
     pmesh.save(out, m)
-    print(f"wrote {out}: {m.p.shape[1]} nodes, {m.t.shape[1]} triangles")
+    sizes = ", ".join(f"{k}: {len(v)} edges" for k, v in m.boundaries.items())
+    print(f"wrote {out}: {m.p.shape[1]} nodes, {m.t.shape[1]} triangles; boundaries {sizes}")
