@@ -66,8 +66,17 @@ def write_csv(history: list[dict], path) -> None:
     atomic_write(path, lambda fh: fh.write(text.getvalue().encode()))
 
 
-def _seed(seed: int, stream: int) -> int:
-    """Independent integer seeds for training data, test data and batch order."""
+#: the trainer's seed streams: training data, test data, batch order
+TRAIN_DATA, TEST_DATA, BATCH_ORDER = 1, 2, 3
+
+
+def seed_stream(seed: int, stream: int) -> int:
+    """Independent integer seed ``stream`` of ``seed`` (``SeedSequence([seed, stream])``).
+
+    The trainer draws its training pairs from ``seed_stream(seed, TRAIN_DATA)``, its
+    test pairs from ``seed_stream(seed, TEST_DATA)`` and its batch order from
+    ``seed_stream(seed, BATCH_ORDER)``, so other code can rebuild exactly the same data.
+    """
     return int(np.random.SeedSequence([seed, stream]).generate_state(1)[0])
 
 
@@ -164,8 +173,8 @@ class Trainer:
 
     # -- data and evaluation -------------------------------------------------------------
     def _data(self):
-        x, y = self.problem.sample(self.n_train, _seed(self.seed, 1))
-        xt, yt = self.problem.sample(self.n_test, _seed(self.seed, 2))
+        x, y = self.problem.sample(self.n_train, seed_stream(self.seed, TRAIN_DATA))
+        xt, yt = self.problem.sample(self.n_test, seed_stream(self.seed, TEST_DATA))
         dtype = self.dtype or torch.float32
         t = lambda a: torch.as_tensor(a, dtype=dtype)  # noqa: E731
         return t(y), (xt, yt, t(yt))
@@ -252,7 +261,7 @@ class Trainer:
         if self.fit_scaling:
             fit_input_scaling(model, y_train)
         state = self.rule.init(self.problem, model)
-        gen = torch.Generator().manual_seed(_seed(self.seed, 3))
+        gen = torch.Generator().manual_seed(seed_stream(self.seed, BATCH_ORDER))
         at = _Position(gen, torch.randperm(self.n_train, generator=gen))
         self.history = []
         if self.resume:

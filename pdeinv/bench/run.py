@@ -20,7 +20,7 @@ import torch
 
 from .. import references as refs
 from ..physics import Heat
-from ..train import _seed
+from ..train import TEST_DATA, TRAIN_DATA, seed_stream
 from . import forward, methods, plots, skips
 from .ratios import operator_ratios
 from .steps import step_ratios
@@ -95,8 +95,9 @@ def _bench(problem, out, quick, budget_s, seed, log) -> dict:
         plots.forward_pareto(lad["points"], front, out / "forward.png", f"{problem.name}: forward accuracy")
 
     log("[bench] references (linear MMSE, best-α Tikhonov)")
-    x_tr, _ = problem.sample(n_train, _seed(seed, 1))  # the trainer's own training and test data
-    x_te, y_te = problem.sample(n_test, _seed(seed, 2))
+    # the trainer's own training and test data
+    x_tr, _ = problem.sample(n_train, seed_stream(seed, TRAIN_DATA))
+    x_te, y_te = problem.sample(n_test, seed_stream(seed, TEST_DATA))
     res["reference"] = refs.references(problem, x_tr, x_te, y_te)
 
     log(f"[bench] methods, {budget_s:g} s each{' after a sweep' if sweep else ''}")

@@ -113,9 +113,10 @@ def cmd_train(args) -> int:
     atomic_write(out / "model.pt", lambda fh: torch.save(result.model.state_dict(), fh))
     if args.export_samples:  # ParaView files and a picture of a few held-out samples
         from pdeinv.export import export_run
-        from pdeinv.train import _seed
+        from pdeinv.train import TEST_DATA, seed_stream
 
-        export_run(out, problem, result.model, *problem.sample(args.n_test, _seed(args.seed, 2)),
+        test = problem.sample(args.n_test, seed_stream(args.seed, TEST_DATA))
+        export_run(out, problem, result.model, *test,
                    samples=min(args.export_samples, args.n_test))
     print(f"{problem.name} {args.method}: {metrics['steps']} steps in {metrics['wall_s']:.2f} s, "
           f"x_err {metrics['x_err']:.4f}, y_err {metrics['y_err']:.4f} -> {out}")
