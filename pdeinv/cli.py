@@ -1,7 +1,7 @@
 """Command line: ``pdeinv demo | train | ...``, one module per subcommand in :mod:`pdeinv.commands`.
 
-Errors a user can fix (bad settings, missing files) end with exit code 2 and a
-one-line message on stderr, never a traceback.
+Errors a user can fix (bad settings, missing files, an ``--out`` folder another run
+holds) end with exit code 2 and a one-line message on stderr, never a traceback.
 """
 
 from __future__ import annotations
@@ -13,6 +13,7 @@ import sys
 
 from . import commands
 from .commands import UsageError, parse_sets
+from .runlock import FolderLocked
 
 __all__ = ["UsageError", "build_parser", "main", "parse_sets"]
 
@@ -38,7 +39,7 @@ def main(argv=None) -> int:
     args = parser.parse_args(argv)
     try:
         return args.func(args)
-    except (UsageError, ValueError, FileNotFoundError, NotImplementedError) as err:
+    except (UsageError, FolderLocked, ValueError, FileNotFoundError, NotImplementedError) as err:
         print(f"pdeinv {args.command}: error: {err}", file=sys.stderr)
         return 2
 

@@ -12,6 +12,7 @@ def cmd_bench(args) -> int:
 
     import pdeinv
     from pdeinv.bench import bench, summary
+    from pdeinv.runlock import RunLock
 
     if not args.budget_s > 0:
         raise UsageError(f"--budget-s {args.budget_s!r} is not allowed; expected seconds > 0")
@@ -20,7 +21,9 @@ def cmd_bench(args) -> int:
     problem = pdeinv.load_problem(args.problem, **parse_sets(args.set))
     out = Path(args.out)
     prepare_out(out)
-    res = bench(problem, out, quick=args.quick, budget_s=args.budget_s, seed=args.seed, threads=args.threads)
+    with RunLock(out):  # one run per --out: a second one is refused
+        res = bench(problem, out, quick=args.quick, budget_s=args.budget_s, seed=args.seed,
+                    threads=args.threads)
     print(summary(res))
     print(f"-> {out / 'bench.json'}")
     return 0

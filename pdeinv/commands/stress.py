@@ -14,15 +14,17 @@ def cmd_stress(args) -> int:
     from pdeinv.bench import cases, stress
     from pdeinv.bench.run import jsonable
     from pdeinv.bench.timing import machine
+    from pdeinv.runlock import RunLock
 
     todo = cases.cases(args.problem, parse_sets(args.set), quick=args.quick)
     out = Path(args.out)
     prepare_out(out)
-    rows = stress.run(todo, log=print)
-    summary = stress.counts(rows)
-    (out / "stress.json").write_text(json.dumps(jsonable(
-        {"problem": args.problem, "quick": args.quick, "machine": machine(), "counts": summary,
-         "cases": rows}), indent=2, default=str))
+    with RunLock(out):  # one run per --out: a second one is refused
+        rows = stress.run(todo, log=print)
+        summary = stress.counts(rows)
+        (out / "stress.json").write_text(json.dumps(jsonable(
+            {"problem": args.problem, "quick": args.quick, "machine": machine(), "counts": summary,
+             "cases": rows}), indent=2, default=str))
     print(" ".join(f"{k} {n}" for k, n in summary.items()) + f" -> {out / 'stress.json'}")
     return 0
 

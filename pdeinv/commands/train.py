@@ -56,6 +56,7 @@ def cmd_train(args) -> int:
     from pdeinv.methods.base import NonFiniteError
     from pdeinv.methods.presets import make_rule
     from pdeinv.nets import MLP
+    from pdeinv.runlock import RunLock
     from pdeinv.train import Trainer, write_csv
 
     out = Path(args.out)
@@ -89,38 +90,38 @@ def cmd_train(args) -> int:
                       checkpoint=Checkpoint(ckpt, args.checkpoint_every) if args.checkpoint_every else None,
                       resume=args.resume)
     prepare_out(out)
-    try:
-        with warnings.catch_warnings():  # a rejected step: one line on stderr, not a warning's two
-            warnings.simplefilter("always", RuntimeWarning)
-            warnings.showwarning = _one_line
-            result = trainer.fit()
-    except NonFiniteError:
-        if trainer.history:
-            write_csv(trainer.history, out / "history.csv")
-        raise
-    except KeyboardInterrupt:
-        saved = f"continue from {ckpt} with --resume" if ckpt.exists() else "no checkpoint was written"
-        print(f"pdeinv train: interrupted; {saved}", file=sys.stderr)
-        return 130
-    metrics = {**result.metrics, "method": args.method, "hyperparameters": hp,
-               "settings": {k: v for k, v in problem.settings.items()},
-               "route": result.history[-1].get("route"), "torch_threads": torch.get_num_threads()}
-    # atomic: a kill while writing never leaves a truncated metrics.json or model.pt
-    text = json.dumps(metrics, indent=2, default=str).encode()
-    atomic_write(out / "metrics.json", lambda fh: fh.write(text))
-    write_csv(result.history, out / "history.csv")
-    _plot(result.history, out / "training.png", f"{problem.name}, {args.method}")
-    atomic_write(out / "model.pt", lambda fh: torch.save(result.model.state_dict(), fh))
-    if args.export_samples:  # ParaView files and a picture of a few held-out samples
-        from pdeinv.export import export_run
-        from pdeinv.train import TEST_DATA, seed_stream
+    with RunLock(out):  # one run per --out: a second one is refused
+        try:
+            with warnings.catch_warnings():  # a rejected step: one line on stderr, not a warning's two
+                warnings.simplefilter("always", RuntimeWarning)
+                warnings.showwarning = _one_line
+                result = trainer.fit()
+        except NonFiniteError:
+            if trainer.history:
+                write_csv(trainer.history, out / "history.csv")
+            raise
+        except KeyboardInterrupt:
+            saved = f"continue from {ckpt} with --resume" if ckpt.exists() else "no checkpoint was written"
+            print(f"pdeinv train: interrupted; {saved}", file=sys.stderr)
+            return 130
+        metrics = {**result.metrics, "method": args.method, "hyperparameters": hp,
+                   "settings": {k: v for k, v in problem.settings.items()},
+                   "route": result.history[-1].get("route"), "torch_threads": torch.get_num_threads()}
+        # atomic: a kill while writing never leaves a truncated metrics.json or model.pt
+        text = json.dumps(metrics, indent=2, default=str).encode()
+        atomic_write(out / "metrics.json", lambda fh: fh.write(text))
+        write_csv(result.history, out / "history.csv")
+        _plot(result.history, out / "training.png", f"{problem.name}, {args.method}")
+        atomic_write(out / "model.pt", lambda fh: torch.save(result.model.state_dict(), fh))
+        if args.export_samples:  # ParaView files and a picture of a few held-out samples
+            from pdeinv.export import export_run
+            from pdeinv.train import TEST_DATA, seed_stream
 
-        test = problem.sample(args.n_test, seed_stream(args.seed, TEST_DATA))
-        export_run(out, problem, result.model, *test,
-                   samples=min(args.export_samples, args.n_test))
-    print(f"{problem.name} {args.method}: {metrics['steps']} steps in {metrics['wall_s']:.2f} s, "
-          f"x_err {metrics['x_err']:.4f}, y_err {metrics['y_err']:.4f} -> {out}")
-    return 0
+            test = problem.sample(args.n_test, seed_stream(args.seed, TEST_DATA))
+            export_run(out, problem, result.model, *test, samples=min(args.export_samples, args.n_test))
+        print(f"{problem.name} {args.method}: {metrics['steps']} steps in {metrics['wall_s']:.2f} s, "
+              f"x_err {metrics['x_err']:.4f}, y_err {metrics['y_err']:.4f} -> {out}")
+        return 0
 
 
 def add_parser(sub) -> None:
