@@ -3,7 +3,7 @@
 import numpy as np
 from exact import load
 
-from pdeinv.references import dense_operator, mmse, tikhonov_best, tikhonov_path
+from pdeinv.references import best_filter, dense_operator, mmse, tikhonov_best, tikhonov_path
 
 
 def _data(p, n_train):
@@ -43,3 +43,20 @@ def test_tikhonov_path_matches_a_direct_solve():
     alpha = 1e-4 * smax**2
     direct = np.linalg.solve(P.T @ M @ P + alpha * M, P.T @ M @ y.T).T
     np.testing.assert_allclose(solve(y, alpha), direct, rtol=1e-8, atol=1e-10)
+
+
+def test_best_filter_bounds_tikhonov_and_recovers_it():
+    """Every Tikhonov filter is a spectral filter: on its own training pairs the fitted best filter
+    is at least as good as the best α; and fed Tikhonov reconstructions as "truth" it returns
+    exactly the Tikhonov filter s²/(s²+α)."""
+    p = load("heat_1d", n=16, steps=10, noise=0.02)
+    x, y = p.sample(256, 1)
+    P = dense_operator(p)
+    best = best_filter(p, x, y, x, y, P=P)
+    assert best["x_err"] <= tikhonov_best(p, y, x, P=P)["x_err"] + 1e-12
+    solve, smax = tikhonov_path(p, P)
+    alpha = 1e-3 * smax**2
+    fitted = best_filter(p, solve(y, alpha), y, x, y, P=P)["filter"]
+    s = np.linalg.svd(np.linalg.cholesky(p.disc.M.toarray()).T @ P @ np.linalg.inv(
+        np.linalg.cholesky(p.disc.M.toarray())).T, compute_uv=False)
+    np.testing.assert_allclose(fitted, s**2 / (s**2 + alpha), rtol=1e-8, atol=1e-10)

@@ -40,7 +40,8 @@ def methods(results: dict, reference: dict, path, title: str, dpi: int = 80) -> 
         if c:
             ax.semilogy([row[0] for row in c], [row[1] for row in c], "o-", ms=3, label=name)
             ay.semilogy([row[0] for row in c], [row[2] for row in c], "o-", ms=3, label=name)
-    lines = (("mmse_x_err", "--", "linear MMSE"), ("tikhonov_best_x_err", ":", "best-α Tikhonov"))
+    lines = (("mmse_x_err", "--", "linear MMSE"), ("tikhonov_best_x_err", ":", "best-α Tikhonov"),
+             ("filter_best_x_err", "-.", "best spectral filter"))
     for key, ls, label in lines:
         v = reference.get(key)
         if v is not None and math.isfinite(v) and v > 0:

@@ -4,7 +4,7 @@ JSON (**contract** keys marked *): ``machine``*, ``settings``, ``ratios``
 (``forward_vs_splu``*, ``adjoint_vs_forward``*, ``modal_speedup``*, ``sip_vs_gd_step``*,
 ``hig_step_s``*, …), ``forward`` (the accuracy/cost ladder), ``methods.<name>``
 (``x_err``*, ``y_err``*, ``wall_s``*, …), ``reference`` (``mmse_x_err``*,
-``tikhonov_best_x_err``*), ``skips.<name>``, ``notes``. A ratio that does not apply
+``tikhonov_best_x_err``*, ``filter_best_x_err``), ``skips.<name>``, ``notes``. A ratio that does not apply
 is ``null`` with a note saying why.
 """
 
@@ -96,9 +96,9 @@ def _bench(problem, out, quick, budget_s, seed, log) -> dict:
 
     log("[bench] references (linear MMSE, best-α Tikhonov)")
     # the trainer's own training and test data
-    x_tr, _ = problem.sample(n_train, seed_stream(seed, TRAIN_DATA))
+    x_tr, y_tr = problem.sample(n_train, seed_stream(seed, TRAIN_DATA))
     x_te, y_te = problem.sample(n_test, seed_stream(seed, TEST_DATA))
-    res["reference"] = refs.references(problem, x_tr, x_te, y_te)
+    res["reference"] = refs.references(problem, x_tr, x_te, y_te, Y_train=y_tr)
 
     log(f"[bench] methods, {budget_s:g} s each{' after a sweep' if sweep else ''}")
     torch.manual_seed(seed)
@@ -125,7 +125,8 @@ def summary(res: dict) -> str:
              f"{fmt(r['adjoint_vs_forward'])}, modal_speedup {fmt(r.get('modal_speedup'))}, sip_vs_gd_step "
              f"{fmt(r['sip_vs_gd_step'])}, hig_step_s {fmt(r['hig_step_s'])}",
              f"reference: MMSE x_err {ref['mmse_x_err']:.4f}, "
-             f"best-α Tikhonov x_err {ref['tikhonov_best_x_err']:.4f}"]
+             f"best-α Tikhonov x_err {ref['tikhonov_best_x_err']:.4f}, "
+             f"best spectral filter x_err {ref['filter_best_x_err']:.4f}"]
     for name, m in res["methods"].items():
         lines.append(f"  {name:13s} x_err {m['x_err']:.4f}  y_err {m['y_err']:.4f}  "
                      f"wall {fmt(m['wall_s'])} s  steps {m.get('steps')}")
