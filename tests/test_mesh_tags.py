@@ -60,6 +60,53 @@ def test_unused_nodes_are_dropped_and_tags_remapped(tmp_path):
     assert np.allclose(back.p[0, back.facets[:, back.boundaries["wall"]]], 0.0)
 
 
+#: what gmsh itself writes (format 4.1): the unit square, two triangles, the edge x = 0 named "left"
+GMSH41 = """$MeshFormat
+4.1 0 8
+$EndMeshFormat
+$PhysicalNames
+2
+1 1 "left"
+2 2 "domain"
+$EndPhysicalNames
+$Entities
+0 1 1 0
+1 0 0 0 0 1 0 1 1 0
+1 0 0 0 1 1 0 1 2 0
+$EndEntities
+$Nodes
+2 4 1 4
+1 1 0 2
+1
+4
+0 0 0
+0 1 0
+2 1 0 2
+2
+3
+1 0 0
+1 1 0
+$EndNodes
+$Elements
+2 3 1 3
+1 1 1 1
+1 1 4
+2 1 2 2
+2 1 2 3
+3 1 3 4
+$EndElements
+"""
+
+
+def test_gmsh41_physical_names(tmp_path):
+    (tmp_path / "sq.msh").write_text(GMSH41)
+    m = mesh.load(tmp_path / "sq.msh")
+    assert sorted(m.boundaries) == ["left"]
+    ends = m.p[:, m.facets[:, m.boundaries["left"]]][..., 0]  # (x, y) of the edge's two nodes
+    np.testing.assert_array_equal(np.sort(ends), [[0, 0], [0, 1]])
+    assert discretize(m, dirichlet="left").N == 2
+
+
 def test_cell_sets_and_unnamed_physical_groups():
     pts = np.array([[0.0, 0.0], [1.0, 0.0], [0.0, 1.0]])
     m = meshio.Mesh(pts, [("triangle", np.array([[0, 1, 2]])), ("line", np.array([[0, 1], [1, 2], [2, 0]]))],
