@@ -34,7 +34,9 @@ def losses(result):
 
 
 @pytest.mark.parametrize("rule", [GD(sgd(0.05)), GD(adam(1e-3), name="adam"), SIP(optimizer=adam(1e-3)),
-                                  HIG(eta=0.1, tau=1e-5)], ids=["gd", "adam", "sip", "hig"])
+                                  HIG(eta=0.1, tau=1e-5),
+                                  HIG(eta=0.1, tau=1e-5, route="randomized", probes=6)],
+                         ids=["gd", "adam", "sip", "hig", "hig-randomized"])
 def test_resumed_run_equals_the_uninterrupted_one_bitwise(heat, rule, tmp_path):
     steps = 6 if rule.name == "hig" else 10
     ref = trainer(heat, rule, steps).fit()

@@ -9,10 +9,11 @@ import numpy as np
 import torch
 from torch.func import functional_call, jacrev, vmap
 
-from .._checks import choice, nonnegative, positive
+from .._checks import choice, count, nonnegative, positive
 from ..autograd import apply
 from ..physics.base import LinearOperator
 from .base import check_finite
+from .hig_randomized import memory_bytes, randomized_direction
 
 #: bytes per Jacobian entry held at once: float32 from torch.func + the float64 copy
 _BYTES = {"gram": 4 + 8, "svd": 4 + 8 + 8}
@@ -54,14 +55,21 @@ class HIG:
       (``V = Jᵀ U Λ⁻¹``): ~10–20× faster when rows ≪ parameters (DESIGN.md), but
       squaring doubles the condition number's exponent, so small kept σ lose
       accuracy (relative error ≈ 2e-16 · cond²);
+    * ``"randomized"``: matrix-free, ``J`` is never formed: a rank-``probes``
+      randomized SVD from ``jvp``/``vjp`` products with ``power_iters`` power
+      iterations (:mod:`pdeinv.methods.hig_randomized`); exact when
+      ``rank(J) ≤ probes``, else the step lives in the top-``probes`` singular
+      subspace (``info["rank_limited"]`` says when the cap, not τ, cut the spectrum);
     * ``"auto"``: ``gram`` when rows ≤ parameters and the kept part's condition
       number ``σ_max/σ_min,kept`` is at most ``gram_cond_max`` (1e6: relative error
       ≲ 2e-4 in the smallest kept direction), else ``svd`` (recorded as
-      ``"svd"``; ``info["gram_rejected"]`` says the Gram route was tried first).
+      ``"svd"``; ``info["gram_rejected"]`` says the Gram route was tried first);
+      when the dense Jacobian would exceed ``max_jacobian_gb``, ``randomized``.
 
     ``scale_step`` lowers the effective η in the state (checkpointed with it).
-    A Jacobian above ``max_jacobian_gb`` is refused with a ``ValueError`` before
-    anything is computed.
+    A route whose memory exceeds ``max_jacobian_gb`` is refused with a
+    ``ValueError`` before anything is computed. The randomized probes are drawn
+    from ``SeedSequence([seed, step])``, so a resumed run repeats them.
     """
 
     eta: float = 1.0
@@ -71,6 +79,9 @@ class HIG:
     jacobian: str = "auto"
     max_jacobian_gb: float = 4.0
     gram_cond_max: float = 1e6
+    probes: int = 128
+    power_iters: int = 1
+    seed: int = 0
     name: str = "hig"
 
     def __post_init__(self):
@@ -79,7 +90,9 @@ class HIG:
         if not self.tau < 1:
             raise ValueError(f"tau={self.tau!r} is not allowed; expected 0 <= tau < 1 "
                              "(relative to the largest singular value)")
-        choice(self.route, "route", ("auto", "svd", "gram"))
+        choice(self.route, "route", ("auto", "svd", "gram", "randomized"))
+        count(self.probes, "probes")
+        count(self.power_iters, "power_iters", minimum=0)
         choice(self.jacobian, "jacobian", ("auto", "forward", "reverse"))
         positive(self.max_jacobian_gb, "max_jacobian_gb")
 
@@ -98,7 +111,7 @@ class HIG:
         jac_route = self.jacobian
         if jac_route == "auto":
             jac_route = "reverse" if op.n_out <= n_params else "forward"
-        self._check_memory(B, op, rows, n_params, jac_route)
+        route = self._check_memory(B, op, rows, n_params, jac_route)
 
         def f(p, y):
             return functional_call(model, (p, frozen), (y,))
@@ -111,7 +124,13 @@ class HIG:
         loss = 0.5 * float(r.pow(2).sum(-1).mean())
         check_finite("the y-loss", torch.tensor(loss))
 
-        if jac_route == "reverse":
+        if route == "randomized":
+            seed = int(np.random.SeedSequence([self.seed, state.steps]).generate_state(1)[0])
+            delta, info = randomized_direction(model, op, y_target, r.reshape(rows), self.probes,
+                                               self.power_iters, self.tau, self.exponent,
+                                               self.eta * state.scale, seed)
+            jac_route = "matrix-free"
+        elif jac_route == "reverse":
             jac = vmap(jacrev(lambda p, yi: apply(op, f(p, yi))), in_dims=(None, 0))(params, y_target)
             J = torch.cat([jac[n].reshape(B, op.n_out, -1) for n in names], -1)
         else:
@@ -120,9 +139,10 @@ class HIG:
             del jac
             cols = apply(op, Jx.transpose(1, 2).reshape(B * n_params, op.n_in))
             J = cols.reshape(B, n_params, op.n_out).transpose(1, 2)
-        J = J.reshape(rows, n_params).double()
-        check_finite("the HIG Jacobian", J)
-        delta, info = self._direction(J, r.reshape(rows), rows, n_params, self.eta * state.scale)
+        if route != "randomized":
+            J = J.reshape(rows, n_params).double()
+            check_finite("the HIG Jacobian", J)
+            delta, info = self._direction(J, r.reshape(rows), rows, n_params, self.eta * state.scale)
         check_finite("the HIG update", delta)
         with torch.no_grad():
             offset = 0
@@ -170,14 +190,25 @@ class HIG:
         info.update(route="svd", rank=int(keep.sum()), cond=float(s[0] / sk.min()))
         return torch.from_numpy(delta), info
 
-    def _check_memory(self, B, op, rows, n_params, jac_route):
-        route = self.route if self.route != "auto" else ("gram" if rows <= n_params else "svd")
-        need = rows * n_params * _BYTES[route]
-        if jac_route == "forward":
-            need += B * op.n_in * n_params * 4 + B * n_params * op.n_out * 8  # ∂x/∂θ + physics copy
-        if need > self.max_jacobian_gb * 2**30:
+    def _check_memory(self, B, op, rows, n_params, jac_route) -> str:
+        """The route to take (``"randomized"`` or a dense one); refuses one over the budget."""
+        budget = self.max_jacobian_gb * 2**30
+        sketch = memory_bytes(n_params, min(self.probes, rows, n_params), rows)
+        if self.route == "randomized":
+            route, need = "randomized", sketch
+        else:
+            route = self.route if self.route != "auto" else ("gram" if rows <= n_params else "svd")
+            need = rows * n_params * _BYTES[route]
+            if jac_route == "forward":
+                need += B * op.n_in * n_params * 4 + B * n_params * op.n_out * 8  # ∂x/∂θ + physics copy
+            if need > budget and self.route == "auto" and sketch <= budget:
+                return "randomized"
+        if need > budget:
+            also = (f" (the matrix-free route: {sketch / 2**30:.1f} GB with probes={self.probes})"
+                    if self.route == "auto" else "")
             raise ValueError(
                 f"HIG Jacobian of {rows} rows (batch {B} × {op.n_out} observations) × {n_params} "
-                f"parameters needs about {need / 2**30:.1f} GB with route {route!r}, above "
+                f"parameters needs about {need / 2**30:.1f} GB with route {route!r}{also}, above "
                 f"max_jacobian_gb={self.max_jacobian_gb:g}; use a smaller batch_size or network "
                 "(fewer parameters), or raise max_jacobian_gb")
+        return route
