@@ -208,7 +208,7 @@ def test_cli_train_writes_metrics_history_and_plot(tmp_path, capsys):
     (["nowhere"], "unknown problem 'nowhere'"),
     (["heat_1d", "--hidden", "64,x"], "--hidden"),
     (["heat_1d", "--steps", "0"], "steps=0"),
-    (["heat_2d", "--method", "hig", "--hidden", "256,256"], "GB"),
+    (["heat_2d", "--method", "hig", "--hidden", "2048,2048"], "GB"),  # even matrix-free: ~17 GB
     (["heat_1d", "--method", "gd", "--lr", "1e9", "--set", "n=16"], r"step \d+ \(gd\)"),
 ])
 def test_cli_bad_input_exits_2_with_one_line(tmp_path, capsys, argv, match):
