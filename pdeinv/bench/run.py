@@ -19,6 +19,7 @@ from pathlib import Path
 import torch
 
 from .. import references as refs
+from ..checkpoint import atomic_write
 from ..physics import Heat
 from ..train import TEST_DATA, TRAIN_DATA, seed_stream
 from . import forward, methods, plots, skips
@@ -113,7 +114,8 @@ def _bench(problem, out, quick, budget_s, seed, log) -> dict:
     res["skips"] = skips.measure(problem, st, repeats=repeats, seed=seed, modal_info=op_r)
     res["total_s"] = time.perf_counter() - t0
     res["peak_rss_mb"] = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024  # Linux: KiB
-    (out / "bench.json").write_text(json.dumps(jsonable(res), indent=2, default=str))
+    text = json.dumps(jsonable(res), indent=2, default=str).encode()
+    atomic_write(out / "bench.json", lambda fh: fh.write(text))  # a kill never leaves half a file
     return res
 
 

@@ -14,6 +14,7 @@ def cmd_stress(args) -> int:
     from pdeinv.bench import cases, stress
     from pdeinv.bench.run import jsonable
     from pdeinv.bench.timing import machine
+    from pdeinv.checkpoint import atomic_write
     from pdeinv.runlock import RunLock
 
     todo = cases.cases(args.problem, parse_sets(args.set), quick=args.quick)
@@ -22,9 +23,9 @@ def cmd_stress(args) -> int:
     with RunLock(out):  # one run per --out: a second one is refused
         rows = stress.run(todo, log=print)
         summary = stress.counts(rows)
-        (out / "stress.json").write_text(json.dumps(jsonable(
-            {"problem": args.problem, "quick": args.quick, "machine": machine(), "counts": summary,
-             "cases": rows}), indent=2, default=str))
+        text = json.dumps(jsonable({"problem": args.problem, "quick": args.quick, "machine": machine(),
+                                    "counts": summary, "cases": rows}), indent=2, default=str).encode()
+        atomic_write(out / "stress.json", lambda fh: fh.write(text))  # a kill never leaves half a file
     print(" ".join(f"{k} {n}" for k, n in summary.items()) + f" -> {out / 'stress.json'}")
     return 0
 
