@@ -14,7 +14,9 @@ Gauss–Newton (HIG with exponent −1) build the stacked Jacobian ``∂y/∂θ`
 with the default MLP (559 041 parameters) and batch 8 that is 7688 × 559 041
 (tens of GB), and even a one-layer MLP of width 32 with batch 4 took 79 s per step (measured), so they train a
 one-hidden-layer MLP of width 16 with batch 1 (``HIG_NET``). The JSON records each
-method's network and batch.
+method's network and batch. (HIG's matrix-free route, ``route="randomized"``, does run
+on the default network, but at 2–9 s per step it makes only a handful of steps in
+a 20-s budget; the small network gives the dense rules their best chance.)
 
 Grids (half-decades; on heat_2d at 20 s the first run picked 3e-4 for Adam and SIP
 and 0.03 for SGD, the grids' edges, so they were widened to put the winners inside):

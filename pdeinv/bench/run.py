@@ -106,7 +106,8 @@ def _bench(problem, out, quick, budget_s, seed, log) -> dict:
     res["methods"] = methods.compare(problem, budget_s, seed=seed, n_train=n_train, n_test=n_test,
                                      sweep=sweep, eval_every=10 if not quick else 2)
     notes.append(f"HIG and Gauss-Newton train MLP{methods.HIG_NET} with batch {methods.HIG_BATCH}: "
-                 "the stacked Jacobian of the default network does not fit (see pdeinv/bench/methods.py)")
+                 "the default network's dense stacked Jacobian does not fit, and the matrix-free "
+                 "route costs 2-9 s per step there (see pdeinv/bench/methods.py)")
     plots.methods(res["methods"], res["reference"], out / "methods.png",
                   f"{problem.name}: {budget_s:g} s per method")
 
