@@ -73,7 +73,7 @@ def test_capped_sketch_with_power_iterations_finds_the_top_subspace(scene):
 
 def test_auto_goes_matrix_free_only_when_the_dense_jacobian_does_not_fit(scene):
     p, model, y = scene
-    # dense (gram route, 45 × 263 float32 + float64) ≈ 142 kB; the 10-probe sketch ≈ 49 kB
+    # dense (gram route, 45 × 263 float32 + float64) ≈ 142 kB; the 10-probe sketch ≈ 70 kB
     _, info = _delta(p, model, y, route="auto", probes=10, max_jacobian_gb=100e3 / 2**30)
     assert info["route"] == "randomized" and info["jacobian"] == "matrix-free"
     _, info = _delta(p, model, y, route="auto", probes=10)

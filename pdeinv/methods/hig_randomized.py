@@ -39,8 +39,8 @@ from torch.func import functional_call, jvp, vjp, vmap
 
 from ..autograd import apply
 
-#: float64 arrays of n_params × probes held at once (Ω or the current Jᵀ Q, and Bᵀ)
-ARRAYS = 2
+#: float64 n_params × probes arrays alive at the peak (a product, its transposed copy, Bᵀ)
+ARRAYS = 3
 
 
 def memory_bytes(n_params: int, probes: int, rows: int) -> int:
