@@ -27,8 +27,8 @@ With ``Bᵀ = Jᵀ Q`` (``n_params × l``) and ``B Bᵀ = Z S² Zᵀ`` (a small 
 
 It is exact (to rounding) when ``rank(J) ≤ l``; otherwise the update lives in the
 top-``l`` singular subspace, whose accuracy the power iterations improve (the error
-factor falls like ``(σ_(l+1)/σ_k)^(2q+1)``). Memory: ``Ω`` and ``Bᵀ``, each
-``n_params × l`` float64, instead of ``B·n_out × n_params``.
+factor falls like ``(σ_(l+1)/σ_k)^(2q+1)``). Memory: about three ``n_params × l``
+float64 arrays at the peak (:func:`memory_bytes`), instead of ``B·n_out × n_params``.
 """
 
 from __future__ import annotations
