@@ -37,7 +37,7 @@ from .checkpoint import (
     set_rng_states,
 )
 from .methods.base import NonFiniteError, Resumable, UpdateRule
-from .nets import fit_input_scaling
+from .nets import fit_preconditioning
 
 #: ``callback(record, model) -> bool | None``; returning True stops training after this step
 Callback = Callable[[dict, torch.nn.Module], "bool | None"]
@@ -66,8 +66,8 @@ def write_csv(history: list[dict], path) -> None:
     atomic_write(path, lambda fh: fh.write(text.getvalue().encode()))
 
 
-#: the trainer's seed streams: training data, test data, batch order
-TRAIN_DATA, TEST_DATA, BATCH_ORDER = 1, 2, 3
+#: the trainer's seed streams: training data, test data, batch order, held-out observations
+TRAIN_DATA, TEST_DATA, BATCH_ORDER, VAL_DATA = 1, 2, 3, 4
 
 
 def seed_stream(seed: int, stream: int) -> int:
@@ -90,6 +90,7 @@ class _Position:
     step: int = 0  # accepted steps
     wall: float = 0.0
     failures: int = 0  # consecutive rejected steps
+    stopped_by: str | None = None  # a stopping rule or callback that ended the run
 
 
 @dataclass
@@ -103,8 +104,13 @@ class Trainer:
     standardization from the training observations (if it has one).
 
     Stops after ``steps`` steps or once the training wall time exceeds
-    ``time_budget`` seconds (at least one must be given), or when a callback
-    returns True.
+    ``time_budget`` seconds (at least one must be given), when a callback
+    returns True, or when the stopping rule ``stop`` fires (e.g.
+    :class:`~pdeinv.stopping.DiscrepancyStop`: checked every ``stop.every``
+    accepted steps on ``stop.n_val`` held-out observations, drawn from their own
+    seed stream; their ``x`` is never used). ``metrics["stopped_by"]`` says which
+    (``steps``, ``time_budget``, the rule's name, or ``callback``) and
+    ``metrics["steps"]`` at which step.
 
     **Non-finite guard.** A step whose loss, prediction or update holds NaN/Inf is
     *rejected*: the rule raises :class:`NonFiniteError` before touching the
@@ -141,6 +147,7 @@ class Trainer:
     seed: int = 0
     eval_every: int = 50
     fit_scaling: bool = True
+    stop: object | None = None  # a stopping rule (pdeinv.stopping), strategy object
     callbacks: list[Callback] = field(default_factory=list)
     progress: bool | None = None
     dtype: torch.dtype | None = None  # None: the model's own parameter dtype (float32 for the default MLP)
@@ -177,7 +184,14 @@ class Trainer:
         xt, yt = self.problem.sample(self.n_test, seed_stream(self.seed, TEST_DATA))
         dtype = self.dtype or torch.float32
         t = lambda a: torch.as_tensor(a, dtype=dtype)  # noqa: E731
-        return t(y), (xt, yt, t(yt))
+        return y, t(y), (xt, yt, t(yt))
+
+    def _start_stop(self, y_train: np.ndarray):
+        """The stopping rule's state, with its held-out observations (x discarded)."""
+        if self.stop is None:
+            return None
+        _, y_val = self.problem.sample(self.stop.n_val, seed_stream(self.seed, VAL_DATA))
+        return self.stop.init(self.problem, y_train, y_val)
 
     @torch.no_grad()
     def evaluate(self, model, test) -> dict:
@@ -209,7 +223,7 @@ class Trainer:
             "identity": self.identity(model), "model": model.state_dict(),
             "rule_state": self.rule.state_dict(state),
             "position": {"gen": at.gen.get_state(), "order": at.order, "pos": at.pos, "step": at.step,
-                         "wall": at.wall, "failures": at.failures},
+                         "wall": at.wall, "failures": at.failures, "stopped_by": at.stopped_by},
             "rng": rng_states(), "history": plain(self.history)})
 
     def _restore(self, model, state, at: _Position):
@@ -229,6 +243,7 @@ class Trainer:
         at.gen.set_state(p["gen"])
         at.order, at.pos, at.step, at.wall, at.failures = (p["order"], p["pos"], p["step"], p["wall"],
                                                            p["failures"])
+        at.stopped_by = p.get("stopped_by")
         set_rng_states(saved["rng"])
         self.history = saved["history"]
         return state
@@ -241,7 +256,8 @@ class Trainer:
         return f"last good checkpoint: {str(self.checkpoint.path)!r}"
 
     def _done(self, at: _Position) -> bool:
-        return at.step >= 1 and ((self.steps is not None and at.step >= self.steps) or (
+        return at.step >= 1 and (at.stopped_by is not None or (
+            self.steps is not None and at.step >= self.steps) or (
             self.time_budget is not None and at.wall >= self.time_budget))
 
     # -- the loop ------------------------------------------------------------------------
@@ -257,9 +273,10 @@ class Trainer:
             raise ValueError(f"rule {getattr(self.rule, 'name', self.rule)!r} cannot be checkpointed: it "
                              "has no state_dict / load_state_dict / scale_step "
                              "(see pdeinv.methods.base.Resumable)")
-        y_train, test = self._data()
+        y_np, y_train, test = self._data()
         if self.fit_scaling:
-            fit_input_scaling(model, y_train)
+            fit_preconditioning(model, y_train, getattr(self.problem, "noise", None) or None)
+        stop_state = self._start_stop(y_np)
         state = self.rule.init(self.problem, model)
         gen = torch.Generator().manual_seed(seed_stream(self.seed, BATCH_ORDER))
         at = _Position(gen, torch.randperm(self.n_train, generator=gen))
@@ -302,6 +319,13 @@ class Trainer:
                 bar.close()
                 raise NonFiniteError(f"step {at.step}: the y-loss is {info['loss']}")
             record = {"step": at.step, "wall_s": at.wall, **info}
+            if stop_state is not None and at.step % self.stop.every == 0:
+                t0 = time.perf_counter()  # part of training (a user pays for it), unlike the test evaluation
+                stop_state, checked, fired = self.stop.check(stop_state, model)
+                at.wall += time.perf_counter() - t0
+                record.update(checked)
+                if fired:
+                    at.stopped_by = self.stop.name
             stop = self._done(at)
             if at.step % self.eval_every == 0 or stop or at.step == 1:
                 record.update(self.evaluate(model, test))
@@ -309,7 +333,8 @@ class Trainer:
             bar.update(1)
             bar.set_postfix(loss=f"{info['loss']:.3g}", refresh=False)
             for cb in self.callbacks:
-                stop = bool(cb(record, model)) or stop
+                if cb(record, model) and not stop:
+                    stop, at.stopped_by = True, "callback"
             if self.checkpoint is not None and (stop or at.step % self.checkpoint.every == 0):
                 if stop and "x_err" not in record:  # a callback stopped between evaluations
                     record.update(self.evaluate(model, test))
@@ -326,7 +351,13 @@ class Trainer:
             "n_test": self.n_test, "batch_size": self.batch_size, "seed": self.seed,
             "n_params": sum(p.numel() for p in model.parameters() if p.requires_grad),
             "rejected_steps": sum(1 for h in self.history if "rejected" in h),
+            "stopped_by": at.stopped_by or ("steps" if self.steps is not None and step >= self.steps
+                                            else "time_budget"),
         }
+        if stop_state is not None:
+            metrics["stop_rule"] = {"name": self.stop.name, "tau": getattr(self.stop, "tau", None),
+                                    "noise": getattr(stop_state, "noise", None),
+                                    "noise_source": getattr(stop_state, "noise_source", None)}
         return Result(model, self.history, metrics, state)
 
 

@@ -44,4 +44,5 @@ def make(**overrides):
     op = HeatSensors(heat, observe.sensor_matrix(disc, points), cfg["record_every"])
     return Problem("heat_sensors_2d", disc, op, partial(gaussian_bumps, disc.points),
                    settings={**cfg, "sensor_points": points}, noise=cfg["noise"],
+                   model_factory=scenes.WAVE_NET,  # sensor scenes keep the MLP (measured: pdeinv/nets.py)
                    inverse_simulator=default_inverse(op, disc, noise=cfg["noise"]))

@@ -72,4 +72,5 @@ def make(**overrides):
     alpha = None if cfg["alpha"] is None else RelativeAlpha(cfg["alpha"])
     return Problem("wave_sensors_2d", disc, op, partial(gaussian_bumps, disc.points),
                    settings={**cfg, "sensor_points": points}, noise=cfg["noise"],
+                   model_factory=scenes.WAVE_NET,  # sensor scenes keep the MLP (measured: pdeinv/nets.py)
                    inverse_simulator=default_inverse(op, disc, noise=cfg["noise"], alpha=alpha))

@@ -68,7 +68,7 @@ def test_history_metrics_and_determinism(heat):
     assert (m["steps"], m["method"], m["problem"]) == (12, "gd", "heat_1d")
     assert 0 < m["x_err"] < 1.0 and 0 < m["y_err"] < 1.0
     # x_err is the mean relative L²(Ω) error of the test set, recomputed here independently
-    _, (x, y, yt) = Trainer(heat, GD(), steps=1, n_train=256, n_test=64, seed=0)._data()
+    _, _, (x, y, yt) = Trainer(heat, GD(), steps=1, n_train=256, n_test=64, seed=0)._data()
     with torch.no_grad():
         xhat = a.model(yt).double().numpy()
     M = heat.disc.M
@@ -95,7 +95,7 @@ def test_default_model_comes_from_the_problem_and_learns_input_scaling():
                       progress=False)
     model = trainer.fit().model
     assert isinstance(model, MLP) and model.body[0].out_features == 8
-    y_train, _ = trainer._data()
+    _, y_train, _ = trainer._data()
     np.testing.assert_allclose(model.shift.numpy(), y_train.mean(0).numpy(), rtol=1e-6)
     assert float(model.scale) == pytest.approx(float((y_train - y_train.mean(0)).std()), rel=1e-6)
 

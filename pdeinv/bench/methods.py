@@ -32,8 +32,11 @@ from dataclasses import dataclass
 
 import torch
 
+from ..checkpoint import network_identity
 from ..methods import GD, HIG, SIP, NonFiniteError, adam, sgd
-from ..nets import MLP
+from ..methods.presets import make_rule
+from ..nets import MLP, whitened
+from ..stopping import DiscrepancyStop
 from ..train import Trainer
 
 #: network and batch for the Jacobian-based rules (see the module docstring)
@@ -48,11 +51,31 @@ class Candidate:
     grid: tuple[float, ...]
     default: float
     knob: str = "lr"
-    hidden: tuple[int, ...] | None = None  # None: problem.model()
+    hidden: tuple[int, ...] | str | None = None  # None: problem.model(); a str: NETWORKS[str]
     batch_size: int = 32
+    stop: Callable | None = None  # problem -> stopping rule (or None)
+
+
+def _noisy_stop(problem):
+    return DiscrepancyStop() if problem.noise else None
+
+
+def _cli_sip(problem):
+    """The rule ``pdeinv train PROBLEM --method sip`` builds without flags."""
+    return lambda _: make_rule("sip", problem.name, problem.noise)[0]
+
+
+#: alternative networks the methods section compares with the default (module docstring)
+NETWORKS = {
+    "mlp_standardized": lambda p: MLP(p.operator.n_out, p.operator.n_in),
+    "whitened_linear": whitened("linear"),
+    "whitened_mlp": whitened("mlp"),
+}
 
 
 CANDIDATES = {
+    # the CLI default (preset rule, problem.model(), discrepancy stop on noisy data): never swept
+    "sip_cli_default": Candidate(None, (), 0.0, "lr", None, 32, _noisy_stop),
     "adam": Candidate(lambda lr: GD(optimizer=adam(lr), name="adam"), (1e-4, 3e-4, 1e-3, 3e-3), 1e-3),
     "sgd": Candidate(lambda lr: GD(optimizer=sgd(lr), name="sgd"), (3e-3, 1e-2, 3e-2, 1e-1), 1e-2),
     "sip": Candidate(lambda lr: SIP(eta=1.0, optimizer=adam(lr)), (1e-4, 3e-4, 1e-3, 3e-3), 1e-3),
@@ -63,10 +86,18 @@ CANDIDATES = {
 }
 
 
+#: alternatives to the default network, trained with SIP (Adam, swept lr) at the same budget
+for _net in NETWORKS:
+    CANDIDATES[f"sip_{_net}"] = Candidate(lambda lr: SIP(eta=1.0, optimizer=adam(lr)), (3e-4, 1e-3, 3e-3),
+                                          1e-3, "lr", _net, 32, _noisy_stop)
+
+
 def network(problem, hidden, seed: int) -> torch.nn.Module:
     torch.manual_seed(seed)
     if hidden is None:
         return problem.model()
+    if isinstance(hidden, str):
+        return NETWORKS[hidden](problem)
     return MLP(problem.operator.n_out, problem.operator.n_in, hidden=tuple(hidden))
 
 
@@ -74,9 +105,11 @@ def train_once(problem, cand: Candidate, value: float, seed: int, budget_s: floa
                n_train: int, n_test: int, eval_every: int) -> dict:
     """One run; a NaN/Inf is an outcome (``x_err = inf``), not a crash."""
     batch = min(cand.batch_size, n_train)
-    trainer = Trainer(problem, cand.make(value), network(problem, cand.hidden, seed), steps=None,
+    make = cand.make or _cli_sip(problem)
+    trainer = Trainer(problem, make(value), network(problem, cand.hidden, seed), steps=None,
                       time_budget=budget_s, n_train=n_train, n_test=n_test, batch_size=batch,
-                      seed=seed, eval_every=eval_every, progress=False)
+                      seed=seed, eval_every=eval_every, progress=False,
+                      stop=cand.stop(problem) if cand.stop else None)
     try:
         with warnings.catch_warnings():  # rejected steps are counted in the result, not printed
             warnings.simplefilter("ignore", RuntimeWarning)
@@ -88,7 +121,7 @@ def train_once(problem, cand: Candidate, value: float, seed: int, budget_s: floa
     curve = [[h["wall_s"], h["x_err"], h["y_err"]] for h in res.history if "x_err" in h]
     return {"x_err": m["x_err"], "y_err": m["y_err"], "wall_s": m["wall_s"], "steps": m["steps"],
             "step_s": m["step_s"], "n_params": m["n_params"], "rejected_steps": m["rejected_steps"],
-            "outcome": "ok", "curve": curve}
+            "stopped_by": m["stopped_by"], "outcome": "ok", "curve": curve, "model": res.model}
 
 
 def compare(problem, budget_s: float, seed: int = 0, sweep_s: float | None = None,
@@ -97,9 +130,12 @@ def compare(problem, budget_s: float, seed: int = 0, sweep_s: float | None = Non
     """``{name: result}`` for every candidate; ``result[knob]`` is the value that won the sweep."""
     sweep_s = budget_s / 4 if sweep_s is None else sweep_s
     out = {}
+    default_net = network_identity(network(problem, None, seed))
     for name, cand in (candidates or CANDIDATES).items():
+        if isinstance(cand.hidden, str) and network_identity(network(problem, cand.hidden, seed)) == default_net:
+            continue  # the default network: already benched as "sip"
         tried = {}
-        grid = cand.grid if sweep else (cand.default,)
+        grid = cand.grid if sweep and cand.grid else (cand.default,)
         if len(grid) > 1:
             for v in grid:
                 tried[v] = train_once(problem, cand, v, seed + 1000, sweep_s, n_train, n_test,
@@ -107,6 +143,7 @@ def compare(problem, budget_s: float, seed: int = 0, sweep_s: float | None = Non
         value = min(tried, key=lambda v: tried[v]) if tried else cand.default
         res = train_once(problem, cand, value, seed, budget_s, n_train, n_test, eval_every)
         out[name] = {**res, cand.knob: value, "sweep_val_x_err": {f"{k:g}": e for k, e in tried.items()},
-                     "network": "problem.model()" if cand.hidden is None else f"MLP{cand.hidden}",
+                     "network": ("problem.model()" if cand.hidden is None else cand.hidden
+                                 if isinstance(cand.hidden, str) else f"MLP{cand.hidden}"),
                      "batch_size": min(cand.batch_size, n_train)}
     return out

@@ -1,6 +1,7 @@
 """``bench(problem, out)``: every benchmark section in one run, written to ``out/bench.json`` + PNGs.
 
-JSON (**contract** keys marked *): ``machine``*, ``settings``, ``ratios``
+JSON (**contract** keys marked *): ``machine``*, ``settings``, ``amortization`` (per-sample cost of
+the CLI-default network against each classical solve, see :mod:`.amortize`), ``ratios``
 (``forward_vs_splu``*, ``adjoint_vs_forward``*, ``modal_speedup``*, ``sip_vs_gd_step``*,
 ``hig_step_s``*, …), ``forward`` (the accuracy/cost ladder), ``methods.<name>``
 (``x_err``*, ``y_err``*, ``wall_s``*, …), ``reference`` (``mmse_x_err``*,
@@ -22,7 +23,7 @@ from .. import references as refs
 from ..checkpoint import atomic_write
 from ..physics import Heat
 from ..train import TEST_DATA, TRAIN_DATA, seed_stream
-from . import forward, methods, plots, skips
+from . import amortize, forward, methods, plots, skips
 from .ratios import operator_ratios
 from .steps import step_ratios
 from .timing import machine
@@ -110,6 +111,13 @@ def _bench(problem, out, quick, budget_s, seed, log) -> dict:
                  "route costs 2-9 s per step there (see pdeinv/bench/methods.py)")
     plots.methods(res["methods"], res["reference"], out / "methods.png",
                   f"{problem.name}: {budget_s:g} s per method")
+    models = {name: m.pop("model", None) for name, m in res["methods"].items()}
+
+    log("[bench] amortization (trained network vs classical solves, per sample)")
+    default = res["methods"]["sip_cli_default"]
+    res["amortization"] = (amortize.amortization(problem, models["sip_cli_default"], default["wall_s"],
+                                                 x_te, y_te, repeats=repeats)
+                           if models.get("sip_cli_default") is not None else None)
 
     log("[bench] skips")
     res["skips"] = skips.measure(problem, st, repeats=repeats, seed=seed, modal_info=op_r)
@@ -131,6 +139,9 @@ def summary(res: dict) -> str:
              f"best-α Tikhonov x_err {ref['tikhonov_best_x_err']:.4f}, "
              f"best spectral filter x_err {ref['filter_best_x_err']:.4f}"]
     for name, m in res["methods"].items():
-        lines.append(f"  {name:13s} x_err {m['x_err']:.4f}  y_err {m['y_err']:.4f}  "
-                     f"wall {fmt(m['wall_s'])} s  steps {m.get('steps')}")
+        lines.append(f"  {name:22s} x_err {m['x_err']:.4f}  y_err {m['y_err']:.4f}  "
+                     f"wall {fmt(m['wall_s'])} s  steps {m.get('steps')} ({m.get('stopped_by')})")
+    for name, row in ((res.get("amortization") or {}).get("rows") or {}).items():
+        lines.append(f"  amortization {name:15s} {row['s_per_sample'] * 1e3:.3f} ms/sample  x_err "
+                     f"{row['x_err']:.4f}  break-even {row['break_even_samples']} samples")
     return "\n".join(lines)

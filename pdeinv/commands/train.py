@@ -11,6 +11,21 @@ from . import UsageError, add_set_argument, parse_sets, prepare_out, set_threads
 ORDER = 1
 
 
+def _discrepancy(problem):
+    from pdeinv.stopping import DiscrepancyStop
+
+    return DiscrepancyStop(noise=None if problem.noise else "estimate")
+
+
+#: --stop: name -> problem -> stopping rule (or None). 'auto' stops noisy data by the discrepancy
+#: principle and leaves noise-free runs to --steps / --time-budget.
+STOPS = {
+    "auto": lambda problem: _discrepancy(problem) if problem.noise else None,
+    "discrepancy": _discrepancy,
+    "none": lambda problem: None,
+}
+
+
 def _hidden(text: str) -> tuple[int, ...]:
     try:
         widths = tuple(int(w) for w in text.split(","))
@@ -77,8 +92,9 @@ def cmd_train(args) -> int:
         raise UsageError(f"--export-samples {args.export_samples} is not allowed; expected an integer >= 0")
     set_threads(args.threads)
     problem = pdeinv.load_problem(args.problem, **parse_sets(args.set))
-    rule, hp = make_rule(args.method, problem.name, lr=args.lr, eta=args.eta, tau=args.tau,
-                         batch_size=args.batch_size, hidden=hidden)
+    rule, hp = make_rule(args.method, problem.name, problem.noise, lr=args.lr, eta=args.eta, tau=args.tau,
+                         batch_size=args.batch_size, hidden=hidden, optimizer=args.optimizer)
+    stop = STOPS[args.stop](problem)
     torch.manual_seed(args.seed)
     if hp["hidden"] is not None:
         model = MLP(problem.operator.n_out, problem.operator.n_in, hidden=tuple(hp["hidden"]))
@@ -88,7 +104,7 @@ def cmd_train(args) -> int:
                       n_train=args.n_train, n_test=args.n_test, batch_size=hp["batch_size"],
                       seed=args.seed, eval_every=args.eval_every, max_failures=args.max_failures,
                       checkpoint=Checkpoint(ckpt, args.checkpoint_every) if args.checkpoint_every else None,
-                      resume=args.resume)
+                      resume=args.resume, stop=stop)
     prepare_out(out)
     with RunLock(out):  # one run per --out: a second one is refused
         try:
@@ -119,7 +135,8 @@ def cmd_train(args) -> int:
 
             test = problem.sample(args.n_test, seed_stream(args.seed, TEST_DATA))
             export_run(out, problem, result.model, *test, samples=min(args.export_samples, args.n_test))
-        print(f"{problem.name} {args.method}: {metrics['steps']} steps in {metrics['wall_s']:.2f} s, "
+        print(f"{problem.name} {args.method}: {metrics['steps']} steps ({metrics['stopped_by']}) in "
+              f"{metrics['wall_s']:.2f} s, "
               f"x_err {metrics['x_err']:.4f}, y_err {metrics['y_err']:.4f} -> {out}")
         return 0
 
@@ -140,6 +157,12 @@ def add_parser(sub) -> None:
     t.add_argument("--eta", type=float, default=None, help="step scale η (sip, hig)")
     t.add_argument("--tau", type=float, default=None, help="relative singular-value cut (hig)")
     t.add_argument("--batch-size", type=int, default=None)
+    t.add_argument("--optimizer", choices=("adam", "sgd"), default=None,
+                   help="SIP's proxy optimizer (default: adam, sgd for noisy data; see methods/presets.py)")
+    t.add_argument("--stop", choices=sorted(STOPS), default="auto",
+                   help="stopping rule that never looks at x: 'discrepancy' stops once the residual on "
+                        "128 held-out observations reaches 1.1x the noise level (the problem's, or an "
+                        "estimate when it has none); 'auto' (default) uses it on noisy problems only")
     t.add_argument("--hidden", default=None, metavar="W,W", help="MLP hidden widths, e.g. 64,64")
     t.add_argument("--n-train", type=int, default=1024)
     t.add_argument("--n-test", type=int, default=128)

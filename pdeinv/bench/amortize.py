@@ -1,0 +1,77 @@
+"""Amortization: what one reconstruction costs with the trained network and with each classical solve.
+
+A network is worth training when it is at least as accurate as the classical
+solve and cheaper per sample, so that the training time is paid back. For every
+classical solve that applies to the scene (chosen by what the operator offers,
+never by its class: a constructor that refuses the operator drops the row)
+
+* ``tikhonov_modal`` — :class:`~pdeinv.ModalTikhonov` from ``x₀ = 0``;
+* ``tikhonov_cg`` — :class:`~pdeinv.TikhonovCG` (block PCG on the normal equations) from ``x₀ = 0``;
+* ``time_reversal`` — :class:`~pdeinv.TimeReversal` from ``(y, v = 0)``,
+
+with α by Morozov's discrepancy principle (:class:`~pdeinv.Discrepancy`) at the
+problem's noise level, or the default noise-free α (:func:`~pdeinv.inverse.default_alpha`)
+without noise, we time a batch and report the time per sample, the batch's mean
+x-error, and the **break-even count**
+
+    n* = t_train / (t_classical − t_network)      (per-sample times)
+
+the number of reconstructions after which training has paid for itself (``null``
+when the network is not cheaper). Times are interleaved minima over ``repeats``
+rounds on one thread.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import torch
+
+from ..inverse import Discrepancy, ModalTikhonov, TikhonovCG, TimeReversal, default_alpha
+from .timing import interleaved
+
+
+def classical_solvers(problem) -> dict:
+    """``{name: (Y -> X̂)}`` for the classical solves the scene's operator supports (module docstring)."""
+    op = problem.operator
+    alpha = (lambda: Discrepancy(problem.noise)) if problem.noise else (lambda: default_alpha(0.0))
+    makers = {
+        "tikhonov_modal": lambda: ModalTikhonov(op, alpha()),
+        "tikhonov_cg": lambda: TikhonovCG(op, problem.disc.M, alpha()),
+        "time_reversal": lambda: TimeReversal(op),
+    }
+    out = {}
+    for name, make in makers.items():
+        try:
+            solver = make()
+        except ValueError:  # the operator lacks what this solve needs
+            continue
+        out[name] = lambda Y, s=solver: s(Y, np.zeros((len(Y), op.n_in)))
+    return out
+
+
+def amortization(problem, model: torch.nn.Module, train_s: float, X, Y, repeats: int = 3,
+                 batch: int = 32) -> dict:
+    """Per-sample cost and x-error of ``model`` against each classical solve on ``(X, Y)``."""
+    X, Y = np.asarray(X)[:batch], np.asarray(Y)[:batch]
+    param = next(iter(model.parameters()))
+    y_t = torch.as_tensor(Y, dtype=param.dtype)
+
+    @torch.no_grad()
+    def network():
+        return model(y_t).double().numpy()
+
+    solvers = classical_solvers(problem)
+    times = interleaved({"network": network, **{k: (lambda f=f: f(Y)) for k, f in solvers.items()}},
+                        repeats=repeats)
+    err = {"network": float(np.mean(problem.relative_error(network(), X)))}
+    err.update({k: float(np.mean(problem.relative_error(f(Y), X))) for k, f in solvers.items()})
+    t_net = times["network"] / len(Y)
+    rows = {}
+    for name, t in times.items():
+        per = t / len(Y)
+        gain = per - t_net
+        rows[name] = {"s_per_sample": per, "x_err": err[name], "vs_network": per / t_net,
+                      "break_even_samples": (None if name == "network" or gain <= 0
+                                             else int(np.ceil(train_s / gain)))}
+    return {"batch": len(Y), "train_s": train_s, "rows": rows,
+            "alpha": f"Discrepancy({problem.noise:g})" if problem.noise else repr(default_alpha(0.0))}

@@ -1,0 +1,89 @@
+"""Stopping rules that never see x (pdeinv.stopping), through the common trainer."""
+
+import numpy as np
+import pytest
+import torch
+
+import pdeinv
+from pdeinv.checkpoint import Checkpoint
+from pdeinv.methods.presets import make_rule
+from pdeinv.stopping import DiscrepancyStop
+
+STEPS = 1500
+
+
+def _run(problem, stop, steps=STEPS, **kw):
+    torch.manual_seed(0)
+    rule, hp = make_rule("sip", problem.name, problem.noise)  # the CLI's defaults for this noise level
+    return pdeinv.Trainer(problem, rule, steps=steps, seed=0, eval_every=10, progress=False,
+                          batch_size=hp["batch_size"], stop=stop, **kw).fit()
+
+
+@pytest.fixture(scope="module")
+def noisy():
+    return pdeinv.load_problem("heat_1d", noise=0.01)
+
+
+@pytest.fixture(scope="module")
+def stopped(noisy):
+    return _run(noisy, DiscrepancyStop())
+
+
+def test_discrepancy_stop_fires_where_the_residual_meets_the_noise(stopped):
+    """The run ends at the first check with ρ ≤ τ; every earlier check had ρ > τ."""
+    res = stopped
+    assert res.metrics["stopped_by"] == "discrepancy"
+    checks = [h["discrepancy"] for h in res.history if "discrepancy" in h]
+    assert checks[-1] <= 1.1 < min(checks[:-1])
+    assert res.metrics["steps"] < STEPS
+    assert res.history[-1]["step"] == res.metrics["steps"] and "x_err" in res.history[-1]
+    assert res.metrics["stop_rule"] == {"name": "discrepancy", "tau": 1.1, "noise": 0.01,
+                                        "noise_source": "problem"}
+
+
+def test_discrepancy_stop_beats_the_last_iterate(noisy, stopped):
+    """Semi-convergence: the unstopped run ends worse than the stopped one (x only reported)."""
+    full = _run(noisy, None)
+    assert full.metrics["stopped_by"] == "steps" and full.metrics["steps"] == STEPS
+    assert stopped.metrics["x_err"] < 0.9 * full.metrics["x_err"]
+    best = min(h["x_err"] for h in full.history if "x_err" in h)
+    assert stopped.metrics["x_err"] < 1.1 * best  # close to the oracle stopping step
+
+
+def test_estimated_noise_level_stops_close_to_the_known_one(noisy, stopped):
+    est = _run(noisy, DiscrepancyStop(noise="estimate"))
+    info = est.metrics["stop_rule"]
+    assert info["noise_source"] == "estimate" and abs(info["noise"] / 0.01 - 1) < 0.2
+    assert est.metrics["stopped_by"] == "discrepancy"
+    assert abs(est.metrics["steps"] - stopped.metrics["steps"]) <= 30
+    assert est.metrics["x_err"] < 1.1 * stopped.metrics["x_err"]
+
+
+def test_noise_free_problem_makes_the_rule_inert():
+    p = pdeinv.load_problem("heat_1d", n=16, steps=10)
+    res = _run(p, DiscrepancyStop(), steps=30)
+    assert res.metrics["stopped_by"] == "steps" and res.metrics["steps"] == 30
+    assert all(h["discrepancy"] == np.inf for h in res.history if "discrepancy" in h)
+
+
+def test_a_stopped_run_stays_stopped_on_resume(noisy, tmp_path):
+    ckpt = Checkpoint(tmp_path / "c.pt", every=50)
+    first = _run(noisy, DiscrepancyStop(), checkpoint=ckpt)
+    again = _run(noisy, DiscrepancyStop(), checkpoint=ckpt, resume=True)
+    assert again.metrics["steps"] == first.metrics["steps"]
+    assert again.metrics["stopped_by"] == "discrepancy"
+    assert again.metrics["x_err"] == first.metrics["x_err"]
+
+
+def test_callback_stop_is_reported():
+    p = pdeinv.load_problem("heat_1d", n=16, steps=10)
+    res = _run(p, None, steps=100, callbacks=[lambda rec, model: rec["step"] >= 7])
+    assert res.metrics["stopped_by"] == "callback" and res.metrics["steps"] == 7
+
+
+@pytest.mark.parametrize("kw, match", [(dict(tau=0), "tau"), (dict(noise=-1), "noise"),
+                                       (dict(noise="guess"), "noise"), (dict(every=0), "every"),
+                                       (dict(n_val=0), "n_val")])
+def test_bad_settings_are_refused(kw, match):
+    with pytest.raises(ValueError, match=match):
+        DiscrepancyStop(**kw)
