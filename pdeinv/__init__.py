@@ -19,10 +19,13 @@ from .inverse import (
     default_inverse,
 )
 from .methods import GD, HIG, SIP, NonFiniteError, adam, sgd
-from .nets import mlp
+from .nets import Net, mlp, whitened
+from .noise import estimate_noise
 from .observe import sensor_matrix
 from .physics import Heat, HeatSensors, Leapfrog, LinearOperator, Matrix, Modal, Stepping, Wave, WaveSensors
+from .precondition import Whitening
 from .problem import Problem, available, load_problem
+from .stopping import DiscrepancyStop
 from .solvers import AMGCG, Cholesky, SuperLU, amg_cg, default_solver
 from .train import Result, Trainer, train
 
@@ -36,6 +39,11 @@ __all__ = [
     "Trainer",
     "adam",
     "mlp",
+    "Net",
+    "whitened",
+    "Whitening",
+    "DiscrepancyStop",
+    "estimate_noise",
     "sgd",
     "train",
     "Discrepancy",

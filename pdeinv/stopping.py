@@ -21,6 +21,7 @@ A rule is a strategy object with explicit state, like the update rules::
 
     state = rule.init(problem, y_train, y_val)        # y: numpy (n, m) observations
     state, info, stop = rule.check(state, model)      # every rule.every accepted steps
+    rule.describe(state) -> dict                      # what the rule used, for metrics.json
 
 ``rule.n_val`` held-out observations are drawn by the trainer (observations only;
 their ``x`` is discarded). ``info`` is merged into the history row.
@@ -82,6 +83,9 @@ class DiscrepancyStop:
         sigma2 = delta**2 / (1.0 + delta**2) * np.mean(y_val**2, axis=1)
         return DiscrepancyState(problem.operator, y_val, float(np.sum(sigma2) * y_val.shape[1]), delta,
                                 source)
+
+    def describe(self, state: DiscrepancyState) -> dict:
+        return {"tau": self.tau, "noise": state.noise, "noise_source": state.noise_source}
 
     @torch.no_grad()
     def check(self, state: DiscrepancyState, model: torch.nn.Module):

@@ -275,7 +275,7 @@ class Trainer:
                              "(see pdeinv.methods.base.Resumable)")
         y_np, y_train, test = self._data()
         if self.fit_scaling:
-            fit_preconditioning(model, y_train, getattr(self.problem, "noise", None) or None)
+            fit_preconditioning(model, y_np, getattr(self.problem, "noise", None) or None)
         stop_state = self._start_stop(y_np)
         state = self.rule.init(self.problem, model)
         gen = torch.Generator().manual_seed(seed_stream(self.seed, BATCH_ORDER))
@@ -355,9 +355,7 @@ class Trainer:
                                             else "time_budget"),
         }
         if stop_state is not None:
-            metrics["stop_rule"] = {"name": self.stop.name, "tau": getattr(self.stop, "tau", None),
-                                    "noise": getattr(stop_state, "noise", None),
-                                    "noise_source": getattr(stop_state, "noise_source", None)}
+            metrics["stop_rule"] = {"name": self.stop.name, **self.stop.describe(stop_state)}
         return Result(model, self.history, metrics, state)
 
 

@@ -16,7 +16,7 @@ from pdeinv.bench.forward import pareto
 from pdeinv.cli import main
 
 RATIOS = ("forward_vs_splu", "adjoint_vs_forward", "modal_speedup", "sip_vs_gd_step", "hig_step_s")
-METHODS = ("adam", "sgd", "sip", "hig", "gauss_newton")
+METHODS = ("sip_cli_default", "adam", "sgd", "sip", "hig", "gauss_newton", "sip_whitened_mlp")
 TINY = ["--set", "n=8", "--set", "steps=10"]
 
 
@@ -46,6 +46,13 @@ def check_contract(res: dict, nulls=()):
     for key in ("cores", "torch", "scipy", "numpy", "platform"):
         assert res["machine"][key], key
     assert res["skips"] and all(isinstance(v, dict) for v in res["skips"].values())
+    rows = res["amortization"]["rows"]
+    assert "network" in rows and len(rows) >= 2  # the network and at least one classical solve
+    for name, row in rows.items():
+        assert _finite(row["s_per_sample"]) and _finite(row["x_err"]), name
+        gain = row["s_per_sample"] - rows["network"]["s_per_sample"]
+        expected = None if name == "network" or gain <= 0 else math.ceil(res["amortization"]["train_s"] / gain)
+        assert row["break_even_samples"] == expected, name
 
 
 def test_bench_cli_quick_heat(tmp_path):
@@ -59,6 +66,9 @@ def test_bench_cli_quick_heat(tmp_path):
     assert {p["backend"] for p in ok} >= {"BE steps", "CN steps"}  # modal: refused on so few unknowns
     assert all(p["message"] for p in res["forward"]["points"] if p["outcome"] == "refused")
     assert all(p["error"] < 0.05 for p in ok)  # n = 8 already gets the mode to a few percent
+    assert "tikhonov_cg" in res["amortization"]["rows"]
+    # the heat default network is the whitened linear map, so that alternative is not benched twice
+    assert "sip_whitened_linear" not in res["methods"] and "sip_mlp_standardized" in res["methods"]
 
 
 def test_bench_api_quick_wave(tmp_path):
@@ -67,6 +77,7 @@ def test_bench_api_quick_wave(tmp_path):
     check_contract(res, nulls=("modal_speedup",))
     assert any("modal_speedup" in note for note in res["notes"])
     assert json.loads((tmp_path / "bench.json").read_text())["ratios"]["modal_speedup"] is None
+    assert "time_reversal" in res["amortization"]["rows"]  # chosen because the Wave offers reverse
 
 
 def test_pareto_front():

@@ -87,3 +87,40 @@ def test_callback_stop_is_reported():
 def test_bad_settings_are_refused(kw, match):
     with pytest.raises(ValueError, match=match):
         DiscrepancyStop(**kw)
+
+
+def test_cli_defaults_stop_noisy_runs_and_report_it(tmp_path, capsys):
+    """`pdeinv train heat_1d --set noise=0.01 --method sip` without flags: SGD preset, discrepancy stop."""
+    import json
+
+    from pdeinv.cli import main
+
+    out = tmp_path / "run"
+    assert main(["train", "heat_1d", "--set", "noise=0.01", "--method", "sip", "--steps", "1500",
+                 "--out", str(out), "--export-samples", "0"]) == 0
+    m = json.loads((out / "metrics.json").read_text())
+    assert m["stopped_by"] == "discrepancy" and m["steps"] < 1500
+    assert m["hyperparameters"]["optimizer"] == "sgd" and m["stop_rule"]["noise_source"] == "problem"
+    assert "(discrepancy)" in capsys.readouterr().out
+    quiet = tmp_path / "quiet"  # noise-free: no stopping rule unless asked for
+    assert main(["train", "heat_1d", "--method", "sip", "--steps", "20", "--out", str(quiet),
+                 "--export-samples", "0"]) == 0
+    m = json.loads((quiet / "metrics.json").read_text())
+    assert m["stopped_by"] == "steps" and "stop_rule" not in m and m["hyperparameters"]["optimizer"] == "adam"
+
+
+def test_cli_refuses_an_optimizer_for_a_rule_without_one(tmp_path, capsys):
+    from pdeinv.cli import main
+
+    assert main(["train", "heat_1d", "--method", "adam", "--optimizer", "sgd", "--steps", "2",
+                 "--out", str(tmp_path / "o")]) == 2
+    assert "optimizer does not apply to method 'adam'" in capsys.readouterr().err
+    assert not (tmp_path / "o" / "metrics.json").exists()
+
+
+def test_cli_refuses_an_unknown_stopping_rule(tmp_path, capsys):
+    from pdeinv.cli import main
+
+    with pytest.raises(SystemExit) as exc:
+        main(["train", "heat_1d", "--stop", "maybe", "--out", str(tmp_path / "o")])
+    assert exc.value.code == 2 and "invalid choice: 'maybe'" in capsys.readouterr().err

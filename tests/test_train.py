@@ -223,3 +223,19 @@ def test_cli_bad_input_exits_2_with_one_line(tmp_path, capsys, argv, match):
     import re
 
     assert re.search(match, err), err
+
+
+def test_trainer_never_branches_on_the_method_or_the_network():
+    """The trainer imports no concrete rule or network and tests types only against protocols."""
+    import ast
+    from pathlib import Path
+
+    tree = ast.parse((Path(pdeinv.__file__).parent / "train.py").read_text())
+    imported = {a.name for n in ast.walk(tree) if isinstance(n, ast.ImportFrom) for a in n.names}
+    assert not imported & {"GD", "SIP", "HIG", "MLP", "Net", "Whitening", "DiscrepancyStop"}
+    checked = [ast.unparse(n.args[1]) for n in ast.walk(tree)
+               if isinstance(n, ast.Call) and getattr(n.func, "id", None) == "isinstance"]
+    assert checked == ["Resumable"]
+    names = {c.value for n in ast.walk(tree) if isinstance(n, ast.Compare)
+             for c in [n.left, *n.comparators] if isinstance(c, ast.Constant) and isinstance(c.value, str)}
+    assert not names & {"gd", "adam", "sip", "hig", "linear", "mlp"}

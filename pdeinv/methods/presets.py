@@ -24,6 +24,10 @@ heat_2d    adam lr                3e-4 .46, **1e-3 .44**, 3e-3 .67
 heat_2d    sip lr (η = 1)         3e-4 .33, **1e-3 .31**, 3e-3 .59
 =========  =====================  ==========================================
 
+The heat scenes' default network is now the whitened linear map (:mod:`pdeinv.nets`); SIP's
+lr was re-swept on it (heat_2d, 20 s): 3e-4 .068, **1e-3 .032**, 3e-3 .091 (unstable). With
+noisy observations SIP switches to SGD (``NOISY`` below).
+
 τ = 1e-5 follows the HIG reference code (1e-5…1e-6 of σ_max), η = 1 for SIP is
 the paper's full inverse step. On wave_1d (uniform 1-D mesh, M and K commute)
 the time-reversal inverse turns Δy into (a multiple of) Pᵀ Δy, so SIP's proxy
