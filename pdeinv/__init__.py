@@ -25,8 +25,8 @@ from .observe import sensor_matrix
 from .physics import Heat, HeatSensors, Leapfrog, LinearOperator, Matrix, Modal, Stepping, Wave, WaveSensors
 from .precondition import Whitening
 from .problem import Problem, available, load_problem
-from .stopping import DiscrepancyStop
 from .solvers import AMGCG, Cholesky, SuperLU, amg_cg, default_solver
+from .stopping import DiscrepancyStop
 from .train import Result, Trainer, train
 
 __all__ = [

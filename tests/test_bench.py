@@ -51,7 +51,8 @@ def check_contract(res: dict, nulls=()):
     for name, row in rows.items():
         assert _finite(row["s_per_sample"]) and _finite(row["x_err"]), name
         gain = row["s_per_sample"] - rows["network"]["s_per_sample"]
-        expected = None if name == "network" or gain <= 0 else math.ceil(res["amortization"]["train_s"] / gain)
+        train_s = res["amortization"]["train_s"]
+        expected = None if name == "network" or gain <= 0 else math.ceil(train_s / gain)
         assert row["break_even_samples"] == expected, name
 
 

@@ -135,7 +135,8 @@ def compare(problem, budget_s: float, seed: int = 0, sweep_s: float | None = Non
     out = {}
     default_net = network_identity(network(problem, None, seed))
     for name, cand in (candidates or CANDIDATES).items():
-        if isinstance(cand.hidden, str) and network_identity(network(problem, cand.hidden, seed)) == default_net:
+        alternative = isinstance(cand.hidden, str)
+        if alternative and network_identity(network(problem, cand.hidden, seed)) == default_net:
             continue  # the default network: already benched as "sip"
         tried = {}
         grid = cand.grid if sweep and cand.grid else (cand.default,)
