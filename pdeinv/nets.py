@@ -64,14 +64,7 @@ class MLP(nn.Module):
 
     def __init__(self, n_in: int, n_out: int, hidden=(256, 256), activation=nn.Tanh):
         super().__init__()
-        layers, width = [], n_in
-        for h in hidden:
-            layers += [nn.Linear(width, h), activation()]
-            width = h
-        head = nn.Linear(width, n_out)
-        nn.init.zeros_(head.weight)
-        nn.init.zeros_(head.bias)
-        self.body = nn.Sequential(*layers, head)
+        self.body = dense(n_in, n_out, hidden, activation)
         self.register_buffer("shift", torch.zeros(n_in))
         self.register_buffer("scale", torch.ones(()))
 

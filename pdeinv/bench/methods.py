@@ -19,8 +19,8 @@ on the default network, but at 2–9 s per step it makes only a handful of steps
 a 20-s budget; the small network gives the dense rules their best chance.)
 
 Grids (half-decades; whenever a winner sat on a grid's edge the grid was moved to put it
-inside): Adam lr 3e-4…1e-2 and SGD lr 0.01…0.3 (with the whitened default network on
-heat_2d they picked 3e-3 and 0.1, the old grids' edges), SIP lr 1e-4…3e-3, HIG η 0.1…1,
+inside): Adam lr 3e-4…1e-2 and SGD lr 0.03…1 (with the whitened default network on
+heat_2d they picked 3e-3 and 0.1, then 0.3, the old grids' edges), SIP lr 1e-4…3e-3, HIG η 0.1…1,
 Gauss–Newton η 0.1…1. The default network's alternatives (``NETWORKS``) train with SIP,
 Adam lr 3e-4…3e-3, and the discrepancy stop on noisy data. ``sip_cli_default`` is what
 ``pdeinv train PROBLEM --method sip`` runs without flags: never swept.
@@ -80,7 +80,7 @@ CANDIDATES = {
     # the CLI default (preset rule, problem.model(), discrepancy stop on noisy data): never swept
     "sip_cli_default": Candidate(None, (), 0.0, "lr", None, 32, _noisy_stop),
     "adam": Candidate(lambda lr: GD(optimizer=adam(lr), name="adam"), (3e-4, 1e-3, 3e-3, 1e-2), 1e-3),
-    "sgd": Candidate(lambda lr: GD(optimizer=sgd(lr), name="sgd"), (1e-2, 3e-2, 1e-1, 3e-1), 1e-2),
+    "sgd": Candidate(lambda lr: GD(optimizer=sgd(lr), name="sgd"), (3e-2, 1e-1, 3e-1, 1.0), 1e-2),
     "sip": Candidate(lambda lr: SIP(eta=1.0, optimizer=adam(lr)), (1e-4, 3e-4, 1e-3, 3e-3), 1e-3),
     "hig": Candidate(lambda eta: HIG(eta=eta, tau=1e-5), (0.1, 0.3, 1.0), 0.1, "eta",
                      HIG_NET, HIG_BATCH),
