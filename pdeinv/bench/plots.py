@@ -34,7 +34,7 @@ def forward_pareto(points: list[dict], front: list[int], path, title: str, dpi: 
 def methods(results: dict, reference: dict, path, title: str, dpi: int = 80) -> None:
     """Test x- and y-error against training wall time per method, references as horizontal lines."""
     plt = _plt()
-    fig, (ax, ay) = plt.subplots(1, 2, figsize=(10, 4), layout="constrained")
+    fig, (ax, ay) = plt.subplots(1, 2, figsize=(12, 4), layout="constrained")
     for name, r in results.items():
         c = [row for row in r.get("curve", []) if all(math.isfinite(v) for v in row)]
         if c:
@@ -48,6 +48,6 @@ def methods(results: dict, reference: dict, path, title: str, dpi: int = 80) -> 
             ax.axhline(v, ls=ls, color="k", lw=1, label=label)
     ax.set(xlabel="training wall time [s]", ylabel="test x-error (relative L²(Ω))", title=title)
     ay.set(xlabel="training wall time [s]", ylabel="test y-error (relative L²(Ω))")
-    ax.legend(fontsize=8)
+    fig.legend(*ax.get_legend_handles_labels(), loc="outside right upper", fontsize=7)
     fig.savefig(path, dpi=dpi)
     plt.close(fig)
