@@ -29,10 +29,11 @@ variance pure white noise produces in ``n`` samples of ``m`` components, so ever
 direction below it is indistinguishable from noise (on heat_2d at 1 % noise, 75
 of 961 directions stay; keeping all of them let SIP fit the noise, and no
 stopping rule could help: measured in :mod:`pdeinv.nets`). ``drop=0`` keeps all.
-The transform has fixed shapes ``(m,)``,
-``(m, m)`` whatever the data, so a fitted model loads into a fresh one; the
-buffers ``mean``, ``basis``, ``gain`` travel with the state dict (checkpoints,
-``model.pt``) and ``fitted`` says whether :meth:`fit` ran.
+
+The transform has fixed shapes ``(m,)`` and ``(m, m)`` whatever the data, so a
+fitted model loads into a fresh one; the buffers ``mean``, ``basis``, ``gain``
+travel with the state dict (checkpoints, ``model.pt``) and ``fitted`` says whether
+:meth:`fit` ran. Cost: one ``(B, m) × (m, m)`` product per batch.
 """
 
 from __future__ import annotations

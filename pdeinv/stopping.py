@@ -89,11 +89,13 @@ class DiscrepancyStop:
 
     @torch.no_grad()
     def check(self, state: DiscrepancyState, model: torch.nn.Module):
+        if state.noise_sq == 0:  # noise-free: nothing to stop for, and nothing to compute
+            return state, {"discrepancy": np.inf}, False
         param = next(iter(model.parameters()), None)
         dtype = param.dtype if param is not None else torch.float32
         device = param.device if param is not None else None
         xhat = model(torch.as_tensor(state.y_val, dtype=dtype, device=device)).double().cpu().numpy()
-        if state.noise_sq == 0 or not np.isfinite(xhat).all():
+        if not np.isfinite(xhat).all():
             return state, {"discrepancy": np.inf}, False
         r2 = float(np.sum((state.operator.forward(xhat) - state.y_val) ** 2))
         ratio = float(np.sqrt(r2 / state.noise_sq))
