@@ -100,8 +100,9 @@ class Trainer:
     Data: ``n_train`` and ``n_test`` pairs from ``problem.sample`` with seeds derived
     from ``seed`` (the two sets are independent draws); batches are drawn without
     replacement, reshuffled every epoch. ``model=None`` takes ``problem.model()``
-    after ``torch.manual_seed(seed)``; ``fit_scaling`` sets a model's input
-    standardization from the training observations (if it has one).
+    after ``torch.manual_seed(seed)``; ``fit_scaling`` fits a model's input transform
+    (PCA whitening, or the MLP's standardization) on the training observations with
+    the problem's noise level (:func:`pdeinv.nets.fit_preconditioning`; never on ``x``).
 
     Stops after ``steps`` steps or once the training wall time exceeds
     ``time_budget`` seconds (at least one must be given), when a callback
