@@ -49,8 +49,9 @@ WAVE_FINAL = {**WAVE, "scheme": ("newmark", s.one_of(*WAVE_SCHEMES))}
 
 
 #: the wave scenes' default network: the standardized MLP (256, 256). Measured on wave_2d, 20 s SIP,
-#: one thread: 0.40 against 0.56 for the whitened linear map that wins on heat, because a wave step
-#: costs ~180 ms of physics and only ~110 steps fit (pdeinv/nets.py has the sweep).
+#: one thread: 0.40 against 0.56 for the whitened linear map that wins on heat (sweep), 0.34 against
+#: 0.54 in the bench run of the README, because a wave step costs ~130 ms of physics and only
+#: 110–140 steps fit (pdeinv/nets.py has the sweep).
 WAVE_NET = mlp()
 
 
