@@ -1,7 +1,9 @@
 """Command line: ``pdeinv demo | train | ...``, one module per subcommand in :mod:`pdeinv.commands`.
 
 Errors a user can fix (bad settings, missing files, an ``--out`` folder another run
-holds) end with exit code 2 and a one-line message on stderr, never a traceback.
+holds) end with exit code 2 and a one-line message on stderr, never a traceback; a
+numerical failure on valid input (:mod:`pdeinv.errors`) ends with exit code 1 and one
+line that says what to change.
 """
 
 from __future__ import annotations
@@ -13,6 +15,7 @@ import sys
 
 from . import commands
 from .commands import UsageError, parse_sets
+from .errors import numerical_types
 from .runlock import FolderLocked
 
 __all__ = ["UsageError", "build_parser", "main", "parse_sets"]
@@ -39,6 +42,9 @@ def main(argv=None) -> int:
     args = parser.parse_args(argv)
     try:
         return args.func(args)
+    except numerical_types() as err:  # before ValueError: numpy's LinAlgError is one
+        print(f"pdeinv {args.command}: numerical failure: {err}", file=sys.stderr)
+        return 1
     except (UsageError, FolderLocked, ValueError, FileNotFoundError, NotImplementedError) as err:
         print(f"pdeinv {args.command}: error: {err}", file=sys.stderr)
         return 2

@@ -16,6 +16,8 @@ import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.linalg as sla
 
+from .errors import ConvergenceError
+
 
 class SuperLU:
     """Direct sparse LU (SuperLU), factorized once, solved many times.
@@ -108,7 +110,7 @@ class AMGCG:
         for j in range(cols.shape[1]):
             x, info = sla.cg(self.A, cols[:, j], rtol=self.rtol, maxiter=self.maxiter, M=self.M)
             if info != 0:
-                raise RuntimeError(
+                raise ConvergenceError(
                     f"AMG-CG did not reach rtol={self.rtol} in {self.maxiter} iterations "
                     f"(column {j}); raise maxiter or use the direct solver SuperLU"
                 )

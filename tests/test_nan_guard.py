@@ -101,7 +101,7 @@ def test_cli_gives_up_with_one_line_and_keeps_the_checkpoint(tmp_path, capsys):
             "--out", str(out), "--threads", "1"]
     code = main([*argv, "--set", "poison=4,5,6", "--max-failures", "3"])
     *warned, err = capsys.readouterr().err.splitlines()
-    assert code == 2 and err.startswith("pdeinv train: error: step 4 (adam)")
+    assert code == 1 and err.startswith("pdeinv train: numerical failure: step 4 (adam)")
     assert "last good checkpoint" in err and "checkpoint.pt" in err
     assert [w[:40] for w in warned] == ["pdeinv train: warning: step 4 (adam): th"] * 2  # one line each
     assert Checkpoint(out / "checkpoint.pt").load()["position"]["step"] == 3

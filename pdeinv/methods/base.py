@@ -31,12 +31,10 @@ from typing import Any, Protocol, runtime_checkable
 
 import torch
 
+from ..errors import NonFiniteError  # noqa: F401  (re-exported)
+
 #: ``params -> torch.optim.Optimizer``, e.g. ``functools.partial(torch.optim.Adam, lr=1e-3)``
 OptimizerFactory = Callable[[Any], torch.optim.Optimizer]
-
-
-class NonFiniteError(ValueError):
-    """A loss or an update contained NaN or Inf; the parameters were left untouched."""
 
 
 class UpdateRule(Protocol):

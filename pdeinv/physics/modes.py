@@ -13,11 +13,9 @@ import scipy.linalg as la
 import scipy.sparse as sp
 import scipy.sparse.linalg as sla
 
+from ..errors import TooManyModes  # noqa: F401  (re-exported)
+
 DENSE_MAX = 1500
-
-
-class TooManyModes(ValueError):
-    """The modal representation would need a large fraction of all modes."""
 
 
 def lowest_modes(M, K, enough, max_fraction: float = 0.5, dense_max: int | None = None):
