@@ -1,13 +1,14 @@
-"""Linear solvers as strategy objects: ``solver(A)`` returns something with ``solve(B)``.
+"""Linear solvers as strategy objects: ``solver(A)`` returns ``solve(B) = A⁻¹B`` and ``solve_T(B) = A⁻ᵀB``.
 
 ``B`` holds right-hand sides as *columns*, shape ``(N,)`` or ``(N, k)``; all
-columns are solved at once with one factorization. Every matrix our schemes
-factor (heat θ-scheme, Newmark) is symmetric positive definite, so a transposed
-solve is the plain solve: adjoints call ``solve`` too (SuperLU's
-``trans='T'`` is ~40% slower for no gain).
+columns are solved at once with one factorization. Adjoints call ``solve_T``.
+Each solver records whether ``A`` is ``symmetric`` (checked, :func:`is_symmetric`):
+then ``solve_T`` is ``solve`` (SuperLU's ``trans='T'`` is ~40% slower for no gain);
+otherwise SuperLU solves with the transposed factors, and the solvers that need a
+symmetric matrix (Cholesky, CG) refuse it.
 
-``default_solver`` takes a sparse Cholesky (cholespy) when installed and
-SuperLU otherwise; ``amg_cg`` is for meshes too large to factor.
+``default_solver`` takes a sparse Cholesky (cholespy) for a symmetric matrix when
+installed and SuperLU otherwise; ``amg_cg`` is for meshes too large to factor.
 """
 
 from __future__ import annotations
@@ -19,23 +20,41 @@ import scipy.sparse.linalg as sla
 from .errors import ConvergenceError
 
 
+def is_symmetric(A: sp.spmatrix, rtol: float = 1e-13) -> bool:
+    """``max|A − Aᵀ| ≤ rtol · max|A|`` (rounding in assembly leaves ~1e-16 relative)."""
+    A = sp.csr_matrix(A)
+    diff = abs(A - A.T)
+    return diff.nnz == 0 or diff.max() <= rtol * abs(A).max()
+
+
+def _require_symmetric(A, name: str) -> None:
+    if not is_symmetric(A):
+        raise ValueError(f"the {name} solver needs a symmetric matrix and this one is not; "
+                         "use solver=pdeinv.SuperLU (LU, any square matrix)")
+
+
 class SuperLU:
     """Direct sparse LU (SuperLU), factorized once, solved many times.
 
-    Uses the symmetric-mode ordering ``MMD_AT_PLUS_A``, which on the 2-D heat
-    matrices gives ~30% less fill and ~25% faster solves than the default COLAMD.
+    A symmetric matrix uses the symmetric-mode ordering ``MMD_AT_PLUS_A``, which on
+    the 2-D heat matrices gives ~30% less fill and ~25% faster solves than the
+    default COLAMD; any other square matrix the default (COLAMD, partial pivoting).
     """
 
     name = "splu"
 
     def __init__(self, A: sp.spmatrix):
-        self.lu = sla.splu(
-            sp.csc_matrix(A), permc_spec="MMD_AT_PLUS_A", options={"SymmetricMode": True}
-        )
+        self.symmetric = is_symmetric(A)
+        opts = ({"permc_spec": "MMD_AT_PLUS_A", "options": {"SymmetricMode": True}}
+                if self.symmetric else {})
+        self.lu = sla.splu(sp.csc_matrix(A), **opts)
         self.shape = A.shape
 
     def solve(self, B: np.ndarray) -> np.ndarray:
         return self.lu.solve(B)
+
+    def solve_T(self, B: np.ndarray) -> np.ndarray:
+        return self.lu.solve(B) if self.symmetric else self.lu.solve(B, trans="T")
 
     @property
     def fill(self) -> int:
@@ -52,11 +71,13 @@ class Cholesky:
     """
 
     name = "cholesky"
+    symmetric = True
 
     def __init__(self, A: sp.spmatrix):
         import cholespy
         import torch
 
+        _require_symmetric(A, "Cholesky")
         C = sp.coo_matrix(A)
         self.n = A.shape[0]
         self.shape = A.shape
@@ -75,9 +96,13 @@ class Cholesky:
         self.chol.solve(b, x)
         return x.numpy().reshape(B.shape)
 
+    solve_T = solve
+
 
 def default_solver(A: sp.spmatrix):
-    """Sparse Cholesky if cholespy is installed, else SuperLU (always available)."""
+    """Sparse Cholesky for a symmetric ``A`` if cholespy is installed, else SuperLU (always available)."""
+    if not is_symmetric(A):
+        return SuperLU(A)
     try:
         return Cholesky(A)
     except ImportError:
@@ -94,10 +119,12 @@ class AMGCG:
     """
 
     name = "amg-cg"
+    symmetric = True
 
     def __init__(self, A: sp.spmatrix, rtol: float = 1e-12, maxiter: int = 500):
         import pyamg
 
+        _require_symmetric(A, "AMG-CG")
         self.A = sp.csr_matrix(A)
         self.ml = pyamg.smoothed_aggregation_solver(self.A)
         self.M = self.ml.aspreconditioner(cycle="V")
@@ -116,6 +143,8 @@ class AMGCG:
                 )
             out[:, j] = x
         return out.reshape(B.shape)
+
+    solve_T = solve
 
 
 def amg_cg(rtol: float = 1e-12, maxiter: int = 500):

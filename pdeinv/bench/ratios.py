@@ -26,59 +26,56 @@ def operator_ratios(problem, batch: int = 64, repeats: int = 5, seed: int = 0) -
     * ``modal_speedup`` (heat only): time-stepping forward / modal forward, with
       ``modal_agreement`` the relative difference of their results.
     """
-    from ..physics import Heat, Wave
+    from ..physics import Heat
+    from ..physics.capabilities import modal_basis, stepping
+    from ..physics.schemes import Newmark, Theta
 
     op = problem.operator
     rng = np.random.default_rng(seed)
     X = rng.standard_normal((batch, op.n_in))
     R = rng.standard_normal((batch, op.n_out))
     out = {"batch": batch, "N": op.n_in}
-    if isinstance(op, Heat):
-        steps = op if op.backend.name == "steps" else Heat(
-            op.M, op.K, op.kappa, op.t_end, op.steps, op.scheme, backend="steps")
-        A, B = steps.backend.A, steps.backend.B
-    elif isinstance(op, Wave):
-        steps, A, B = op, op.A, op.B
-    else:
+    steps = stepping(op)
+    if steps is None or not isinstance(steps.scheme, (Theta, Newmark)):
         t = interleaved({"fwd": lambda: op.forward(X), "adj": lambda: op.adjoint(R)}, repeats)
         return {**out, "forward_s": t["fwd"], "adjoint_vs_forward": t["adj"] / t["fwd"]}
-    lu = sla.splu(A.tocsc())
+    sc = steps.scheme
+    lu = sla.splu(sc.A.tocsc())
 
-    def bare_heat():
+    def bare_theta():
         U = X.T.copy()
         for _ in range(steps.steps):
-            U = lu.solve(B @ U)
+            U = lu.solve(sc.B @ U)
         return U
 
-    def bare_wave():  # the same Newmark step as Wave._step, written with scipy only
-        U, V, dt = X.T.copy(), np.zeros_like(X.T), op.dt
-        for _ in range(op.steps):
-            U1 = lu.solve(B @ U + dt * (op.M @ V))
+    def bare_newmark():  # the same Newmark step as schemes.Newmark.step, written with scipy only
+        U, V, dt = X.T.copy(), np.zeros_like(X.T), sc.dt
+        for _ in range(steps.steps):
+            U1 = lu.solve(sc.B @ U + dt * (sc.M @ V))
             U, V = U1, (2.0 / dt) * (U1 - U) - V
         return U
 
-    fns = {"bare": bare_wave if isinstance(op, Wave) else bare_heat,
+    fns = {"bare": bare_newmark if isinstance(sc, Newmark) else bare_theta,
            "fwd": lambda: steps.forward(X), "adj": lambda: steps.adjoint(R)}
-    if isinstance(op, Heat):
+    if isinstance(sc, Theta):  # our loop on the bare loop's own SuperLU object: the layer's overhead
         same = Heat(op.M, op.K, op.kappa, op.t_end, op.steps, op.scheme, backend="steps",
-                    solver=lambda _: lu)
+                    solver=lambda _: lu, C=op.C)
         fns["same"] = lambda: same.forward(X)
-        modal = op if op.backend.name == "modal" else None
-        if modal is None:
-            try:
-                modal = Heat(op.M, op.K, op.kappa, op.t_end, op.steps, op.scheme, backend="modal")
-            except ValueError:
-                modal = None
-        if modal is not None:
-            fns["modal"] = lambda: modal.forward(X)
+    modal = modal_basis(op)
+    if modal is None and isinstance(sc, Theta) and op.symmetric:
+        try:
+            modal = Heat(op.M, op.K, op.kappa, op.t_end, op.steps, op.scheme, backend="modal").modes
+        except ValueError:
+            modal = None
+    if modal is not None:
+        fns["modal"] = lambda: modal.forward(X)
     t = interleaved(fns, repeats)
-    ours = steps.backend.lu if isinstance(op, Heat) else op.lu
     out.update(forward_s=t["fwd"], forward_vs_splu=t["fwd"] / t["bare"],
-               adjoint_vs_forward=t["adj"] / t["fwd"], solver=type(ours).__name__)
+               adjoint_vs_forward=t["adj"] / t["fwd"], solver=type(sc.lu).__name__)
     if "same" in t:
         out["overhead_vs_bare"] = t["same"] / t["bare"]
     if "modal" in t:
         ys = steps.forward(X)
-        out.update(modal_speedup=t["fwd"] / t["modal"], modal_modes=modal.backend.k,
+        out.update(modal_speedup=t["fwd"] / t["modal"], modal_modes=modal.k,
                    modal_agreement=float(np.linalg.norm(modal.forward(X) - ys) / np.linalg.norm(ys)))
     return out

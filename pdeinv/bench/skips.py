@@ -19,8 +19,9 @@ import numpy as np
 import torch
 
 from ..autograd import apply
-from ..physics import Heat, Wave
 from ..physics.base import LinearOperator
+from ..physics.capabilities import stepping
+from ..physics.schemes import Theta
 from .timing import best, peak_bytes
 
 
@@ -40,32 +41,20 @@ class Counting(LinearOperator):
         return self.op._adjoint(R)
 
 
-def _stepping(op):
-    """``(A, B, solver factory, steps, stepping operator)`` of a time-stepping operator, or None."""
-    if isinstance(op, Heat):
-        if op.backend.name != "steps":
-            op = Heat(op.M, op.K, op.kappa, op.t_end, op.steps, op.scheme, backend="steps")
-        return op.backend.A, op.backend.B, op.solver, op.steps, op
-    if isinstance(op, Wave):
-        return op.A, op.B, type(op.lu), op.steps, op
-    return None
-
-
 def trajectory(op, X, R) -> dict:
     """Peak traced memory of our adjoint vs a forward that stores every step (heat stepping)."""
-    st = _stepping(op)
-    if st is None or not isinstance(op, Heat):
+    run = stepping(op)
+    if run is None or not isinstance(run.scheme, Theta):
         return {"skipped": "measured on heat time stepping only"}
-    A, B, solver, steps, stepping = st
-    lu = stepping.backend.lu
+    sc = run.scheme
 
     def stored():  # np.array copies: solver outputs may live in torch memory tracemalloc cannot see
         traj = [X.T.copy()]
-        for _ in range(steps):
-            traj.append(np.array(lu.solve(B @ traj[-1])))
+        for _ in range(run.steps):
+            traj.append(np.array(sc.lu.solve(sc.B @ traj[-1])))
         return traj
 
-    ours = peak_bytes(lambda: np.array(stepping.adjoint(R)))
+    ours = peak_bytes(lambda: np.array(run.adjoint(R)))
     base = peak_bytes(stored)
     return {"adjoint_peak_bytes": ours, "stored_trajectory_peak_bytes": base, "saved": base / max(ours, 1),
             "note": "tracemalloc sees numpy memory only (not the solver's own)"}
@@ -92,23 +81,24 @@ def no_grad(op, X, repeats) -> dict:
 
 def factorization(op, X, repeats) -> dict:
     """One factorization for all steps vs refactorizing every step (same batch)."""
-    st = _stepping(op)
-    if st is None:
-        return {"skipped": "no time-stepping operator"}
-    A, B, solver, steps, stepping = st
-    k = min(steps, 20)  # the refactorizing baseline is slow: time k steps and scale
+    run = stepping(op)
+    if run is None or not hasattr(run.scheme, "lu"):
+        return {"skipped": "no implicit time-stepping operator"}
+    sc, solver = run.scheme, type(run.scheme.lu)
+    k = min(run.steps, 20)  # the refactorizing baseline is slow: time k steps and scale
 
-    def refactor():
-        U, V = X.T, np.zeros_like(X.T)
+    def refactor():  # the scheme's own step with a fresh factorization of A every step
+        s = sc.start(X.T)
         for _ in range(k):
-            if isinstance(stepping, Wave):  # the Newmark step of Wave._step
-                U1 = solver(A).solve(B @ U + stepping.dt * (stepping.M @ V))
-                U, V = U1, (2.0 / stepping.dt) * (U1 - U) - V
-            else:
-                U = solver(A).solve(B @ U)
+            sc.lu = solver(sc.A)
+            s = sc.step(s)
 
-    t_ours = best(lambda: stepping.forward(X), repeats)
-    t_base = best(refactor, max(1, repeats // 2)) * steps / k
+    lu = sc.lu
+    t_ours = best(lambda: run.forward(X), repeats)
+    try:
+        t_base = best(refactor, max(1, repeats // 2)) * run.steps / k
+    finally:
+        sc.lu = lu
     return {"reused_s": t_ours, "refactorized_s": t_base, "saved": t_base / t_ours, "timed_steps": k}
 
 

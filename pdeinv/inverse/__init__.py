@@ -8,16 +8,14 @@ Each is a callable object ``inverse(y, x0)`` (numpy ``(B, n_out)``, ``(B, n_in)`
 * :class:`TimeReversal` / :class:`StateReversal` — wave: Newmark run backwards.
 
 α is a number or a rule: :class:`Discrepancy` (Morozov), :class:`RelativeAlpha`.
-:func:`default_inverse` picks one per operator type.
+:func:`default_inverse` picks one by what the operator can do (:mod:`pdeinv.physics.capabilities`).
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-from ..physics.heat import Heat
-from ..physics.modes import largest_eigenvalue
-from ..physics.wave import Wave
+from ..physics.capabilities import modal_basis, output_mass, reversible
 from .alpha import Discrepancy, FixedAlpha, RelativeAlpha
 from .cg import TikhonovCG
 from .modal import ModalTikhonov
@@ -45,34 +43,28 @@ def default_alpha(noise: float = 0.0) -> RelativeAlpha:
     return RelativeAlpha(max(float(noise), np.sqrt(NOISE_FREE_REL_ALPHA)) ** 2)
 
 
-def _heat_scale(op: Heat) -> float:
-    """``max g²`` over all modes: |r|ⁿ is extremal at the lowest or the highest eigenvalue."""
-    import scipy.sparse.linalg as sla
-
-    lam_lo = float(sla.eigsh(op.K.tocsc(), 1, op.M.tocsc(), sigma=0, which="LM")[0][0])
-    lam_hi = largest_eigenvalue(op.M, op.K)
-    return float(max(op.amplification(lam_lo) ** 2, op.amplification(lam_hi) ** 2))
-
-
 def default_inverse(op, disc=None, noise: float = 0.0, alpha=None):
-    """The local inverse simulator for ``op``, dispatched on its type.
+    """The local inverse simulator for ``op``, chosen by capability (never by class).
 
-    * :class:`~pdeinv.Wave` → :class:`TimeReversal` (no α; exact at ``y₀``);
-    * :class:`~pdeinv.Heat` with a modal backend → :class:`ModalTikhonov`;
-    * :class:`~pdeinv.Heat` stepping → :class:`TikhonovCG` (``max g²`` from the extreme eigenvalues);
-    * any other :class:`~pdeinv.LinearOperator` → :class:`TikhonovCG` with ``disc.M``
-      (identity if ``disc`` is None): the generic fallback for a user's own problem.
+    * reversible (``final_state`` and ``reverse``, e.g. :class:`~pdeinv.Wave`) →
+      :class:`TimeReversal` (no α; exact at ``y₀``);
+    * a modal basis (``op.modes``, :class:`~pdeinv.Heat` with the modal backend) →
+      :class:`ModalTikhonov`;
+    * anything else → :class:`TikhonovCG` with the input mass ``disc.M`` (``op.mass``, or
+      the identity, if ``disc`` is None), the observation mass ``disc.M`` when ``op`` declares field
+      observations (else Euclidean), and ``λ_max(P*P)`` from ``op.max_gain_squared()``
+      when the operator knows it (else power iteration on first use).
 
     ``alpha`` defaults to :func:`default_alpha` ``(noise)``.
     """
-    if isinstance(op, Wave):
+    if reversible(op):
         return TimeReversal(op)
     rule = default_alpha(noise) if alpha is None else alpha
-    if isinstance(op, Heat) and hasattr(op.backend, "Phi"):
+    if modal_basis(op) is not None:
         return ModalTikhonov(op, rule)
-    if isinstance(op, Heat):
-        return TikhonovCG(op, op.M, rule, scale=_heat_scale(op))
-    return TikhonovCG(op, None if disc is None else disc.M, rule)
+    M = getattr(op, "mass", None) if disc is None else disc.M
+    known = getattr(op, "max_gain_squared", None)
+    return TikhonovCG(op, M, rule, M_out=output_mass(op, M), scale=known() if callable(known) else None)
 
 
 __all__ = ["Discrepancy", "FixedAlpha", "ModalTikhonov", "RelativeAlpha", "StateReversal",

@@ -31,6 +31,7 @@ from __future__ import annotations
 import numpy as np
 
 from .._checks import count, positive
+from ..physics.capabilities import output_mass
 from ..solvers import SuperLU
 from ._inputs import mass_norms, mass_trace, out, pair
 from .alpha import Fit, as_rule
@@ -40,7 +41,8 @@ class TikhonovCG:
     """``P⁻¹_(x₀, Px₀)(y) = x₀ + Δx`` with Δx from block PCG (module docstring).
 
     ``M``: input mass (sparse SPD, or ``None`` for the identity); ``M_out``:
-    observation mass (default ``M`` when ``n_out == n_in``, else identity);
+    observation mass (``"auto"``: ``M`` when ``op`` declares field observations,
+    :func:`~pdeinv.physics.capabilities.observes_field`, else the identity);
     ``alpha``: a number or a rule; ``scale``: ``λ_max(P*P)``, the unit of
     relative α rules (estimated by power iteration on first use if omitted).
     """
@@ -49,7 +51,7 @@ class TikhonovCG:
                  scale=None, mass_solver=SuperLU, reorth=True):
         self.reorth = reorth
         self.op, self.M = op, M
-        self.M_out = (M if op.n_out == op.n_in else None) if isinstance(M_out, str) else M_out
+        self.M_out = output_mass(op, M) if isinstance(M_out, str) else M_out
         self.rule = as_rule(alpha)
         self.rtol = positive(rtol, "rtol")
         self.maxiter = count(maxiter, "maxiter")

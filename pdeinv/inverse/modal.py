@@ -29,6 +29,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..physics.capabilities import modal_basis
 from ._inputs import mass_norms, mass_trace, out, pair
 from .alpha import Fit, as_rule
 
@@ -41,10 +42,10 @@ class ModalTikhonov:
     """
 
     def __init__(self, op, alpha):
-        backend = getattr(op, "backend", None)
+        backend = modal_basis(op)
         if not all(hasattr(backend, a) for a in ("g", "Phi", "MPhi")):
-            raise ValueError(f"ModalTikhonov needs an operator with a modal backend (g, Phi, MPhi); "
-                             f"got {op!r}; use TikhonovCG for other operators")
+            raise ValueError(f"ModalTikhonov needs an operator with a modal backend (op.modes with g, Phi, "
+                             f"MPhi); got {op!r}; use TikhonovCG for other operators")
         self.op, self.modes = op, backend
         self.rule = as_rule(alpha)
         self.scale = float(np.max(backend.g**2))

@@ -1,12 +1,14 @@
-"""Heat equation ``M u' + κ K u = 0``: the θ-scheme propagator and its exact adjoint.
+"""Heat equation ``M u' + (κ K + C) u = 0``: the θ-scheme propagator and its exact adjoint.
 
-One step of the θ-scheme is ``A uⁿ⁺¹ = B uⁿ`` with
+One step of the θ-scheme is ``A uⁿ⁺¹ = B uⁿ`` with ``L = κK + C``
 
-    A = M + θ dt κ K,    B = M − (1−θ) dt κ K,
+    A = M + θ dt L,    B = M − (1−θ) dt L,
 
 θ=1 backward Euler ('be', L-stable, default), θ=½ Crank–Nicolson ('cn'). The
-forward map to the final field is ``P = (A⁻¹B)ⁿ`` and, A and B being symmetric,
-its transpose is ``Pᵀ = (B A⁻¹)ⁿ``: the same factorization, no trajectory.
+forward map to the final field is ``P = (A⁻¹B)ⁿ`` and its transpose is
+``Pᵀ = (Bᵀ A⁻ᵀ)ⁿ``: the same factorization, no trajectory (:mod:`.schemes`).
+``C`` is an optional convection matrix (advection–diffusion, not symmetric); without
+it every matrix is symmetric and the modal backend is available.
 
 Two backends give the same ``P`` (see :mod:`.heat_backends`):
 
@@ -21,10 +23,16 @@ Two backends give the same ``P`` (see :mod:`.heat_backends`):
 
 from __future__ import annotations
 
+from functools import cached_property
+
 from .._checks import choice, count, positive
 from ..solvers import default_solver
 from .base import LinearOperator
 from .heat_backends import BACKENDS, amplification, choose
+from .modes import largest_eigenvalue
+from .observation import Records
+from .propagator import Propagator
+from .schemes import Theta
 
 SCHEMES = {"be": 1.0, "cn": 0.5}
 
@@ -37,12 +45,13 @@ class Heat(LinearOperator):
     ``solver``: factory ``A -> object with solve`` (default: Cholesky if cholespy
     is installed, else SuperLU); ``tol``: relative amplification below which
     modes are dropped (modal backend);
-    ``measure``: |Ω|, used by the auto cost estimate (Weyl's law).
+    ``measure``: |Ω|, used by the auto cost estimate (Weyl's law);
+    ``C``: convection matrix added to ``κK`` (then stepping only).
     """
 
     def __init__(self, M, K, kappa=0.01, T=1.0, steps=100, scheme="be", backend="auto",
-                 solver=default_solver, tol=1e-14, measure=1.0, dim=2):
-        self.M, self.K = M, K
+                 solver=default_solver, tol=1e-14, measure=1.0, dim=2, C=None):
+        self.M, self.K, self.C = M, K, C
         self.kappa = positive(kappa, "kappa")
         self.t_end = positive(T, "T")
         self.steps = count(steps, "steps")
@@ -55,10 +64,51 @@ class Heat(LinearOperator):
         self.measure, self.dim = measure, dim
         if isinstance(backend, str):
             backend = choice(backend, "backend", ("auto", *BACKENDS))
+            if C is not None and backend == "modal":
+                raise ValueError("backend='modal' needs a symmetric operator and C (convection) makes it "
+                                 "non-symmetric; allowed: backend='steps' or 'auto'")
             self.backend, self.choice = choose(self) if backend == "auto" else (
                 BACKENDS[backend](self), f"backend={backend!r} requested")
         else:
             self.backend, self.choice = backend, f"backend object {type(backend).__name__}"
+
+    @cached_property
+    def stepper(self) -> Theta:
+        """The θ-step (one factorization of ``A``), shared by the stepping backend and sensor runs."""
+        L = self.kappa * self.K if self.C is None else self.kappa * self.K + self.C
+        return Theta(self.M, L, self.dt, self.theta, self.solver)
+
+    #: observations are fields on the mesh (measured with ``M``)
+    output_space = "field"
+
+    @property
+    def mass(self):
+        return self.M
+
+    @property
+    def symmetric(self) -> bool:
+        return self.C is None
+
+    @property
+    def modes(self):
+        """The modal backend (``g``, ``Phi``, ``MPhi``) if this operator uses one, else ``None``."""
+        return self.backend if all(hasattr(self.backend, a) for a in ("g", "Phi", "MPhi")) else None
+
+    def sensors(self, S, record_every: int = 1) -> Propagator:
+        """Sensor time series ``S u`` every ``record_every`` steps (always time-stepping)."""
+        return Propagator(self.stepper, Records(S, self.n_in, self.steps, record_every), self.steps,
+                          self.M)
+
+    def max_gain_squared(self) -> float | None:
+        """``λ_max(P*P) = max g²`` over all modes (``|r|ⁿ`` is extremal at the lowest or the
+        highest eigenvalue of ``Kφ = λMφ``); ``None`` with convection (no modal picture)."""
+        if not self.symmetric:
+            return None
+        import scipy.sparse.linalg as sla
+
+        lam_lo = float(sla.eigsh(self.K.tocsc(), 1, self.M.tocsc(), sigma=0, which="LM")[0][0])
+        lam_hi = largest_eigenvalue(self.M, self.K)
+        return float(max(self.amplification(lam_lo) ** 2, self.amplification(lam_hi) ** 2))
 
     def amplification(self, lam):
         """``r(dtκλ)ⁿ``: what the whole run does to a mode of eigenvalue ``λ``."""

@@ -11,6 +11,8 @@ import math
 import numpy as np
 
 from .modes import DENSE_MAX, TooManyModes, largest_eigenvalue, lowest_modes
+from .observation import FinalField
+from .propagator import Propagator
 
 
 def amplification(z, theta: float):
@@ -19,32 +21,16 @@ def amplification(z, theta: float):
 
 
 class Stepping:
-    """``n`` θ-steps with one factorization of ``A``; batch columns solved together.
+    """``n`` θ-steps with one factorization of ``A`` (``heat.stepper``); batch columns solved together.
 
-    forward: ``u ← A⁻¹(B u)`` n times;  adjoint: ``r ← B(A⁻¹ r)`` n times.
+    forward: ``u ← A⁻¹(B u)`` n times;  adjoint: ``r ← Bᵀ(A⁻ᵀ r)`` n times (:mod:`.propagator`).
     """
 
     name = "steps"
 
     def __init__(self, heat):
-        c = heat.theta * heat.dt * heat.kappa
-        d = (1.0 - heat.theta) * heat.dt * heat.kappa
-        self.A = (heat.M + c * heat.K).tocsc()
-        self.B = (heat.M - d * heat.K).tocsr()
-        self.lu = heat.solver(self.A)
-        self.steps = heat.steps
-
-    def forward(self, X):
-        U = X.T
-        for _ in range(self.steps):
-            U = self.lu.solve(self.B @ U)
-        return np.ascontiguousarray(U.T)
-
-    def adjoint(self, R):
-        U = R.T
-        for _ in range(self.steps):
-            U = self.B @ self.lu.solve(U)
-        return np.ascontiguousarray(U.T)
+        self.run = Propagator(heat.stepper, FinalField(heat.n_in, heat.steps), heat.steps, heat.M)
+        self.forward, self.adjoint = self.run._forward, self.run._adjoint
 
 
 class Modal:
@@ -104,22 +90,27 @@ BLAS_ADVANTAGE = 4.0
 def weyl_count(heat, lam: float) -> float:
     """Weyl's law: about how many eigenvalues of the Laplacian lie below ``lam``.
 
-    1-D: ``|Ω|√λ/π``; 2-D: ``|Ω|λ/(4π)`` (leading terms; over-estimates for Dirichlet).
+    ``N(λ) ≈ ω_d |Ω| λ^{d/2} / (2π)^d`` (``ω_d`` the unit ball's volume): 1-D ``|Ω|√λ/π``,
+    2-D ``|Ω|λ/(4π)``, 3-D ``|Ω|λ^{3/2}/(6π²)`` (leading terms; over-estimates for Dirichlet).
     """
-    if heat.dim == 1:
-        return heat.measure * math.sqrt(lam) / math.pi + 1
-    return heat.measure * lam / (4 * math.pi) + 1
+    if heat.dim not in WEYL:
+        raise ValueError(f"dim={heat.dim!r} is not supported by Weyl's law here; expected 1, 2 or 3")
+    return heat.measure * WEYL[heat.dim] * lam ** (heat.dim / 2) + 1
+
+
+#: Weyl constants ``ω_d/(2π)^d`` per dimension
+WEYL = {1: 1 / math.pi, 2: 1 / (4 * math.pi), 3: 1 / (6 * math.pi**2)}
 
 
 def choose(heat):
     """Pick the cheaper backend for one application of ``P`` per batch column.
 
     stepping ≈ n·(2·fill(LU) + 2·nnz(B)) flops;  modal ≈ 4·N·k / BLAS_ADVANTAGE, with
-    ``k = min(N, Weyl's count at the cut-off |r(dtκλ)|ⁿ = tol)``. Modal is tried if
-    ``k ≤ N/2`` or the mesh is small enough for a dense eigendecomposition (all modes,
-    ``N ≤ DENSE_MAX``: Weyl over-estimates on coarse meshes, and a dense N×N product
-    still beats stepping there); if building it fails (too many modes, CN not
-    truncatable) we step.
+    ``k = min(N, Weyl's count at the cut-off |r(dtκλ)|ⁿ = tol)``. Modal is tried, for a
+    symmetric operator only (no convection), if ``k ≤ N/2`` or the mesh is small enough
+    for a dense eigendecomposition (all modes, ``N ≤ DENSE_MAX``: Weyl over-estimates on
+    coarse meshes, and a dense N×N product still beats stepping there); if building it
+    fails (too many modes, CN not truncatable) we step.
     """
     N = heat.n_in
     # cut-off eigenvalue: solve |r(z)|^n = tol for z on the damped branch (z ≤ 2/(1-θ) region)
@@ -129,8 +120,10 @@ def choose(heat):
     lam_cut = z_cut / (heat.dt * heat.kappa)
     k_est = min(weyl_count(heat, lam_cut), N)
     stepping = Stepping(heat)
-    fill = getattr(stepping.lu, "fill", 10 * heat.M.nnz)
-    cost_steps = heat.steps * (2 * fill + 2 * stepping.B.nnz)
+    fill = getattr(heat.stepper.lu, "fill", 10 * heat.M.nnz)
+    cost_steps = heat.steps * (2 * fill + 2 * heat.stepper.B.nnz)
+    if not heat.symmetric:
+        return stepping, "auto: steps (not symmetric: no modal basis)"
     cost_modal = 4 * N * k_est / BLAS_ADVANTAGE
     why = (f"modal≈{cost_modal:.3g} flops/column with ~{k_est:.0f} of {N} modes (Weyl) vs "
            f"steps≈{cost_steps:.3g}")

@@ -4,10 +4,10 @@ With ``A = M_L⁻¹ K`` (``M_L`` the diagonal lumped mass), ``q = (c dt)²`` and
 
     u¹ = u⁰ − ½ q A u⁰,        uⁿ⁺¹ = 2uⁿ − uⁿ⁻¹ − q A uⁿ,
 
-second order in time, one sparse product per step and no solve. The map
-``P: u⁰ ↦ uⁿ`` is a polynomial ``pₙ(A)`` (``p₀ = 1``, ``p₁ = 1 − qA/2``,
-``pₙ₊₁ = (2 − qA)pₙ − pₙ₋₁``), so its exact transpose is ``pₙ(Aᵀ)``: the same
-recurrence with ``Aᵀ = K M_L⁻¹`` — no stored trajectory.
+second order in time, one sparse product per step and no solve. The step and its
+exact transpose are :class:`.schemes.Leapfrog` (``u¹`` is the general step from the
+fictitious ``u⁻¹ = u¹``); :mod:`.propagator` owns the loop, so sensor records
+come for free (``Leapfrog(...).sensors(S, k)``).
 
 Stability (CFL): the scheme is stable iff ``c dt √λ_max < 2``, ``λ_max`` the
 largest eigenvalue of ``K φ = λ M_L φ``; a ``dt`` at or above the limit is
@@ -25,11 +25,13 @@ import numpy as np
 import scipy.sparse as sp
 
 from .._checks import count, positive
-from .base import LinearOperator
 from .modes import largest_eigenvalue
+from .observation import FinalField
+from .propagator import Propagator
+from .schemes import Leapfrog as LeapfrogStep
 
 
-class Leapfrog(LinearOperator):
+class Leapfrog(Propagator):
     """Displacement at ``T`` after ``steps`` explicit leapfrog steps from ``(u₀, 0)``.
 
     ``M_lumped``: the lumped (diagonal, positive) mass on the free unknowns, e.g.
@@ -43,36 +45,22 @@ class Leapfrog(LinearOperator):
             raise ValueError("Leapfrog needs a lumped mass: a diagonal matrix with positive entries "
                              "(discretize(mesh, 'P1', lumped=True).M)")
         self.K = sp.csr_matrix(K)
-        self.KT = self.K.T.tocsr()
-        self.minv = 1.0 / m
         self.c = positive(c, "c")
         self.t_end = positive(T, "T")
-        self.steps = count(steps, "steps")
-        self.dt = self.t_end / self.steps
+        steps = count(steps, "steps")
+        dt = self.t_end / steps
         self.lam_max = largest_eigenvalue(sp.diags(m).tocsr(), self.K)
         self.dt_max = 2.0 / (self.c * math.sqrt(self.lam_max))
-        if self.dt >= self.dt_max:
+        if dt >= self.dt_max:
             need = math.floor(self.t_end / self.dt_max) + 1
             while self.t_end / need >= self.dt_max:  # rounding at the limit itself
                 need += 1
             raise ValueError(
-                f"dt = T/steps = {self.dt:.4g} is at or above the leapfrog stability limit "
+                f"dt = T/steps = {dt:.4g} is at or above the leapfrog stability limit "
                 f"2/(c·√λ_max) = {self.dt_max:.4g} (c={self.c:g}, λ_max={self.lam_max:.4g}); "
                 f"allowed: steps >= {need} for T={self.t_end:g}, or scheme='newmark' (no limit)")
-        self.n_in = self.n_out = self.K.shape[0]
-
-    def _run(self, U, apply):
-        q = (self.c * self.dt) ** 2
-        prev, cur = U, U - 0.5 * q * apply(U)
-        for _ in range(self.steps - 1):
-            prev, cur = cur, 2.0 * cur - prev - q * apply(cur)
-        return cur
-
-    def _forward(self, X):
-        return np.ascontiguousarray(self._run(X.T, lambda U: self.minv[:, None] * (self.K @ U)).T)
-
-    def _adjoint(self, R):
-        return np.ascontiguousarray(self._run(R.T, lambda U: self.KT @ (self.minv[:, None] * U)).T)
+        scheme = LeapfrogStep(1.0 / m, self.K, self.c, dt)
+        super().__init__(scheme, FinalField(scheme.n, steps), steps, sp.diags(m).tocsr())
 
     def __repr__(self):
         return (f"Leapfrog(N={self.n_in}, c={self.c}, T={self.t_end}, steps={self.steps}, "
