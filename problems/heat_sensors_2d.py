@@ -2,7 +2,7 @@
 
 ``sensors`` point sensors inside the domain record u every ``record_every``
 θ-scheme steps (record-major ``y.reshape(B, R, n_s)``, see
-:mod:`pdeinv.physics.sensors`). Sensor runs always time-step (no modal
+:mod:`pdeinv.physics.propagator`). Sensor runs always time-step (no modal
 backend, hence no ``backend`` setting). Given coordinates on the Dirichlet
 boundary are refused: the field is 0 there.
 
@@ -24,8 +24,7 @@ from pdeinv import mesh, observe, scenes
 from pdeinv import settings as s
 from pdeinv.forms import discretize
 from pdeinv.inverse import default_inverse
-from pdeinv.physics import Heat
-from pdeinv.physics.sensors import HeatSensors
+from pdeinv.physics import Heat, HeatSensors
 from pdeinv.problem import Problem
 from pdeinv.sampling import gaussian_bumps
 

@@ -3,7 +3,7 @@
 ``M u'' + c² K u = 0`` on the unit square (or a mesh file), ``v₀ = 0``, Newmark
 steps; ``sensors`` point sensors on the boundary ring record ``u`` every
 ``record_every`` steps (time series, record-major: ``y.reshape(B, R, n_s)``, see
-:mod:`pdeinv.physics.sensors`).
+:mod:`pdeinv.physics.propagator`).
 
 **Boundary: natural (Neumann, sound-hard) by default.** With a Dirichlet
 (pressure-release) wall the field is 0 on the boundary, so sensors must sit
@@ -47,8 +47,7 @@ from pdeinv import mesh, observe, scenes
 from pdeinv import settings as s
 from pdeinv.forms import discretize
 from pdeinv.inverse import RelativeAlpha, default_inverse
-from pdeinv.physics import Wave
-from pdeinv.physics.sensors import WaveSensors
+from pdeinv.physics import Wave, WaveSensors
 from pdeinv.problem import Problem
 from pdeinv.sampling import gaussian_bumps
 

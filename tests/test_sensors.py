@@ -17,8 +17,7 @@ from exact import dot_test, load
 
 import pdeinv
 from pdeinv import observe
-from pdeinv.physics import Heat, Wave
-from pdeinv.physics.sensors import HeatSensors, WaveSensors
+from pdeinv.physics import Heat, HeatSensors, Wave, WaveSensors
 
 ROOT = Path(__file__).resolve().parents[1]
 

@@ -27,8 +27,9 @@ def operator_ratios(problem, batch: int = 64, repeats: int = 5, seed: int = 0) -
       ``modal_agreement`` the relative difference of their results.
     """
     from ..physics import Heat
-    from ..physics.capabilities import modal_basis, stepping
+    from ..physics.capabilities import modal_basis
     from ..physics.schemes import Newmark, Theta
+    from .timing import stepping
 
     op = problem.operator
     rng = np.random.default_rng(seed)

@@ -20,9 +20,8 @@ import torch
 
 from ..autograd import apply
 from ..physics.base import LinearOperator
-from ..physics.capabilities import stepping
 from ..physics.schemes import Theta
-from .timing import best, peak_bytes
+from .timing import best, peak_bytes, stepping
 
 
 class Counting(LinearOperator):

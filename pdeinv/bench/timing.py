@@ -60,3 +60,13 @@ def machine() -> dict:
             "torch": torch.__version__, "scipy": scipy.__version__, "numpy": np.__version__,
             "python": platform.python_version(), "platform": platform.platform(),
             "load_avg_1min": os.getloadavg()[0] if hasattr(os, "getloadavg") else None}
+
+
+def stepping(op):
+    """``op`` as a time-stepping :class:`~pdeinv.physics.Propagator` (``scheme`` public), or ``None``:
+    a propagator as is, an operator with a ``stepper`` (:attr:`pdeinv.Heat.stepper`) its final-field run."""
+    from ..physics import FinalField, Propagator
+
+    if isinstance(op, Propagator) or getattr(op, "stepper", None) is None:
+        return op if isinstance(op, Propagator) else None
+    return Propagator(op.stepper, FinalField(op.n_in, op.steps), op.steps, getattr(op, "mass", None))

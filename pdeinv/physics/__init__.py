@@ -4,10 +4,11 @@ from .base import LinearOperator, Matrix, Transposed
 from .heat import Heat
 from .heat_backends import Modal, Stepping
 from .leapfrog import Leapfrog
-from .observation import FinalField, Records
-from .propagator import Propagator
-from .sensors import HeatSensors, WaveSensors, sensors
+from .propagator import FinalField, Propagator, Records, sensors
 from .wave import Wave
 
+#: the names the sensor scenes used before the one propagator (same call)
+HeatSensors = WaveSensors = sensors
+
 __all__ = ["LinearOperator", "Matrix", "Transposed", "Heat", "Leapfrog", "Modal", "Stepping", "Wave",
-           "FinalField", "Records", "Propagator", "HeatSensors", "WaveSensors", "sensors"]
+           "FinalField", "Propagator", "Records", "HeatSensors", "WaveSensors", "sensors"]

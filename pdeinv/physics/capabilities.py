@@ -34,19 +34,3 @@ def reversible(op) -> bool:
     """Whether ``op`` offers ``final_state`` and ``reverse`` (a time-reversible scheme)."""
     return all(callable(getattr(op, name, None)) for name in ("final_state", "reverse"))
 
-
-def stepping(op):
-    """``op`` as a time-stepping :class:`~.propagator.Propagator` (its ``scheme`` public), or ``None``.
-
-    A propagator is returned as is; an operator with a ``stepper`` (a scheme, e.g.
-    :attr:`pdeinv.Heat.stepper`, whatever its backend) gets the final-field run of it.
-    """
-    if hasattr(op, "scheme") and hasattr(op, "observation"):
-        return op
-    stepper = getattr(op, "stepper", None)
-    if stepper is None:
-        return None
-    from .observation import FinalField
-    from .propagator import Propagator
-
-    return Propagator(stepper, FinalField(op.n_in, op.steps), op.steps, getattr(op, "mass", None))

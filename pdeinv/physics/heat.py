@@ -1,16 +1,9 @@
-"""Heat equation ``M u' + (κ K + C) u = 0``: the θ-scheme propagator and its exact adjoint.
+"""Heat equation ``M u' + (κ K + C) u = 0``: the θ-scheme map to the final field, ``P = (A⁻¹B)ⁿ``.
 
-One step of the θ-scheme is ``A uⁿ⁺¹ = B uⁿ`` with ``L = κK + C``
-
-    A = M + θ dt L,    B = M − (1−θ) dt L,
-
-θ=1 backward Euler ('be', L-stable, default), θ=½ Crank–Nicolson ('cn'). The
-forward map to the final field is ``P = (A⁻¹B)ⁿ`` and its transpose is
-``Pᵀ = (Bᵀ A⁻ᵀ)ⁿ``: the same factorization, no trajectory (:mod:`.schemes`).
-``C`` is an optional convection matrix (advection–diffusion, not symmetric); without
-it every matrix is symmetric and the modal backend is available.
-
-Two backends give the same ``P`` (see :mod:`.heat_backends`):
+θ=1 backward Euler ('be', L-stable, default), θ=½ Crank–Nicolson ('cn'); the step and
+its exact transpose are :class:`.schemes.Theta`. ``C`` is an optional convection matrix
+(advection–diffusion, not symmetric); without it every matrix is symmetric and the
+modal backend is available. Two backends give the same ``P`` (:mod:`.heat_backends`):
 
 * ``Stepping``: n solves with one factorization, all batch columns at once;
 * ``Modal``: with ``K Φ = M Φ Λ``, ``ΦᵀMΦ = I``, the scheme is diagonal,
@@ -30,8 +23,7 @@ from ..solvers import default_solver
 from .base import LinearOperator
 from .heat_backends import BACKENDS, amplification, choose
 from .modes import largest_eigenvalue
-from .observation import Records
-from .propagator import Propagator
+from .propagator import Propagator, Records
 from .schemes import Theta
 
 SCHEMES = {"be": 1.0, "cn": 0.5}
@@ -51,7 +43,8 @@ class Heat(LinearOperator):
 
     def __init__(self, M, K, kappa=0.01, T=1.0, steps=100, scheme="be", backend="auto",
                  solver=default_solver, tol=1e-14, measure=1.0, dim=2, C=None):
-        self.M, self.K, self.C = M, K, C
+        self.M = self.mass = M
+        self.K, self.C = K, C
         self.kappa = positive(kappa, "kappa")
         self.t_end = positive(T, "T")
         self.steps = count(steps, "steps")
@@ -78,26 +71,13 @@ class Heat(LinearOperator):
         L = self.kappa * self.K if self.C is None else self.kappa * self.K + self.C
         return Theta(self.M, L, self.dt, self.theta, self.solver)
 
-    #: observations are fields on the mesh (measured with ``M``)
-    output_space = "field"
-
-    @property
-    def mass(self):
-        return self.M
-
-    @property
-    def symmetric(self) -> bool:
-        return self.C is None
-
-    @property
-    def modes(self):
-        """The modal backend (``g``, ``Phi``, ``MPhi``) if this operator uses one, else ``None``."""
-        return self.backend if all(hasattr(self.backend, a) for a in ("g", "Phi", "MPhi")) else None
+    output_space = "field"  # capabilities (pdeinv.physics.capabilities): observes a field, measured by M
+    symmetric = property(lambda self: self.C is None)
+    modes = property(lambda self: self.backend if hasattr(self.backend, "Phi") else None)
 
     def sensors(self, S, record_every: int = 1) -> Propagator:
         """Sensor time series ``S u`` every ``record_every`` steps (always time-stepping)."""
-        return Propagator(self.stepper, Records(S, self.n_in, self.steps, record_every), self.steps,
-                          self.M)
+        return Propagator(self.stepper, Records(S, self.n_in, self.steps, record_every), self.steps, self.M)
 
     def max_gain_squared(self) -> float | None:
         """``λ_max(P*P) = max g²`` over all modes (``|r|ⁿ`` is extremal at the lowest or the

@@ -11,8 +11,7 @@ import math
 import numpy as np
 
 from .modes import DENSE_MAX, TooManyModes, largest_eigenvalue, lowest_modes
-from .observation import FinalField
-from .propagator import Propagator
+from .propagator import FinalField, Propagator
 
 
 def amplification(z, theta: float):

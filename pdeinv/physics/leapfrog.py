@@ -1,20 +1,11 @@
-"""Explicit leapfrog (central differences) for ``M_L u'' + c² K u = 0`` with a lumped mass.
+"""Explicit leapfrog (central differences) for ``M_L u'' + c² K u = 0``, lumped mass, ``v₀ = 0``.
 
-With ``A = M_L⁻¹ K`` (``M_L`` the diagonal lumped mass), ``q = (c dt)²`` and ``v₀ = 0``,
-
-    u¹ = u⁰ − ½ q A u⁰,        uⁿ⁺¹ = 2uⁿ − uⁿ⁻¹ − q A uⁿ,
-
-second order in time, one sparse product per step and no solve. The step and its
-exact transpose are :class:`.schemes.Leapfrog` (``u¹`` is the general step from the
-fictitious ``u⁻¹ = u¹``); :mod:`.propagator` owns the loop, so sensor records
-come for free (``Leapfrog(...).sensors(S, k)``).
-
-Stability (CFL): the scheme is stable iff ``c dt √λ_max < 2``, ``λ_max`` the
-largest eigenvalue of ``K φ = λ M_L φ``; a ``dt`` at or above the limit is
-refused with the limit and the smallest admissible number of steps (at the
-limit the error grows linearly, above it exponentially). Newmark
-(:class:`pdeinv.Wave`) has no limit; use leapfrog when many cheap steps beat
-a few solves, e.g. on large meshes with a moderate ``T``.
+Second order in time, one sparse product per step and no solve (:class:`.schemes.Leapfrog`
+has the step and its exact transpose). Stable iff ``c dt √λ_max < 2`` (CFL), ``λ_max``
+the largest eigenvalue of ``K φ = λ M_L φ``: a ``dt`` at or above the limit is refused
+with the smallest admissible number of steps (at the limit the error grows linearly,
+above it exponentially). Newmark (:class:`pdeinv.Wave`) has no limit; leapfrog wins
+when many cheap steps beat a few solves (large meshes, moderate ``T``).
 """
 
 from __future__ import annotations
@@ -26,8 +17,7 @@ import scipy.sparse as sp
 
 from .._checks import count, positive
 from .modes import largest_eigenvalue
-from .observation import FinalField
-from .propagator import Propagator
+from .propagator import FinalField, Propagator
 from .schemes import Leapfrog as LeapfrogStep
 
 

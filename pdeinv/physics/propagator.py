@@ -1,61 +1,95 @@
-"""One loop for every time-stepping operator: scheme × observation (× the scheme's solver).
+"""One loop for every time-stepping operator: scheme × observation (the scheme owns its solver).
 
 With the scheme's ``s₀ = I x``, ``sⱼ = S sⱼ₋₁``, ``uⱼ = E sⱼ`` (:mod:`.schemes`) and
-the observation's records ``y_r = O u_{(r+1)k}`` (:mod:`.observation`), the forward
-map and its exact discrete transpose are
+records ``y_r = O u_{(r+1)k}`` after every ``k``-th of ``n`` steps (``O`` the sensor
+matrix, or the identity), the forward map and its exact discrete transpose are
 
-    forward:  s = I x;  for j = 1…n:  s = S s;  record O E s if j is recorded
-    adjoint:  s̄ = 0;   for j = n…1:  s̄ += Eᵀ Oᵀ r_j if j is recorded;  s̄ = Sᵀ s̄;   x̄ = Iᵀ s̄
+    forward:  s = I x;  for j = 1…n:  s = S s;  record O E s if k divides j
+    adjoint:  s̄ = 0;   for j = n…1:  s̄ += Eᵀ Oᵀ r_j if k divides j;  s̄ = Sᵀ s̄;   x̄ = Iᵀ s̄
 
-(a reverse sweep, no stored trajectory: the map is linear). All batch columns go
-through each step together (one solve with ``b`` right-hand sides).
+(a reverse sweep, no stored trajectory: the map is linear); all batch columns go
+through each step together. **Layout of y (record-major):** ``y[b, r·n_s + s]`` is
+sensor ``s`` at ``t_r = (r+1)·k·dt``; ``y.reshape(B, R, n_s)`` gives the time series.
 
-Capabilities other code chooses by (never by concrete class, see
-:mod:`.capabilities`): ``output_space`` ("field": a field on the mesh, measured
-with its mass matrix; "records": plain numbers, Euclidean), ``symmetric`` (every
-matrix of the scheme is), and, for reversible schemes, ``final_state`` /
-``reverse`` (:class:`~pdeinv.Wave`).
+The output space is declared, never guessed from shapes (:mod:`.capabilities`):
+:class:`FinalField` observes a field on the mesh, :class:`Records` plain numbers.
 """
 
 from __future__ import annotations
 
 import numpy as np
 
+from .._checks import count
 from .base import LinearOperator
-from .observation import FinalField, Records
+
+
+class Records:
+    """``O u`` after every ``every``-th of ``steps`` steps; ``O = S`` (``n_s × n``) or the identity."""
+
+    space = "records"
+
+    def __init__(self, S, n: int, steps: int, every: int = 1):
+        if S is not None and (S.shape[1] != n or S.shape[0] == 0):
+            raise ValueError(f"sensor matrix has shape {S.shape}; expected (n_sensors >= 1, {n})")
+        self.S, self.ST = (None, None) if S is None else (S.tocsr(), S.T.tocsr())
+        self.every = count(every, "record_every")
+        if steps % self.every:
+            div = [d for d in range(1, steps + 1) if steps % d == 0]
+            raise ValueError(f"record_every={every!r} does not divide steps={steps}; allowed: a divisor of "
+                             f"steps ({', '.join(map(str, div[:12]))}{', …' if len(div) > 12 else ''}), so "
+                             "that records are uniform in time and include the final field")
+        self.n_records, self.n_sensors = steps // self.every, n if S is None else S.shape[0]
+        self.n_out = self.n_sensors * self.n_records
+
+    def _slot(self, j: int) -> slice:
+        r = j // self.every - 1
+        return slice(r * self.n_sensors, (r + 1) * self.n_sensors)
+
+    def write(self, Y: np.ndarray, j: int, U: np.ndarray) -> None:
+        """Store ``O U`` into ``Y`` if step ``j`` (1-based) is recorded."""
+        if j % self.every == 0:
+            Y[:, self._slot(j)] = (U if self.S is None else self.S @ U).T
+
+    def read_T(self, R: np.ndarray, j: int):
+        """``Oᵀ r_j`` as ``(n, B)`` if step ``j`` is recorded, else ``None`` (transposes :meth:`write`)."""
+        if j % self.every:
+            return None
+        Rj = R[:, self._slot(j)].T
+        return Rj if self.ST is None else self.ST @ Rj
+
+
+class FinalField(Records):
+    """The field after the last step: ``y = u_n``."""
+
+    space = "field"
+
+    def __init__(self, n: int, steps: int):
+        super().__init__(None, n, steps, every=steps)
 
 
 class Propagator(LinearOperator):
-    """``steps`` steps of ``scheme`` from ``x``, recorded by ``observation`` (module docstring).
-
-    ``mass``: the mass matrix of the unknowns (what measures a field observation).
-    """
+    """``steps`` steps of ``scheme`` from ``x``, recorded by ``observation`` (module docstring);
+    ``mass``: the mass matrix of the unknowns."""
 
     def __init__(self, scheme, observation: Records, steps: int, mass=None):
-        self.scheme, self.observation = scheme, observation
-        self.steps = int(steps)
-        self.n_in, self.mass = scheme.n, mass
-        self.n_out = observation.n_out
+        self.scheme, self.observation, self.steps, self.mass = scheme, observation, int(steps), mass
+        self.n_in, self.n_out = scheme.n, observation.n_out
 
-    @property
-    def output_space(self) -> str:
-        return self.observation.space
+    output_space = property(lambda self: self.observation.space)
+    symmetric = property(lambda self: bool(self.scheme.symmetric))
+    dt = property(lambda self: self.scheme.dt)
+    S = property(lambda self: self.observation.S)
+    n_sensors = property(lambda self: self.observation.n_sensors)
+    n_records = property(lambda self: self.observation.n_records)
+    record_every = property(lambda self: self.observation.every)
 
-    @property
-    def dt(self) -> float:
-        return self.scheme.dt
-
-    @property
-    def symmetric(self) -> bool:
-        return bool(self.scheme.symmetric)
-
-    def with_observation(self, observation: Records) -> Propagator:
-        """The same scheme (and factorization) observed differently."""
-        return Propagator(self.scheme, observation, self.steps, self.mass)
+    def times(self, dt: float | None = None) -> np.ndarray:
+        """Time of each record, ``(r+1)·k·dt``."""
+        return (np.arange(self.n_records) + 1) * self.record_every * (self.dt if dt is None else dt)
 
     def sensors(self, S, record_every: int = 1) -> Propagator:
-        """Records ``S u`` every ``record_every`` steps (:class:`~.observation.Records`)."""
-        return self.with_observation(Records(S, self.n_in, self.steps, record_every))
+        """The same scheme (and factorization) observed through ``S`` every ``record_every`` steps."""
+        return Propagator(self.scheme, Records(S, self.n_in, self.steps, record_every), self.steps, self.mass)
 
     def _forward(self, X):
         sc, obs = self.scheme, self.observation
@@ -71,36 +105,19 @@ class Propagator(LinearOperator):
         s = sc.zeros(self.n_in, R.shape[0])
         for j in range(self.steps, 0, -1):
             W = obs.read_T(R, j)
-            if W is not None:
-                s = sc.inject(s, W)
+            s = s if W is None else sc.inject(s, W)
             s = sc.step_T(s)
         return np.ascontiguousarray(sc.start_T(s).T)
 
-    # -- what sensor operators used to expose ----------------------------------------------
-    @property
-    def S(self):
-        """The observation matrix (``None``: the field itself)."""
-        return self.observation.S
-
-    @property
-    def n_sensors(self) -> int:
-        return self.observation.n_sensors
-
-    @property
-    def n_records(self) -> int:
-        return self.observation.n_records
-
-    @property
-    def record_every(self) -> int:
-        return self.observation.every
-
-    def times(self, dt: float | None = None) -> np.ndarray:
-        """Time of each record (with the scheme's ``dt`` unless given)."""
-        return self.observation.times(self.dt if dt is None else dt)
-
     def __repr__(self):
         obs = self.observation
-        what = ("final field" if isinstance(obs, FinalField) else
-                f"sensors={obs.n_sensors}, records={obs.n_records}, record_every={obs.every}")
-        return (f"{type(self).__name__}({type(self.scheme).__name__}, N={self.n_in}, "
-                f"steps={self.steps}, {what})")
+        what = "final field" if obs.space == "field" else (
+            f"sensors={obs.n_sensors}, records={obs.n_records}, record_every={obs.every}")
+        return f"Propagator({type(self.scheme).__name__}, N={self.n_in}, steps={self.steps}, {what})"
+
+
+def sensors(op, S, record_every: int = 1) -> Propagator:
+    """``op``'s run (Heat, Wave, Leapfrog: anything with ``sensors``) observed through ``S``."""
+    if not callable(getattr(op, "sensors", None)):
+        raise ValueError(f"{op!r} is not a time-stepping operator; sensors need Heat, Wave or Leapfrog")
+    return op.sensors(S, record_every)

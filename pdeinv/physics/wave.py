@@ -1,24 +1,9 @@
-"""Wave equation ``M u'' + c² K u = 0`` with Newmark average acceleration (β=¼, γ=½).
+"""Wave equation ``M u'' + c² K u = 0``: Newmark average acceleration (β=¼, γ=½) from ``(u₀, 0)``.
 
-For linear problems this Newmark scheme is the trapezoidal rule on the state
-``(u, v)`` (:class:`.schemes.Newmark`):
-
-    u' − u = dt/2 (v + v'),      M (v' − v) = −dt/2 c² K (u + u'),
-
-i.e. with ``A = M + (c dt/2)² K`` and ``B = M − (c dt/2)² K``
-
-    A u' = B u + dt M v,         v' = 2 (u' − u)/dt − v.
-
-It is unconditionally stable, conserves ``E = ½vᵀMv + ½c²uᵀKu`` exactly (up to
-rounding), and is time-reversible: the same step with ``−dt`` undoes it.
-
-The operator ``P: u₀ ↦ u_T`` (``v₀ = 0``) has the exact discrete adjoint
-obtained by transposing one step: with ``w = A⁻ᵀ(ū + 2 v̄/dt)``,
-
-    ū ← Bᵀ w − 2 v̄/dt,            v̄ ← dt Mᵀ w − v̄,
-
-started from ``(ū, v̄) = (r, 0)``; the result is ``ū``. One solve per step, no
-stored trajectory (:mod:`.propagator` owns the loop).
+The trapezoidal rule on ``(u, v)`` (:class:`.schemes.Newmark` has the step and its exact
+transpose): unconditionally stable, conserves ``E = ½vᵀMv + ½c²uᵀKu`` to rounding, and
+time-reversible (the step with ``−dt`` undoes it), so the full state can be run both
+ways (:meth:`Wave.final_state`, :meth:`Wave.reverse`, used by time reversal).
 """
 
 from __future__ import annotations
@@ -27,8 +12,7 @@ import numpy as np
 
 from .._checks import batch, count, positive
 from ..solvers import SuperLU
-from .observation import FinalField
-from .propagator import Propagator
+from .propagator import FinalField, Propagator
 from .schemes import Newmark
 
 
@@ -39,9 +23,6 @@ class Wave(Propagator):
     c·dt/h = 0.16) the energy drifted 2.5e-17 per step with SuperLU against a
     systematic 1.5e-16 per step with cholespy, which breaks the 1e-12 budget.
     Pass ``solver=pdeinv.Cholesky`` for ~3x faster steps where that does not matter.
-
-    Capabilities: ``final_state`` and ``reverse`` (the full state both ways, used by
-    time reversal), ``output_mass = M``.
     """
 
     def __init__(self, M, K, c=1.0, T=1.0, steps=100, solver=SuperLU):
@@ -52,31 +33,24 @@ class Wave(Propagator):
         scheme = Newmark(self.M, self.K, self.c, self.t_end / steps, solver)
         super().__init__(scheme, FinalField(scheme.n, steps), steps, self.M)
 
-    def _states(self, U, V, name: str):
-        U, single = batch(U, self.n_in, name[0])
-        if V is None:
-            return U, np.zeros_like(U), single
-        V = batch(V, self.n_in, name[1])[0]
+    def _run(self, U, V, sign: float, names: tuple[str, str]):
+        U, single = batch(U, self.n_in, names[0])
+        V = np.zeros_like(U) if V is None else batch(V, self.n_in, names[1])[0]
         if V.shape != U.shape:
-            raise ValueError(f"{name[1]} has shape {V.shape}; expected the shape of {name[0]} {U.shape}")
-        return U, V, single
-
-    def _run(self, U, V, sign: float, single: bool):
+            raise ValueError(f"{names[1]} has shape {V.shape}; expected the shape of {names[0]} {U.shape}")
         s = (U.T, V.T)
         for _ in range(self.steps):
             s = self.scheme.step(s, sign)
-        out = np.ascontiguousarray(s[0].T), np.ascontiguousarray(s[1].T)
-        return (out[0][0], out[1][0]) if single else out
+        out = tuple(np.ascontiguousarray(a.T) for a in s)
+        return tuple(a[0] for a in out) if single else out
 
     def final_state(self, U0, V0=None) -> tuple[np.ndarray, np.ndarray]:
         """``(u_T, v_T)`` from ``(u₀, v₀)`` (``v₀ = 0`` if omitted), batch-first."""
-        U, V, single = self._states(U0, V0, ("U0", "V0"))
-        return self._run(U, V, 1.0, single)
+        return self._run(U0, V0, 1.0, ("U0", "V0"))
 
     def reverse(self, UT, VT) -> tuple[np.ndarray, np.ndarray]:
         """Step back from ``(u_T, v_T)`` to ``(u₀, v₀)``: the forward scheme with ``−dt``."""
-        U, V, single = self._states(UT, VT, ("UT", "VT"))
-        return self._run(U, V, -1.0, single)
+        return self._run(UT, VT, -1.0, ("UT", "VT"))
 
     def energy(self, U, V) -> np.ndarray:
         """Discrete energy ``½vᵀMv + ½c²uᵀKu`` per sample."""
