@@ -21,7 +21,8 @@ The MMSE estimator minimizes ``E‖x̂ − x‖²_G`` for every SPD weight ``G``
 the same in the Euclidean and the L²(Ω) norm.
 
 **Best-α Tikhonov**: ``x̂_α = argmin ½‖P x − y‖²_D + ½ α ‖x‖²_M`` with ``D = M`` when
-``y`` is a field on the mesh (else the identity), for ``α = a · s_max²`` on a grid
+``y`` is a field on the mesh (as the operator declares,
+:mod:`pdeinv.physics.capabilities`; else the identity), for ``α = a · s_max²`` on a grid
 of ``a``; the α with the lowest mean test x-error wins (an oracle choice: a
 lower bound for any α rule). With ``M = LLᵀ`` and ``z = Lᵀx``, ``Q = L_Dᵀ P L⁻ᵀ``
 has the SVD ``Q = U S Vᵀ`` and ``x̂_α = L⁻ᵀ V diag(s/(s²+α)) Uᵀ L_Dᵀ y`` for all α
@@ -43,6 +44,8 @@ from __future__ import annotations
 
 import numpy as np
 import scipy.linalg as sla
+
+from .physics.capabilities import observes_field
 
 #: σ / s_max used when the problem is noise-free (see the module docstring)
 TINY_SIGMA = 1e-8
@@ -91,7 +94,7 @@ def _spectral_basis(problem, P: np.ndarray | None = None):
     P = dense_operator(problem) if P is None else P
     M = problem.disc.M.toarray()
     L = np.linalg.cholesky(M)
-    LD = L if P.shape[0] == M.shape[0] else np.eye(P.shape[0])
+    LD = L if observes_field(problem.operator) else np.eye(P.shape[0])
     Q = LD.T @ sla.solve_triangular(L, P.T, lower=True).T  # L_Dᵀ P L⁻ᵀ
     U, s, Vt = np.linalg.svd(Q, full_matrices=False)
     back = sla.solve_triangular(L.T, Vt.T, lower=False)  # L⁻ᵀ V

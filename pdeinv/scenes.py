@@ -8,7 +8,12 @@ from __future__ import annotations
 
 from functools import partial
 
+import numpy as np
+import scipy.sparse as sp
+from skfem.models.poisson import mass
+
 from . import settings as s
+from .advection import cellular_flow, convection
 from .forms import discretize
 from .inverse import default_inverse
 from .nets import mlp
@@ -34,7 +39,8 @@ def _leapfrog(mesh, disc, cfg):
     if cfg["element"] != "P1":
         raise ValueError(f"scheme='leapfrog' with element={cfg['element']!r}: leapfrog needs a lumped "
                          "mass, offered for 'P1' only; use element='P1' or scheme='newmark'")
-    lumped = discretize(mesh, "P1", lumped=True).M  # lumped before condensation, same free unknowns
+    full = mass.assemble(disc.basis)  # lumped before condensation, on the same free unknowns
+    lumped = sp.diags(np.asarray(full.sum(axis=1)).ravel()[disc.free])
     return Leapfrog(lumped, disc.K, c=cfg["c"], T=cfg["T"], steps=cfg["steps"])
 
 
@@ -62,6 +68,16 @@ def heat(name: str, mesh, cfg: dict) -> Problem:
               scheme=cfg["scheme"], backend=cfg["backend"], measure=disc.measure, dim=disc.dim)
     return Problem(name, disc, op, partial(gaussian_bumps, disc.points), settings=cfg,
                    noise=cfg["noise"],
+                   inverse_simulator=default_inverse(op, disc, noise=cfg["noise"]))
+
+
+def advection_diffusion(name: str, mesh, cfg: dict) -> Problem:
+    """Heat scene with convection by the cellular flow of speed ``cfg['speed']`` (:mod:`pdeinv.advection`)."""
+    disc = discretize(mesh, cfg["element"])
+    C = convection(disc, cellular_flow(cfg["speed"]), cfg["kappa"])
+    op = Heat(disc.M, disc.K, kappa=cfg["kappa"], T=cfg["T"], steps=cfg["steps"], scheme=cfg["scheme"],
+              backend="steps", measure=disc.measure, dim=disc.dim, C=C)
+    return Problem(name, disc, op, partial(gaussian_bumps, disc.points), settings=cfg, noise=cfg["noise"],
                    inverse_simulator=default_inverse(op, disc, noise=cfg["noise"]))
 
 

@@ -47,7 +47,6 @@ from pdeinv import mesh, observe, scenes
 from pdeinv import settings as s
 from pdeinv.forms import discretize
 from pdeinv.inverse import RelativeAlpha, default_inverse
-from pdeinv.physics import Wave, WaveSensors
 from pdeinv.problem import Problem
 from pdeinv.sampling import gaussian_bumps
 
@@ -55,6 +54,7 @@ SETTINGS = {**scenes.WAVE, "n": (32, s.positive_int), "T": (1.5, s.positive),
             "steps": (96, s.positive_int), "mesh": (None, s.optional_path),
             "sensors": (64, observe.sensor_spec), "record_every": (2, s.positive_int),
             "boundary": ("neumann", s.one_of("neumann", "dirichlet")),
+            "scheme": ("newmark", s.one_of(*scenes.WAVE_SCHEMES)),
             "alpha": (1e-3, lambda v, name: None if v in (None, "", "None") else s.positive(v, name))}
 
 
@@ -66,8 +66,8 @@ def make(**overrides):
     inset = float(np.mean(np.linalg.norm(np.diff(m.p[:, m.facets[:, m.boundary_facets()]], axis=1),
                                          axis=0))) if dirichlet else 0.0
     points = observe.place(m, cfg["sensors"], "boundary", inset=inset)
-    wave = Wave(disc.M, disc.K, c=cfg["c"], T=cfg["T"], steps=cfg["steps"])
-    op = WaveSensors(wave, observe.sensor_matrix(disc, points), cfg["record_every"])
+    wave = scenes.WAVE_SCHEMES[cfg["scheme"]](m, disc, cfg)  # newmark or leapfrog, same sensors
+    op = wave.sensors(observe.sensor_matrix(disc, points), cfg["record_every"])
     alpha = None if cfg["alpha"] is None else RelativeAlpha(cfg["alpha"])
     return Problem("wave_sensors_2d", disc, op, partial(gaussian_bumps, disc.points),
                    settings={**cfg, "sensor_points": points}, noise=cfg["noise"],

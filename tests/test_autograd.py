@@ -13,6 +13,7 @@ SMALL = {
     "heat-modal": ("heat_1d", dict(n=8, steps=5, backend="modal", kappa=0.05)),
     "wave": ("wave_1d", dict(n=8, steps=5)),
     "wave_2d": ("wave_2d", dict(n=4, steps=3)),
+    "advection": ("advection_diffusion_2d", dict(n=4, steps=4, speed=3.0)),
 }
 
 
@@ -59,9 +60,11 @@ def test_dtype_and_shape_round_trip():
     assert pdeinv.apply(op, x32[0]).shape == (op.n_in,)
 
 
-def test_taylor_remainder_through_network():
+@pytest.mark.parametrize("name, kw", [("heat_1d", dict(n=16, steps=10, kappa=0.02)),
+                                      ("advection_diffusion_2d", dict(n=4, steps=5, speed=3.0))])
+def test_taylor_remainder_through_network(name, kw):
     """J(θ+εd) − J(θ) − ε∇J·d = O(ε²) for J(θ) = ½‖P f(y; θ) − y*‖² with a tanh MLP."""
-    p = load("heat_1d", n=16, steps=10, kappa=0.02)
+    p = load(name, **kw)
     op = p.operator
     torch.manual_seed(0)
     net = torch.nn.Sequential(torch.nn.Linear(op.n_out, 20), torch.nn.Tanh(),

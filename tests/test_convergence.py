@@ -45,6 +45,21 @@ WAVE_SPACE = {
 }
 
 
+@pytest.mark.parametrize("element, ns, rate", [("P1", [8, 16, 32], 2), ("P2", [4, 8, 16], 3)])
+def test_advection_diffusion_space_rate(element, ns, rate):
+    """The cellular flow does not advect its own stream function ``sin πx sin πy``
+    (``w·∇u₀ = 0``), so ``u(T) = e^{−2π²κT} u₀`` at any speed: a test of the convection
+    matrix's consistency (streamline diffusion is off here: ``h < 2κ/|w|``)."""
+    kappa, T = 0.1, 0.1
+    errs = []
+    for n in ns:
+        p = load("advection_diffusion_2d", n=n, element=element, kappa=kappa, T=T, speed=1.0,
+                 steps=2000, scheme="cn")
+        y = p.operator.forward(mode(p.points))
+        errs.append(l2_error(p.disc, y, np.exp(-kappa * eigenvalue(2) * T)))
+    assert abs(fitted_rate(1.0 / np.array(ns), errs) - rate) < 0.2, errs
+
+
 @pytest.mark.parametrize("name, element", list(WAVE_SPACE))
 def test_wave_space_rate(name, element):
     ns, rate, steps, T = WAVE_SPACE[(name, element)]

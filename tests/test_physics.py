@@ -21,6 +21,9 @@ OPERATORS = {
     "wave_1d": ("wave_1d", dict(n=32)),
     "wave_1d-P2": ("wave_1d", dict(n=16, element="P2")),
     "wave_2d": ("wave_2d", dict(n=12)),
+    "wave_2d-leapfrog": ("wave_2d", dict(n=12, scheme="leapfrog", steps=200)),
+    "advection-be": ("advection_diffusion_2d", dict(n=12)),  # not symmetric: transposed solves
+    "advection-cn-P2": ("advection_diffusion_2d", dict(n=6, element="P2", scheme="cn", steps=20)),
 }
 
 

@@ -57,6 +57,7 @@ class TikhonovCG:
         self.maxiter = count(maxiter, "maxiter")
         self._scale = None if scale is None else positive(scale, "scale")
         self._Minv = None if M is None else mass_solver(M)
+        self._inside = False
         self.last_info: dict = {}
 
     # -- linear algebra on batch-first rows ------------------------------------------
@@ -78,8 +79,22 @@ class TikhonovCG:
         self._count("adjoint", len(D))
         return AD + alpha[:, None] * self._mass(self.M, D), PD
 
-    def solve(self, b, alpha, X, PX):
-        """PCG from ``X`` (with ``PX = P X``) for every column of ``b``; updates in place."""
+    def _reset(self, B: int) -> None:
+        self._B, self._it = B, np.zeros(B, dtype=int)
+        self._calls = {"forward": 0, "adjoint": 0}
+        self._units = {"forward": 0.0, "adjoint": 0.0}
+
+    def solve(self, b, alpha, X=None, PX=None):
+        """``(X, PX, rel)``: PCG on ``(PᵀM_outP + αM) X = b`` for every row of ``b`` (``α`` one per
+        row or one for all), from ``X`` (with ``PX = P X``; zeros if omitted), updated in place;
+        ``rel`` the relative residuals ``‖r‖_{M⁻¹}/‖b‖_{M⁻¹}``. Usable on its own."""
+        b = np.atleast_2d(np.asarray(b, dtype=float))
+        alpha = np.broadcast_to(np.asarray(alpha, dtype=float), (len(b),)).copy()
+        if X is None:
+            X, PX = np.zeros((len(b), self.op.n_in)), np.zeros((len(b), self.op.n_out))
+        if not self._inside:
+            self._reset(len(b))
+        self._bnorm = np.sqrt(np.abs(np.einsum("bi,bi->b", b, self._precond(b))))
         if np.any(X):
             self._count("adjoint", len(X))
             Res = b - self.op.adjoint(self._mass(self.M_out, PX)) - alpha[:, None] * self._mass(self.M, X)
@@ -117,15 +132,19 @@ class TikhonovCG:
     # -- the inverse simulator --------------------------------------------------------
     def __call__(self, y, x0) -> np.ndarray:
         Y, X0, single = pair(y, x0, self.op.n_out, self.op.n_in)
-        self._B = B = Y.shape[0]
-        self._calls = {"forward": 0, "adjoint": 0}
-        self._units = {"forward": 0.0, "adjoint": 0.0}
-        self._it = np.zeros(B, dtype=int)
+        B = Y.shape[0]
+        self._reset(B)
+        self._inside = True
+        try:
+            return self._call(Y, X0, single, B)
+        finally:
+            self._inside = False
+
+    def _call(self, Y, X0, single, B):
         R = Y - self.op.forward(X0)
         self._count("forward", B)
         b = self.op.adjoint(self._mass(self.M_out, R))
         self._count("adjoint", B)
-        self._bnorm = np.sqrt(np.abs(np.einsum("bi,bi->b", b, self._precond(b))))
         state = {"X": np.zeros_like(X0), "PX": np.zeros_like(R), "alpha": None, "rel": np.zeros(B)}
 
         def run(alpha):
