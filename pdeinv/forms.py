@@ -1,4 +1,5 @@
-"""Finite-element assembly: P1/P2 Lagrange mass and stiffness, Dirichlet condensation.
+"""Finite-element assembly: P1/P2 Lagrange mass and stiffness on line, triangle and tetra meshes
+(:data:`pdeinv.mesh.CELL_TYPES`), Dirichlet condensation.
 
 For a basis ``{phi_i}`` the mass and stiffness matrices are
 
@@ -21,12 +22,16 @@ import skfem
 from skfem.models.poisson import laplace, mass
 
 from ._checks import choice
+from .mesh import cell_type
 
+#: Lagrange elements by meshio cell name (:data:`pdeinv.mesh.CELL_TYPES`) and degree
 ELEMENTS = {
     ("line", "P1"): skfem.ElementLineP1,
     ("line", "P2"): skfem.ElementLineP2,
-    ("tri", "P1"): skfem.ElementTriP1,
-    ("tri", "P2"): skfem.ElementTriP2,
+    ("triangle", "P1"): skfem.ElementTriP1,
+    ("triangle", "P2"): skfem.ElementTriP2,
+    ("tetra", "P1"): skfem.ElementTetP1,
+    ("tetra", "P2"): skfem.ElementTetP2,
 }
 
 
@@ -39,14 +44,6 @@ def boundary_names(mesh: skfem.Mesh, names: str | Sequence[str]) -> list[str]:
             has = f"it has {known}" if known else "it has no named boundaries (no tags in its file)"
             raise ValueError(f"boundary {name!r} is not a named boundary of the mesh; {has}")
     return names
-
-
-def _shape(mesh: skfem.Mesh) -> str:
-    if isinstance(mesh, skfem.MeshLine):
-        return "line"
-    if isinstance(mesh, skfem.MeshTri):
-        return "tri"
-    raise ValueError(f"mesh of type {type(mesh).__name__} is not supported; expected MeshLine or MeshTri")
 
 
 @dataclass(frozen=True)
@@ -83,6 +80,12 @@ class Discretization:
         full[:, self.free] = X
         return full
 
+    def vertex_values(self, X: np.ndarray) -> np.ndarray:
+        """Free-unknown fields ``(B, N)`` -> values at the mesh vertices ``(B, nvertices)``: extended
+        by zero to the Dirichlet unknowns; for P2 the vertex DOFs are the first ones in
+        scikit-fem's numbering, so edge midpoints are dropped."""
+        return self.extend(X)[:, self.basis.nodal_dofs[0]]
+
     def norm(self, X: np.ndarray) -> np.ndarray:
         """L²(Ω) norm of each row, ``sqrt(xᵀ M x)``."""
         X = np.atleast_2d(X)
@@ -112,7 +115,7 @@ def discretize(
     element = choice(element, "element", ("P1", "P2"))
     if lumped and element != "P1":
         raise ValueError(f"lumped=True with element={element!r}: mass lumping is only offered for 'P1'")
-    basis = skfem.Basis(mesh, ELEMENTS[(_shape(mesh), element)]())
+    basis = skfem.Basis(mesh, ELEMENTS[(cell_type(mesh).cell, element)]())
     M = mass.assemble(basis)
     K = laplace.assemble(basis)
     measure = float(M.sum())
