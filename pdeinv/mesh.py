@@ -150,8 +150,8 @@ def _facets_of(mesh, tags: dict[str, np.ndarray], path: str) -> dict[str, np.nda
         if (hit < 0).any():  # also tuples with a node no cell uses (index -1)
             raise ValueError(
                 f"mesh file {path!r}: boundary tag {name!r} has {int((hit < 0).sum())} of {len(nodes)} "
-                f"{kind.facet} cells that are not {kind.facet_word} of the {kind.cell} cells; expected tagged "
-                f"{kind.facet} cells on the mesh's {kind.facet_word}"
+                f"{kind.facet} cells that are not {kind.facet_word} of the {kind.cell} cells; "
+                f"expected tagged {kind.facet} cells on the mesh's {kind.facet_word}"
             )
         out[name] = np.unique(hit)
     return out
