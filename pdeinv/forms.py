@@ -14,7 +14,7 @@ boundaries keep all unknowns. The lumped mass is the row-sum diagonal.
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 import scipy.sparse as sp
@@ -51,15 +51,15 @@ class Discretization:
     """Condensed FE matrices on the free unknowns and the maps back to the full mesh.
 
     ``M`` and ``K`` are CSR matrices over the ``N = len(free)`` free unknowns;
-    ``points`` holds their coordinates, shape ``(dim, N)``.
+    ``points`` holds their coordinates, shape ``(dim, N)``; ``measure`` is ``|Ω|`` (the sum
+    of the consistent mass over every unknown, before condensation and lumping).
     """
 
     basis: skfem.CellBasis
     M: sp.csr_matrix
     K: sp.csr_matrix
     free: np.ndarray
-    lumped: bool = False
-    measure: float = field(default=1.0)
+    measure: float = 1.0
 
     @property
     def N(self) -> int:
@@ -129,7 +129,7 @@ def discretize(
         fixed = basis.get_dofs(boundary_names(mesh, dirichlet)).all()
     else:
         fixed = np.asarray(dirichlet, dtype=int)
-    free = basis.complement_dofs(fixed) if len(fixed) else np.arange(basis.N)
+    free = basis.complement_dofs(fixed)
     if len(free) == 0:
         raise ValueError("the Dirichlet boundary removes every unknown; refine the mesh (n >= 2)")
     sub = np.ix_(free, free)
@@ -138,6 +138,5 @@ def discretize(
         M=sp.csr_matrix(M[sub]),
         K=sp.csr_matrix(K[sub]),
         free=free,
-        lumped=lumped,
         measure=measure,
     )
