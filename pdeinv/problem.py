@@ -1,6 +1,6 @@
 """``Problem``: one inverse-problem scene, and ``load_problem`` to get one by name or path.
 
-Contract (DESIGN.md): ``points`` ``(dim, N)``; ``operator.forward/adjoint``
+Contract (docs/design.md): ``points`` ``(dim, N)``; ``operator.forward/adjoint``
 (numpy ``(B, N)``); ``inverse(y, x0)``; ``sample(n, seed) -> (x, y)``; ``model()``.
 """
 
