@@ -2,8 +2,9 @@
 
 Errors a user can fix (bad settings, missing files, an ``--out`` folder another run
 holds) end with exit code 2 and a one-line message on stderr, never a traceback; a
-numerical failure on valid input (:mod:`pdeinv.errors`) ends with exit code 1 and one
-line that says what to change.
+numerical failure on valid input (:mod:`pdeinv.errors`) or running out of memory ends
+with exit code 1 and one line that says what to change; Ctrl-C ends with 130 and one
+line. Any other exception is a bug and keeps its traceback.
 """
 
 from __future__ import annotations
@@ -48,6 +49,13 @@ def main(argv=None) -> int:
     except (UsageError, FolderLocked, ValueError, FileNotFoundError, NotImplementedError) as err:
         print(f"pdeinv {args.command}: error: {err}", file=sys.stderr)
         return 2
+    except MemoryError as err:
+        print(f"pdeinv {args.command}: out of memory: {err or 'no message'}; use a coarser mesh, a smaller "
+              "batch or fewer samples", file=sys.stderr)
+        return 1
+    except KeyboardInterrupt:  # `train` reports its checkpoint itself and returns 130
+        print(f"pdeinv {args.command}: interrupted", file=sys.stderr)
+        return 130
 
 
 if __name__ == "__main__":

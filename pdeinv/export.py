@@ -12,6 +12,8 @@ for sample ``k`` (and ``y_obs_<k>``, ``y_pred_<k>`` when the observation is a
 field on the mesh too, e.g. the final temperature). The suffix picks the
 format: ``.vtu`` (one file) or ``.xdmf`` (XML + HDF5 needs h5py, so XDMF is
 written with inline XML data). Sensor positions go to a separate vertex-cell file.
+Cells are named through :data:`pdeinv.mesh.CELL_TYPES` (line, triangle, tetra); a mesh
+outside that table is refused. Pictures come from :mod:`pdeinv.plots` (1-D and 2-D only).
 """
 
 from __future__ import annotations
@@ -22,25 +24,22 @@ from pathlib import Path
 import numpy as np
 
 from ._checks import batch
+from .mesh import cell_type, points_3d
+from .plots import save_fields_png
 
 #: what :func:`write_fields` writes per sample, in order
 KINDS = ("x_true", "x_pred", "x_error", "y_obs", "y_pred")
 
 
 def vertex_values(disc, X: np.ndarray) -> np.ndarray:
-    """Free-unknown fields ``(B, N)`` -> values at the mesh vertices ``(B, nvertices)``."""
-    full = disc.extend(X)
-    return full[:, disc.basis.nodal_dofs[0]]
+    """Free-unknown fields ``(B, N)`` -> values at the mesh vertices ``(B, nvertices)``
+    (:meth:`pdeinv.forms.Discretization.vertex_values`)."""
+    return disc.vertex_values(X)
 
 
-def _cells(mesh):
-    return [("triangle" if mesh.dim() == 2 else "line", mesh.t.T)]
-
-
-def _points(mesh) -> np.ndarray:
-    """meshio points, padded with z = 0 (ParaView reads 3-D coordinates)."""
-    p = mesh.p.T
-    return np.c_[p, np.zeros((p.shape[0], 3 - p.shape[1]))]
+def _cells(mesh) -> list:
+    """meshio cells of ``mesh`` through the one table :data:`pdeinv.mesh.CELL_TYPES` (refuses others)."""
+    return [(cell_type(mesh).cell, mesh.t.T)]
 
 
 def write_fields(path, problem, x_true, x_pred, y_obs=None, y_pred=None) -> Path:
@@ -68,10 +67,10 @@ def write_fields(path, problem, x_true, x_pred, y_obs=None, y_pred=None) -> Path
     data = {f"{name}_{k}": v for name, X in fields.items() for k, v in enumerate(vertex_values(disc, X))}
     if path.suffix == ".xdmf":
         with meshio.xdmf.TimeSeriesWriter(os.fspath(path), data_format="XML") as w:
-            w.write_points_cells(_points(mesh), _cells(mesh))
+            w.write_points_cells(points_3d(mesh), _cells(mesh))
             w.write_data(0.0, point_data=data)
     else:
-        meshio.write(os.fspath(path), meshio.Mesh(_points(mesh), _cells(mesh), point_data=data))
+        meshio.write(os.fspath(path), meshio.Mesh(points_3d(mesh), _cells(mesh), point_data=data))
     return path
 
 
@@ -127,7 +126,8 @@ def export_run(out, problem, model, x, y, samples: int = 3, png: bool = True) ->
     """A run's pictures and ParaView files for the first ``samples`` of ``(x, y)``.
 
     Writes ``out/fields.vtu`` (see :func:`write_fields`), ``out/sensors.vtu`` when
-    the problem has ``settings['sensor_points']``, and ``out/fields.png``. Returns
+    the problem has ``settings['sensor_points']``, and ``out/fields.png`` (1-D and 2-D
+    meshes; a 3-D field is for ParaView only). Returns
     ``{name: path}`` of what was written.
     """
     out = Path(out)
@@ -138,9 +138,7 @@ def export_run(out, problem, model, x, y, samples: int = 3, png: bool = True) ->
     points = problem.settings.get("sensor_points") if isinstance(problem.settings, dict) else None
     if points is not None:
         written["sensors"] = write_sensors(out / "sensors.vtu", points)
-    if png:
-        from .plots import save_fields_png
-
+    if png and cell_type(problem.disc.basis.mesh).dim < 3:
         written["png"] = save_fields_png(out / "fields.png", *read_fields(written["fields"]),
                                          title=f"{problem.name}: test samples")
     return written

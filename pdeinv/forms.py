@@ -1,4 +1,5 @@
-"""Finite-element assembly: P1/P2 Lagrange mass and stiffness, Dirichlet condensation.
+"""Finite-element assembly: P1/P2 Lagrange mass and stiffness on line, triangle and tetra meshes
+(:data:`pdeinv.mesh.CELL_TYPES`), Dirichlet condensation.
 
 For a basis ``{phi_i}`` the mass and stiffness matrices are
 
@@ -13,7 +14,7 @@ boundaries keep all unknowns. The lumped mass is the row-sum diagonal.
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 import scipy.sparse as sp
@@ -21,12 +22,16 @@ import skfem
 from skfem.models.poisson import laplace, mass
 
 from ._checks import choice
+from .mesh import cell_type
 
+#: Lagrange elements by meshio cell name (:data:`pdeinv.mesh.CELL_TYPES`) and degree
 ELEMENTS = {
     ("line", "P1"): skfem.ElementLineP1,
     ("line", "P2"): skfem.ElementLineP2,
-    ("tri", "P1"): skfem.ElementTriP1,
-    ("tri", "P2"): skfem.ElementTriP2,
+    ("triangle", "P1"): skfem.ElementTriP1,
+    ("triangle", "P2"): skfem.ElementTriP2,
+    ("tetra", "P1"): skfem.ElementTetP1,
+    ("tetra", "P2"): skfem.ElementTetP2,
 }
 
 
@@ -41,28 +46,20 @@ def boundary_names(mesh: skfem.Mesh, names: str | Sequence[str]) -> list[str]:
     return names
 
 
-def _shape(mesh: skfem.Mesh) -> str:
-    if isinstance(mesh, skfem.MeshLine):
-        return "line"
-    if isinstance(mesh, skfem.MeshTri):
-        return "tri"
-    raise ValueError(f"mesh of type {type(mesh).__name__} is not supported; expected MeshLine or MeshTri")
-
-
 @dataclass(frozen=True)
 class Discretization:
     """Condensed FE matrices on the free unknowns and the maps back to the full mesh.
 
     ``M`` and ``K`` are CSR matrices over the ``N = len(free)`` free unknowns;
-    ``points`` holds their coordinates, shape ``(dim, N)``.
+    ``points`` holds their coordinates, shape ``(dim, N)``; ``measure`` is ``|Ω|`` (the sum
+    of the consistent mass over every unknown, before condensation and lumping).
     """
 
     basis: skfem.CellBasis
     M: sp.csr_matrix
     K: sp.csr_matrix
     free: np.ndarray
-    lumped: bool = False
-    measure: float = field(default=1.0)
+    measure: float = 1.0
 
     @property
     def N(self) -> int:
@@ -82,6 +79,12 @@ class Discretization:
         full = np.zeros((X.shape[0], self.basis.N))
         full[:, self.free] = X
         return full
+
+    def vertex_values(self, X: np.ndarray) -> np.ndarray:
+        """Free-unknown fields ``(B, N)`` -> values at the mesh vertices ``(B, nvertices)``: extended
+        by zero to the Dirichlet unknowns; for P2 the vertex DOFs are the first ones in
+        scikit-fem's numbering, so edge midpoints are dropped."""
+        return self.extend(X)[:, self.basis.nodal_dofs[0]]
 
     def norm(self, X: np.ndarray) -> np.ndarray:
         """L²(Ω) norm of each row, ``sqrt(xᵀ M x)``."""
@@ -112,7 +115,7 @@ def discretize(
     element = choice(element, "element", ("P1", "P2"))
     if lumped and element != "P1":
         raise ValueError(f"lumped=True with element={element!r}: mass lumping is only offered for 'P1'")
-    basis = skfem.Basis(mesh, ELEMENTS[(_shape(mesh), element)]())
+    basis = skfem.Basis(mesh, ELEMENTS[(cell_type(mesh).cell, element)]())
     M = mass.assemble(basis)
     K = laplace.assemble(basis)
     measure = float(M.sum())
@@ -126,7 +129,7 @@ def discretize(
         fixed = basis.get_dofs(boundary_names(mesh, dirichlet)).all()
     else:
         fixed = np.asarray(dirichlet, dtype=int)
-    free = basis.complement_dofs(fixed) if len(fixed) else np.arange(basis.N)
+    free = basis.complement_dofs(fixed)
     if len(free) == 0:
         raise ValueError("the Dirichlet boundary removes every unknown; refine the mesh (n >= 2)")
     sub = np.ix_(free, free)
@@ -135,6 +138,5 @@ def discretize(
         M=sp.csr_matrix(M[sub]),
         K=sp.csr_matrix(K[sub]),
         free=free,
-        lumped=lumped,
         measure=measure,
     )

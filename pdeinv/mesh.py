@@ -1,23 +1,61 @@
 """Meshes: built-in intervals and unit squares (scikit-fem) and files read with meshio.
 
-Named boundaries travel with the mesh (``mesh.boundaries``: name -> facet
-indices, kept by ``refined()``). Files carry them as tagged line cells: gmsh
-physical groups (``gmsh:physical`` cell data named through ``field_data``) or
-meshio ``cell_sets``; :func:`save` writes them back as gmsh 2.2 physical groups.
-Dirichlet selection by name or by geometry lives in :mod:`pdeinv.forms`.
+One table, :data:`CELL_TYPES`, says which meshes exist here: a scikit-fem mesh class, the
+meshio name of its cells, the meshio name of its facets and its dimension —
+
+    MeshLine1 ↔ "line" (facets "vertex", 1-D), MeshTri1 ↔ "triangle" ("line", 2-D),
+    MeshTet1 ↔ "tetra" ("triangle", 3-D).
+
+:func:`load`, :func:`save` and :mod:`pdeinv.export` go through it; any other mesh class or
+cell type (quads, hexahedra, quadratic cells, mixed cells) is refused with a ``ValueError``
+naming it, never written as something else.
+
+Named boundaries travel with the mesh (``mesh.boundaries``: name -> facet indices, kept
+by ``refined()``). Files carry them as tagged facet cells: gmsh physical groups
+(``gmsh:physical`` cell data named through ``field_data``) or meshio ``cell_sets``;
+:func:`save` writes them back as gmsh 2.2 physical groups. Dirichlet selection by name
+or by geometry lives in :mod:`pdeinv.forms`.
 """
 
 from __future__ import annotations
 
 import os
+from dataclasses import dataclass
 
 import numpy as np
 import skfem
 
 from ._checks import count
 
-#: meshio cell types we can turn into scikit-fem meshes, by topological dimension
-_CELLS = {"line": skfem.MeshLine, "triangle": skfem.MeshTri}
+
+@dataclass(frozen=True)
+class CellType:
+    """One supported kind of mesh: scikit-fem class ↔ meshio cell and facet names, dimension."""
+
+    mesh: type
+    cell: str
+    facet: str
+    facet_word: str  # what a facet is called in messages
+    dim: int
+
+
+#: the supported meshes, by increasing dimension (see the module docstring)
+CELL_TYPES = (
+    CellType(skfem.MeshLine1, "line", "vertex", "end points", 1),
+    CellType(skfem.MeshTri1, "triangle", "line", "edges", 2),
+    CellType(skfem.MeshTet1, "tetra", "triangle", "faces", 3),
+)
+_BY_CELL = {c.cell: c for c in CELL_TYPES}
+
+
+def cell_type(mesh: skfem.Mesh) -> CellType:
+    """The :data:`CELL_TYPES` row of ``mesh`` (its exact class); ``ValueError`` if there is none."""
+    for row in CELL_TYPES:
+        if type(mesh) is row.mesh:
+            return row
+    raise ValueError(f"mesh of type {type(mesh).__name__} is not supported; expected one of "
+                     f"{', '.join(c.mesh.__name__ for c in CELL_TYPES)} "
+                     f"(meshio cells {', '.join(_BY_CELL)})")
 
 
 def interval(n: int = 64, a: float = 0.0, b: float = 1.0) -> skfem.MeshLine:
@@ -36,10 +74,13 @@ def unit_square(n: int = 32) -> skfem.MeshTri:
 
 
 def load(path: str | os.PathLike) -> skfem.Mesh:
-    """Read a 1-D (line) or 2-D (triangle) mesh file with meshio.
+    """Read a mesh file with meshio: line (1-D), triangle (2-D) or tetra (3-D) cells.
 
-    Raises ``FileNotFoundError`` for a missing file and ``ValueError`` for a file
-    meshio cannot read or one whose cells are not all of one supported type.
+    Cells of lower dimension beside them (vertex, line, triangle) are boundary tags when
+    they are facets in a physical group or cell set, and are ignored otherwise. Raises
+    ``FileNotFoundError`` for a missing file and ``ValueError`` for a file meshio cannot
+    read, one with a cell type outside :data:`CELL_TYPES`, or one whose points leave the
+    mesh's dimension (a 2-D mesh with varying z).
     """
     import meshio
 
@@ -54,88 +95,96 @@ def load(path: str | os.PathLike) -> skfem.Mesh:
             "expected a readable mesh format such as .msh, .vtu, .xdmf"
         ) from None
     kinds = {c.type for c in m.cells} - {"vertex"}
-    top = [c for c in m.cells if c.type == "triangle"] or [c for c in m.cells if c.type == "line"]
-    if not top or not kinds <= set(_CELLS):
+    found = [c for c in CELL_TYPES if c.cell in kinds]
+    if not found or not kinds <= set(_BY_CELL):
         raise ValueError(
-            f"mesh file {path!r} has cell types {sorted(kinds)}; "
-            f"supported: a mesh made only of {' or '.join(_CELLS)} cells "
-            "(boundary line cells beside triangles are ignored)"
+            f"mesh file {path!r} has cell types {sorted(kinds)}; supported: a mesh of "
+            f"{', '.join(list(_BY_CELL)[:-1])} or {list(_BY_CELL)[-1]} cells (lower-dimensional cells "
+            "beside them are read as boundary tags or ignored)"
         )
-    kind = top[0].type
-    cells = np.concatenate([c.data for c in m.cells if c.type == kind])
-    dim = 2 if kind == "triangle" else 1
-    pts = np.asarray(m.points[:, :dim], dtype=float)
-    if kind == "triangle" and m.points.shape[1] > 2 and np.ptp(m.points[:, 2]) > 0:
-        raise ValueError(f"mesh file {path!r} is not planar (z varies); expected a 2-D mesh")
+    kind = found[-1]
+    cells = np.concatenate([c.data for c in m.cells if c.type == kind.cell])
+    pts = np.asarray(m.points, dtype=float)
+    if pts.shape[1] > kind.dim and np.ptp(pts[:, kind.dim:], axis=0).max() > 0:
+        raise ValueError(f"mesh file {path!r} has {kind.cell} cells but its points vary in more than "
+                         f"{kind.dim} coordinates; expected a {kind.dim}-D mesh")
     used = np.unique(cells)
     index = np.full(len(pts), -1)
     index[used] = np.arange(len(used))  # drop nodes no cell uses (e.g. gmsh geometry points)
-    mesh = _CELLS[kind](np.ascontiguousarray(pts[used].T), np.ascontiguousarray(index[cells].T))
-    if kind != "triangle":
-        return mesh
-    tags = {name: index[pairs] for name, pairs in _line_tags(m).items()}
+    mesh = kind.mesh(np.ascontiguousarray(pts[used, :kind.dim].T), np.ascontiguousarray(index[cells].T))
+    tags = {name: index[nodes] for name, nodes in _facet_tags(m, kind.facet).items()}
     return mesh.with_boundaries(_facets_of(mesh, tags, path)) if tags else mesh
 
 
-def _line_tags(m) -> dict[str, np.ndarray]:
-    """Named sets of line cells (node pairs) in a meshio mesh: gmsh physical groups of
-    dimension 1 (named through ``field_data``, unnamed ones by their number) and ``cell_sets``."""
-    lines = m.cells_dict.get("line")
-    if lines is None:
+def _facet_tags(m, facet: str) -> dict[str, np.ndarray]:
+    """Named sets of ``facet`` cells (node tuples) in a meshio mesh: gmsh physical groups of the
+    facet dimension (named through ``field_data``, unnamed ones by their number) and ``cell_sets``."""
+    cells = m.cells_dict.get(facet)
+    if cells is None:
         return {}
+    dim = {c.facet: c.dim - 1 for c in CELL_TYPES}[facet]
     out = {}
-    physical = m.cell_data_dict.get("gmsh:physical", {}).get("line")
+    physical = m.cell_data_dict.get("gmsh:physical", {}).get(facet)
     if physical is not None:
-        names = {int(v[0]): k for k, v in m.field_data.items() if len(v) > 1 and int(v[1]) == 1}
+        names = {int(v[0]): k for k, v in m.field_data.items() if len(v) > 1 and int(v[1]) == dim}
         for tag in np.unique(physical):
-            out[names.get(int(tag), str(int(tag)))] = lines[physical == tag]
+            out[names.get(int(tag), str(int(tag)))] = cells[physical == tag]
     for name, sets in m.cell_sets_dict.items():
-        if "line" in sets and not name.startswith("gmsh:"):
-            out[name] = lines[np.asarray(sets["line"], dtype=int)]
+        if facet in sets and not name.startswith("gmsh:"):
+            out[name] = cells[np.asarray(sets[facet], dtype=int)]
     return out
 
 
 def _facets_of(mesh, tags: dict[str, np.ndarray], path: str) -> dict[str, np.ndarray]:
-    """Facet indices of ``mesh`` for each named set of node pairs; refuses pairs that are not edges."""
-    n = mesh.p.shape[1]
-    f = np.sort(mesh.facets, axis=0)
-    keys = f[0] * n + f[1]
-    order = np.argsort(keys)
+    """Facet indices of ``mesh`` for each named set of node tuples; refuses tuples that are not facets."""
+    kind = cell_type(mesh)
+    facets = np.sort(mesh.facets.T, axis=1)
     out = {}
-    for name, pairs in tags.items():
-        p = np.sort(pairs, axis=1)
-        want = np.where((p >= 0).all(axis=1), p[:, 0] * n + p[:, 1], -1)
-        pos = np.clip(np.searchsorted(keys, want, sorter=order), 0, len(keys) - 1)
-        hit = keys[order[pos]] == want
-        if not hit.all():
+    for name, nodes in tags.items():
+        nodes = np.sort(np.asarray(nodes).reshape(len(nodes), -1), axis=1)
+        _, inv = np.unique(np.vstack([facets, nodes]), axis=0, return_inverse=True)
+        inv = inv.ravel()
+        where = np.full(inv.max() + 1, -1)
+        where[inv[:len(facets)]] = np.arange(len(facets))
+        hit = where[inv[len(facets):]]
+        if (hit < 0).any():  # also tuples with a node no cell uses (index -1)
             raise ValueError(
-                f"mesh file {path!r}: boundary tag {name!r} has {int((~hit).sum())} of {len(p)} line "
-                "cells that are not edges of the triangles; expected tagged lines on the mesh's edges"
+                f"mesh file {path!r}: boundary tag {name!r} has {int((hit < 0).sum())} of {len(nodes)} "
+                f"{kind.facet} cells that are not {kind.facet_word} of the {kind.cell} cells; "
+                f"expected tagged {kind.facet} cells on the mesh's {kind.facet_word}"
             )
-        out[name] = np.unique(order[pos])
+        out[name] = np.unique(hit)
     return out
+
+
+def points_3d(mesh: skfem.Mesh) -> np.ndarray:
+    """The vertices as meshio points ``(nvertices, 3)``, padded with zeros (gmsh and ParaView
+    read three coordinates; meshio's gmsh writer would repeat a lone x into y and z)."""
+    p = mesh.p.T
+    return np.c_[p, np.zeros((p.shape[0], 3 - p.shape[1]))]
 
 
 def save(path: str | os.PathLike, mesh: skfem.Mesh, point_data: dict | None = None) -> None:
     """Write ``mesh`` (and nodal fields) with meshio; the format follows the suffix.
 
     A ``.msh`` file is written as gmsh 2.2 and keeps the mesh's named boundaries as
-    physical line groups 1, 2, ... (the cells form the last group, named ``domain``);
-    other formats keep the geometry and ``point_data`` only.
+    physical groups 1, 2, ... of its facet cells (the cells form the last group, named
+    ``domain``); other formats keep the geometry and ``point_data`` only. A mesh class
+    outside :data:`CELL_TYPES` is refused before anything is written.
     """
     import meshio
 
+    kind = cell_type(mesh)
     path = os.fspath(path)
-    kind = "triangle" if mesh.dim() == 2 else "line"
     if not path.endswith(".msh"):
-        meshio.write(path, meshio.Mesh(mesh.p.T, [(kind, mesh.t.T)], point_data=point_data or {}))
+        meshio.write(path, meshio.Mesh(points_3d(mesh), [(kind.cell, mesh.t.T)], point_data=point_data or {}))
         return
-    named = dict(mesh.boundaries or {}) if kind == "triangle" else {}
-    cells = [(kind, mesh.t.T)] + [("line", mesh.facets[:, np.asarray(f)].T) for f in named.values()]
+    named = dict(mesh.boundaries or {})
+    cells = [(kind.cell, mesh.t.T)] + [(kind.facet, mesh.facets[:, np.asarray(f)].T) for f in named.values()]
     groups = [np.full(mesh.t.shape[1], len(named) + 1)]
     groups += [np.full(len(f), i) for i, f in enumerate(named.values(), start=1)]
-    field = {name: np.array([i, 1]) for i, name in enumerate(named, start=1)}
-    field["domain"] = np.array([len(named) + 1, mesh.dim()])
-    meshio.write(path, meshio.Mesh(mesh.p.T, cells, point_data=point_data or {},
+    field = {name: np.array([i, kind.dim - 1]) for i, name in enumerate(named, start=1)}
+    field["domain"] = np.array([len(named) + 1, kind.dim])
+    meshio.write(path, meshio.Mesh(points_3d(mesh), cells, point_data=point_data or {},
                                    cell_data={"gmsh:physical": groups, "gmsh:geometrical": groups},
                                    field_data=field), file_format="gmsh22", binary=True)

@@ -33,6 +33,9 @@ def plot_fields(points, cells, fields: dict, samples=None, title: str = ""):
         raise ValueError(f"samples={rows!r} is not allowed; the file holds samples 0..{B - 1}")
     true, pred = fields["x_true"], fields["x_pred"]
     err = fields.get("x_error", pred - true)
+    if cells.shape[1] not in (2, 3):
+        raise ValueError(f"cells of {cells.shape[1]} nodes (tetra: a 3-D mesh) have no picture here; "
+                         "expected line or triangle cells; open the fields file in ParaView instead")
     one_d = cells.shape[1] == 2
     if one_d:
         fig, axes = plt.subplots(len(rows), 2, figsize=(9, 2.6 * len(rows)), squeeze=False,
@@ -83,9 +86,7 @@ def save_fields_png(path, points, cells, fields: dict, samples=None, title: str 
 
 def plot_prediction(problem, x_true, x_pred, samples=None, title: str = ""):
     """:func:`plot_fields` for free-unknown fields ``(B, N)`` of ``problem`` (no file needed)."""
-    from .export import vertex_values
-
     mesh = problem.disc.basis.mesh
-    fields = {"x_true": vertex_values(problem.disc, np.atleast_2d(x_true)),
-              "x_pred": vertex_values(problem.disc, np.atleast_2d(x_pred))}
+    fields = {"x_true": problem.disc.vertex_values(np.atleast_2d(x_true)),
+              "x_pred": problem.disc.vertex_values(np.atleast_2d(x_pred))}
     return plot_fields(mesh.p.T, mesh.t.T, fields, samples=samples, title=title)

@@ -1,6 +1,6 @@
 """``Problem``: one inverse-problem scene, and ``load_problem`` to get one by name or path.
 
-Contract (DESIGN.md): ``points`` ``(dim, N)``; ``operator.forward/adjoint``
+Contract (docs/design.md): ``points`` ``(dim, N)``; ``operator.forward/adjoint``
 (numpy ``(B, N)``); ``inverse(y, x0)``; ``sample(n, seed) -> (x, y)``; ``model()``.
 """
 
@@ -10,6 +10,7 @@ import importlib.util
 import os
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from importlib import resources
 from pathlib import Path
 
 import numpy as np
@@ -19,8 +20,9 @@ from .forms import Discretization
 from .physics.base import LinearOperator
 from .sampling import add_noise
 
-#: where ``load_problem('name')`` looks, in order (PDEINV_PROBLEMS is os.pathsep-separated)
-PROBLEM_DIRS = [Path(__file__).resolve().parents[1] / "problems"]
+#: the package that holds the built-in problems (the repository's ``problems/``, installed as
+#: ``pdeinv.problems`` with its meshes; see ``pyproject.toml``)
+BUILTIN_PACKAGE = "pdeinv.problems"
 
 
 @dataclass
@@ -80,9 +82,16 @@ class Problem:
         return f"Problem({self.name!r}, N={self.N}, operator={self.operator!r})"
 
 
+def builtin_dir() -> Path:
+    """The folder of the built-in problem modules, found through the installed package."""
+    return Path(os.fspath(resources.files(BUILTIN_PACKAGE)))
+
+
 def _problem_dirs() -> list[Path]:
+    """Where ``load_problem('name')`` looks, in order: the folders in ``PDEINV_PROBLEMS``
+    (``os.pathsep``-separated), ``./problems``, then the built-ins."""
     extra = [Path(p) for p in os.environ.get("PDEINV_PROBLEMS", "").split(os.pathsep) if p]
-    return extra + [Path.cwd() / "problems"] + PROBLEM_DIRS
+    return extra + [Path.cwd() / "problems", builtin_dir()]
 
 
 def available() -> list[str]:

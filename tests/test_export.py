@@ -106,3 +106,49 @@ def test_show_bad_input_exits_2_with_one_line(tmp_path, capsys, argv, match):
     err = capsys.readouterr().err.strip()
     assert len(err.splitlines()) == 1 and "Traceback" not in err
     assert re.search(match, err), err
+
+
+def _tetra_field():
+    """A P1 field on a tetra mesh with homogeneous Dirichlet conditions (built without pdeinv.forms)."""
+    import types
+
+    import scipy.sparse as sp
+    import skfem
+    from skfem.models.poisson import laplace, mass
+
+    from pdeinv.forms import Discretization
+
+    basis = skfem.Basis(skfem.MeshTet().refined(2), skfem.ElementTetP1())
+    free = basis.complement_dofs(basis.get_dofs())
+    sub = np.ix_(free, free)
+    disc = Discretization(basis, sp.csr_matrix(mass.assemble(basis)[sub]),
+                          sp.csr_matrix(laplace.assemble(basis)[sub]), free)
+    x = np.random.default_rng(0).standard_normal((2, len(free)))
+    return types.SimpleNamespace(disc=disc), x
+
+
+@pytest.mark.parametrize("suffix", [".vtu", ".xdmf"])
+def test_3d_fields_are_written_as_tetra_cells(tmp_path, suffix):
+    """The VTU export used to write tetrahedra as line cells."""
+    problem, x = _tetra_field()
+    mesh = problem.disc.basis.mesh
+    path = write_fields(tmp_path / f"f{suffix}", problem, x, 0.5 * x)
+    points, cells, fields = read_fields(path)
+    assert cells.shape == (mesh.nelements, 4)
+    np.testing.assert_array_equal(cells, mesh.t.T)
+    np.testing.assert_allclose(points, mesh.p.T)
+    np.testing.assert_allclose(fields["x_error"], vertex_values(problem.disc, -0.5 * x))
+    if suffix == ".vtu":
+        assert [c.type for c in meshio.read(path).cells] == ["tetra"]
+    else:
+        with meshio.xdmf.TimeSeriesReader(str(path)) as r:
+            assert [c.type for c in r.read_points_cells()[1]] == ["tetra"]
+
+
+def test_3d_fields_have_no_picture_but_a_clear_refusal(tmp_path):
+    from pdeinv.plots import plot_fields
+
+    problem, x = _tetra_field()
+    points, cells, fields = read_fields(write_fields(tmp_path / "f.vtu", problem, x, x))
+    with pytest.raises(ValueError, match=r"tetra.*ParaView"):
+        plot_fields(points, cells, fields)

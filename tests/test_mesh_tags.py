@@ -11,7 +11,7 @@ import pdeinv
 from pdeinv import mesh
 from pdeinv.cli import main
 from pdeinv.forms import discretize
-from pdeinv.mesh import _line_tags
+from pdeinv.mesh import _facet_tags
 
 PLATE = Path(__file__).resolve().parents[1] / "problems" / "meshes" / "plate.msh"
 
@@ -111,10 +111,10 @@ def test_cell_sets_and_unnamed_physical_groups():
     pts = np.array([[0.0, 0.0], [1.0, 0.0], [0.0, 1.0]])
     m = meshio.Mesh(pts, [("triangle", np.array([[0, 1, 2]])), ("line", np.array([[0, 1], [1, 2], [2, 0]]))],
                     cell_sets={"bottom": [np.array([], dtype=int), np.array([0])]})
-    assert {k: v.tolist() for k, v in _line_tags(m).items()} == {"bottom": [[0, 1]]}
+    assert {k: v.tolist() for k, v in _facet_tags(m, "line").items()} == {"bottom": [[0, 1]]}
     m = meshio.Mesh(pts, [("triangle", np.array([[0, 1, 2]])), ("line", np.array([[0, 1], [2, 0]]))],
                     cell_data={"gmsh:physical": [np.array([9]), np.array([7, 8])]})
-    assert sorted(_line_tags(m)) == ["7", "8"]  # no field_data: named by their numbers
+    assert sorted(_facet_tags(m, "line")) == ["7", "8"]  # no field_data: named by their numbers
 
 
 def test_tag_that_is_not_an_edge_is_refused(tmp_path):

@@ -3,10 +3,13 @@
 import json
 import math
 
+import numpy as np
 import pytest
+from scipy.sparse.linalg import ArpackNoConvergence
 
 from pdeinv.bench.stress import OUTCOMES, Case, classify, counts
 from pdeinv.cli import main
+from pdeinv.errors import ConvergenceError, TooManyModes
 from pdeinv.methods import NonFiniteError
 
 
@@ -25,13 +28,33 @@ def _raise(err):
     (lambda: {"forward_err": 1e6, "growth": 0.5}, "ok"),  # accuracy is reported, not watched
     (_raise(ValueError("scheme='fe' is not allowed")), "refused"),
     (_raise(RuntimeError("boom")), "error"),
+    # numerical failures on valid input are neither bad input nor bugs
+    (_raise(np.linalg.LinAlgError("Singular matrix")), "failed"),  # a ValueError in numpy
+    (_raise(TooManyModes("the modal backend would keep 900 of 961 modes")), "failed"),
+    (_raise(ConvergenceError("CG: residual 1e-3 after 1000 iterations")), "failed"),
+    (_raise(ArpackNoConvergence("ARPACK did not converge", np.zeros(0), np.zeros((3, 0)))), "failed"),
+    (_raise(MemoryError("cannot allocate 80 GiB")), "error"),
     (lambda: {"x_err": 0.1, "backend": "modal"}, "ok"),
 ])
 def test_classify(run, outcome):
     row = classify(Case("s", 1, run))
     assert row["outcome"] == outcome
-    if outcome in ("nan", "refused", "error", "diverged"):
+    if outcome != "ok":
         assert row["message"]
+    if outcome in ("failed", "error"):  # the type says which failure it was
+        assert row["message"].startswith(type(_catch(run)).__name__ + ": ")
+
+
+def _catch(run):
+    try:
+        run()
+    except Exception as err:  # noqa: BLE001
+        return err
+
+
+def test_an_interrupt_is_not_a_case_outcome():
+    with pytest.raises(KeyboardInterrupt):
+        classify(Case("s", 1, _raise(KeyboardInterrupt())))
 
 
 def test_stress_cli_quick(tmp_path):

@@ -10,8 +10,13 @@ A case is a value: ``Case(sweep, value, run)`` where ``run() -> dict`` of number
   ``growth`` or ``x_err``) above ``bound`` (forward errors against exact solutions are
   accuracy, reported but not watched: at κT = 1 the exact field is 3e-9 of u₀ and a
   coarse BE step is off by orders of magnitude relative to it without any instability);
-* ``refused`` — a ``ValueError`` (bad or unsupported setting) with its message;
-* ``error`` — any other exception, with its type and message (a bug to look at).
+* ``failed`` — any other numerical failure on valid input (:func:`pdeinv.errors.numerical_types`:
+  :class:`~pdeinv.errors.NumericalError` such as no convergence or too many modes, numpy's
+  ``LinAlgError``, ARPACK's ``ArpackNoConvergence``), with its type and message; checked
+  before ``refused`` because ``LinAlgError`` is a ``ValueError``;
+* ``refused`` — any other ``ValueError`` (bad or unsupported setting) with its message;
+* ``error`` — any other exception (``MemoryError`` included), with its type and message (a
+  bug or a limit to look at). ``KeyboardInterrupt`` is no outcome: it stops the sweep.
 
 So no NaN or Inf goes unreported: each case has exactly one outcome.
 """
@@ -23,9 +28,9 @@ import time
 from collections.abc import Callable
 from dataclasses import dataclass
 
-from ..methods import NonFiniteError
+from ..errors import NonFiniteError, numerical_types
 
-OUTCOMES = ("ok", "nan", "diverged", "refused", "error")
+OUTCOMES = ("ok", "nan", "diverged", "failed", "refused", "error")
 
 
 @dataclass(frozen=True)
@@ -51,19 +56,26 @@ def _watched(key: str) -> bool:
     return key.endswith("growth") or key.endswith("x_err")
 
 
+def _failure(err: Exception) -> tuple[str, str]:
+    """``(outcome, message)`` of an exception a case raised (module docstring, in that order)."""
+    if isinstance(err, NonFiniteError):
+        return "nan", str(err)
+    if isinstance(err, numerical_types()):
+        return "failed", f"{type(err).__name__}: {err}"
+    if isinstance(err, ValueError):
+        return "refused", str(err)
+    return "error", f"{type(err).__name__}: {err}"
+
+
 def classify(case: Case) -> dict:
     """Run ``case`` and return ``{"sweep", "value", "outcome", ...numbers or message}``."""
     head = {"sweep": case.sweep, "value": case.value}
     t = time.perf_counter()
     try:
         res = dict(case.run())
-    except NonFiniteError as err:
-        return {**head, "outcome": "nan", "message": str(err), "time_s": time.perf_counter() - t}
-    except ValueError as err:
-        return {**head, "outcome": "refused", "message": str(err), "time_s": time.perf_counter() - t}
     except Exception as err:  # noqa: BLE001 - every outcome is reported, none escapes
-        return {**head, "outcome": "error", "message": f"{type(err).__name__}: {err}",
-                "time_s": time.perf_counter() - t}
+        outcome, message = _failure(err)
+        return {**head, "outcome": outcome, "message": message, "time_s": time.perf_counter() - t}
     nums = dict(_numbers(res))
     bad = sorted(k for k, v in nums.items() if not math.isfinite(v))
     over = sorted(k for k, v in nums.items() if math.isfinite(v) and _watched(k) and abs(v) > case.bound)
