@@ -25,6 +25,7 @@ import numpy as np
 
 from ._checks import batch
 from .mesh import cell_type, points_3d
+from .physics.capabilities import observes_field
 from .plots import save_fields_png
 
 #: what :func:`write_fields` writes per sample, in order
@@ -45,8 +46,9 @@ def _cells(mesh) -> list:
 def write_fields(path, problem, x_true, x_pred, y_obs=None, y_pred=None) -> Path:
     """Write true/predicted/error initial fields (and field observations) of a few samples.
 
-    ``x_*`` have shape ``(B, N)`` on the free unknowns; ``y_*`` are written only if
-    they are fields on the same unknowns (``n_out == N``). Returns the path.
+    ``x_*`` have shape ``(B, N)`` on the free unknowns; ``y_*`` are written only if the
+    operator declares its observations fields on the mesh
+    (:func:`pdeinv.physics.capabilities.observes_field`; sensor records are not). Returns the path.
     """
     import meshio
 
@@ -61,7 +63,7 @@ def write_fields(path, problem, x_true, x_pred, y_obs=None, y_pred=None) -> Path
         raise ValueError(f"x_true has shape {x_true.shape} but x_pred has {x_pred.shape}")
     fields = {"x_true": x_true, "x_pred": x_pred, "x_error": x_pred - x_true}
     for name, y in (("y_obs", y_obs), ("y_pred", y_pred)):
-        if y is not None and np.shape(y)[-1] == disc.N:
+        if y is not None and observes_field(problem.operator):
             fields[name] = batch(y, disc.N, name)[0]
     mesh = disc.basis.mesh
     data = {f"{name}_{k}": v for name, X in fields.items() for k, v in enumerate(vertex_values(disc, X))}

@@ -134,3 +134,18 @@ def test_tikhonov_cg_solve_works_without_a_previous_call():
     np.testing.assert_allclose(PX, p.operator.forward(X), atol=1e-12)
     lhs = p.operator.adjoint((p.disc.M @ p.operator.forward(X).T).T) + 1e-6 * (p.disc.M @ X.T).T
     np.testing.assert_allclose(lhs, b, atol=1e-8 * np.abs(b).max())
+
+
+def test_export_writes_sensor_records_never_as_fields(tmp_path):
+    """Same bug in the export: records with n_out == N were written as mesh fields."""
+    import meshio
+
+    from pdeinv.export import write_fields
+
+    p = load("heat_sensors_2d", n=4, sensors=9, steps=10, record_every=10)
+    x, y = p.sample(2, seed=0)
+    names = meshio.read(write_fields(tmp_path / "s.vtu", p, x, x, y, y)).point_data
+    assert not any(k.startswith("y_") for k in names) and "x_true_0" in names
+    q = load("heat_2d", n=4)
+    x, y = q.sample(2, seed=0)
+    assert "y_obs_0" in meshio.read(write_fields(tmp_path / "f.vtu", q, x, x, y, y)).point_data
