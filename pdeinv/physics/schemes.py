@@ -104,17 +104,17 @@ class Leapfrog:
     width = 2
 
     def __init__(self, minv: np.ndarray, K, c: float, dt: float):
-        self.dt, self.n, self.q = float(dt), K.shape[0], (c * dt) ** 2
-        self.minv = np.asarray(minv, dtype=float)[:, None]
+        self.dt, self.n = float(dt), K.shape[0]
+        self.qminv = (c * dt) ** 2 * np.asarray(minv, dtype=float)[:, None]  # q M_L⁻¹, folded once
         self.K = sp.csr_matrix(K)
         self.symmetric = is_symmetric(self.K)
         self.KT = self.K if self.symmetric else self.K.T.tocsr()
 
     def start(self, U):
-        return U - 0.5 * self.q * (self.minv * (self.K @ U)), U
+        return U - 0.5 * (self.qminv * (self.K @ U)), U
 
     def start_T(self, s):
-        return s[1] + s[0] - 0.5 * self.q * (self.KT @ (self.minv * s[0]))
+        return s[1] + s[0] - 0.5 * (self.KT @ (self.qminv * s[0]))
 
     def field(self, s):
         return s[1]
@@ -127,8 +127,8 @@ class Leapfrog:
 
     def step(self, s):
         P, U = s
-        return U, 2.0 * U - P - self.q * (self.minv * (self.K @ U))
+        return U, 2.0 * U - P - self.qminv * (self.K @ U)
 
     def step_T(self, s):
         P, U = s
-        return -U, P + 2.0 * U - self.q * (self.KT @ (self.minv * U))
+        return -U, P + 2.0 * U - self.KT @ (self.qminv * U)
