@@ -112,7 +112,7 @@ class HIG(Rule):
         return Update(tuple(parts), {**info, "loss": loss})
 
     def _direction(self, J, g, rows, n_params):
-        """The dense direction from a given Jacobian ``J`` (rows × n_params) with this rule's decomposition."""
+        """The direction from a given dense ``J`` (rows × n_params) with this rule's decomposition."""
         return DECOMPOSITIONS[self.route](self, rows, n_params).direction(J, g, self)
 
     def _route(self, b: Batch):

@@ -45,7 +45,8 @@ class Batch(NamedTuple):
         params = {n: p.detach() for n, p in model.named_parameters() if p.requires_grad}
         frozen = {n: p.detach() for n, p in model.named_parameters() if not p.requires_grad}
         frozen.update(dict(model.named_buffers()))
-        return cls(model, op, y, params, frozen, y.shape[0] * op.n_out, sum(p.numel() for p in params.values()))
+        n_params = sum(p.numel() for p in params.values())
+        return cls(model, op, y, params, frozen, y.shape[0] * op.n_out, n_params)
 
     def f(self, p, y):
         return functional_call(self.model, (p, self.frozen), (y,))
@@ -198,7 +199,7 @@ class Dense:
 
 @dataclass(frozen=True)
 class MatrixFree:
-    """Rank-``probes`` randomized SVD from jvp/vjp products; probes drawn from ``SeedSequence([seed, step])``."""
+    """Rank-``probes`` randomized SVD from jvp/vjp products, probes from ``SeedSequence([seed, step])``."""
 
     probes: int
     power_iters: int
