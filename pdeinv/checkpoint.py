@@ -1,4 +1,5 @@
-"""Checkpoints of a training run: atomic files, and a refusal to resume a different run.
+"""Checkpoints of a training run: atomic files (:mod:`pdeinv.files`), and a refusal to resume a
+different run.
 
 Guarantees:
 
@@ -12,9 +13,13 @@ Guarantees:
   checkpoint can hold tensors, numbers, strings, lists and dicts, never code.
   Anything unreadable is reported as a corrupt checkpoint (``ValueError``).
 * **Same run only.** A checkpoint records an *identity* — problem name and
-  settings, network class and parameter shapes, update rule, and the trainer's
-  data settings (seed, n_train, n_test, batch_size, dtype). :func:`check_identity`
-  refuses to resume when any of them differs, naming both values.
+  settings, network class, parameter shapes and architecture (every submodule's
+  class and scalar settings: layer widths, activations, whitening floor, …),
+  update rule and every one of its hyper-parameters (``rule.hyperparameters()``:
+  optimizer and lr, η, τ, routes, …, as configured), and the trainer's data
+  settings (seed, n_train, n_test, batch_size, dtype). :func:`check_identity`
+  refuses to resume when any of them differs, naming the key and both values.
+  The step count and time budget are not part of it: a run may be extended.
 
 What a checkpoint holds is decided by :class:`pdeinv.Trainer` (model, rule state,
 RNG states, step, history); this module only stores and compares it.
@@ -25,7 +30,6 @@ from __future__ import annotations
 import json
 import os
 import random
-import tempfile
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -33,9 +37,14 @@ import numpy as np
 import torch
 
 from ._checks import count
+from .files import atomic_write, remove_stale_temporaries
+
+#: re-exported for one release: import them from :mod:`pdeinv.files`
+__all__ = ["Checkpoint", "atomic_write", "check_identity", "network_identity", "plain", "rng_states",
+           "set_rng_states"]
 
 FORMAT = "pdeinv-checkpoint"
-VERSION = 1
+VERSION = 2  # 2: rule state = transformation + steps; identity with hyper-parameters
 
 
 @dataclass
@@ -59,7 +68,7 @@ class Checkpoint:
     def save(self, payload: dict) -> None:
         """Write ``payload`` atomically (see the module docstring)."""
         payload = {"format": FORMAT, "version": VERSION, **payload}
-        _remove_stale_temporaries(self.path)
+        remove_stale_temporaries(self.path)
         atomic_write(self.path, lambda fh: torch.save(payload, fh))
 
     def load(self) -> dict:
@@ -80,41 +89,6 @@ class Checkpoint:
         return payload
 
 
-def atomic_write(path, write) -> None:
-    """``write(fh)`` into a temporary file beside ``path``, fsync, ``os.replace``, fsync the folder."""
-    path = Path(path)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-    try:
-        with os.fdopen(fd, "wb") as fh:
-            write(fh)
-            fh.flush()
-            os.fsync(fh.fileno())
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
-    _fsync_dir(path.parent)
-
-
-def _fsync_dir(folder: Path) -> None:
-    try:
-        fd = os.open(folder, os.O_RDONLY)
-    except OSError:  # platforms without directory handles (Windows): os.replace is still atomic
-        return
-    try:
-        os.fsync(fd)
-    except OSError:
-        pass
-    finally:
-        os.close(fd)
-
-
-def _remove_stale_temporaries(path: Path) -> None:
-    """Temporaries of this checkpoint left by a killed save (one writer per checkpoint assumed)."""
-    for stale in path.parent.glob(f".{path.name}.*.tmp"):
-        stale.unlink(missing_ok=True)
-
-
 # -- identity: what must match to resume ---------------------------------------------------------
 
 def plain(value):
@@ -132,13 +106,29 @@ def plain(value):
 
 
 def network_identity(model: torch.nn.Module) -> dict:
+    """Class, parameter/buffer shapes and architecture: ``{"<module>": class, "<module>.<setting>": value}``
+    over every submodule, its settings being its public scalar attributes (``out_features``,
+    ``rel_floor``, ``drop``, …; fitted values are buffers, not settings)."""
+    arch = {}
+    for name, module in model.named_modules():
+        key = name or "<root>"
+        arch[key] = type(module).__qualname__
+        for attr, value in vars(module).items():
+            if not attr.startswith("_") and attr != "training" and isinstance(value, (bool, int, float, str)):
+                arch[f"{key}.{attr}"] = value
     return {"class": type(model).__qualname__,
-            "shapes": {k: list(v.shape) for k, v in model.state_dict().items()}}
+            "shapes": {k: list(v.shape) for k, v in model.state_dict().items()}, "architecture": plain(arch)}
 
 
 def _describe_network(net: dict) -> str:
     shapes = net["shapes"]
     return f"{net['class']} ({', '.join(f'{k} {tuple(s)}' for k, s in shapes.items())})"
+
+
+def _differences(saved: dict, current: dict) -> str:
+    """``key=saved (checkpoint) vs current (this run)`` for every key whose values differ."""
+    keys = [k for k in dict.fromkeys([*saved, *current]) if saved.get(k) != current.get(k)]
+    return ", ".join(f"{k}={saved.get(k)!r} (checkpoint) vs {current.get(k)!r} (this run)" for k in keys)
 
 
 def check_identity(saved: dict, current: dict, path) -> None:
@@ -147,17 +137,23 @@ def check_identity(saved: dict, current: dict, path) -> None:
     if saved["problem"] != current["problem"]:
         raise ValueError(f"{where} is of problem {saved['problem']!r}, this run is {current['problem']!r}; "
                          "use another output folder or the same problem")
-    s_set, c_set = saved["settings"], current["settings"]
-    diff = sorted(k for k in set(s_set) | set(c_set) if s_set.get(k) != c_set.get(k))
+    diff = _differences(saved["settings"], current["settings"])
     if diff:
-        both = ", ".join(f"{k}={s_set.get(k)!r} (checkpoint) vs {c_set.get(k)!r} (this run)" for k in diff)
-        raise ValueError(f"{where} is of problem {saved['problem']!r} with other settings: {both}")
-    if saved["network"] != current["network"]:
-        raise ValueError(f"{where} holds network {_describe_network(saved['network'])}; this run's "
-                         f"network is {_describe_network(current['network'])}")
-    for key in ("rule", "trainer"):
-        if saved[key] != current[key]:
-            raise ValueError(f"{where} was written with {key} {saved[key]!r}; this run has {current[key]!r}")
+        raise ValueError(f"{where} is of problem {saved['problem']!r} with other settings: {diff}")
+    s_net, c_net = saved["network"], current["network"]
+    if s_net != c_net:
+        diff = _differences(s_net.get("architecture", {}), c_net.get("architecture", {}))
+        raise ValueError(f"{where} holds network {_describe_network(s_net)}; this run's network is "
+                         f"{_describe_network(c_net)}" + (f": {diff}" if diff else ""))
+    if saved["rule"] != current["rule"]:
+        raise ValueError(f"{where} was written with rule {saved['rule']!r}; this run has {current['rule']!r}")
+    diff = _differences(saved["hyperparameters"], current["hyperparameters"])
+    if diff:
+        raise ValueError(f"{where} was written with rule {saved['rule']!r} and other hyper-parameters: "
+                         f"{diff}; resume with the same settings (only --steps / --time-budget may change)")
+    if saved["trainer"] != current["trainer"]:
+        raise ValueError(f"{where} was written with trainer {saved['trainer']!r}; "
+                         f"this run has {current['trainer']!r}")
 
 
 # -- random number generators -------------------------------------------------------------------

@@ -13,8 +13,6 @@ not evaluations, so runs can be compared at equal wall-clock time.
 
 from __future__ import annotations
 
-import csv
-import io
 import math
 import os
 import sys
@@ -27,17 +25,13 @@ import numpy as np
 import torch
 
 from ._checks import count, nonnegative, positive
-from .checkpoint import (
-    Checkpoint,
-    atomic_write,
-    check_identity,
-    network_identity,
-    plain,
-    rng_states,
-    set_rng_states,
-)
+from .checkpoint import Checkpoint, check_identity, network_identity, plain, rng_states, set_rng_states
+from .files import write_csv
 from .methods.base import NonFiniteError, Resumable, UpdateRule
+from .methods.guard import apply_if_finite
 from .nets import fit_preconditioning
+
+__all__ = ["Callback", "Result", "Trainer", "seed_stream", "train", "write_csv"]
 
 #: ``callback(record, model) -> bool | None``; returning True stops training after this step
 Callback = Callable[[dict, torch.nn.Module], "bool | None"]
@@ -54,16 +48,6 @@ class Result:
 
     def write_history(self, path) -> None:
         write_csv(self.history, path)
-
-
-def write_csv(history: list[dict], path) -> None:
-    """Write ``history`` as CSV, atomically (a reader or a kill never sees half a file)."""
-    keys = list(dict.fromkeys(k for row in history for k in row))
-    text = io.StringIO(newline="")
-    writer = csv.DictWriter(text, fieldnames=keys)
-    writer.writeheader()
-    writer.writerows(history)
-    atomic_write(path, lambda fh: fh.write(text.getvalue().encode()))
 
 
 #: the trainer's seed streams: training data, test data, batch order, held-out observations
@@ -91,6 +75,29 @@ class _Position:
     wall: float = 0.0
     failures: int = 0  # consecutive rejected steps
     stopped_by: str | None = None  # a stopping rule or callback that ended the run
+    scale: float = 1.0  # the step-size multiplier, lowered by step_factor after each rejected step
+
+    def saved(self) -> dict:
+        return {"gen": self.gen.get_state(), "order": self.order, "pos": self.pos, "step": self.step,
+                "wall": self.wall, "failures": self.failures, "stopped_by": self.stopped_by,
+                "scale": self.scale}
+
+    def restore(self, p: dict) -> None:
+        self.gen.set_state(p["gen"])
+        self.order, self.pos, self.step, self.wall = p["order"], p["pos"], p["step"], p["wall"]
+        self.failures, self.stopped_by, self.scale = p["failures"], p.get("stopped_by"), p["scale"]
+
+
+@dataclass
+class _Run:
+    """One fit's live objects: the model, the rule state, the data, the stopping rule's state."""
+
+    model: torch.nn.Module
+    state: object
+    y_train: torch.Tensor
+    test: tuple
+    stop_state: object
+    at: _Position
 
 
 @dataclass
@@ -114,27 +121,31 @@ class Trainer:
     ``metrics["steps"]`` at which step.
 
     **Non-finite guard.** A step whose loss, prediction or update holds NaN/Inf is
-    *rejected*: the rule raises :class:`NonFiniteError` before touching the
-    parameters (the contract of :mod:`pdeinv.methods.base`), so they stay those of
-    the last good step. The trainer records the rejection in ``history`` (a row
+    *rejected*: :func:`pdeinv.methods.guard.apply_if_finite` checks the rule's
+    update before its transformation applies anything, so the parameters stay those
+    of the last good step. The trainer records the rejection in ``history`` (a row
     with the step number, ``loss`` NaN and the message under ``rejected``), warns,
-    multiplies the rule's step size by ``step_factor`` (default ½: the optimizer's
-    lr for GD/SIP, η for HIG, via ``rule.scale_step``) and retries with the next
-    batch. After ``max_failures`` (default 5) consecutive rejections it raises
+    multiplies the run's step-size multiplier by ``step_factor`` (default ½: the
+    optimizer's lr for GD/SIP, the step for HIG; one multiplier for every rule)
+    and retries with the next batch. After ``max_failures`` (default 5) consecutive rejections it raises
     :class:`NonFiniteError` naming the step and the last good checkpoint. The
     reduced step size is kept for the rest of the run (and checkpointed).
 
     **Checkpoints.** With ``checkpoint=Checkpoint(path, every=k)`` the run is saved
     atomically every ``k`` accepted steps and after the last one (see
-    :mod:`pdeinv.checkpoint`): model and rule state, the step, history, wall time,
+    :mod:`pdeinv.checkpoint`): model and rule state, the step, the step-size
+    multiplier, history, wall time,
     and the torch / numpy / Python generator states with the batch order and its
     position. ``resume=True`` continues from that checkpoint (``FileNotFoundError``
-    if there is none; ``ValueError`` if it belongs to another problem, network, rule
-    or data setting). ``steps`` and ``time_budget`` may differ on resume, to extend
-    a run. A resumed run repeats the uninterrupted one bitwise (losses, errors,
+    if there is none; ``ValueError`` if it belongs to another problem, network
+    architecture, rule or rule hyper-parameter (as configured, not as lowered by
+    the guard), or data setting). ``steps`` and ``time_budget`` may differ on
+    resume, to extend a run. A resumed run repeats the uninterrupted one bitwise (losses, errors,
     parameters) on the same machine with the same torch/BLAS thread counts; with
     other thread counts reductions may be ordered differently and agreement is to
     float tolerance. Wall time spent after the last save is not counted.
+
+    ``device`` (default ``"cpu"``): the model and the training data are moved there.
     """
 
     problem: object
@@ -156,6 +167,7 @@ class Trainer:
     resume: bool = False
     max_failures: int = 5
     step_factor: float = 0.5
+    device: str | torch.device = "cpu"
     history: list[dict] = field(default_factory=list, init=False)
 
     def __post_init__(self):
@@ -181,10 +193,11 @@ class Trainer:
 
     # -- data and evaluation -------------------------------------------------------------
     def _data(self):
+        """``(y_train numpy, y_train torch, (x_test, y_test numpy, y_test torch))`` on ``device``."""
         x, y = self.problem.sample(self.n_train, seed_stream(self.seed, TRAIN_DATA))
         xt, yt = self.problem.sample(self.n_test, seed_stream(self.seed, TEST_DATA))
         dtype = self.dtype or torch.float32
-        t = lambda a: torch.as_tensor(a, dtype=dtype)  # noqa: E731
+        t = lambda a: torch.as_tensor(a, dtype=dtype, device=self.device)  # noqa: E731
         return y, t(y), (xt, yt, t(yt))
 
     def _start_stop(self, y_train: np.ndarray):
@@ -212,22 +225,22 @@ class Trainer:
 
     # -- checkpoints ---------------------------------------------------------------------
     def identity(self, model) -> dict:
-        """What a checkpoint must share with this run to be resumed by it."""
+        """What a checkpoint must share with this run to be resumed by it (the rule's *configured*
+        hyper-parameters: the guard's lowered step size is run state, not identity)."""
         return {"problem": getattr(self.problem, "name", None),
                 "settings": plain(getattr(self.problem, "settings", {})),
                 "network": network_identity(model), "rule": getattr(self.rule, "name", None),
+                "hyperparameters": plain(self.rule.hyperparameters()),
                 "trainer": {"seed": self.seed, "n_train": self.n_train, "n_test": self.n_test,
                             "batch_size": self.batch_size, "dtype": str(self.dtype)}}
 
-    def _save(self, model, state, at: _Position) -> None:
+    def _save(self, run: _Run) -> None:
         self.checkpoint.save({
-            "identity": self.identity(model), "model": model.state_dict(),
-            "rule_state": self.rule.state_dict(state),
-            "position": {"gen": at.gen.get_state(), "order": at.order, "pos": at.pos, "step": at.step,
-                         "wall": at.wall, "failures": at.failures, "stopped_by": at.stopped_by},
+            "identity": self.identity(run.model), "model": run.model.state_dict(),
+            "rule_state": self.rule.state_dict(run.state), "position": run.at.saved(),
             "rng": rng_states(), "history": plain(self.history)})
 
-    def _restore(self, model, state, at: _Position):
+    def _restore(self, run: _Run) -> None:
         ckpt = self.checkpoint
         if not ckpt.exists():
             raise FileNotFoundError(f"resume: there is no checkpoint at {str(ckpt.path)!r} to resume from "
@@ -237,17 +250,12 @@ class Trainer:
         if missing:
             raise ValueError(f"checkpoint {str(ckpt.path)!r} lacks {', '.join(missing)}: not written by "
                              "pdeinv.Trainer; delete it to start over")
-        check_identity(saved["identity"], self.identity(model), ckpt.path)
-        model.load_state_dict(saved["model"])  # copies into the same Parameters the optimizer holds
-        state = self.rule.load_state_dict(state, saved["rule_state"])
-        p = saved["position"]
-        at.gen.set_state(p["gen"])
-        at.order, at.pos, at.step, at.wall, at.failures = (p["order"], p["pos"], p["step"], p["wall"],
-                                                           p["failures"])
-        at.stopped_by = p.get("stopped_by")
+        check_identity(saved["identity"], self.identity(run.model), ckpt.path)
+        run.model.load_state_dict(saved["model"])  # copies into the same Parameters the optimizer holds
+        run.state = self.rule.load_state_dict(run.state, saved["rule_state"])
+        run.at.restore(saved["position"])
         set_rng_states(saved["rng"])
         self.history = saved["history"]
-        return state
 
     def _last_good(self) -> str:
         if self.checkpoint is None:
@@ -262,102 +270,125 @@ class Trainer:
             self.time_budget is not None and at.wall >= self.time_budget))
 
     # -- the loop ------------------------------------------------------------------------
-    def fit(self) -> Result:
+    def _start(self) -> _Run:
+        """Model on ``device``, data, preconditioning, rule and stopping states, batch order; resumed."""
         if self.model is None:
             torch.manual_seed(self.seed)
             self.model = self.problem.model()
         if self.dtype is None:
             self.dtype = getattr(next(iter(self.model.parameters()), None), "dtype", torch.float32)
-        model = self.model.to(self.dtype)
-        resumable = isinstance(self.rule, Resumable)
-        if self.checkpoint is not None and not resumable:
+        model = self.model.to(device=self.device, dtype=self.dtype)
+        if self.checkpoint is not None and not isinstance(self.rule, Resumable):
             raise ValueError(f"rule {getattr(self.rule, 'name', self.rule)!r} cannot be checkpointed: it "
-                             "has no state_dict / load_state_dict / scale_step "
+                             "has no state_dict / load_state_dict / hyperparameters "
                              "(see pdeinv.methods.base.Resumable)")
         y_np, y_train, test = self._data()
         if self.fit_scaling:
             fit_preconditioning(model, y_np, getattr(self.problem, "noise", None) or None)
         stop_state = self._start_stop(y_np)
-        state = self.rule.init(self.problem, model)
         gen = torch.Generator().manual_seed(seed_stream(self.seed, BATCH_ORDER))
-        at = _Position(gen, torch.randperm(self.n_train, generator=gen))
+        run = _Run(model, self.rule.init(self.problem, model), y_train, test, stop_state,
+                   _Position(gen, torch.randperm(self.n_train, generator=gen)))
         self.history = []
         if self.resume:
-            state = self._restore(model, state, at)
-        name = getattr(self.rule, "name", "rule")
-        bar = _progress(self.steps, self.progress, at.step)
-        stop = self._done(at)  # a resumed run that had already finished
-        while not stop:
-            if at.pos + self.batch_size > self.n_train:
-                at.order, at.pos = torch.randperm(self.n_train, generator=at.gen), 0
-            batch = y_train[at.order[at.pos:at.pos + self.batch_size]]
-            at.pos += self.batch_size
-            t0 = time.perf_counter()
-            try:
-                state, info = self.rule.step(state, model, batch)
-            except NonFiniteError as err:
-                at.wall += time.perf_counter() - t0
-                at.failures += 1
-                message = f"step {at.step + 1} ({name}): {err}"
-                self.history.append({"step": at.step + 1, "wall_s": at.wall, "loss": math.nan,
-                                     "rejected": message})
-                if at.failures >= self.max_failures:
-                    bar.close()
-                    raise NonFiniteError(f"{message}; stopped after {at.failures} consecutive rejected "
-                                         f"steps (max_failures={self.max_failures}); {self._last_good()}"
-                                         ) from None
-                if resumable:
-                    state = self.rule.scale_step(state, self.step_factor)
-                warnings.warn(f"{message}; step rejected, parameters unchanged, step size "
-                              f"{'scaled by ' + format(self.step_factor, 'g') if resumable else 'kept'}"
-                              f" (failure {at.failures} of at most {self.max_failures})",
-                              RuntimeWarning, stacklevel=2)
-                continue
+            self._restore(run)
+        return run
+
+    def _batch(self, run: _Run) -> torch.Tensor:
+        """The next batch: without replacement, reshuffled every epoch."""
+        at = run.at
+        if at.pos + self.batch_size > self.n_train:
+            at.order, at.pos = torch.randperm(self.n_train, generator=at.gen), 0
+        batch = run.y_train[at.order[at.pos:at.pos + self.batch_size]]
+        at.pos += self.batch_size
+        return batch
+
+    def _step(self, run: _Run, batch: torch.Tensor, bar) -> dict | None:
+        """One guarded step: its info, or ``None`` if rejected (step size lowered, parameters kept)."""
+        at, t0 = run.at, time.perf_counter()
+        try:
+            run.state, info = apply_if_finite(self.rule, run.state, run.model, batch, at.scale)
+        except NonFiniteError as err:
             at.wall += time.perf_counter() - t0
-            at.step += 1
-            at.failures = 0
-            if not math.isfinite(info["loss"]):  # a rule that forgot to check: it may have trained on it
-                bar.close()
-                raise NonFiniteError(f"step {at.step}: the y-loss is {info['loss']}")
-            record = {"step": at.step, "wall_s": at.wall, **info}
-            if stop_state is not None and at.step % self.stop.every == 0:
-                t0 = time.perf_counter()  # part of training (a user pays for it), unlike the test evaluation
-                stop_state, checked, fired = self.stop.check(stop_state, model)
-                at.wall += time.perf_counter() - t0
-                record.update(checked)
-                if fired:
-                    at.stopped_by = self.stop.name
-            stop = self._done(at)
-            if at.step % self.eval_every == 0 or stop or at.step == 1:
-                record.update(self.evaluate(model, test))
-            self.history.append(record)
+            self._reject(at, err, bar)
+            return None
+        at.wall += time.perf_counter() - t0
+        at.step += 1
+        at.failures = 0
+        return info
+
+    def _reject(self, at: _Position, err: NonFiniteError, bar) -> None:
+        at.failures += 1
+        message = f"step {at.step + 1} ({getattr(self.rule, 'name', 'rule')}): {err}"
+        self.history.append({"step": at.step + 1, "wall_s": at.wall, "loss": math.nan, "rejected": message})
+        if at.failures >= self.max_failures:
+            bar.close()
+            raise NonFiniteError(f"{message}; stopped after {at.failures} consecutive rejected steps "
+                                 f"(max_failures={self.max_failures}); {self._last_good()}") from None
+        at.scale *= self.step_factor
+        warnings.warn(f"{message}; step rejected, parameters unchanged, step size scaled by "
+                      f"{self.step_factor:g} (failure {at.failures} of at most {self.max_failures})",
+                      RuntimeWarning, stacklevel=4)
+
+    def _check_stop(self, run: _Run, record: dict) -> None:
+        """The stopping rule, every ``stop.every`` accepted steps (its time counts as training)."""
+        at = run.at
+        if run.stop_state is None or at.step % self.stop.every:
+            return
+        t0 = time.perf_counter()
+        run.stop_state, checked, fired = self.stop.check(run.stop_state, run.model)
+        at.wall += time.perf_counter() - t0
+        record.update(checked)
+        if fired:
+            at.stopped_by = self.stop.name
+
+    def _after(self, run: _Run, record: dict) -> bool:
+        """Evaluation, history, callbacks and checkpoint after an accepted step; True when done."""
+        at = run.at
+        done = self._done(at)
+        if at.step % self.eval_every == 0 or done or at.step == 1:
+            record.update(self.evaluate(run.model, run.test))
+        self.history.append(record)
+        for cb in self.callbacks:
+            if cb(record, run.model) and not done:
+                done, at.stopped_by = True, "callback"
+        if done and "x_err" not in record:  # a callback stopped between evaluations
+            record.update(self.evaluate(run.model, run.test))
+        if self.checkpoint is not None and (done or at.step % self.checkpoint.every == 0):
+            self._save(run)
+        return done
+
+    def fit(self) -> Result:
+        run = self._start()
+        bar = _progress(self.steps, self.progress, run.at.step)
+        done = self._done(run.at)  # a resumed run that had already finished
+        while not done:
+            info = self._step(run, self._batch(run), bar)
+            if info is None:
+                continue
+            record = {"step": run.at.step, "wall_s": run.at.wall, **info}
+            self._check_stop(run, record)
+            done = self._after(run, record)
             bar.update(1)
             bar.set_postfix(loss=f"{info['loss']:.3g}", refresh=False)
-            for cb in self.callbacks:
-                if cb(record, model) and not stop:
-                    stop, at.stopped_by = True, "callback"
-            if self.checkpoint is not None and (stop or at.step % self.checkpoint.every == 0):
-                if stop and "x_err" not in record:  # a callback stopped between evaluations
-                    record.update(self.evaluate(model, test))
-                self._save(model, state, at)
         bar.close()
-        if "x_err" not in self.history[-1]:  # a callback stopped between evaluations
-            self.history[-1].update(self.evaluate(model, test))
-        last = self.history[-1]
-        step, wall = at.step, at.wall
+        return Result(run.model, self.history, self._metrics(run), run.state)
+
+    def _metrics(self, run: _Run) -> dict:
+        last, at = self.history[-1], run.at
         metrics = {
             "problem": getattr(self.problem, "name", None), "method": getattr(self.rule, "name", None),
-            "steps": step, "wall_s": wall, "x_err": last["x_err"], "y_err": last["y_err"],
-            "loss": last["loss"], "step_s": wall / step, "n_train": self.n_train,
+            "steps": at.step, "wall_s": at.wall, "x_err": last["x_err"], "y_err": last["y_err"],
+            "loss": last["loss"], "step_s": at.wall / at.step, "n_train": self.n_train,
             "n_test": self.n_test, "batch_size": self.batch_size, "seed": self.seed,
-            "n_params": sum(p.numel() for p in model.parameters() if p.requires_grad),
+            "n_params": sum(p.numel() for p in run.model.parameters() if p.requires_grad),
             "rejected_steps": sum(1 for h in self.history if "rejected" in h),
-            "stopped_by": at.stopped_by or ("steps" if self.steps is not None and step >= self.steps
+            "stopped_by": at.stopped_by or ("steps" if self.steps is not None and at.step >= self.steps
                                             else "time_budget"),
         }
-        if stop_state is not None:
-            metrics["stop_rule"] = {"name": self.stop.name, **self.stop.describe(stop_state)}
-        return Result(model, self.history, metrics, state)
+        if run.stop_state is not None:
+            metrics["stop_rule"] = {"name": self.stop.name, **self.stop.describe(run.stop_state)}
+        return metrics
 
 
 def _progress(total, enabled, initial=0):

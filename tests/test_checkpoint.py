@@ -145,14 +145,18 @@ def test_save_is_atomic_and_cleans_up_after_a_killed_save(tmp_path):
 
 
 def test_rules_without_state_dict_cannot_be_checkpointed(heat, tmp_path):
+    from pdeinv.methods import State, Update
+    from pdeinv.methods.transforms import Add
+
     class Frozen:
         name = "frozen"
+        transform = Add()
 
         def init(self, problem, model):
-            return 0
+            return State(None)
 
-        def step(self, state, model, y):
-            return state, {"loss": 1.0}
+        def update(self, state, model, y):
+            return Update(tuple(None for _ in model.parameters()), {"loss": 1.0})  # no change
 
     with pytest.raises(ValueError, match="'frozen' cannot be checkpointed.*Resumable"):
         trainer(heat, Frozen(), 2, Checkpoint(tmp_path / "c.pt")).fit()

@@ -1,7 +1,10 @@
-"""SIGKILL a training run again and again -- at random moments and in the middle of a checkpoint
-save -- and resume it: the checkpoint always loads, never goes back, and the finished run has
-every step exactly once with the metrics of an uninterrupted run.
+"""SIGKILL a training run again and again -- right after an update, before it is saved, and in the
+middle of a checkpoint save -- and resume it: the checkpoint always loads, never goes back, and the
+finished run has every step exactly once with the metrics of an uninterrupted run.
 
+The kills are deterministic: the run is started through ``tests/pausing.py``, which pauses at the
+chosen point (the N-th update, or halfway through the N-th save's temporary) and writes a marker;
+the test kills it when the marker appears, never after a guessed sleep.
 Budget: each subprocess pays ~3 s of imports (torch), so 5 kills + the final run take ~25 s.
 """
 
@@ -28,11 +31,16 @@ ARGS = ["train", "heat_1d", "--set", "n=16", "--set", "steps=10", "--hidden", "1
         "--seed", "3"]
 
 
-def _start(out: Path, resume: bool, every: int = 1) -> subprocess.Popen:
+def _start(out: Path, resume: bool, every: int = 1, pause: str | None = None,
+           marker: Path | None = None) -> subprocess.Popen:
     env = {**os.environ, "PYTHONPATH": str(ROOT), "OMP_NUM_THREADS": "1"}
     argv = [*ARGS, "--out", str(out), "--checkpoint-every", str(every), *(["--resume"] if resume else [])]
-    return subprocess.Popen([sys.executable, "-m", "pdeinv.cli", *argv], cwd=ROOT, env=env,
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+    if pause is None:
+        return subprocess.Popen([sys.executable, "-m", "pdeinv.cli", *argv], cwd=ROOT, env=env,
+                                stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+    env.update(PDEINV_PAUSE=pause, PDEINV_MARKER=str(marker))
+    return subprocess.Popen([sys.executable, str(ROOT / "tests" / "pausing.py"), *argv], cwd=ROOT,
+                            env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE)
 
 
 def _temporaries(out: Path) -> set:
@@ -41,61 +49,36 @@ def _temporaries(out: Path) -> set:
     return {n for n in os.listdir(out) if n.startswith(".checkpoint.pt.") and n.endswith(".tmp")}
 
 
-def _inode(path: Path):
-    try:
-        return path.stat().st_ino  # os.replace gives every new checkpoint a new inode
-    except FileNotFoundError:
-        return None
-
-
-def _wait_and_kill(proc, out: Path, stale: set, during_save: bool, rng) -> bool:
-    """Kill ``proc`` once it is training: right as a new save's temporary appears (not one a
-    killed predecessor left), or a random number of saves (steps) later plus a random few ms --
-    counted in saves, not seconds, so a fast machine cannot finish the run first. False if it
-    finished anyway."""
-    deadline = time.monotonic() + 60
-    ckpt = out / "checkpoint.pt"
-    while not (ckpt.exists() and _temporaries(out) - stale):
-        if proc.poll() is not None or time.monotonic() > deadline:
-            return False
-        time.sleep(0.0002)
-    if not during_save:
-        saves, last = rng.randint(1, 12), _inode(ckpt)
-        while saves:
-            if proc.poll() is not None or time.monotonic() > deadline:
-                return False
-            now = _inode(ckpt)
-            saves -= now != last
-            last = now
-            time.sleep(0.0002)
-        time.sleep(rng.uniform(0.0, 0.004))
-    if proc.poll() is not None:
-        return False
+def _kill_when_paused(proc, marker: Path) -> None:
+    """SIGKILL ``proc`` once it has paused (its marker exists); fail if it ends or hangs first."""
+    deadline = time.monotonic() + 120
+    while not marker.exists():
+        assert proc.poll() is None, f"the run ended before pausing: {proc.communicate()[1].decode()}"
+        assert time.monotonic() < deadline, "the run did not reach its pause point in 120 s"
+        time.sleep(0.01)
     proc.send_signal(signal.SIGKILL)
     proc.wait()
-    return True
+    marker.unlink()
 
 
 def test_sigkill_at_random_moments_and_during_saves_then_resume(tmp_path, capsys, one_thread):
     rng = random.Random(0)
-    out = tmp_path / "run"
-    saved_steps, kills, in_save = [], 0, 0
+    out, marker = tmp_path / "run", tmp_path / "paused"
+    saved_steps, in_save = [], 0
     for attempt in range(5):
         stale = _temporaries(out)
-        proc = _start(out, resume=(out / "checkpoint.pt").exists())
-        during_save = attempt % 2 == 1
-        if not _wait_and_kill(proc, out, stale, during_save, rng):
-            break
-        kills += 1
+        kind = "save" if attempt % 2 else "step"
+        proc = _start(out, resume=(out / "checkpoint.pt").exists(), pause=f"{kind}:{rng.randint(2, 12)}",
+                      marker=marker)
+        _kill_when_paused(proc, marker)
         in_save += bool(_temporaries(out) - stale)  # a save's temporary was still there when it died
         saved = Checkpoint(out / "checkpoint.pt").load()  # always loads
         step = saved["position"]["step"]
         assert [h["step"] for h in saved["history"] if "rejected" not in h] == list(range(1, step + 1))
-        assert not saved_steps or step >= saved_steps[-1]  # never goes back
+        assert not saved_steps or step > saved_steps[-1]  # never goes back, and each run got further
         saved_steps.append(step)
         assert not (out / "metrics.json").exists()
-    assert kills >= 4, f"only {kills} kills landed before the run finished"
-    assert in_save >= 1, "no kill landed during a save"
+    assert in_save == 2, "every kill in a save leaves its half-written temporary, and only those do"
     proc = _start(out, resume=True, every=STEPS)  # the rest in one go (--checkpoint-every may change)
     stdout, stderr = proc.communicate(timeout=120)
     assert proc.returncode == 0, stderr.decode()
@@ -116,5 +99,5 @@ def test_sigkill_at_random_moments_and_during_saves_then_resume(tmp_path, capsys
     for a, b in zip(rows[1:], ref_rows[1:]):
         assert float(a.split(",")[loss]) == pytest.approx(float(b.split(",")[loss]), rel=1e-10, abs=0)
     keys = ("x_err", "y_err", "loss")
-    print(f"kills {kills} ({in_save} during a save), checkpoint steps {saved_steps}; "
+    print(f"kills 5 ({in_save} during a save), checkpoint steps {saved_steps}; "
           f"bitwise: {[got[k] for k in keys] == [ref[k] for k in keys]}")

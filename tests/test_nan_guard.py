@@ -14,7 +14,7 @@ import torch
 import pdeinv
 from pdeinv import Checkpoint, NonFiniteError, Trainer
 from pdeinv.cli import main
-from pdeinv.methods import GD, HIG, SIP, adam, sgd
+from pdeinv.methods import GD, HIG, SIP, adam, apply_if_finite, sgd
 from pdeinv.nets import MLP
 
 FAULTS = str(Path(__file__).with_name("faults.py"))
@@ -48,7 +48,7 @@ def test_a_poisoned_step_is_rejected_the_lr_halved_and_training_continues(rule):
     assert math.isnan(r.history[2]["loss"]) and all(math.isfinite(h["loss"]) for h in r.history if
                                                     "rejected" not in h)
     assert r.metrics["steps"] == 6 and r.metrics["rejected_steps"] == 1
-    opt = r.state.optimizer
+    opt = r.state.transform  # the rule's transformation state: its torch optimizer
     base = 0.05 if rule.name == "gd" else 1e-3
     assert opt.param_groups[0]["lr"] == pytest.approx(0.5 * base)
     if rule.name == "sip":  # Adam's moments saw only the 6 accepted steps
@@ -70,10 +70,10 @@ def test_hig_scale_step_scales_its_update():
         t = trainer(HIG(eta=0.1, tau=1e-5))
         model = t.model
         rule = t.rule
-        state = rule.scale_step(rule.init(t.problem, model), factor)
+        state = rule.init(t.problem, model)
         before = [p.detach().clone() for p in model.parameters()]
         y = torch.as_tensor(t.problem.sample(8, 0)[1], dtype=torch.float32)
-        rule.step(state, model, y)
+        apply_if_finite(rule, state, model, y, scale=factor)  # the guard's step-size multiplier
         deltas.append(torch.cat([(p.detach() - b).ravel() for p, b in zip(model.parameters(), before)]))
     assert torch.linalg.norm(deltas[0]) > 0
     torch.testing.assert_close(deltas[1], 0.5 * deltas[0], rtol=1e-5, atol=1e-8)

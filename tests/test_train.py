@@ -101,16 +101,20 @@ def test_default_model_comes_from_the_problem_and_learns_input_scaling():
 
 
 def test_any_strategy_object_plugs_in(heat):
-    """The trainer only calls rule.init / rule.step: a new rule needs no trainer change."""
+    """The trainer only calls rule.init / rule.update / rule.transform: a new rule needs no trainer change."""
+    from pdeinv.methods import State, Update
+    from pdeinv.methods.transforms import Add
+
 
     class Frozen:
         name = "frozen"
+        transform = Add()
 
         def init(self, problem, model):
-            return 0
+            return State(None)
 
-        def step(self, state, model, y):
-            return state + 1, {"loss": 1.0}
+        def update(self, state, model, y):
+            return Update(tuple(None for _ in model.parameters()), {"loss": 1.0})  # no change
 
     r = run(heat, Frozen(), steps=3)
     assert r.metrics["method"] == "frozen" and r.metrics["x_err"] == pytest.approx(1.0)

@@ -67,12 +67,13 @@ def cmd_train(args) -> int:
     import torch
 
     import pdeinv
-    from pdeinv.checkpoint import Checkpoint, atomic_write
-    from pdeinv.methods.base import NonFiniteError
+    from pdeinv.checkpoint import Checkpoint
+    from pdeinv.errors import NonFiniteError
+    from pdeinv.files import atomic_write, write_csv
     from pdeinv.methods.presets import make_rule
     from pdeinv.nets import MLP
     from pdeinv.runlock import RunLock
-    from pdeinv.train import Trainer, write_csv
+    from pdeinv.train import Trainer
 
     out = Path(args.out)
     ckpt = out / "checkpoint.pt"

@@ -1,81 +1,85 @@
-"""What every update rule shares: the batch y-loss, finiteness checks, optimizer factories.
+"""What every update rule shares: the update it returns, its state, the batch y-loss, optimizer factories.
 
-An update rule is a small strategy object with explicit state, in the spirit of
-optax's ``GradientTransformation``::
+An update rule is a small strategy object in the spirit of optax's
+``GradientTransformation``: it *computes* an update and never touches the
+parameters; applying it is someone else's job (:mod:`.guard`, the trainer)::
 
-    state = rule.init(problem, model)          # rule-specific inputs obtained here
-    state, info = rule.step(state, model, y)   # one update of model's parameters in place
+    state = rule.init(problem, model)          # State(context, transform, steps)
+    update = rule.update(state, model, y)      # Update(direction, info): parameters untouched
+    rule.transform                             # how a direction becomes a parameter change
 
-``y`` is a batch of target observations ``y*`` (torch, ``(B, n_out)``); ``info``
-holds at least ``loss`` — the y-loss of the batch *before* the update,
+``y`` is a batch of target observations ``y*`` (torch, ``(B, n_out)``);
+``update.direction`` holds one tensor per trainable parameter (in
+``model.parameters()`` order, ``None`` for one the rule leaves alone) and
+``update.info`` at least ``loss`` — the y-loss of the batch *before* the update,
 
     L = ½ · mean_i ‖P(f(y*_i)) − y*_i‖²   (Euclidean norm of the coefficient vector),
 
 the same number for every rule, so rules can be compared step by step. A rule
-checks its loss and its update for NaN/Inf *before* touching the parameters and
-raises :class:`NonFiniteError` (the trainer adds the step number).
+whose loss is not finite may stop early and return ``direction=None``.
 
-Rules whose runs can be checkpointed and guarded against divergence also offer
-(see :class:`Resumable`; the trainer asks for them by capability, never by name)::
-
-    sd = rule.state_dict(state)                 # plain dicts / tensors, torch.save-able
-    state = rule.load_state_dict(state, sd)     # onto a fresh ``rule.init(...)`` state
-    state = rule.scale_step(state, factor)      # multiply the step size (lr or η) by ``factor``
+The :class:`State` separates what a run must save (the transformation's state,
+e.g. a torch optimizer's moments, and the count of accepted steps) from the
+static ``context`` built once from the problem (operator, inverse simulator),
+which is rebuilt by ``init`` and never saved. Checking the update for NaN/Inf
+and applying it with the run's step-size multiplier is :func:`.guard.apply_if_finite`,
+the one place that does it for every rule.
 """
 
 from __future__ import annotations
 
 from collections.abc import Callable
 from functools import partial
-from typing import Any, Protocol, runtime_checkable
+from typing import Any, NamedTuple, Protocol, runtime_checkable
 
 import torch
 
+from ..checkpoint import plain
 from ..errors import NonFiniteError  # noqa: F401  (re-exported)
 
 #: ``params -> torch.optim.Optimizer``, e.g. ``functools.partial(torch.optim.Adam, lr=1e-3)``
 OptimizerFactory = Callable[[Any], torch.optim.Optimizer]
 
 
+class Update(NamedTuple):
+    """What a rule proposes: a direction per trainable parameter (``None``: none) and what it measured."""
+
+    direction: tuple[torch.Tensor | None, ...] | None
+    info: dict
+
+
+class State(NamedTuple):
+    """A rule's state: ``context`` is static (never saved), ``transform`` and ``steps`` are resumable."""
+
+    context: Any
+    transform: Any = None
+    steps: int = 0
+
+
 class UpdateRule(Protocol):
     name: str
+    transform: Any  # a transformation (pdeinv.methods.transforms): direction -> parameter change
 
-    def init(self, problem, model: torch.nn.Module) -> Any: ...
+    def init(self, problem, model: torch.nn.Module) -> State: ...
 
-    def step(self, state, model: torch.nn.Module, y: torch.Tensor) -> tuple[Any, dict]: ...
+    def update(self, state: State, model: torch.nn.Module, y: torch.Tensor) -> Update: ...
 
 
 @runtime_checkable
 class Resumable(Protocol):
-    """A rule whose state can be saved, restored and whose step size can be scaled."""
+    """A rule whose run can be checkpointed: its state saved and restored, and every hyper-parameter
+    a resumed run must share named."""
 
     def state_dict(self, state) -> dict: ...
 
     def load_state_dict(self, state, sd: dict) -> Any: ...
 
-    def scale_step(self, state, factor: float) -> Any: ...
+    def hyperparameters(self) -> dict: ...
 
 
-class OptimizerState:
-    """``state_dict`` / ``load_state_dict`` / ``scale_step`` for rules whose state is a NamedTuple
-    with a torch ``optimizer`` and a ``steps`` count (GD, SIP).
-
-    The optimizer's ``state_dict`` holds its moments *and* its param-group
-    hyper-parameters, so a step size reduced by :meth:`scale_step` survives a
-    checkpoint; restoring it is bitwise.
-    """
-
-    def state_dict(self, state) -> dict:
-        return {"optimizer": state.optimizer.state_dict(), "steps": state.steps}
-
-    def load_state_dict(self, state, sd: dict):
-        state.optimizer.load_state_dict(sd["optimizer"])
-        return state._replace(steps=int(sd["steps"]))
-
-    def scale_step(self, state, factor: float):
-        for group in state.optimizer.param_groups:
-            group["lr"] = group["lr"] * factor
-        return state
+def trainable(model: torch.nn.Module) -> list[torch.nn.Parameter]:
+    """The parameters a rule updates, in ``model.parameters()`` order (its direction's order)."""
+    return [p for p in model.parameters() if p.requires_grad]
 
 
 def adam(lr: float = 1e-3, **kw) -> OptimizerFactory:
@@ -86,8 +90,7 @@ def sgd(lr: float = 1e-2, **kw) -> OptimizerFactory:
     return partial(torch.optim.SGD, lr=lr, **kw)
 
 
-def make_optimizer(factory: OptimizerFactory, model: torch.nn.Module) -> torch.optim.Optimizer:
-    params = [p for p in model.parameters() if p.requires_grad]
+def make_optimizer(factory: OptimizerFactory, params: list) -> torch.optim.Optimizer:
     if not params:
         raise ValueError("the model has no trainable parameters")
     opt = factory(params)
@@ -97,21 +100,30 @@ def make_optimizer(factory: OptimizerFactory, model: torch.nn.Module) -> torch.o
     return opt
 
 
+def optimizer_hyperparameters(factory: OptimizerFactory) -> dict:
+    """``{"optimizer": class name, **defaults}`` of what ``factory`` builds: lr, betas, momentum, …
+
+    Read from an optimizer built on a dummy parameter, so every setting counts, the
+    factory's defaults included (not only the keywords it was given).
+    """
+    opt = make_optimizer(factory, [torch.nn.Parameter(torch.zeros(1))])
+    return {"optimizer": type(opt).__name__, **plain(opt.defaults)}
+
+
 def check_finite(name: str, value: torch.Tensor) -> None:
-    """Raise :class:`NonFiniteError` if ``value`` holds NaN or Inf."""
+    """Raise :class:`NonFiniteError` if ``value`` holds NaN or Inf (a rule naming its culprit)."""
     if not bool(torch.isfinite(value).all()):
-        raise NonFiniteError(f"{name} is not finite ({_describe(value)}); the update was not applied "
+        raise NonFiniteError(f"{name} is not finite ({describe(value)}); the update was not applied "
                              "(lower the learning rate / eta, or raise tau for HIG)")
 
 
-def check_grads(model: torch.nn.Module, what: str) -> None:
-    for name, p in model.named_parameters():
-        if p.grad is not None and not bool(torch.isfinite(p.grad).all()):
-            raise NonFiniteError(f"gradient of {what} w.r.t. {name!r} is not finite "
-                                 f"({_describe(p.grad)}); the update was not applied")
+def prediction(x: torch.Tensor) -> torch.Tensor:
+    """``x = f(y*)``, refused (:class:`NonFiniteError`) when not finite: the physics refuses NaN input."""
+    check_finite("the network output x = f(y*)", x.detach())
+    return x
 
 
-def _describe(t: torch.Tensor) -> str:
+def describe(t: torch.Tensor) -> str:
     t = t.detach()
     return f"{int(torch.isnan(t).sum())} NaN, {int(torch.isinf(t).sum())} Inf of {t.numel()}"
 
@@ -121,10 +133,33 @@ def y_loss(y: torch.Tensor, y_target: torch.Tensor) -> torch.Tensor:
     return 0.5 * (y - y_target).pow(2).sum(-1).mean()
 
 
-def optimizer_step(optimizer: torch.optim.Optimizer, model, loss: torch.Tensor, what: str) -> None:
-    """Back-propagate ``loss``, check it and the gradients, step the optimizer."""
-    check_finite(what, loss.detach())
-    optimizer.zero_grad(set_to_none=True)
-    loss.backward()
-    check_grads(model, what)
-    optimizer.step()
+def gradient(loss: torch.Tensor, model: torch.nn.Module) -> tuple[torch.Tensor | None, ...]:
+    """``∇_θ loss`` per trainable parameter (``None`` where the loss does not depend on it)."""
+    return torch.autograd.grad(loss, trainable(model), allow_unused=True)
+
+
+class Rule:
+    """``init``, one-off ``step``, ``state_dict`` / ``load_state_dict`` and ``hyperparameters`` for
+    rules that define ``context(problem, model)``, ``update``, ``transform`` and ``settings()``."""
+
+    def init(self, problem, model: torch.nn.Module) -> State:
+        return State(self.context(problem, model), self.transform.init(trainable(model)))
+
+    def step(self, state: State, model: torch.nn.Module, y: torch.Tensor):
+        """One guarded update, applied at full step size: ``(state, info)`` (for one-off use)."""
+        from .guard import apply_if_finite
+
+        return apply_if_finite(self, state, model, y)
+
+    def state_dict(self, state: State) -> dict:
+        """The resumable part (plain dicts / tensors, ``torch.save``-able); the context is not saved."""
+        return {"transform": self.transform.state_dict(state.transform), "steps": state.steps}
+
+    def load_state_dict(self, state: State, sd: dict) -> State:
+        """``sd`` onto a fresh ``init`` state (bitwise: a torch optimizer's own ``load_state_dict``)."""
+        return state._replace(transform=self.transform.load_state_dict(state.transform, sd["transform"]),
+                              steps=int(sd["steps"]))
+
+    def hyperparameters(self) -> dict:
+        """Every setting a resumed run must share: the rule's own and its transformation's."""
+        return {**plain(self.settings()), **self.transform.hyperparameters()}

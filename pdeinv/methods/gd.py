@@ -2,51 +2,45 @@
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
-from typing import NamedTuple
 
 import torch
 
 from ..autograd import apply
-from ..physics.base import LinearOperator
-from .base import (
-    OptimizerFactory,
-    OptimizerState,
-    adam,
-    check_finite,
-    make_optimizer,
-    optimizer_step,
-    y_loss,
-)
-
-
-class GDState(NamedTuple):
-    optimizer: torch.optim.Optimizer
-    operator: LinearOperator
-    steps: int = 0
+from .base import OptimizerFactory, Rule, State, Update, adam, gradient, prediction, y_loss
+from .transforms import OptimizerStep
 
 
 @dataclass(frozen=True)
-class GD(OptimizerState):
-    """``θ ← optimizer(∇_θ L)`` with ``L = ½ · mean_i ‖P(f(y*_i; θ)) − y*_i‖²``.
+class GD(Rule):
+    """Direction ``∇_θ L`` with ``L = ½ · mean_i ‖P(f(y*_i; θ)) − y*_i‖²``, applied by ``optimizer``.
 
     The norm is the Euclidean norm of the observation coefficients (as in the
     seeds; reported errors are L²(Ω)); the mean is over the batch. ``∇_θ L`` is
     exact: back-propagation runs through the discrete adjoint ``Pᵀ`` via
     :func:`pdeinv.apply`. ``optimizer`` is any ``params -> torch.optim.Optimizer``
-    (default Adam with lr 1e-3; ``methods.sgd(lr)`` gives textbook GD).
-    ``scale_step`` multiplies the optimizer's lr; ``state_dict`` is the optimizer's.
+    (default Adam with lr 1e-3; ``methods.sgd(lr)`` gives textbook GD); it is the
+    rule's transformation (:class:`~.transforms.OptimizerStep`). The context is the
+    problem's operator.
     """
 
     optimizer: OptimizerFactory = field(default_factory=adam)
     name: str = "gd"
 
-    def init(self, problem, model: torch.nn.Module) -> GDState:
-        return GDState(make_optimizer(self.optimizer, model), problem.operator)
+    @property
+    def transform(self) -> OptimizerStep:
+        return OptimizerStep(self.optimizer)
 
-    def step(self, state: GDState, model: torch.nn.Module, y_target: torch.Tensor):
-        x = model(y_target)
-        check_finite("the network output x = f(y*)", x.detach())
-        loss = y_loss(apply(state.operator, x), y_target)
-        optimizer_step(state.optimizer, model, loss, "the y-loss")
-        return state._replace(steps=state.steps + 1), {"loss": float(loss.detach())}
+    def settings(self) -> dict:
+        return {}
+
+    def context(self, problem, model):
+        return problem.operator
+
+    def update(self, state: State, model: torch.nn.Module, y_target: torch.Tensor) -> Update:
+        loss = y_loss(apply(state.context, prediction(model(y_target))), y_target)
+        value = float(loss.detach())
+        if not math.isfinite(value):  # no backward through it: the guard refuses the update
+            return Update(None, {"loss": value})
+        return Update(gradient(loss, model), {"loss": value})

@@ -1,0 +1,64 @@
+"""Run ``pdeinv`` (the CLI) paused at a chosen point, for the kill test: ``python tests/pausing.py ARGV…``.
+
+``PDEINV_PAUSE=step:N`` pauses right after the N-th update of this process was applied (parameters
+changed, that step not yet saved); ``save:N`` pauses in the N-th atomic write, after half of the new
+file's bytes went into its temporary. Pausing writes ``PDEINV_MARKER`` and sleeps: the test kills the
+process when the marker appears, so every kill lands exactly there, on any machine speed.
+"""
+
+import importlib
+import io
+import os
+import sys
+import time
+from pathlib import Path
+
+from pdeinv.cli import main
+
+checkpoint = importlib.import_module("pdeinv.checkpoint")
+train = importlib.import_module("pdeinv.train")  # the module: ``pdeinv.train`` is also a function
+
+KIND, N = os.environ["PDEINV_PAUSE"].split(":")
+N = int(N)
+MARKER = Path(os.environ["PDEINV_MARKER"])
+calls = {"step": 0, "save": 0}
+
+
+def pause():
+    MARKER.write_text(f"{KIND}:{N}")
+    time.sleep(600)
+
+
+def counted(kind):
+    calls[kind] += 1
+    return KIND == kind and calls[kind] == N
+
+
+real_step, real_write = train.apply_if_finite, checkpoint.atomic_write
+
+
+def apply_if_finite(*args, **kw):
+    out = real_step(*args, **kw)
+    if counted("step"):
+        pause()
+    return out
+
+
+def atomic_write(path, write):
+    if not counted("save"):
+        return real_write(path, write)
+
+    def half(fh):
+        buf = io.BytesIO()
+        write(buf)
+        data = buf.getvalue()
+        fh.write(data[: len(data) // 2])
+        fh.flush()
+        os.fsync(fh.fileno())
+        pause()
+
+    return real_write(path, half)
+
+
+train.apply_if_finite, checkpoint.atomic_write = apply_if_finite, atomic_write
+sys.exit(main(sys.argv[1:]))
