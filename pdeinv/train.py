@@ -30,6 +30,7 @@ from .files import write_csv
 from .methods.base import NonFiniteError, Resumable, UpdateRule
 from .methods.guard import apply_if_finite
 from .nets import fit_preconditioning
+from .physics.capabilities import observes_field
 
 __all__ = ["Callback", "Result", "Trainer", "seed_stream", "train", "write_csv"]
 
@@ -216,7 +217,7 @@ class Trainer:
             return {"x_err": math.nan, "y_err": math.nan}
         yhat = self.problem.operator.forward(xhat)
         disc = self.problem.disc
-        if yhat.shape[1] == disc.N:
+        if observes_field(self.problem.operator):  # declared, never guessed from shapes
             y_err = disc.relative_error(yhat, y)
         else:
             y_err = np.linalg.norm(yhat - y, axis=1) / np.linalg.norm(y, axis=1)

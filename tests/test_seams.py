@@ -149,3 +149,18 @@ def test_export_writes_sensor_records_never_as_fields(tmp_path):
     q = load("heat_2d", n=4)
     x, y = q.sample(2, seed=0)
     assert "y_obs_0" in meshio.read(write_fields(tmp_path / "f.vtu", q, x, x, y, y)).point_data
+
+
+def test_trainer_measures_sensor_records_euclidean_even_when_there_are_as_many_as_unknowns():
+    import torch
+
+    from pdeinv.methods import GD
+
+    p = load("heat_sensors_2d", n=4, sensors=9, steps=10, record_every=10)
+    x, y = p.sample(3, seed=0)
+    xhat = x + 0.3 * np.random.default_rng(1).standard_normal(x.shape) * np.abs(x).max()
+    trainer = pdeinv.Trainer(p, GD(), steps=1)
+    got = trainer.evaluate(lambda _: torch.as_tensor(xhat), (x, y, torch.as_tensor(y)))
+    r = p.operator.forward(xhat) - y
+    assert got["y_err"] == pytest.approx(np.mean(np.linalg.norm(r, axis=1) / np.linalg.norm(y, axis=1)))
+    assert got["y_err"] != pytest.approx(np.mean(p.disc.relative_error(p.operator.forward(xhat), y)))

@@ -20,7 +20,7 @@ from pathlib import Path
 import torch
 
 from .. import references as refs
-from ..checkpoint import atomic_write
+from ..files import atomic_write
 from ..physics import Heat
 from ..train import TEST_DATA, TRAIN_DATA, seed_stream
 from . import amortize, forward, methods, plots, skips

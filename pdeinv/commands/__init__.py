@@ -28,6 +28,15 @@ def add_set_argument(parser) -> None:
                         help="problem override, e.g. --set kappa=0.02 --set n=32")
 
 
+def run_parser(sub, name: str, help: str, quick: str):
+    """A subcommand parser with the arguments every sweep shares: PROBLEM, ``--out DIR``, ``--quick``."""
+    p = sub.add_parser(name, help=help)
+    p.add_argument("problem")
+    p.add_argument("--out", required=True, metavar="DIR")
+    p.add_argument("--quick", action="store_true", help=quick)
+    return p
+
+
 def prepare_out(out) -> None:
     """Refuse an ``--out`` that is a file; create the folder and prove it writable before any work."""
     import tempfile

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from . import UsageError, add_set_argument, parse_sets, prepare_out
+from . import UsageError, add_set_argument, parse_sets, prepare_out, run_parser
 
 ORDER = 2
 
@@ -30,10 +30,8 @@ def cmd_bench(args) -> int:
 
 
 def add_parser(sub) -> None:
-    b = sub.add_parser("bench", help="benchmark run time against error; write DIR/bench.json and plots")
-    b.add_argument("problem")
-    b.add_argument("--out", required=True, metavar="DIR")
-    b.add_argument("--quick", action="store_true", help="tiny sizes, no sweeps, one repeat (CI smoke test)")
+    b = run_parser(sub, "bench", "benchmark run time against error; write DIR/bench.json and plots",
+                   quick="tiny sizes, no sweeps, one repeat (CI smoke test)")
     b.add_argument("--budget-s", type=float, default=20.0, metavar="S",
                    help="training wall time per method (default 20)")
     b.add_argument("--seed", type=int, default=0)

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from . import add_set_argument, parse_sets, prepare_out
+from . import add_set_argument, parse_sets, prepare_out, run_parser
 
 ORDER = 3
 
@@ -14,7 +14,7 @@ def cmd_stress(args) -> int:
     from pdeinv.bench import cases, stress
     from pdeinv.bench.run import jsonable
     from pdeinv.bench.timing import machine
-    from pdeinv.checkpoint import atomic_write
+    from pdeinv.files import atomic_write
     from pdeinv.runlock import RunLock
 
     todo = cases.cases(args.problem, parse_sets(args.set), quick=args.quick)
@@ -31,9 +31,7 @@ def cmd_stress(args) -> int:
 
 
 def add_parser(sub) -> None:
-    s = sub.add_parser("stress", help="numerical stress sweeps; write DIR/stress.json")
-    s.add_argument("problem")
-    s.add_argument("--out", required=True, metavar="DIR")
-    s.add_argument("--quick", action="store_true", help="fewer values per sweep, shorter training")
+    s = run_parser(sub, "stress", "numerical stress sweeps; write DIR/stress.json",
+                   quick="fewer values per sweep, shorter training")
     add_set_argument(s)
     s.set_defaults(func=cmd_stress)
