@@ -30,9 +30,12 @@ COMMON = {
 }
 
 HEAT = {**COMMON, "kappa": (0.01, s.positive), "scheme": ("be", s.one_of("be", "cn")),
-        "backend": ("auto", s.one_of("auto", "steps", "modal"))}
+        "backend": ("auto", s.one_of("auto", "steps", "modal", "dense", "svd"))}
 
-WAVE = {**COMMON, "c": (1.0, s.positive)}
+#: how a time-stepping operator is applied (pdeinv.physics.compiled): 'auto' by the cost of a run
+COMPILED = {"backend": ("auto", s.one_of("auto", "steps", "dense", "svd"))}
+
+WAVE = {**COMMON, "c": (1.0, s.positive), **COMPILED}
 
 
 def _leapfrog(mesh, disc, cfg):
@@ -76,7 +79,7 @@ def advection_diffusion(name: str, mesh, cfg: dict) -> Problem:
     disc = discretize(mesh, cfg["element"])
     C = convection(disc, cellular_flow(cfg["speed"]), cfg["kappa"])
     op = Heat(disc.M, disc.K, kappa=cfg["kappa"], T=cfg["T"], steps=cfg["steps"], scheme=cfg["scheme"],
-              backend="steps", measure=disc.measure, dim=disc.dim, C=C)
+              backend=cfg["backend"], measure=disc.measure, dim=disc.dim, C=C)
     return Problem(name, disc, op, partial(gaussian_bumps, disc.points), settings=cfg, noise=cfg["noise"],
                    inverse_simulator=default_inverse(op, disc, noise=cfg["noise"]))
 
@@ -89,7 +92,7 @@ def wave(name: str, mesh, cfg: dict) -> Problem:
     limit; local inverse: the generic Tikhonov CG solve).
     """
     disc = discretize(mesh, cfg["element"])
-    op = WAVE_SCHEMES[cfg.get("scheme", "newmark")](mesh, disc, cfg)
+    op = WAVE_SCHEMES[cfg.get("scheme", "newmark")](mesh, disc, cfg).compile(cfg["backend"], disc.M)
     return Problem(name, disc, op, partial(gaussian_bumps, disc.points), settings=cfg,
                    noise=cfg["noise"], model_factory=WAVE_NET,
                    inverse_simulator=default_inverse(op, disc, noise=cfg["noise"]))

@@ -2,8 +2,9 @@
 
 ``sensors`` point sensors inside the domain record u every ``record_every``
 θ-scheme steps (record-major ``y.reshape(B, R, n_s)``, see
-:mod:`pdeinv.physics.propagator`). Sensor runs always time-step (no modal
-backend, hence no ``backend`` setting). Given coordinates on the Dirichlet
+:mod:`pdeinv.physics.propagator`). ``backend``: time stepping, or the
+run compiled once to a dense matrix or a truncated SVD (no modal basis for records;
+``auto`` by the cost of a training run, :mod:`pdeinv.physics.compiled`). Given coordinates on the Dirichlet
 boundary are refused: the field is 0 there.
 
 Defaults: κ = 0.05, T = 1 (diffusion length √(κT) ≈ 0.22, about the sensor
@@ -24,13 +25,13 @@ from pdeinv import mesh, observe, scenes
 from pdeinv import settings as s
 from pdeinv.forms import discretize
 from pdeinv.inverse import default_inverse
-from pdeinv.physics import Heat, HeatSensors
+from pdeinv.physics import Heat
 from pdeinv.problem import Problem
 from pdeinv.sampling import gaussian_bumps
 
 SETTINGS = {**{k: v for k, v in scenes.HEAT.items() if k != "backend"},
             "kappa": (0.05, s.positive), "n": (32, s.positive_int), "mesh": (None, s.optional_path),
-            "sensors": (25, observe.sensor_spec), "record_every": (10, s.positive_int)}
+            "sensors": (25, observe.sensor_spec), "record_every": (10, s.positive_int), **scenes.COMPILED}
 
 
 def make(**overrides):
@@ -40,7 +41,8 @@ def make(**overrides):
     points = observe.place(m, cfg["sensors"], "inside")
     heat = Heat(disc.M, disc.K, kappa=cfg["kappa"], T=cfg["T"], steps=cfg["steps"],
                 scheme=cfg["scheme"], backend="steps", measure=disc.measure, dim=disc.dim)
-    op = HeatSensors(heat, observe.sensor_matrix(disc, points), cfg["record_every"])
+    op = heat.sensors(observe.sensor_matrix(disc, points), cfg["record_every"])
+    op = op.compile(cfg["backend"], disc.M)  # stepping, dense or SVD by the cost of a run
     return Problem("heat_sensors_2d", disc, op, partial(gaussian_bumps, disc.points),
                    settings={**cfg, "sensor_points": points}, noise=cfg["noise"],
                    model_factory=scenes.WAVE_NET,  # sensor scenes keep the MLP (measured: pdeinv/nets.py)

@@ -68,6 +68,7 @@ def make(**overrides):
     points = observe.place(m, cfg["sensors"], "boundary", inset=inset)
     wave = scenes.WAVE_SCHEMES[cfg["scheme"]](m, disc, cfg)  # newmark or leapfrog, same sensors
     op = wave.sensors(observe.sensor_matrix(disc, points), cfg["record_every"])
+    op = op.compile(cfg["backend"], disc.M)  # stepping, dense or SVD by the cost of a run
     alpha = None if cfg["alpha"] is None else RelativeAlpha(cfg["alpha"])
     return Problem("wave_sensors_2d", disc, op, partial(gaussian_bumps, disc.points),
                    settings={**cfg, "sensor_points": points}, noise=cfg["noise"],

@@ -18,7 +18,7 @@ import numpy as np
 from ..physics.capabilities import modal_basis, output_mass, reversible
 from .alpha import Discrepancy, FixedAlpha, RelativeAlpha
 from .cg import TikhonovCG
-from .modal import ModalTikhonov
+from .modal import ModalTikhonov, SpectralTikhonov
 from .time_reversal import StateReversal, TimeReversal
 
 #: default relative α without noise: cut-off at amplification 1e-5·max g. Measured with SIP on the
@@ -48,8 +48,8 @@ def default_inverse(op, disc=None, noise: float = 0.0, alpha=None):
 
     * reversible (``final_state`` and ``reverse``, e.g. :class:`~pdeinv.Wave`) →
       :class:`TimeReversal` (no α; exact at ``y₀``);
-    * a modal basis (``op.modes``, :class:`~pdeinv.Heat` with the modal backend) →
-      :class:`ModalTikhonov`;
+    * a spectral basis (``op.modes``: the modal heat backend, or a compiled SVD) →
+      :class:`SpectralTikhonov` (a filter per mode, Morozov's α in closed form);
     * anything else → :class:`TikhonovCG` with the input mass ``disc.M`` (``op.mass``, or
       the identity, if ``disc`` is None), the observation mass ``disc.M`` when ``op`` declares field
       observations (else Euclidean), and ``λ_max(P*P)`` from ``op.max_gain_squared()``
@@ -61,11 +61,11 @@ def default_inverse(op, disc=None, noise: float = 0.0, alpha=None):
         return TimeReversal(op)
     rule = default_alpha(noise) if alpha is None else alpha
     if modal_basis(op) is not None:
-        return ModalTikhonov(op, rule)
+        return SpectralTikhonov(op, rule)
     M = getattr(op, "mass", None) if disc is None else disc.M
     known = getattr(op, "max_gain_squared", None)
     return TikhonovCG(op, M, rule, M_out=output_mass(op, M), scale=known() if callable(known) else None)
 
 
-__all__ = ["Discrepancy", "FixedAlpha", "ModalTikhonov", "RelativeAlpha", "StateReversal",
+__all__ = ["Discrepancy", "FixedAlpha", "ModalTikhonov", "SpectralTikhonov", "RelativeAlpha", "StateReversal",
            "TikhonovCG", "TimeReversal", "default_alpha", "default_inverse"]

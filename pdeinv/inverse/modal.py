@@ -34,8 +34,11 @@ from ._inputs import mass_norms, mass_trace, out, pair
 from .alpha import Fit, as_rule
 
 
-class ModalTikhonov:
-    """``P⁻¹_(x₀, Px₀)(y) = x₀ + Φ (g/(g²+α)) ΦᵀM(y − Px₀)`` for a Heat operator with a Modal backend.
+class SpectralTikhonov:
+    """``P⁻¹_(x₀, Px₀)(y) = x₀ + synth (g/(g²+α) ⊙ c)``, ``c = (y − Px₀) proj``, for any operator
+    with a spectral basis ``op.modes`` (``g``, ``proj``, ``out``, ``synth``, ``mass_out``):
+    the modal heat backend (``proj = MΦ``, ``out = synth = Φ``) or a compiled SVD
+    (:mod:`pdeinv.physics.compiled`: ``proj = L_o U``, ``out = L_o⁻ᵀ U``, ``synth = L⁻ᵀ V``).
 
     ``alpha``: a number (absolute α) or a rule (:class:`~.alpha.Discrepancy`,
     :class:`~.alpha.RelativeAlpha`). After each call ``last_info`` holds the α used.
@@ -43,9 +46,9 @@ class ModalTikhonov:
 
     def __init__(self, op, alpha):
         backend = modal_basis(op)
-        if not all(hasattr(backend, a) for a in ("g", "Phi", "MPhi")):
-            raise ValueError(f"ModalTikhonov needs an operator with a modal backend (op.modes with g, Phi, "
-                             f"MPhi); got {op!r}; use TikhonovCG for other operators")
+        if not all(hasattr(backend, a) for a in ("g", "proj", "out", "synth")):
+            raise ValueError(f"ModalTikhonov needs an operator with a modal backend or another spectral "
+                             f"basis (op.modes with g, proj, out, synth); got {op!r}; use TikhonovCG")
         self.op, self.modes = op, backend
         self.rule = as_rule(alpha)
         self.scale = float(np.max(backend.g**2))
@@ -53,13 +56,13 @@ class ModalTikhonov:
 
     def __call__(self, y, x0) -> np.ndarray:
         Y, X0, single = pair(y, x0, self.op.n_out, self.op.n_in)
-        g, Phi = self.modes.g, self.modes.Phi
+        g = self.modes.g
         R = Y - self.op.forward(X0)
-        c = R @ self.modes.MPhi
-        alpha = self.rule.select(Fit(self._residual(R, c), Y, mass_trace(self.op.M, Y.shape[1]),
+        c = R @ self.modes.proj
+        alpha = self.rule.select(Fit(self._residual(R, c), Y, mass_trace(self.modes.mass_out, Y.shape[1]),
                                      self.scale))
         self.last_info = {"alpha": alpha}
-        return out(X0 + (g / (g**2 + alpha[:, None]) * c) @ Phi.T, single)
+        return out(X0 + (g / (g**2 + alpha[:, None]) * c) @ self.modes.synth.T, single)
 
     def _residual(self, R, c):
         """``ρ(α)``: computes the unfittable part of ``y − y₀`` only if a rule asks."""
@@ -67,11 +70,15 @@ class ModalTikhonov:
 
         def rho(alpha):
             if "perp2" not in cache:
-                cache["perp2"] = mass_norms(self.op.M, R - c @ self.modes.Phi.T) ** 2
+                cache["perp2"] = mass_norms(self.modes.mass_out, R - c @ self.modes.out.T) ** 2
             fitted = ((alpha[:, None] / (g2 + alpha[:, None]) * c) ** 2).sum(axis=1)
             return np.sqrt(fitted + cache["perp2"])
 
         return rho
 
     def __repr__(self):
-        return f"ModalTikhonov(k={len(self.modes.g)}, alpha={self.rule!r})"
+        return f"{type(self).__name__}(k={len(self.modes.g)}, alpha={self.rule!r})"
+
+
+#: the name from when only the modal heat backend had a spectral basis
+ModalTikhonov = SpectralTikhonov

@@ -57,7 +57,7 @@ class Heat(LinearOperator):
         self.measure, self.dim = measure, dim
         if isinstance(backend, str):
             backend = choice(backend, "backend", ("auto", *BACKENDS))
-            if C is not None and backend == "modal":
+            if C is not None and backend == "modal":  # (dense and svd work for any operator)
                 raise ValueError("backend='modal' needs a symmetric operator and C (convection) makes it "
                                  "non-symmetric; allowed: backend='steps' or 'auto'")
             self.backend, self.choice = choose(self) if backend == "auto" else (
@@ -73,7 +73,7 @@ class Heat(LinearOperator):
 
     output_space = "field"  # capabilities (pdeinv.physics.capabilities): observes a field, measured by M
     symmetric = property(lambda self: self.C is None)
-    modes = property(lambda self: self.backend if hasattr(self.backend, "Phi") else None)
+    modes = property(lambda self: self.backend if hasattr(self.backend, "synth") else None)
 
     def sensors(self, S, record_every: int = 1) -> Propagator:
         """Sensor time series ``S u`` every ``record_every`` steps (always time-stepping)."""

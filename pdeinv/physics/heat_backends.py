@@ -10,6 +10,7 @@ import math
 
 import numpy as np
 
+from .compiled import build, plan
 from .modes import DENSE_MAX, TooManyModes, largest_eigenvalue, lowest_modes
 from .propagator import FinalField, Propagator
 
@@ -67,6 +68,8 @@ class Modal:
         self.g = heat.amplification(self.lam)
         self.MPhi = np.ascontiguousarray(heat.M @ self.Phi)
         self.n_total = heat.M.shape[0]
+        # the spectral-basis view (pdeinv.physics.compiled.SVD has the same): P = out diag(g) (M synth)ᵀ
+        self.proj, self.out, self.synth, self.mass_out = self.MPhi, self.Phi, self.Phi, heat.M
 
     @property
     def k(self) -> int:
@@ -79,7 +82,11 @@ class Modal:
         return ((R @ self.Phi) * self.g) @ self.MPhi.T
 
 
-BACKENDS = {"steps": Stepping, "modal": Modal}
+def _compiled(kind):
+    return lambda heat: build(kind, Stepping(heat).forward, heat.n_in, heat.n_in, heat.M, heat.M)
+
+
+BACKENDS = {"steps": Stepping, "modal": Modal, "dense": _compiled("dense"), "svd": _compiled("svd")}
 
 #: a dense N×k product runs this many times more flops per second than a sparse
 #: triangular solve on our machines (BLAS vs SuperLU's scalar loops); conservative
@@ -121,8 +128,9 @@ def choose(heat):
     stepping = Stepping(heat)
     fill = getattr(heat.stepper.lu, "fill", 10 * heat.M.nnz)
     cost_steps = heat.steps * (2 * fill + 2 * heat.stepper.B.nnz)
-    if not heat.symmetric:
-        return stepping, "auto: steps (not symmetric: no modal basis)"
+    if not heat.symmetric:  # no modal basis: stepping, dense or SVD by the cost of a run
+        kind, why = plan(cost_steps, N, N)
+        return (stepping if kind == "steps" else BACKENDS[kind](heat)), f"{why}; not symmetric: no modes"
     cost_modal = 4 * N * k_est / BLAS_ADVANTAGE
     why = (f"modal≈{cost_modal:.3g} flops/column with ~{k_est:.0f} of {N} modes (Weyl) vs "
            f"steps≈{cost_steps:.3g}")

@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from .._checks import choice as one_of
 from .._checks import count
 from .base import LinearOperator
 
@@ -71,10 +72,41 @@ class Propagator(LinearOperator):
     """``steps`` steps of ``scheme`` from ``x``, recorded by ``observation`` (module docstring);
     ``mass``: the mass matrix of the unknowns."""
 
+    #: a compiled backend (:mod:`.compiled`), or None: time stepping
+    backend = None
+    choice = "stepping"
+
     def __init__(self, scheme, observation: Records, steps: int, mass=None):
         self.scheme, self.observation, self.steps, self.mass = scheme, observation, int(steps), mass
         self.n_in, self.n_out = scheme.n, observation.n_out
 
+    def compile(self, kind: str = "auto", M=None) -> Propagator:
+        """Apply ``P`` through a compiled backend: 'dense', 'svd' (in the norms of ``M``, default
+        ``self.mass``; Euclidean for records), 'steps' (none) or 'auto' (:func:`.compiled.plan`)."""
+        from .capabilities import reversible
+        from .compiled import build, plan
+
+        kind = one_of(kind, "backend", ("auto", "steps", "dense", "svd"))
+        why = f"backend={kind!r} requested"
+        if kind == "auto":
+            kind, why = plan(self.step_flops(), self.n_in, self.n_out, reversible(self))
+        M = self.mass if M is None else M
+        self.backend = None if kind == "steps" else build(
+            kind, self._step_forward, self.n_in, self.n_out, M, M if self.output_space == "field" else None)
+        self.choice = why
+        return self
+
+    def step_flops(self) -> float:
+        """Flops of one column through the whole run: per step ``2·fill(LU)`` (or ``10·nnz(A)``) and
+        ``2·nnz`` of every matrix the step multiplies by."""
+        sc = self.scheme
+        lu = getattr(sc, "lu", None)
+        solve = 2 * getattr(lu, "fill", 10 * sc.A.nnz) if lu is not None else 0
+        products = sum(2 * getattr(sc, a).nnz for a in ("B", "M", "K")
+                       if hasattr(getattr(sc, a, None), "nnz"))
+        return self.steps * (solve + products)
+
+    modes = property(lambda self: self.backend if hasattr(self.backend, "synth") else None)
     output_space = property(lambda self: self.observation.space)
     symmetric = property(lambda self: bool(self.scheme.symmetric))
     dt = property(lambda self: self.scheme.dt)
@@ -92,6 +124,12 @@ class Propagator(LinearOperator):
         return Propagator(self.scheme, Records(S, self.n_in, self.steps, record_every), self.steps, self.mass)
 
     def _forward(self, X):
+        return self._step_forward(X) if self.backend is None else self.backend.forward(X)
+
+    def _adjoint(self, R):
+        return self._step_adjoint(R) if self.backend is None else self.backend.adjoint(R)
+
+    def _step_forward(self, X):
         sc, obs = self.scheme, self.observation
         Y = np.empty((X.shape[0], self.n_out))
         s = sc.start(X.T)
@@ -100,7 +138,7 @@ class Propagator(LinearOperator):
             obs.write(Y, j, sc.field(s))
         return Y
 
-    def _adjoint(self, R):
+    def _step_adjoint(self, R):
         sc, obs = self.scheme, self.observation
         s = sc.zeros(self.n_in, R.shape[0])
         for j in range(self.steps, 0, -1):

@@ -1,0 +1,157 @@
+"""Compiled backends for a fixed linear operator: its action computed once, applied by BLAS.
+
+Every operator here is linear and fixed for a whole training run, so a run that applies it
+thousands of times can pay once for a form that makes each application cheap:
+
+* :class:`Dense`: ``P`` as an ``(m, N)`` array, built from batched runs of the time stepping
+  on identity columns (``chunk`` at a time). Forward ``X Pᵀ``, adjoint ``R P``: exact
+  transposes of each other; ``P`` agrees with the stepping it was built from to rounding.
+* :class:`SVD`: the truncated SVD in the problem's norms. With ``M = L Lᵀ`` (input mass) and
+  ``M_out = L_o L_oᵀ`` (the mass of a field observation; the identity for records),
+
+      L_oᵀ P L⁻ᵀ = U S Vᵀ,      P ≈ Out diag(s) Inᵀ,   Out = L_o⁻ᵀ U,   In = L V,
+
+  keeping ``s ≥ rtol · s_max``: the dropped part has operator norm below ``rtol · s_max``
+  from ``‖·‖_M`` to ``‖·‖_{M_out}``. It is also a *spectral basis* (``g = s``, ``proj = L_o U``,
+  ``out = Out``, ``synth = L⁻ᵀ V``): the Tikhonov inverse becomes a filter per singular value
+  and Morozov's α a closed form per sample (:class:`pdeinv.inverse.SpectralTikhonov`), as
+  for the modal heat backend.
+
+:func:`plan` chooses among stepping and these by a cost model of what a training run will
+do (forward, adjoint and the local inverse per step over the expected steps, plus the
+build) under a memory budget (:data:`BUDGET_GB`, env ``PDEINV_DENSE_BUDGET_GB``); an explicit
+choice over budget is refused with the size it needs, ``auto`` falls back to stepping.
+"""
+
+from __future__ import annotations
+
+import os
+
+import numpy as np
+import scipy.linalg as la
+
+#: default memory budget of a dense or SVD backend, in GB (env PDEINV_DENSE_BUDGET_GB overrides)
+BUDGET_GB = 1.0
+#: relative singular-value cut of :class:`SVD`
+SVD_RTOL = 1e-12
+#: what :func:`plan` assumes of a training run: steps, batch columns, CG iterations of a generic inverse
+EXPECT = {"steps": 1000, "batch": 32, "cg_iterations": 100}
+#: BLAS products run this many times more flops per second than sparse solves (measured 4-10x)
+BLAS_ADVANTAGE = 4.0
+
+
+def budget_gb() -> float:
+    raw = os.environ.get("PDEINV_DENSE_BUDGET_GB")
+    if raw is None:
+        return BUDGET_GB
+    try:
+        value = float(raw)
+    except ValueError:
+        value = float("nan")
+    if not value > 0:
+        raise ValueError(f"PDEINV_DENSE_BUDGET_GB={raw!r} is not allowed; expected a number of GB > 0")
+    return value
+
+
+def matrix(run, n_in: int, n_out: int, chunk: int = 256) -> np.ndarray:
+    """``P`` as an ``(n_out, n_in)`` array from ``run(E)`` on identity rows, ``chunk`` at a time."""
+    P = np.empty((n_out, n_in))
+    for i in range(0, n_in, chunk):
+        E = np.zeros((min(chunk, n_in - i), n_in))
+        E[np.arange(len(E)), i + np.arange(len(E))] = 1.0
+        P[:, i:i + len(E)] = run(E).T
+    return P
+
+
+class Dense:
+    """``P`` stored densely (module docstring)."""
+
+    name = "dense"
+
+    def __init__(self, P: np.ndarray):
+        self.P, self.PT = np.ascontiguousarray(P), np.ascontiguousarray(P.T)
+
+    @staticmethod
+    def nbytes(n_in: int, n_out: int) -> int:
+        return 2 * 8 * n_in * n_out
+
+    def forward(self, X):
+        return X @ self.PT
+
+    def adjoint(self, R):
+        return R @ self.P
+
+
+def _chol(M, n: int):
+    return np.eye(n) if M is None else la.cholesky(M.toarray() if hasattr(M, "toarray") else M, lower=True)
+
+
+class SVD:
+    """Truncated SVD of ``P`` in the norms of ``M`` (input) and ``M_out`` (output; module docstring)."""
+
+    name = "svd"
+
+    def __init__(self, P: np.ndarray, M=None, M_out=None, rtol: float = SVD_RTOL):
+        if not 0 < rtol < 1:
+            raise ValueError(f"rtol={rtol!r} is not allowed; expected 0 < rtol < 1")
+        m, n = P.shape
+        L, Lo = _chol(M, n), _chol(M_out, m)
+        Q = Lo.T @ la.solve_triangular(L, P.T, lower=True).T  # L_oᵀ P L⁻ᵀ
+        U, s, Vt = np.linalg.svd(Q, full_matrices=False)
+        keep = s >= rtol * s[0] if s.size and s[0] > 0 else np.zeros(s.size, bool)
+        U, V = U[:, keep], Vt[keep].T
+        self.g, self.rtol, self.mass_out = s[keep], rtol, M_out
+        self.In = np.ascontiguousarray(L @ V)
+        self.out = np.ascontiguousarray(la.solve_triangular(Lo.T, U, lower=False))
+        self.proj = np.ascontiguousarray(Lo @ U)
+        self.synth = np.ascontiguousarray(la.solve_triangular(L.T, V, lower=False))
+
+    @staticmethod
+    def nbytes(n_in: int, n_out: int) -> int:
+        return 8 * (4 * n_in * n_out + 2 * (n_in + n_out) * min(n_in, n_out))  # build peak
+
+    @property
+    def k(self) -> int:
+        return len(self.g)
+
+    def forward(self, X):
+        return ((X @ self.In) * self.g) @ self.out.T
+
+    def adjoint(self, R):
+        return ((R @ self.out) * self.g) @ self.In.T
+
+
+KINDS = {"dense": Dense, "svd": SVD}
+
+
+def build(kind: str, run, n_in: int, n_out: int, M=None, M_out=None):
+    """A compiled backend of ``kind`` ('dense' or 'svd') for the map ``run``, within the budget."""
+    need, have = KINDS[kind].nbytes(n_in, n_out) / 1e9, budget_gb()
+    if need > have:
+        raise ValueError(f"backend={kind!r} needs about {need:.2g} GB for a {n_out}×{n_in} operator; the "
+                         f"budget is {have:g} GB (PDEINV_DENSE_BUDGET_GB); use backend='steps' or 'auto'")
+    P = matrix(run, n_in, n_out)
+    return Dense(P) if kind == "dense" else SVD(P, M, M_out)
+
+
+def plan(step_flops: float, n_in: int, n_out: int, reversible: bool = False) -> tuple[str, str]:
+    """``(kind, why)``: 'steps', 'dense' or 'svd' by the flops of a training run (module docstring).
+
+    Per step ``b`` columns go forward and back, and a SIP step adds a local inverse: time reversal
+    (two stepping runs, whatever the backend) for a ``reversible`` operator; otherwise a filter
+    in the SVD basis (two applications) or, for stepping and dense, a CG solve of about
+    ``2·cg_iterations`` applications. Stepping costs ``step_flops`` per column, dense ``2mN``,
+    SVD ``2r(m + N)`` with ``r ≤ min(m, N)`` (BLAS flops discounted by :data:`BLAS_ADVANTAGE`);
+    the build runs ``N`` columns of stepping, plus ``~4 m N min(m, N)`` for the SVD.
+    """
+    e, blas = EXPECT, 1.0 / BLAS_ADVANTAGE
+    cols, r = e["steps"] * e["batch"], min(n_in, n_out)
+    apply = {"steps": step_flops, "dense": 2 * n_in * n_out * blas, "svd": 2 * r * (n_in + n_out) * blas}
+    build = {"steps": 0.0, "dense": n_in * step_flops, "svd": n_in * step_flops + 4 * n_in * n_out * r * blas}
+    cg = 2 * e["cg_iterations"]
+    inverse = {k: 2 * step_flops if reversible else (2 if k == "svd" else cg) * a for k, a in apply.items()}
+    cost = {k: build[k] + cols * (2 * apply[k] + inverse[k]) for k in apply}
+    fits = {k: k == "steps" or KINDS[k].nbytes(n_in, n_out) / 1e9 <= budget_gb() for k in cost}
+    best = min((k for k in cost if fits[k]), key=cost.get)
+    why = ", ".join(f"{k}≈{v:.2g}" + ("" if fits[k] else " (over budget)") for k, v in cost.items())
+    return best, f"auto: {best} (flops of {e['steps']} steps × {e['batch']} columns: {why})"

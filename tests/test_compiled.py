@@ -1,0 +1,83 @@
+"""Compiled backends (dense, truncated SVD): exact to tolerance against the time stepping they replace."""
+
+import numpy as np
+import pytest
+import torch
+from exact import dot_test, load
+
+import pdeinv
+from pdeinv.inverse import FixedAlpha, SpectralTikhonov, TikhonovCG
+from pdeinv.physics import compiled
+
+SCENES = {
+    "wave_2d": dict(n=6, steps=20),
+    "wave_sensors_2d": dict(n=6, steps=12, record_every=3, sensors=8),
+    "heat_sensors_2d": dict(n=6, steps=10, record_every=2, sensors=5),
+    "advection_diffusion_2d": dict(n=6, steps=10, speed=2.0),
+    "heat_2d": dict(n=6, steps=10),
+}
+CASES = [(name, kind) for name in SCENES for kind in ("dense", "svd")]
+
+
+def _pair(name, kind):
+    return load(name, backend=kind, **SCENES[name]).operator, load(name, backend="steps", **SCENES[name]).operator
+
+
+@pytest.mark.parametrize("name, kind", CASES)
+def test_compiled_agrees_with_stepping_and_is_its_own_exact_transpose(name, kind):
+    op, ref = _pair(name, kind)
+    assert op.backend.name == kind
+    rng = np.random.default_rng(0)
+    X, R = rng.standard_normal((4, op.n_in)), rng.standard_normal((4, op.n_out))
+    for a, b in ((op.forward(X), ref.forward(X)), (op.adjoint(R), ref.adjoint(R))):
+        assert np.linalg.norm(a - b) <= 1e-10 * np.linalg.norm(b)
+    assert dot_test(op) <= 1e-12
+    np.testing.assert_allclose(op.forward(X[1]), op.forward(X)[1], rtol=1e-13, atol=1e-15)
+
+
+@pytest.mark.parametrize("kind", ["dense", "svd"])
+def test_compiled_gradcheck(kind):
+    op = load("wave_sensors_2d", backend=kind, n=3, steps=4, record_every=2, sensors=3).operator
+    x = torch.randn(2, op.n_in, dtype=torch.float64, requires_grad=True)
+    assert torch.autograd.gradcheck(lambda t: pdeinv.apply(op, t), (x,))
+
+
+def test_svd_truncates_a_smoothing_operator_and_keeps_its_tolerance():
+    op = load("heat_2d", n=10, kappa=0.1, backend="svd").operator
+    assert op.backend.k < op.n_in / 2  # heat smooths: most singular values are below rtol·s_max
+    assert op.backend.g.min() >= compiled.SVD_RTOL * op.backend.g.max()
+
+
+def test_svd_filter_inverse_equals_the_cg_solve_with_the_same_alpha():
+    p = load("wave_sensors_2d", backend="svd", **SCENES["wave_sensors_2d"])
+    assert isinstance(p.inverse_simulator, SpectralTikhonov)
+    x, y = p.sample(3, seed=0)
+    x0 = np.zeros_like(x)
+    assert np.allclose(p.inverse(p.operator.forward(x0), x0), x0)  # exact at y = P x0
+    alpha = 1e-3 * np.max(p.operator.modes.g) ** 2
+    fast = SpectralTikhonov(p.operator, FixedAlpha(alpha))(y, x0)
+    slow = TikhonovCG(p.operator, p.disc.M, FixedAlpha(alpha), M_out=None, rtol=1e-12)(y, x0)
+    assert np.linalg.norm(fast - slow) <= 1e-6 * np.linalg.norm(slow)
+
+
+def test_auto_plans_by_the_cost_of_a_run():
+    assert load("wave_2d", n=8).operator.choice.startswith("auto: dense")
+    assert load("wave_sensors_2d", **SCENES["wave_sensors_2d"]).operator.choice.startswith("auto: svd")
+    kind, why = compiled.plan(1e3, 100, 100, reversible=True)  # cheap stepping, cheap inverse: keep it
+    assert kind == "steps" and "dense≈" in why
+
+
+def test_budget_refuses_an_explicit_choice_and_auto_falls_back(monkeypatch):
+    monkeypatch.setenv("PDEINV_DENSE_BUDGET_GB", "1e-6")
+    with pytest.raises(ValueError, match=r"backend='dense' needs about .* GB .* budget is 1e-06 GB"):
+        load("wave_2d", n=8, backend="dense")
+    op = load("wave_2d", n=8).operator
+    assert op.backend is None and "over budget" in op.choice
+    monkeypatch.setenv("PDEINV_DENSE_BUDGET_GB", "0")
+    with pytest.raises(ValueError, match="PDEINV_DENSE_BUDGET_GB='0' is not allowed"):
+        load("wave_2d", n=8)
+
+
+def test_svd_tolerance_outside_zero_one_is_refused():
+    with pytest.raises(ValueError, match="rtol=1.5 is not allowed"):
+        compiled.SVD(np.eye(3), rtol=1.5)
