@@ -46,6 +46,7 @@ import numpy as np
 import scipy.linalg as sla
 
 from .physics.capabilities import observes_field
+from .physics.compiled import matrix
 
 #: σ / s_max used when the problem is noise-free (see the module docstring)
 TINY_SIGMA = 1e-8
@@ -83,10 +84,16 @@ def mmse(problem, X: np.ndarray, sigma2: float | None = None):
 
 
 def dense_operator(problem, chunk: int = 256) -> np.ndarray:
-    """``P`` as a dense ``(n_out, n_in)`` array, from forward runs on identity columns."""
+    """``P`` as a dense ``(n_out, n_in)`` array: the compiled one if the operator has it
+    (:mod:`pdeinv.physics.compiled`), from its spectral basis ``out diag(g) Inᵀ`` (modal or SVD,
+    exact to the basis' tolerance), else from forward runs on identity columns."""
     op = problem.operator
-    cols = [op.forward(np.eye(op.n_in)[i:i + chunk]) for i in range(0, op.n_in, chunk)]
-    return np.vstack(cols).T
+    backend = getattr(op, "backend", None)
+    if getattr(backend, "P", None) is not None:
+        return backend.P
+    if hasattr(backend, "In") and hasattr(backend, "out"):
+        return (backend.out * backend.g) @ backend.In.T
+    return matrix(op.forward, op.n_in, op.n_out, chunk)
 
 
 def _spectral_basis(problem, P: np.ndarray | None = None):

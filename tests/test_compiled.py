@@ -81,3 +81,27 @@ def test_budget_refuses_an_explicit_choice_and_auto_falls_back(monkeypatch):
 def test_svd_tolerance_outside_zero_one_is_refused():
     with pytest.raises(ValueError, match="rtol=1.5 is not allowed"):
         compiled.SVD(np.eye(3), rtol=1.5)
+
+
+@pytest.mark.parametrize("name, kw", [("heat_2d", dict(n=8, kappa=0.05)),
+                                      ("heat_sensors_2d", dict(n=6, steps=10, record_every=2, sensors=9,
+                                                               backend="svd"))])
+def test_hig_on_compressed_rows_takes_the_same_step(name, kw):
+    """``J = (I ⊗ Q) J_c``: the step from r rows per sample equals the one from all m rows."""
+    from pdeinv.methods import HIG
+    from pdeinv.methods.hig import compress
+
+    p = load(name, **kw)
+    small, Q = compress(p.operator)
+    assert Q is not None and small.n_out < p.operator.n_out
+    torch.manual_seed(0)
+    model = torch.nn.Sequential(torch.nn.Linear(p.operator.n_out, 6), torch.nn.Tanh(),
+                                torch.nn.Linear(6, p.operator.n_in)).double()
+    y = torch.as_tensor(p.sample(3, seed=0)[1])
+    rule = HIG(route="svd")
+    state = rule.init(p, model)
+    full = state._replace(context=(p.operator, p.operator, None))
+    a, b = rule.update(state, model, y), rule.update(full, model, y)
+    for da, db in zip(a.direction, b.direction, strict=True):
+        assert torch.allclose(da, db, rtol=1e-6, atol=1e-9 * db.abs().max())
+    assert a.info["rank"] == b.info["rank"]

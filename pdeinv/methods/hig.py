@@ -5,10 +5,13 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
+import numpy as np
 import torch
 
 from .._checks import choice, count, nonnegative, positive
 from ..autograd import apply
+from ..physics.base import Matrix
+from ..physics.capabilities import modal_basis
 from .base import Rule, State, Update, prediction
 from .hig_routes import DECOMPOSITIONS, JACOBIANS, ROUTES, Batch
 from .transforms import Add
@@ -60,6 +63,13 @@ class HIG(Rule):
       ``"svd"``; ``info["gram_rejected"]`` says the Gram route was tried first);
       when the dense Jacobian would exceed ``max_jacobian_gb``, ``randomized``.
 
+    **Compressed rows.** With a spectral basis of rank ``r < m`` (the modal heat backend, a
+    compiled SVD: ``P = Out diag(g) Inᵀ`` exactly) and ``Out = Q R`` (Euclidean QR), each
+    sample's Jacobian is ``∂y/∂θ = Q C ∂x/∂θ`` with ``C = R diag(g) Inᵀ`` (``r × N``); ``Q``
+    has orthonormal columns, so ``J = (I ⊗ Q) J_c`` has the singular values of ``J_c`` and
+    ``Uᵀ g = U_cᵀ (I ⊗ Qᵀ) g``: the same step from ``r`` rows per sample instead of ``m``
+    (:func:`compress`; heat_2d: 217 of 961).
+
     A route whose memory exceeds ``max_jacobian_gb`` is refused with a
     ``ValueError`` before anything is computed. The randomized probes are drawn
     from ``SeedSequence([seed, step])``, so a resumed run repeats them.
@@ -95,17 +105,19 @@ class HIG(Rule):
         return {k: getattr(self, k) for k in SETTINGS}
 
     def context(self, problem, model):
-        return problem.operator
+        return (problem.operator, *compress(problem.operator))
 
     def update(self, state: State, model: torch.nn.Module, y_target: torch.Tensor) -> Update:
-        b = Batch.of(model, state.context, y_target)
+        op, small, Q = state.context
+        b = Batch.of(model, small, y_target)
         route = self._route(b)  # refuses one over the memory budget before computing anything
         with torch.no_grad():
-            y = apply(b.op, prediction(b.f(b.params, y_target)))
+            y = apply(op, prediction(b.f(b.params, y_target)))
         r = (y - y_target).double()
         loss = 0.5 * float(r.pow(2).sum(-1).mean())
         if not math.isfinite(loss):
             return Update(None, {"loss": loss})
+        r = r if Q is None else r @ Q  # the residual's part in range(P); the rest no step can change
         delta, info = route.direction(b, r.reshape(b.rows), self, state.steps)
         sizes = [p.numel() for p in b.params.values()]
         parts = [d.view(p.shape) for d, p in zip(torch.split(delta, sizes), b.params.values(), strict=True)]
@@ -128,3 +140,13 @@ class HIG(Rule):
             f"{b.n_params} parameters needs about {first.memory(b) / 2**30:.1f} GB with route "
             f"{first.name!r}{also}, above max_jacobian_gb={self.max_jacobian_gb:g}; use a smaller "
             "batch_size or network (fewer parameters), or raise max_jacobian_gb")
+
+
+def compress(op):
+    """``(C, Q)`` with ``P = Q C`` exactly and ``QᵀQ = I`` (class docstring), as ``(Matrix(C), Q)``; or
+    ``(op, None)`` when ``op`` has no spectral basis or its rank is not below its row count."""
+    basis = modal_basis(op)
+    if basis is None or not hasattr(basis, "In") or len(basis.g) >= op.n_out:
+        return op, None
+    Q, R = np.linalg.qr(basis.out)
+    return Matrix((R * basis.g) @ basis.In.T), torch.from_numpy(Q)

@@ -70,6 +70,7 @@ class Modal:
         self.n_total = heat.M.shape[0]
         # the spectral-basis view (pdeinv.physics.compiled.SVD has the same): P = out diag(g) (M synth)ᵀ
         self.proj, self.out, self.synth, self.mass_out = self.MPhi, self.Phi, self.Phi, heat.M
+        self.In = self.MPhi
 
     @property
     def k(self) -> int:
