@@ -239,13 +239,19 @@ class Trainer:
         """``(y_train numpy, y_train torch, (x_test, y_test numpy, y_test torch))`` on ``device``
         (``x_test`` None for own data without x)."""
         if self._own is not None:
-            y, xt, yt = self._own["y"], self._own["x_test"], self._own["y_test"]
+            y = self._own["y"]
         else:
-            x, y = self.problem.sample(self.n_train, seed_stream(self.seed, TRAIN_DATA))
-            xt, yt = self.problem.sample(self.n_test, seed_stream(self.seed, TEST_DATA))
+            _, y = self.problem.sample(self.n_train, seed_stream(self.seed, TRAIN_DATA))
+        xt, yt = self.held_out()
         dtype = self.dtype or torch.float32
         t = lambda a: torch.as_tensor(a, dtype=dtype, device=self.device)  # noqa: E731
         return y, t(y), (xt, yt, t(yt))
+
+    def held_out(self) -> tuple:
+        """The test set ``(x or None, y)`` as numpy: own data's last rows, or the seeded samples."""
+        if self._own is not None:
+            return self._own["x_test"], self._own["y_test"]
+        return self.problem.sample(self.n_test, seed_stream(self.seed, TEST_DATA))
 
     def _start_stop(self, y_train: np.ndarray):
         """The stopping rule's state, with its held-out observations (x discarded)."""
