@@ -75,8 +75,8 @@ class Checkpoint:
             atomic_write(self.path, lambda fh: torch.save(payload, fh))
         except OSError as err:  # e.g. ENOSPC: the temporary is gone, the previous checkpoint intact
             kept = "the previous checkpoint is intact" if self.exists() else "no checkpoint was kept"
-            raise OSError(err.errno, f"could not write checkpoint {str(self.path)!r} "
-                                     f"({err.strerror or err}); {kept}") from None
+            raise OSError(err.errno, f"checkpoint {str(self.path)!r} not saved ({err.strerror or err}); "
+                                     f"{kept}") from None
 
     def load(self) -> dict:
         """The saved payload; ``FileNotFoundError`` if there is none, ``ValueError`` if it is corrupt."""

@@ -210,6 +210,9 @@ def test_cli_train_writes_metrics_history_and_plot(tmp_path, capsys):
     (["heat_1d", "--hidden", "64,x"], "--hidden"),
     (["heat_1d", "--steps", "0"], "steps=0"),
     (["heat_2d", "--method", "hig", "--hidden", "2048,2048"], "GB"),  # even matrix-free: ~17 GB
+    (["heat_1d", "--resume", "--overwrite"], "--resume and --overwrite conflict"),
+    (["heat_1d", "--data", "train.npz"], "--n-train does not apply with --data"),
+    (["heat_1d", "--set", "n=16", "--resume"], "no checkpoint at .* to resume from"),
 ])
 def test_cli_bad_input_exits_2_with_one_line(tmp_path, capsys, argv, match):
     code = main(["train", *argv, "--out", str(tmp_path / "o"), "--n-train", "64", "--n-test", "8",

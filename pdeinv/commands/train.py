@@ -118,9 +118,12 @@ def cmd_train(args) -> int:
     prepare_out(out)
     try:
         return _run(args, out, problem, overrides, net, hp, trainer)
-    except OSError as err:  # a full disk, a folder removed: not the input's fault, not numerical
-        print(f"pdeinv train: cannot write: {err.strerror or err}"
-              + (f" ({err.filename})" if err.filename else ""), file=sys.stderr)
+    except FileNotFoundError:  # e.g. --resume without a checkpoint: bad input (exit 2)
+        raise
+    except OSError as err:  # a full disk, no permission: not the input's fault, not numerical
+        where = f" ({err.filename})" if err.filename else ""
+        again = "; free space and continue with --resume" if (out / "checkpoint.pt").exists() else ""
+        print(f"pdeinv train: cannot write: {err.strerror or err}{where}{again}", file=sys.stderr)
         return 1
 
 
