@@ -378,7 +378,7 @@ class Trainer:
         """One guarded step: its info, or ``None`` if rejected (last good state back, step size lowered)."""
         at, t0 = run.at, time.perf_counter()
         # the growth check judges parameters not yet verified: not those just rolled back to
-        verified = self.max_loss_growth is None or run.good.step == at.step
+        verified = self.max_loss_growth is None or run.good.step == at.step or not at.best > 0
         limit = math.inf if verified else at.best * self.max_loss_growth
         try:
             run.state, info = apply_if_finite(self.rule, run.state, run.model, batch, at.scale, limit,

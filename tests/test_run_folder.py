@@ -51,7 +51,7 @@ def test_a_stale_picture_alone_is_a_previous_run(tmp_path, capsys):
     out.mkdir()
     (out / "fields.vtu").write_text("stale")
     assert train(out) == 2
-    assert "holds a previous run (fields.vtu)" in one_line(capsys, "pdeinv train: error: ")
+    assert "fields.vtu exists; " in one_line(capsys, "pdeinv train: error: ")
 
 
 def test_a_failed_overwrite_run_never_names_the_old_checkpoint(tmp_path, capsys):

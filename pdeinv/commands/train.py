@@ -70,8 +70,8 @@ def _check_flags(args, out) -> None:
                          "--overwrite deletes it; pass one of them")
     found = existing_outputs(out) if out.is_dir() else []
     if found and not (args.overwrite or args.resume):
-        raise UsageError(f"{out} holds a previous run ({', '.join(found)}); choose another --out, pass "
-                         "--resume to continue that run or --overwrite to replace it")
+        raise UsageError(f"{out / found[0]} exists; choose another --out, pass --resume to continue that "
+                         f"run or --overwrite to replace it (a previous run's files: {', '.join(found)})")
     if args.checkpoint_every < 0:
         raise UsageError(f"--checkpoint-every {args.checkpoint_every} is not allowed; "
                          "expected an integer >= 1, or 0 for no checkpoints")
@@ -84,6 +84,34 @@ def _check_flags(args, out) -> None:
                          "--n-test (and the stopping rule's) rows, which are held out")
 
 
+class _Fresh:
+    """``--overwrite``: delete the previous run's files once, just before this run writes its first
+    file, so a run refused while setting up (a bad setting, a memory estimate) leaves them intact and
+    one that trained never leaves a mix of two runs."""
+
+    def __init__(self, out, enabled: bool):
+        self.out, self.pending = out, enabled
+
+    def __call__(self) -> None:
+        if self.pending:
+            from pdeinv.runs import clear_outputs
+
+            clear_outputs(self.out)
+            self.pending = False
+
+
+def _Checkpoint(path, every: int, fresh: _Fresh):
+    """A :class:`~pdeinv.checkpoint.Checkpoint` that calls ``fresh()`` before each save."""
+    from pdeinv.checkpoint import Checkpoint
+
+    class Fresh(Checkpoint):
+        def save(self, payload: dict) -> None:
+            fresh()
+            super().save(payload)
+
+    return Fresh(path, every)
+
+
 def cmd_train(args) -> int:
     """Train the default network; write metrics.json, history.csv, training.png, fields.vtu/png."""
     from pathlib import Path
@@ -91,7 +119,6 @@ def cmd_train(args) -> int:
     import torch
 
     import pdeinv
-    from pdeinv.checkpoint import Checkpoint
     from pdeinv.data import read_npz
     from pdeinv.methods.presets import make_rule
     from pdeinv.runs import network
@@ -101,6 +128,7 @@ def cmd_train(args) -> int:
     ckpt = out / "checkpoint.pt"
     _check_flags(args, out)
     hidden = _hidden(args.hidden) if args.hidden else None
+    fresh = _Fresh(out, args.overwrite)
     set_threads(args.threads)
     overrides = parse_sets(args.set)
     problem = pdeinv.load_problem(args.problem, **overrides)
@@ -113,11 +141,12 @@ def cmd_train(args) -> int:
     trainer = Trainer(problem, rule, network(problem, net), steps=args.steps, time_budget=args.time_budget,
                       n_train=args.n_train or 1024, n_test=args.n_test, batch_size=hp["batch_size"],
                       seed=args.seed, eval_every=args.eval_every, max_failures=args.max_failures,
-                      checkpoint=Checkpoint(ckpt, args.checkpoint_every) if args.checkpoint_every else None,
+                      checkpoint=_Checkpoint(ckpt, args.checkpoint_every, fresh) if args.checkpoint_every
+                      else None,
                       resume=args.resume, stop=stop, data=y, data_x=x)
     prepare_out(out)
     try:
-        return _run(args, out, problem, overrides, net, hp, trainer)
+        return _run(args, out, problem, overrides, net, hp, trainer, fresh)
     except FileNotFoundError:  # e.g. --resume without a checkpoint: bad input (exit 2)
         raise
     except OSError as err:  # a full disk, no permission: not the input's fault, not numerical
@@ -127,7 +156,7 @@ def cmd_train(args) -> int:
         return 1
 
 
-def _run(args, out, problem, overrides, net, hp, trainer) -> int:
+def _run(args, out, problem, overrides, net, hp, trainer, fresh) -> int:
     """Train under the folder's lock and write every output; see :data:`pdeinv.runs.OUTPUTS`."""
     import torch
 
@@ -138,21 +167,22 @@ def _run(args, out, problem, overrides, net, hp, trainer) -> int:
 
     ckpt = out / "checkpoint.pt"
     with RunLock(out):  # one run per --out: a second one is refused
-        if args.overwrite:  # before anything of this run is written: never a mix of two runs
-            clear_outputs(out)
         try:
             with warnings.catch_warnings():  # a rejected step: one line on stderr, not a warning's two
                 warnings.simplefilter("always", RuntimeWarning)
                 warnings.showwarning = _one_line
                 result = trainer.fit()
         except NonFiniteError:
+            fresh()
             if trainer.history:
                 write_csv(trainer.history, out / "history.csv")
             raise
         except KeyboardInterrupt:
+            fresh()
             saved = f"continue from {ckpt} with --resume" if ckpt.exists() else "no checkpoint was written"
             print(f"pdeinv train: interrupted; {saved}", file=sys.stderr)
             return 130
+        fresh()
         metrics = {**result.metrics, "method": args.method, "hyperparameters": hp,
                    "settings": {k: v for k, v in problem.settings.items()},
                    "route": result.history[-1].get("route"), "torch_threads": torch.get_num_threads()}
