@@ -4,7 +4,7 @@ The pipeline, upstream to downstream: mesh → forms → physics (operators with
 exact adjoints) → autograd bridge / inverse simulators → update rules → trainer.
 """
 
-from . import export, mesh, observe, plots
+from . import export, mesh, observe, plots, runs
 from .autograd import apply
 from .checkpoint import Checkpoint
 from .forms import Discretization, discretize
@@ -25,6 +25,7 @@ from .observe import sensor_matrix
 from .physics import Heat, HeatSensors, Leapfrog, LinearOperator, Matrix, Modal, Stepping, Wave, WaveSensors
 from .precondition import Whitening
 from .problem import Problem, available, load_problem
+from .runs import load_run, save_run
 from .solvers import AMGCG, Cholesky, SuperLU, amg_cg, default_solver
 from .stopping import DiscrepancyStop
 from .train import Result, Trainer, train
@@ -74,6 +75,9 @@ __all__ = [
     "available",
     "discretize",
     "load_problem",
+    "load_run",
+    "save_run",
+    "runs",
     "export",
     "mesh",
     "observe",

@@ -7,7 +7,9 @@ Guarantees:
   own folder, flushes and ``fsync``\\ s it, ``os.replace``\\ s it over the target
   and ``fsync``\\ s the folder. A process killed at any moment (SIGKILL included)
   leaves the previous checkpoint or the new one, never a mix or a partial file;
-  after the folder's ``fsync`` the new one also survives a power loss. A
+  after the folder's ``fsync`` the new one also survives a power loss. A save
+  that fails (a full disk) raises ``OSError`` saying so and leaves the previous
+  checkpoint intact. A
   temporary left behind by a killed save is removed by the next save.
 * **Safe to load.** Files are read with ``torch.load(weights_only=True)``: a
   checkpoint can hold tensors, numbers, strings, lists and dicts, never code.
@@ -69,7 +71,12 @@ class Checkpoint:
         """Write ``payload`` atomically (see the module docstring)."""
         payload = {"format": FORMAT, "version": VERSION, **payload}
         remove_stale_temporaries(self.path)
-        atomic_write(self.path, lambda fh: torch.save(payload, fh))
+        try:
+            atomic_write(self.path, lambda fh: torch.save(payload, fh))
+        except OSError as err:  # e.g. ENOSPC: the temporary is gone, the previous checkpoint intact
+            kept = "the previous checkpoint is intact" if self.exists() else "no checkpoint was kept"
+            raise OSError(err.errno, f"checkpoint {str(self.path)!r} not saved ({err.strerror or err}); "
+                                     f"{kept}") from None
 
     def load(self) -> dict:
         """The saved payload; ``FileNotFoundError`` if there is none, ``ValueError`` if it is corrupt."""

@@ -46,8 +46,9 @@ def _cells(mesh) -> list:
 def write_fields(path, problem, x_true, x_pred, y_obs=None, y_pred=None) -> Path:
     """Write true/predicted/error initial fields (and field observations) of a few samples.
 
-    ``x_*`` have shape ``(B, N)`` on the free unknowns; ``y_*`` are written only if the
-    operator declares its observations fields on the mesh
+    ``x_*`` have shape ``(B, N)`` on the free unknowns; ``x_true=None`` (observations
+    without true fields, e.g. ``pdeinv predict``) writes ``x_pred_<k>`` only. ``y_*`` are
+    written only if the operator declares its observations fields on the mesh
     (:func:`pdeinv.physics.capabilities.observes_field`; sensor records are not). Returns the path.
     """
     import meshio
@@ -57,11 +58,13 @@ def write_fields(path, problem, x_true, x_pred, y_obs=None, y_pred=None) -> Path
         raise ValueError(f"fields file {str(path)!r}: suffix {path.suffix!r} is not allowed; "
                          "expected '.vtu' or '.xdmf'")
     disc = problem.disc
-    x_true, _ = batch(x_true, disc.N, "x_true")
     x_pred, _ = batch(x_pred, disc.N, "x_pred")
-    if x_true.shape != x_pred.shape:
-        raise ValueError(f"x_true has shape {x_true.shape} but x_pred has {x_pred.shape}")
-    fields = {"x_true": x_true, "x_pred": x_pred, "x_error": x_pred - x_true}
+    fields = {"x_pred": x_pred}
+    if x_true is not None:
+        x_true, _ = batch(x_true, disc.N, "x_true")
+        if x_true.shape != x_pred.shape:
+            raise ValueError(f"x_true has shape {x_true.shape} but x_pred has {x_pred.shape}")
+        fields = {"x_true": x_true, "x_pred": x_pred, "x_error": x_pred - x_true}
     for name, y in (("y_obs", y_obs), ("y_pred", y_pred)):
         if y is not None and observes_field(problem.operator):
             fields[name] = batch(y, disc.N, name)[0]
@@ -129,18 +132,20 @@ def export_run(out, problem, model, x, y, samples: int = 3, png: bool = True) ->
 
     Writes ``out/fields.vtu`` (see :func:`write_fields`), ``out/sensors.vtu`` when
     the problem has ``settings['sensor_points']``, and ``out/fields.png`` (1-D and 2-D
-    meshes; a 3-D field is for ParaView only). Returns
+    meshes, and only with true fields: ``x=None`` writes the predictions alone; a 3-D
+    field is for ParaView only). Returns
     ``{name: path}`` of what was written.
     """
     out = Path(out)
-    x, y = np.asarray(x)[:samples], np.asarray(y)[:samples]
+    x = None if x is None else np.asarray(x)[:samples]
+    y = np.asarray(y)[:samples]
     xhat = predict(model, y)
     yhat = problem.operator.forward(xhat)
     written = {"fields": write_fields(out / "fields.vtu", problem, x, xhat, y, yhat)}
     points = problem.settings.get("sensor_points") if isinstance(problem.settings, dict) else None
     if points is not None:
         written["sensors"] = write_sensors(out / "sensors.vtu", points)
-    if png and cell_type(problem.disc.basis.mesh).dim < 3:
+    if png and x is not None and cell_type(problem.disc.basis.mesh).dim < 3:
         written["png"] = save_fields_png(out / "fields.png", *read_fields(written["fields"]),
                                          title=f"{problem.name}: test samples")
     return written

@@ -3,7 +3,10 @@
 :func:`atomic_write` writes into a temporary file in the target's own folder,
 flushes and ``fsync``\\ s it, ``os.replace``\\ s it over the target (atomic on POSIX
 and Windows) and ``fsync``\\ s the folder, so after it returns the new file also
-survives a power loss. A temporary left behind by a killed writer is named
+survives a power loss. The file gets the permissions of a plain ``open``
+(``0o666`` minus the umask), not :func:`tempfile.mkstemp`'s ``0o600``. On an error
+(a full disk: ``OSError`` ENOSPC) the temporary is removed and the old file stays
+as it was. A temporary left behind by a killed writer is named
 ``.<name>.<random>.tmp``; :func:`remove_stale_temporaries` deletes them (one writer
 per target assumed).
 """
@@ -22,6 +25,8 @@ def atomic_write(path, write) -> None:
     path = Path(path)
     fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
     try:
+        if hasattr(os, "fchmod"):
+            os.fchmod(fd, 0o666 & ~_umask())
         with os.fdopen(fd, "wb") as fh:
             write(fh)
             fh.flush()
@@ -31,6 +36,13 @@ def atomic_write(path, write) -> None:
         Path(tmp).unlink(missing_ok=True)
         raise
     fsync_dir(path.parent)
+
+
+def _umask() -> int:
+    """The process's umask (read by setting it and putting it back)."""
+    mask = os.umask(0o022)
+    os.umask(mask)
+    return mask
 
 
 def fsync_dir(folder: Path) -> None:

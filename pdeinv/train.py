@@ -26,9 +26,10 @@ import torch
 
 from ._checks import count, nonnegative, positive
 from .checkpoint import Checkpoint, check_identity, network_identity, plain, rng_states, set_rng_states
+from .data import as_observations, fingerprint, split
 from .files import write_csv
 from .methods.base import NonFiniteError, Resumable, UpdateRule
-from .methods.guard import apply_if_finite
+from .methods.guard import Snapshot, apply_if_finite
 from .nets import fit_preconditioning
 from .physics.capabilities import observes_field
 
@@ -77,16 +78,18 @@ class _Position:
     failures: int = 0  # consecutive rejected steps
     stopped_by: str | None = None  # a stopping rule or callback that ended the run
     scale: float = 1.0  # the step-size multiplier, lowered by step_factor after each rejected step
+    best: float = math.inf  # the lowest accepted batch loss (the loss-growth guard's reference)
 
     def saved(self) -> dict:
         return {"gen": self.gen.get_state(), "order": self.order, "pos": self.pos, "step": self.step,
                 "wall": self.wall, "failures": self.failures, "stopped_by": self.stopped_by,
-                "scale": self.scale}
+                "scale": self.scale, "best": self.best}
 
     def restore(self, p: dict) -> None:
         self.gen.set_state(p["gen"])
         self.order, self.pos, self.step, self.wall = p["order"], p["pos"], p["step"], p["wall"]
         self.failures, self.stopped_by, self.scale = p["failures"], p.get("stopped_by"), p["scale"]
+        self.best = p.get("best", math.inf)
 
 
 @dataclass
@@ -99,6 +102,7 @@ class _Run:
     test: tuple
     stop_state: object
     at: _Position
+    good: Snapshot = field(default_factory=Snapshot)  # the last verified state (methods.guard)
 
 
 @dataclass
@@ -107,7 +111,14 @@ class Trainer:
 
     Data: ``n_train`` and ``n_test`` pairs from ``problem.sample`` with seeds derived
     from ``seed`` (the two sets are independent draws); batches are drawn without
-    replacement, reshuffled every epoch. ``model=None`` takes ``problem.model()``
+    replacement, reshuffled every epoch. **Own data:** ``data=y`` (numpy ``(B, m)``, a
+    tensor, or a torch ``Dataset`` of observations) replaces the samples; the last
+    ``n_test`` rows are held out as the test set and, with a stopping rule, the
+    ``stop.n_val`` rows before them as its observations (:func:`pdeinv.data.split`);
+    ``n_train`` becomes the number of rows left. ``data_x`` ``(B, N)``, optional, are
+    the true fields, used only for ``x_err`` on the test rows (without them
+    ``metrics["x_err"]`` is None). The noise level is the problem's (``--set noise=``).
+    ``model=None`` takes ``problem.model()``
     after ``torch.manual_seed(seed)``; ``fit_scaling`` fits a model's input transform
     (PCA whitening, or the MLP's standardization) on the training observations with
     the problem's noise level (:func:`pdeinv.nets.fit_preconditioning`; never on ``x``).
@@ -121,27 +132,35 @@ class Trainer:
     (``steps``, ``time_budget``, the rule's name, or ``callback``) and
     ``metrics["steps"]`` at which step.
 
-    **Non-finite guard.** A step whose loss, prediction or update holds NaN/Inf is
-    *rejected*: :func:`pdeinv.methods.guard.apply_if_finite` checks the rule's
-    update before its transformation applies anything, so the parameters stay those
-    of the last good step. The trainer records the rejection in ``history`` (a row
+    **Guard.** A step whose loss, prediction or update holds NaN/Inf, or whose finite
+    loss exceeds ``max_loss_growth`` (default 1e3; None: off) times the lowest accepted
+    batch loss so far (not checked right after a roll-back: those parameters passed once), is
+    *rejected*: :func:`pdeinv.methods.guard.apply_if_finite`
+    checks the rule's update before its transformation applies anything. A step's loss
+    is that of the parameters the previous update left, so a rejection puts back the
+    **last good state** (:class:`~pdeinv.methods.guard.Snapshot`: the parameters and
+    rule/optimizer state whose loss last passed, i.e. from before the previous update,
+    and their step count): the update that blew up is undone, not only the rejected
+    one. The trainer records the rejection in ``history`` (a row
     with the step number, ``loss`` NaN and the message under ``rejected``), warns,
     multiplies the run's step-size multiplier by ``step_factor`` (default ½: the
     optimizer's lr for GD/SIP, the step for HIG; one multiplier for every rule)
     and retries with the next batch. After ``max_failures`` (default 5) consecutive rejections it raises
-    :class:`NonFiniteError` naming the step and the last good checkpoint. The
-    reduced step size is kept for the rest of the run (and checkpointed).
+    :class:`NonFiniteError` naming the step, the last good state (the model is left
+    in it) and the last checkpoint this run wrote. The reduced step size, the lowest
+    loss and the snapshot are kept for the rest of the run (and checkpointed).
 
     **Checkpoints.** With ``checkpoint=Checkpoint(path, every=k)`` the run is saved
     atomically every ``k`` accepted steps and after the last one (see
-    :mod:`pdeinv.checkpoint`): model and rule state, the step, the step-size
-    multiplier, history, wall time,
-    and the torch / numpy / Python generator states with the batch order and its
-    position. ``resume=True`` continues from that checkpoint (``FileNotFoundError``
+    :mod:`pdeinv.checkpoint`): model and rule state, the last good state, the step,
+    the step-size multiplier and lowest loss, history, wall time, and the torch /
+    numpy / Python generator states with the batch order and its position.
+    ``resume=True`` continues from that checkpoint (``FileNotFoundError``
     if there is none; ``ValueError`` if it belongs to another problem, network
     architecture, rule or rule hyper-parameter (as configured, not as lowered by
     the guard), or data setting). ``steps`` and ``time_budget`` may differ on
-    resume, to extend a run. A resumed run repeats the uninterrupted one bitwise (losses, errors,
+    resume, to extend a run (``ValueError`` if ``steps`` is below the checkpoint's step).
+    A resumed run repeats the uninterrupted one bitwise (losses, errors,
     parameters) on the same machine with the same torch/BLAS thread counts; with
     other thread counts reductions may be ordered differently and agreement is to
     float tolerance. Wall time spent after the last save is not counted.
@@ -168,8 +187,13 @@ class Trainer:
     resume: bool = False
     max_failures: int = 5
     step_factor: float = 0.5
+    max_loss_growth: float | None = 1e3
     device: str | torch.device = "cpu"
+    data: object = None  # own observations (B, m): array, tensor or torch Dataset
+    data_x: object = None  # their true fields (B, N), for errors only
     history: list[dict] = field(default_factory=list, init=False)
+    _own: dict | None = field(default=None, init=False, repr=False)
+    _saved_step: int | None = field(default=None, init=False, repr=False)
 
     def __post_init__(self):
         if self.steps is None and self.time_budget is None:
@@ -178,14 +202,19 @@ class Trainer:
             self.steps = count(self.steps, "steps")
         if self.time_budget is not None:
             nonnegative(self.time_budget, "time_budget")
-        self.n_train = count(self.n_train, "n_train")
         self.n_test = count(self.n_test, "n_test")
+        if self.data is not None:
+            self._own_data()
+        self.n_train = count(self.n_train, "n_train")
         self.batch_size = count(self.batch_size, "batch_size")
         if self.batch_size > self.n_train:
             raise ValueError(f"batch_size={self.batch_size} is larger than n_train={self.n_train}")
         self.eval_every = count(self.eval_every, "eval_every")
         self.max_failures = count(self.max_failures, "max_failures")
         positive(self.step_factor, "step_factor")
+        if self.max_loss_growth is not None and not positive(self.max_loss_growth, "max_loss_growth") > 1:
+            raise ValueError(f"max_loss_growth={self.max_loss_growth!r} is not allowed; "
+                             "expected a number > 1 or None")
         if not self.step_factor <= 1:
             raise ValueError(f"step_factor={self.step_factor!r} is not allowed; "
                              "expected 0 < step_factor <= 1")
@@ -193,34 +222,62 @@ class Trainer:
             raise ValueError("resume=True needs checkpoint=Checkpoint(path) to resume from")
 
     # -- data and evaluation -------------------------------------------------------------
+    def _own_data(self) -> None:
+        """Check ``data`` / ``data_x`` against the problem and hold out the test (and stop) rows."""
+        y = as_observations(self.data, self.problem.operator.n_out, "data")
+        x = None if self.data_x is None else as_observations(self.data_x, self.problem.N, "data_x")
+        if x is not None and len(x) != len(y):
+            raise ValueError(f"data_x has {len(x)} rows but data has {len(y)}; expected one x per y")
+        train, val, test = split(len(y), self.n_test, self.stop.n_val if self.stop is not None else 0)
+        self.n_train = train.stop
+        self._own = {"y": y[train], "y_val": y[val], "y_test": y[test],
+                     "x_test": None if x is None else x[test], "fingerprint": fingerprint(y),
+                     "rows": {"train": [0, train.stop], "stop": [val.start, val.stop],
+                              "test": [test.start, test.stop]}}
+
     def _data(self):
-        """``(y_train numpy, y_train torch, (x_test, y_test numpy, y_test torch))`` on ``device``."""
-        x, y = self.problem.sample(self.n_train, seed_stream(self.seed, TRAIN_DATA))
-        xt, yt = self.problem.sample(self.n_test, seed_stream(self.seed, TEST_DATA))
+        """``(y_train numpy, y_train torch, (x_test, y_test numpy, y_test torch))`` on ``device``
+        (``x_test`` None for own data without x)."""
+        if self._own is not None:
+            y = self._own["y"]
+        else:
+            _, y = self.problem.sample(self.n_train, seed_stream(self.seed, TRAIN_DATA))
+        xt, yt = self.held_out()
         dtype = self.dtype or torch.float32
         t = lambda a: torch.as_tensor(a, dtype=dtype, device=self.device)  # noqa: E731
         return y, t(y), (xt, yt, t(yt))
+
+    def held_out(self) -> tuple:
+        """The test set ``(x or None, y)`` as numpy: own data's last rows, or the seeded samples."""
+        if self._own is not None:
+            return self._own["x_test"], self._own["y_test"]
+        return self.problem.sample(self.n_test, seed_stream(self.seed, TEST_DATA))
 
     def _start_stop(self, y_train: np.ndarray):
         """The stopping rule's state, with its held-out observations (x discarded)."""
         if self.stop is None:
             return None
-        _, y_val = self.problem.sample(self.stop.n_val, seed_stream(self.seed, VAL_DATA))
+        if self._own is not None:
+            y_val = self._own["y_val"]
+        else:
+            _, y_val = self.problem.sample(self.stop.n_val, seed_stream(self.seed, VAL_DATA))
         return self.stop.init(self.problem, y_train, y_val)
 
     @torch.no_grad()
     def evaluate(self, model, test) -> dict:
-        """Mean relative L²(Ω) x- and y-errors on the test set."""
+        """Mean relative L²(Ω) x- and y-errors on the test set (no ``x_err`` when ``x`` is None)."""
         x, y, y_t = test
         xhat = model(y_t).double().cpu().numpy()
         if not np.isfinite(xhat).all():
-            return {"x_err": math.nan, "y_err": math.nan}
+            return {"y_err": math.nan} if x is None else {"x_err": math.nan, "y_err": math.nan}
         yhat = self.problem.operator.forward(xhat)
         disc = self.problem.disc
         if observes_field(self.problem.operator):  # declared, never guessed from shapes
             y_err = disc.relative_error(yhat, y)
         else:
             y_err = np.linalg.norm(yhat - y, axis=1) / np.linalg.norm(y, axis=1)
+        if x is None:
+            return {"y_err": float(np.mean(y_err))}
         return {"x_err": float(np.mean(self.problem.relative_error(xhat, x))),
                 "y_err": float(np.mean(y_err))}
 
@@ -228,18 +285,21 @@ class Trainer:
     def identity(self, model) -> dict:
         """What a checkpoint must share with this run to be resumed by it (the rule's *configured*
         hyper-parameters: the guard's lowered step size is run state, not identity)."""
+        trainer = {"seed": self.seed, "n_train": self.n_train, "n_test": self.n_test,
+                   "batch_size": self.batch_size, "dtype": str(self.dtype)}
+        if self._own is not None:
+            trainer["data"] = self._own["fingerprint"]
         return {"problem": getattr(self.problem, "name", None),
                 "settings": plain(getattr(self.problem, "settings", {})),
                 "network": network_identity(model), "rule": getattr(self.rule, "name", None),
-                "hyperparameters": plain(self.rule.hyperparameters()),
-                "trainer": {"seed": self.seed, "n_train": self.n_train, "n_test": self.n_test,
-                            "batch_size": self.batch_size, "dtype": str(self.dtype)}}
+                "hyperparameters": plain(self.rule.hyperparameters()), "trainer": trainer}
 
     def _save(self, run: _Run) -> None:
         self.checkpoint.save({
             "identity": self.identity(run.model), "model": run.model.state_dict(),
             "rule_state": self.rule.state_dict(run.state), "position": run.at.saved(),
-            "rng": rng_states(), "history": plain(self.history)})
+            "good": run.good.saved(), "rng": rng_states(), "history": plain(self.history)})
+        self._saved_step = run.at.step
 
     def _restore(self, run: _Run) -> None:
         ckpt = self.checkpoint
@@ -252,18 +312,28 @@ class Trainer:
             raise ValueError(f"checkpoint {str(ckpt.path)!r} lacks {', '.join(missing)}: not written by "
                              "pdeinv.Trainer; delete it to start over")
         check_identity(saved["identity"], self.identity(run.model), ckpt.path)
+        done = saved["position"]["step"]
+        if self.steps is not None and self.steps < done:
+            raise ValueError(f"resume: checkpoint {str(ckpt.path)!r} has {done} steps done; "
+                             f"steps={self.steps} is below that (give steps >= {done} to extend the run, "
+                             "or start over)")
         run.model.load_state_dict(saved["model"])  # copies into the same Parameters the optimizer holds
         run.state = self.rule.load_state_dict(run.state, saved["rule_state"])
         run.at.restore(saved["position"])
+        run.good.load(saved.get("good"))
         set_rng_states(saved["rng"])
         self.history = saved["history"]
+        self._saved_step = done
 
-    def _last_good(self) -> str:
+    def _last_good(self, run: _Run) -> str:
+        """The last good state the model was put back to, and the last checkpoint *this* run wrote."""
+        state = "no step was verified" if run.good.step is None else \
+            f"the model holds the last good state (after step {run.good.step})"
         if self.checkpoint is None:
-            return "checkpointing is off, nothing was saved"
-        if not self.checkpoint.exists():
-            return f"no checkpoint was written yet ({str(self.checkpoint.path)!r})"
-        return f"last good checkpoint: {str(self.checkpoint.path)!r}"
+            return f"{state}; checkpointing is off, nothing was saved"
+        if self._saved_step is None:
+            return f"{state}; no checkpoint was written yet ({str(self.checkpoint.path)!r})"
+        return f"{state}; last good checkpoint: {str(self.checkpoint.path)!r} (step {self._saved_step})"
 
     def _done(self, at: _Position) -> bool:
         return at.step >= 1 and (at.stopped_by is not None or (
@@ -305,29 +375,39 @@ class Trainer:
         return batch
 
     def _step(self, run: _Run, batch: torch.Tensor, bar) -> dict | None:
-        """One guarded step: its info, or ``None`` if rejected (step size lowered, parameters kept)."""
+        """One guarded step: its info, or ``None`` if rejected (last good state back, step size lowered)."""
         at, t0 = run.at, time.perf_counter()
+        # the growth check judges parameters not yet verified: not those just rolled back to
+        verified = self.max_loss_growth is None or run.good.step == at.step or not at.best > 0
+        limit = math.inf if verified else at.best * self.max_loss_growth
         try:
-            run.state, info = apply_if_finite(self.rule, run.state, run.model, batch, at.scale)
+            run.state, info = apply_if_finite(self.rule, run.state, run.model, batch, at.scale, limit,
+                                              run.good)
         except NonFiniteError as err:
             at.wall += time.perf_counter() - t0
-            self._reject(at, err, bar)
+            self._reject(run, err, bar)
             return None
         at.wall += time.perf_counter() - t0
         at.step += 1
         at.failures = 0
+        at.best = min(at.best, float(info["loss"]))
         return info
 
-    def _reject(self, at: _Position, err: NonFiniteError, bar) -> None:
+    def _reject(self, run: _Run, err: NonFiniteError, bar) -> None:
+        at = run.at
         at.failures += 1
         message = f"step {at.step + 1} ({getattr(self.rule, 'name', 'rule')}): {err}"
         self.history.append({"step": at.step + 1, "wall_s": at.wall, "loss": math.nan, "rejected": message})
+        back = ""
+        if run.good.step is not None and run.good.step < at.step:  # undo the update that blew up
+            run.state = run.good.restore(self.rule, run.state, run.model)
+            back, at.step = f", rolled back to the state after step {run.good.step}", run.good.step
         if at.failures >= self.max_failures:
             bar.close()
             raise NonFiniteError(f"{message}; stopped after {at.failures} consecutive rejected steps "
-                                 f"(max_failures={self.max_failures}); {self._last_good()}") from None
+                                 f"(max_failures={self.max_failures}); {self._last_good(run)}") from None
         at.scale *= self.step_factor
-        warnings.warn(f"{message}; step rejected, parameters unchanged, step size scaled by "
+        warnings.warn(f"{message}; step rejected{back}, step size scaled by "
                       f"{self.step_factor:g} (failure {at.failures} of at most {self.max_failures})",
                       RuntimeWarning, stacklevel=4)
 
@@ -353,7 +433,7 @@ class Trainer:
         for cb in self.callbacks:
             if cb(record, run.model) and not done:
                 done, at.stopped_by = True, "callback"
-        if done and "x_err" not in record:  # a callback stopped between evaluations
+        if done and "y_err" not in record:  # a callback stopped between evaluations
             record.update(self.evaluate(run.model, run.test))
         if self.checkpoint is not None and (done or at.step % self.checkpoint.every == 0):
             self._save(run)
@@ -379,7 +459,7 @@ class Trainer:
         last, at = self.history[-1], run.at
         metrics = {
             "problem": getattr(self.problem, "name", None), "method": getattr(self.rule, "name", None),
-            "steps": at.step, "wall_s": at.wall, "x_err": last["x_err"], "y_err": last["y_err"],
+            "steps": at.step, "wall_s": at.wall, "x_err": last.get("x_err"), "y_err": last["y_err"],
             "loss": last["loss"], "step_s": at.wall / at.step, "n_train": self.n_train,
             "n_test": self.n_test, "batch_size": self.batch_size, "seed": self.seed,
             "n_params": sum(p.numel() for p in run.model.parameters() if p.requires_grad),
@@ -387,6 +467,10 @@ class Trainer:
             "stopped_by": at.stopped_by or ("steps" if self.steps is not None and at.step >= self.steps
                                             else "time_budget"),
         }
+        if self._own is not None:
+            metrics["data"] = {"rows": self._own["rows"], "x": self._own["x_test"] is not None,
+                               "split": "in order: first rows train, then the stopping rule's rows, "
+                                        "the last n_test rows test"}
         if run.stop_state is not None:
             metrics["stop_rule"] = {"name": self.stop.name, **self.stop.describe(run.stop_state)}
         return metrics

@@ -1,6 +1,8 @@
-"""The NaN/Inf guard: a bad step is rejected (parameters and optimizer untouched), the step size is
-multiplied by ``step_factor`` (½), training goes on; ``max_failures`` consecutive rejections stop it
-with a message naming the step and the last good checkpoint, which stays intact."""
+"""The guard: a bad step (NaN/Inf, or a loss beyond ``max_loss_growth`` × the lowest so far) is
+rejected, the last good state (parameters and optimizer from before the previous update, whose loss
+was the last to pass) is put back, the step size is multiplied by ``step_factor`` (½), training goes
+on; ``max_failures`` consecutive rejections stop it with a message naming the step, the last good
+state and the last checkpoint, which stays intact."""
 
 from __future__ import annotations
 
@@ -44,24 +46,28 @@ def test_a_poisoned_step_is_rejected_the_lr_halved_and_training_continues(rule):
     with pytest.warns(RuntimeWarning, match=r"step 3 \(.*\): .*not finite.*step size scaled by 0.5"):
         r = t.fit()
     steps = [(h["step"], "rejected" in h) for h in r.history]
-    assert steps == [(1, False), (2, False), (3, True), (3, False), (4, False), (5, False), (6, False)]
+    # step 3's loss is that of step 2's parameters: not trusted, step 2 is undone and redone
+    assert steps == [(1, False), (2, False), (3, True), (2, False), (3, False), (4, False), (5, False),
+                     (6, False)]
     assert math.isnan(r.history[2]["loss"]) and all(math.isfinite(h["loss"]) for h in r.history if
                                                     "rejected" not in h)
     assert r.metrics["steps"] == 6 and r.metrics["rejected_steps"] == 1
     opt = r.state.transform  # the rule's transformation state: its torch optimizer
     base = 0.05 if rule.name == "gd" else 1e-3
     assert opt.param_groups[0]["lr"] == pytest.approx(0.5 * base)
-    if rule.name == "sip":  # Adam's moments saw only the 6 accepted steps
+    if rule.name == "sip":  # Adam's moments rolled back with the parameters: 6 surviving steps
         assert all(int(s["step"]) == 6 for s in opt.state.values())
 
 
 def test_rejected_step_leaves_the_parameters_of_the_last_good_step():
     kept = {}
     t = trainer(GD(adam(1e-3)), poison="4", max_failures=1, callbacks=[snapshots(kept)])
-    with pytest.raises(NonFiniteError, match=r"^step 4 \(gd\): .*not finite.*max_failures=1"):
+    with pytest.raises(NonFiniteError, match=r"^step 4 \(gd\): .*not finite.*max_failures=1\); "
+                                             r"the model holds the last good state \(after step 2\)"):
         t.fit()
     assert sorted(kept) == [1, 2, 3]
-    assert all(torch.equal(a, b) for a, b in zip(kept[3], t.model.parameters()))
+    # step 4's loss was that of step 3's parameters: the last verified ones are step 2's
+    assert all(torch.equal(a, b) for a, b in zip(kept[2], t.model.parameters()))
 
 
 def test_hig_scale_step_scales_its_update():
@@ -83,8 +89,9 @@ def test_consecutive_failures_stop_with_the_last_good_checkpoint(tmp_path):
     ckpt = Checkpoint(tmp_path / "c.pt", every=1)
     t = trainer(GD(adam(1e-3)), poison="3,4,5", max_failures=3, checkpoint=ckpt)
     with pytest.warns(RuntimeWarning), pytest.raises(
-            NonFiniteError, match=r"step 3 \(gd\).*3 consecutive rejected steps \(max_failures=3\); "
-                                  r"last good checkpoint: '.*c\.pt'"):
+            NonFiniteError, match=r"step 2 \(gd\).*3 consecutive rejected steps \(max_failures=3\); "
+                                  r"the model holds the last good state \(after step 1\); "
+                                  r"last good checkpoint: '.*c\.pt' \(step 2\)"):
         t.fit()
     saved = ckpt.load()
     assert saved["position"]["step"] == 2 and [h["step"] for h in saved["history"]] == [1, 2]
@@ -101,9 +108,10 @@ def test_cli_gives_up_with_one_line_and_keeps_the_checkpoint(tmp_path, capsys):
             "--out", str(out), "--threads", "1"]
     code = main([*argv, "--set", "poison=4,5,6", "--max-failures", "3"])
     *warned, err = capsys.readouterr().err.splitlines()
-    assert code == 1 and err.startswith("pdeinv train: numerical failure: step 4 (adam)")
+    assert code == 1 and err.startswith("pdeinv train: numerical failure: step 3 (adam)")
     assert "last good checkpoint" in err and "checkpoint.pt" in err
-    assert [w[:40] for w in warned] == ["pdeinv train: warning: step 4 (adam): th"] * 2  # one line each
+    assert [w[:40] for w in warned] == ["pdeinv train: warning: step 4 (adam): th",  # one line each
+                                        "pdeinv train: warning: step 3 (adam): th"]
     assert Checkpoint(out / "checkpoint.pt").load()["position"]["step"] == 3
     assert not (out / "metrics.json").exists()
     assert "rejected" in (out / "history.csv").read_text()
@@ -111,7 +119,8 @@ def test_cli_gives_up_with_one_line_and_keeps_the_checkpoint(tmp_path, capsys):
     # settings differ (poison) -- and with the same settings it resumes and finishes
     assert main([*argv, "--set", "poison=", "--resume"]) == 2
     assert "poison='4,5,6' (checkpoint) vs '' (this run)" in capsys.readouterr().err
-    # max_failures=5 lets this run through the three bad calls
+    # max_failures=5 lets this run through the three bad calls (step 7, then step 6 twice)
     assert main([*argv, "--set", "poison=4,5,6", "--resume"]) == 0
-    assert capsys.readouterr().err.count("warning: step 7 (adam)") == 3
+    err = capsys.readouterr().err
+    assert err.count("warning: step 7 (adam)") == 1 and err.count("warning: step 6 (adam)") == 2
     assert json.loads((out / "metrics.json").read_text())["steps"] == 8

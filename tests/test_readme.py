@@ -1,5 +1,6 @@
 """The README's tutorial runs as written (in a temporary folder: it writes two files)."""
 
+import json
 import re
 from pathlib import Path
 
@@ -15,4 +16,35 @@ def test_readme_tutorial_runs(tmp_path, monkeypatch, capsys):
     assert namespace["result"].metrics["x_err"] < 0.8
     assert (tmp_path / "prediction.png").stat().st_size > 1000
     assert (tmp_path / "prediction.vtu").is_file()
+    capsys.readouterr()
+
+
+def test_readme_own_observations_section_runs(tmp_path, monkeypatch, capsys):
+    """The "Your own observations" section: its python blocks, and its `pdeinv` lines through the CLI."""
+    import shlex
+
+    import numpy as np
+
+    from pdeinv.cli import main
+
+    section = README.read_text().split("### Your own observations", 1)[1].split("\n## ", 1)[0]
+    blocks = re.findall(r"```(python|bash)\n(.*?)```", section, flags=re.S)
+    assert [kind for kind, _ in blocks] == ["python", "bash", "python"]
+    monkeypatch.chdir(tmp_path)
+    namespace = {}
+    for kind, code in blocks:
+        if kind == "python":
+            exec(compile(code, str(README), "exec"), namespace)
+            continue
+        for line in code.strip().splitlines():
+            argv = shlex.split(line)
+            assert argv[0] == "pdeinv"
+            assert main([*argv[1:], "--threads", "1"]) == 0, capsys.readouterr().err
+    metrics = json.loads((tmp_path / "runs/own/metrics.json").read_text())
+    assert metrics["data"]["rows"] == {"train": [0, 400], "stop": [400, 400], "test": [400, 500]}
+    assert metrics["x_err"] < 0.5  # measured 0.237
+    xhat = np.load(tmp_path / "pred.npz")["x"]
+    assert xhat.shape == (100, namespace["problem"].N)
+    assert namespace["problem"].relative_error(xhat, namespace["x"][500:]).mean() < 0.5
+    assert (tmp_path / "pred.vtu").is_file()
     capsys.readouterr()

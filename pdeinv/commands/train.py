@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 import sys
 import warnings
+from pathlib import Path
 
 from . import UsageError, add_set_argument, parse_sets, prepare_out, set_threads
 
@@ -60,6 +61,57 @@ def _plot(history: list, path, title: str) -> None:
     plt.close(fig)
 
 
+def _check_flags(args, out) -> None:
+    """Refuse conflicting flags and an ``--out`` holding another run's files, before any work."""
+    from pdeinv.runs import existing_outputs
+
+    if args.resume and args.overwrite:
+        raise UsageError("--resume and --overwrite conflict: --resume continues the run in --out, "
+                         "--overwrite deletes it; pass one of them")
+    found = existing_outputs(out) if out.is_dir() else []
+    if found and not (args.overwrite or args.resume):
+        raise UsageError(f"{out / found[0]} exists; choose another --out, pass --resume to continue that "
+                         f"run or --overwrite to replace it (a previous run's files: {', '.join(found)})")
+    if args.checkpoint_every < 0:
+        raise UsageError(f"--checkpoint-every {args.checkpoint_every} is not allowed; "
+                         "expected an integer >= 1, or 0 for no checkpoints")
+    if args.resume and args.checkpoint_every == 0:
+        raise UsageError("--resume needs checkpoints; drop --checkpoint-every 0")
+    if args.export_samples < 0:
+        raise UsageError(f"--export-samples {args.export_samples} is not allowed; expected an integer >= 0")
+    if args.data and args.n_train is not None:
+        raise UsageError("--n-train does not apply with --data: the file's rows train, except the last "
+                         "--n-test (and the stopping rule's) rows, which are held out")
+
+
+class _Fresh:
+    """``--overwrite``: delete the previous run's files once, just before this run writes its first
+    file, so a run refused while setting up (a bad setting, a memory estimate) leaves them intact and
+    one that trained never leaves a mix of two runs."""
+
+    def __init__(self, out, enabled: bool):
+        self.out, self.pending = out, enabled
+
+    def __call__(self) -> None:
+        if self.pending:
+            from pdeinv.runs import clear_outputs
+
+            clear_outputs(self.out)
+            self.pending = False
+
+
+def _Checkpoint(path, every: int, fresh: _Fresh):
+    """A :class:`~pdeinv.checkpoint.Checkpoint` that calls ``fresh()`` before each save."""
+    from pdeinv.checkpoint import Checkpoint
+
+    class Fresh(Checkpoint):
+        def save(self, payload: dict) -> None:
+            fresh()
+            super().save(payload)
+
+    return Fresh(path, every)
+
+
 def cmd_train(args) -> int:
     """Train the default network; write metrics.json, history.csv, training.png, fields.vtu/png."""
     from pathlib import Path
@@ -67,46 +119,53 @@ def cmd_train(args) -> int:
     import torch
 
     import pdeinv
-    from pdeinv.checkpoint import Checkpoint
-    from pdeinv.errors import NonFiniteError
-    from pdeinv.files import atomic_write, write_csv
+    from pdeinv.data import read_npz
     from pdeinv.methods.presets import make_rule
-    from pdeinv.nets import MLP
-    from pdeinv.runlock import RunLock
+    from pdeinv.runs import network
     from pdeinv.train import Trainer
 
     out = Path(args.out)
     ckpt = out / "checkpoint.pt"
-    if (out / "metrics.json").exists() and not (args.overwrite or args.resume):
-        raise UsageError(f"{out / 'metrics.json'} exists; choose another --out, pass --resume to "
-                         "continue that run or --overwrite to replace it")
-    if ckpt.exists() and not (args.overwrite or args.resume):
-        raise UsageError(f"{ckpt} exists (an unfinished or finished run); pass --resume to continue it, "
-                         "--overwrite to start over, or choose another --out")
-    if args.checkpoint_every < 0:
-        raise UsageError(f"--checkpoint-every {args.checkpoint_every} is not allowed; "
-                         "expected an integer >= 1, or 0 for no checkpoints")
-    if args.resume and args.checkpoint_every == 0:
-        raise UsageError("--resume needs checkpoints; drop --checkpoint-every 0")
+    _check_flags(args, out)
     hidden = _hidden(args.hidden) if args.hidden else None
-    if args.export_samples < 0:
-        raise UsageError(f"--export-samples {args.export_samples} is not allowed; expected an integer >= 0")
+    fresh = _Fresh(out, args.overwrite)
     set_threads(args.threads)
-    problem = pdeinv.load_problem(args.problem, **parse_sets(args.set))
+    overrides = parse_sets(args.set)
+    problem = pdeinv.load_problem(args.problem, **overrides)
+    y, x = read_npz(args.data, problem.operator.n_out, problem.N) if args.data else (None, None)
     rule, hp = make_rule(args.method, problem.name, problem.noise, lr=args.lr, eta=args.eta, tau=args.tau,
                          batch_size=args.batch_size, hidden=hidden, optimizer=args.optimizer)
     stop = STOPS[args.stop](problem)
     torch.manual_seed(args.seed)
-    if hp["hidden"] is not None:
-        model = MLP(problem.operator.n_out, problem.operator.n_in, hidden=tuple(hp["hidden"]))
-    else:
-        model = problem.model()
-    trainer = Trainer(problem, rule, model, steps=args.steps, time_budget=args.time_budget,
-                      n_train=args.n_train, n_test=args.n_test, batch_size=hp["batch_size"],
+    net = {"kind": "mlp", "hidden": list(hp["hidden"])} if hp["hidden"] is not None else {"kind": "default"}
+    trainer = Trainer(problem, rule, network(problem, net), steps=args.steps, time_budget=args.time_budget,
+                      n_train=args.n_train or 1024, n_test=args.n_test, batch_size=hp["batch_size"],
                       seed=args.seed, eval_every=args.eval_every, max_failures=args.max_failures,
-                      checkpoint=Checkpoint(ckpt, args.checkpoint_every) if args.checkpoint_every else None,
-                      resume=args.resume, stop=stop)
+                      checkpoint=_Checkpoint(ckpt, args.checkpoint_every, fresh) if args.checkpoint_every
+                      else None,
+                      resume=args.resume, stop=stop, data=y, data_x=x)
     prepare_out(out)
+    try:
+        return _run(args, out, problem, overrides, net, hp, trainer, fresh)
+    except FileNotFoundError:  # e.g. --resume without a checkpoint: bad input (exit 2)
+        raise
+    except OSError as err:  # a full disk, no permission: not the input's fault, not numerical
+        where = f" ({err.filename})" if err.filename else ""
+        again = "; free space and continue with --resume" if (out / "checkpoint.pt").exists() else ""
+        print(f"pdeinv train: cannot write: {err.strerror or err}{where}{again}", file=sys.stderr)
+        return 1
+
+
+def _run(args, out, problem, overrides, net, hp, trainer, fresh) -> int:
+    """Train under the folder's lock and write every output; see :data:`pdeinv.runs.OUTPUTS`."""
+    import torch
+
+    from pdeinv.errors import NonFiniteError
+    from pdeinv.files import atomic_write, write_csv
+    from pdeinv.runlock import RunLock
+    from pdeinv.runs import RUN_FILE, clear_outputs, save_run
+
+    ckpt = out / "checkpoint.pt"
     with RunLock(out):  # one run per --out: a second one is refused
         try:
             with warnings.catch_warnings():  # a rejected step: one line on stderr, not a warning's two
@@ -114,31 +173,39 @@ def cmd_train(args) -> int:
                 warnings.showwarning = _one_line
                 result = trainer.fit()
         except NonFiniteError:
+            fresh()
             if trainer.history:
                 write_csv(trainer.history, out / "history.csv")
             raise
         except KeyboardInterrupt:
+            fresh()
             saved = f"continue from {ckpt} with --resume" if ckpt.exists() else "no checkpoint was written"
             print(f"pdeinv train: interrupted; {saved}", file=sys.stderr)
             return 130
+        fresh()
         metrics = {**result.metrics, "method": args.method, "hyperparameters": hp,
                    "settings": {k: v for k, v in problem.settings.items()},
                    "route": result.history[-1].get("route"), "torch_threads": torch.get_num_threads()}
+        if args.data:
+            metrics["data"] = {"file": str(args.data), **metrics["data"]}
         # atomic: a kill while writing never leaves a truncated metrics.json or model.pt
         text = json.dumps(metrics, indent=2, default=str).encode()
         atomic_write(out / "metrics.json", lambda fh: fh.write(text))
         write_csv(result.history, out / "history.csv")
         _plot(result.history, out / "training.png", f"{problem.name}, {args.method}")
-        atomic_write(out / "model.pt", lambda fh: torch.save(result.model.state_dict(), fh))
+        save_run(out, args.problem, overrides, net, result.model)
+        written = {"metrics.json", "history.csv", "training.png", "model.pt", RUN_FILE, "checkpoint.pt"}
+        x_test, y_test = trainer.held_out()
         if args.export_samples:  # ParaView files and a picture of a few held-out samples
             from pdeinv.export import export_run
-            from pdeinv.train import TEST_DATA, seed_stream
 
-            test = problem.sample(args.n_test, seed_stream(args.seed, TEST_DATA))
-            export_run(out, problem, result.model, *test, samples=min(args.export_samples, args.n_test))
+            files = export_run(out, problem, result.model, x_test, y_test,
+                               samples=min(args.export_samples, len(y_test)))
+            written |= {Path(p).name for p in files.values()}
+        clear_outputs(out, keep=written)  # e.g. fields.vtu of an earlier run or a resumed one
+        x_err = "n/a (no x in the data)" if metrics["x_err"] is None else f"{metrics['x_err']:.4f}"
         print(f"{problem.name} {args.method}: {metrics['steps']} steps ({metrics['stopped_by']}) in "
-              f"{metrics['wall_s']:.2f} s, "
-              f"x_err {metrics['x_err']:.4f}, y_err {metrics['y_err']:.4f} -> {out}")
+              f"{metrics['wall_s']:.2f} s, x_err {x_err}, y_err {metrics['y_err']:.4f} -> {out}")
         return 0
 
 
@@ -165,8 +232,16 @@ def add_parser(sub) -> None:
                         "128 held-out observations reaches 1.1x the noise level (the problem's, or an "
                         "estimate when it has none); 'auto' (default) uses it on noisy problems only")
     t.add_argument("--hidden", default=None, metavar="W,W", help="MLP hidden widths, e.g. 64,64")
-    t.add_argument("--n-train", type=int, default=1024)
-    t.add_argument("--n-test", type=int, default=128)
+    t.add_argument("--data", default=None, metavar="FILE.npz",
+                   help="train on your own observations: an .npz with y (B, m), optionally x (B, N) "
+                        "(used only to report errors). Rows keep their order: the last --n-test rows "
+                        "are the test set, the stopping rule's 128 rows (when it is on) come before "
+                        "them, the rest train; shuffle the rows first if the file is sorted. The noise "
+                        "level is the problem's (--set noise=...)")
+    t.add_argument("--n-train", type=int, default=None,
+                   help="training samples (default 1024; not with --data)")
+    t.add_argument("--n-test", type=int, default=128,
+                   help="test samples; with --data the last N rows of the file (default 128)")
     t.add_argument("--eval-every", type=int, default=50)
     t.add_argument("--threads", type=int, default=1,
                    help="torch threads (default 1: on 2 cores a heat_2d step of the default MLP took "
@@ -175,12 +250,15 @@ def add_parser(sub) -> None:
     t.add_argument("--export-samples", type=int, default=3, metavar="K",
                    help="write fields.vtu (ParaView) and fields.png for K test samples (0: none)")
     t.add_argument("--overwrite", action="store_true",
-                   help="replace an existing DIR/metrics.json and DIR/checkpoint.pt")
+                   help="delete the previous run's files in DIR first (only files pdeinv train writes: "
+                        "metrics.json, checkpoint.pt, model.pt, fields.vtu, ...); not with --resume")
     t.add_argument("--checkpoint-every", type=int, default=100, metavar="K",
                    help="save DIR/checkpoint.pt atomically every K steps and at the end (0: never)")
     t.add_argument("--resume", action="store_true",
-                   help="continue from DIR/checkpoint.pt (same problem, settings, network and seed)")
+                   help="continue from DIR/checkpoint.pt (same problem, settings, network, seed and "
+                        "data); --steps may grow, not shrink below the steps done")
     t.add_argument("--max-failures", type=int, default=5, metavar="K",
-                   help="stop after K consecutive steps with a NaN/Inf loss or update "
-                        "(each rejected step halves the learning rate / eta)")
+                   help="stop after K consecutive rejected steps (a NaN/Inf loss or update, or a loss "
+                        "over 1000x the lowest so far); each rejection restores the last good state "
+                        "and halves the learning rate / eta")
     t.set_defaults(func=cmd_train)

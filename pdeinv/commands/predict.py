@@ -1,0 +1,59 @@
+"""``pdeinv predict RUN_DIR --data obs.npz --out pred.npz``: apply a trained network to new observations.
+
+Reads ``y`` ``(B, m)`` (and ``x`` ``(B, N)`` if present, to report the error) from
+``--data`` (:func:`pdeinv.data.read_npz`), rebuilds the run's problem and network
+(:func:`pdeinv.runs.load_run`) and writes ``x`` ``(B, N)`` to ``--out`` atomically;
+``--vtu FILE`` also writes every prediction (and true field and error, when ``x`` is
+given) at the mesh vertices for ParaView (:func:`pdeinv.export.write_fields`).
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from . import UsageError, set_threads
+
+ORDER = 2
+
+
+def cmd_predict(args) -> int:
+    import io
+
+    import numpy as np
+
+    from pdeinv.data import read_npz
+    from pdeinv.export import predict, write_fields
+    from pdeinv.files import atomic_write
+    from pdeinv.runs import load_run
+
+    out = Path(args.out)
+    if out.suffix != ".npz":
+        raise UsageError(f"--out {args.out!r}: expected a file name ending in .npz")
+    if out.is_dir():
+        raise UsageError(f"--out {args.out!r} is a directory; expected a file name ending in .npz")
+    if args.vtu and Path(args.vtu).suffix not in (".vtu", ".xdmf"):
+        raise UsageError(f"--vtu {args.vtu!r}: expected a file name ending in .vtu or .xdmf")
+    set_threads(args.threads)
+    problem, model = load_run(args.run)
+    y, x = read_npz(args.data, problem.operator.n_out, problem.N)
+    xhat = predict(model, y)
+    buffer = io.BytesIO()
+    np.savez(buffer, x=xhat)
+    atomic_write(out, lambda fh: fh.write(buffer.getvalue()))
+    if args.vtu:
+        write_fields(args.vtu, problem, x, xhat, y, problem.operator.forward(xhat))
+    error = "" if x is None else f", x_err {float(np.mean(problem.relative_error(xhat, x))):.4f}"
+    print(f"{problem.name}: {len(xhat)} predictions{error} -> {out}" + (f", {args.vtu}" if args.vtu else ""))
+    return 0
+
+
+def add_parser(sub) -> None:
+    p = sub.add_parser("predict", help="apply a trained network (a train --out DIR) to observations (.npz)")
+    p.add_argument("run", metavar="RUN_DIR", help="the --out DIR of a finished `pdeinv train`")
+    p.add_argument("--data", required=True, metavar="FILE.npz",
+                   help="observations: an .npz with y (B, m); x (B, N) if present reports the error")
+    p.add_argument("--out", required=True, metavar="FILE.npz", help="where to write x (B, N)")
+    p.add_argument("--vtu", default=None, metavar="FILE.vtu",
+                   help="also write the predicted fields (and true ones and errors, with x) for ParaView")
+    p.add_argument("--threads", type=int, default=1, help="torch threads (default 1)")
+    p.set_defaults(func=cmd_predict)

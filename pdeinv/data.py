@@ -1,0 +1,105 @@
+"""A user's own observations: arrays, tensors, torch Datasets and ``.npz`` files, checked once.
+
+**File format** (``pdeinv train --data``, ``pdeinv predict --data``): an ``.npz`` with
+array ``y`` ``(B, m)``, the observations (required), and ``x`` ``(B, N)``, the true
+fields (optional; used only to report errors, never to train or to fit the whitening).
+
+**Held-out rows** (:func:`split`; one rule for ``Trainer(data=...)`` and the CLI): the
+rows keep their order. The **last** ``n_test`` rows are the test set (errors are
+reported on them); when a stopping rule is on, the ``n_val`` rows before them are
+its held-out observations; the first ``B − n_test − n_val`` rows train. Nothing is
+shuffled, so put the rows in random order if the file is sorted (by time, by
+sample…) and the test rows should be representative.
+
+Refused with a ``ValueError`` naming the file and what was expected: not an npz,
+an empty file, a missing ``y``, a wrong shape (``y`` must have the problem's ``m``
+columns, ``x`` its ``N`` and as many rows as ``y``), NaN or Inf, a non-numeric array,
+too few rows for the held-out sets and one batch.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import os
+from pathlib import Path
+
+import numpy as np
+
+
+def as_observations(data, m: int, name: str = "data") -> np.ndarray:
+    """``data`` (numpy array, torch tensor or torch ``Dataset``) as a float64 ``(B, m)`` array.
+
+    A Dataset item is one observation ``(m,)``, or a tuple whose first element is one
+    (``TensorDataset(y)``; further elements are ignored).
+    """
+    from torch.utils.data import Dataset
+
+    if isinstance(data, Dataset):
+        items = [data[i] for i in range(len(data))]
+        items = [item[0] if isinstance(item, (tuple, list)) else item for item in items]
+        data = np.stack([_numpy(item) for item in items]) if items else np.zeros((0, m))
+    return _rows(_numpy(data), m, name)
+
+
+def _numpy(a) -> np.ndarray:
+    return a.detach().cpu().numpy() if hasattr(a, "detach") else np.asarray(a)
+
+
+def _rows(a: np.ndarray, width: int, name: str) -> np.ndarray:
+    if a.dtype == object or not np.issubdtype(a.dtype, np.number) or np.iscomplexobj(a):
+        raise ValueError(f"{name} has dtype {a.dtype}; expected a real numeric array")
+    if a.ndim != 2 or a.shape[1] != width:
+        raise ValueError(f"{name} has shape {a.shape}; expected (B, {width}) for this problem")
+    if a.shape[0] == 0:
+        raise ValueError(f"{name} has no rows; expected (B, {width}) with B >= 1")
+    if not np.isfinite(a).all():
+        bad = tuple(int(i) for i in np.argwhere(~np.isfinite(a))[0])
+        raise ValueError(f"{name} holds {int((~np.isfinite(a)).sum())} NaN/Inf values (first at {bad}); "
+                         "expected finite values")
+    return np.ascontiguousarray(a, dtype=np.float64)
+
+
+def read_npz(path, m: int, n: int) -> tuple[np.ndarray, np.ndarray | None]:
+    """``(y, x or None)`` from an ``.npz`` file, checked against a problem's ``m`` and ``N = n``."""
+    path = Path(path)
+    where = f"data file {os.fspath(path)!r}"
+    if not path.exists():
+        raise FileNotFoundError(f"{where} does not exist")
+    if not path.is_file():
+        raise ValueError(f"{where} is not a file; expected an .npz with array 'y'")
+    if path.stat().st_size == 0:
+        raise ValueError(f"{where} is empty; expected an .npz with array 'y' (np.savez(file, y=y))")
+    try:
+        with np.load(path, allow_pickle=False) as f:
+            if not isinstance(f, np.lib.npyio.NpzFile):
+                raise ValueError("a single .npy array")
+            arrays = {k: f[k] for k in f.files if k in ("x", "y")}
+    except Exception as err:  # noqa: BLE001  (zip, pickle, header errors differ by content)
+        first = (str(err).strip().splitlines() or [type(err).__name__])[0][:100]
+        raise ValueError(f"{where} is not an .npz archive ({first}); expected np.savez(file, y=y[, x=x])") \
+            from None
+    if "y" not in arrays:
+        raise ValueError(f"{where} has no array 'y'; expected np.savez(file, y=y[, x=x]) with y (B, {m})")
+    y = _rows(arrays["y"], m, f"{where}: y")
+    x = arrays.get("x")
+    if x is not None:
+        x = _rows(x, n, f"{where}: x")
+        if len(x) != len(y):
+            raise ValueError(f"{where}: x has {len(x)} rows but y has {len(y)}; expected one x per y")
+    return y, x
+
+
+def split(rows: int, n_test: int, n_val: int = 0) -> tuple[slice, slice, slice]:
+    """``(train, val, test)`` row slices: the last ``n_test`` rows test, the ``n_val`` before them val."""
+    n_train = rows - n_test - n_val
+    if n_train < 2:
+        raise ValueError(f"the data has {rows} rows; {n_test} test rows"
+                         + (f" and {n_val} rows for the stopping rule" if n_val else "")
+                         + " are held out from its end, leaving fewer than 2 to train on "
+                         "(lower n_test / --n-test or give more rows)")
+    return slice(0, n_train), slice(n_train, n_train + n_val), slice(n_train + n_val, rows)
+
+
+def fingerprint(y: np.ndarray) -> str:
+    """A short hash of the observations: a checkpoint of other data is not resumed."""
+    return hashlib.sha256(np.ascontiguousarray(y, dtype=np.float64).tobytes()).hexdigest()[:16]

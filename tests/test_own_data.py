@@ -1,0 +1,192 @@
+"""Own data: ``Trainer(data=...)`` (array, tensor, Dataset), ``pdeinv train --data`` with its held-out
+rows, ``pdeinv predict`` and ``pdeinv.load_run``; bad files refused with exit 2 and one line."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+import torch
+
+import pdeinv
+from pdeinv.cli import main
+from pdeinv.methods import GD, adam
+from pdeinv.stopping import DiscrepancyStop
+from pdeinv.train import Trainer
+
+
+@pytest.fixture(autouse=True)
+def _one_thread(one_thread):
+    yield
+
+
+@pytest.fixture(scope="module")
+def heat():
+    return pdeinv.load_problem("heat_1d", n=16, backend="modal")
+
+
+@pytest.fixture(scope="module")
+def pairs(heat):
+    return heat.sample(60, seed=3)
+
+
+def fit(heat, data, **kw):
+    kw = {"steps": 3, "n_test": 10, "batch_size": 8, "progress": False, **kw}
+    return Trainer(heat, GD(adam(1e-3)), data=data, **kw)
+
+
+@pytest.mark.parametrize("wrap", [np.asarray, torch.tensor, lambda y: torch.utils.data.TensorDataset(
+    torch.tensor(y))], ids=["numpy", "tensor", "dataset"])
+def test_trainer_trains_on_own_observations_and_holds_out_the_last_rows(heat, pairs, wrap):
+    x, y = pairs
+    t = fit(heat, wrap(y), data_x=x)
+    r = t.fit()
+    assert t.n_train == 50 and r.metrics["data"]["rows"]["test"] == [50, 60]
+    np.testing.assert_array_equal(t.held_out()[1], y[50:])
+    np.testing.assert_array_equal(t._data()[0], y[:50])
+    # the whitening / input scaling is fitted on the training rows only
+    np.testing.assert_allclose(r.model.pre.mean.numpy() if hasattr(r.model, "pre") else r.model.shift.numpy(),
+                               y[:50].mean(0), rtol=1e-5, atol=1e-7)
+    assert 0 < r.metrics["x_err"] < 2
+
+
+def test_without_x_only_the_y_error_is_reported_and_the_stop_rows_come_from_the_data(heat, pairs):
+    _, y = pairs
+    t = fit(heat, y, stop=DiscrepancyStop(n_val=5, noise="estimate"))
+    r = t.fit()
+    assert r.metrics["x_err"] is None and r.metrics["y_err"] > 0
+    assert r.metrics["data"]["rows"] == {"train": [0, 45], "stop": [45, 50], "test": [50, 60]}
+
+
+@pytest.mark.parametrize("data, match", [
+    (np.zeros((60, 3)), r"data has shape \(60, 3\); expected \(B, 15\)"),
+    (np.zeros(15), r"data has shape \(15,\)"),
+    (np.zeros((0, 15)), "no rows"),
+    (np.full((60, 15), np.nan), "NaN/Inf"),
+    (np.array([["a"] * 15] * 20), "dtype"),
+    (np.ones((11, 15)), "fewer than 2 to train on"),
+])
+def test_trainer_refuses_bad_own_data(heat, data, match):
+    with pytest.raises(ValueError, match=match):
+        fit(heat, data)
+
+
+def test_a_checkpoint_of_other_data_is_not_resumed(heat, pairs, tmp_path):
+    _, y = pairs
+    ckpt = pdeinv.Checkpoint(tmp_path / "c.pt", every=1)
+    fit(heat, y, checkpoint=ckpt).fit()
+    with pytest.raises(ValueError, match="data"):
+        fit(heat, y[::-1].copy(), checkpoint=ckpt, resume=True, steps=5).fit()
+
+
+# -- the command line ----------------------------------------------------------------------------
+
+SMALL = ["--set", "n=16", "--set", "backend=modal", "--n-test", "10", "--batch-size", "8", "--steps", "3",
+         "--export-samples", "2"]
+
+
+def test_cli_train_predict_and_load_run(heat, pairs, tmp_path, capsys):
+    x, y = pairs
+    np.savez(tmp_path / "train.npz", y=y[:50], x=x[:50])
+    np.savez(tmp_path / "obs.npz", y=y[50:], x=x[50:])
+    out = tmp_path / "run"
+    assert main(["train", "heat_1d", "--data", str(tmp_path / "train.npz"), *SMALL, "--out", str(out)]) == 0
+    m = json.loads((out / "metrics.json").read_text())
+    assert m["data"]["file"].endswith("train.npz") and m["data"]["rows"]["test"] == [40, 50]
+    assert m["n_train"] == 40 and m["x_err"] is not None
+    problem, model = pdeinv.load_run(out)
+    assert problem.settings == heat.settings
+    pred = tmp_path / "pred.npz"
+    assert main(["predict", str(out), "--data", str(tmp_path / "obs.npz"), "--out", str(pred),
+                 "--vtu", str(tmp_path / "pred.vtu")]) == 0
+    assert "x_err" in capsys.readouterr().out
+    xhat = np.load(pred)["x"]
+    np.testing.assert_allclose(xhat, pdeinv.export.predict(model, y[50:]))
+    from pdeinv.export import read_fields
+
+    assert read_fields(tmp_path / "pred.vtu")[2]["x_pred"].shape[0] == 10
+
+
+def _bad_files(tmp, heat):
+    y = heat.sample(30, seed=0)[1]
+    files = {"wrong_m.npz": dict(y=np.zeros((30, 7))), "nan.npz": dict(y=np.where(y > 0, np.nan, y)),
+             "no_y.npz": dict(obs=y), "bad_x.npz": dict(y=y, x=np.zeros((30, 4))),
+             "x_rows.npz": dict(y=y, x=np.zeros((29, 15))), "empty_y.npz": dict(y=np.zeros((0, 15)))}
+    for name, arrays in files.items():
+        np.savez(tmp / name, **arrays)
+    (tmp / "empty.npz").write_bytes(b"")
+    (tmp / "text.npz").write_text("y = 1, 2, 3\n")
+    np.save(tmp / "single.npy", y)
+
+
+@pytest.mark.parametrize("command, file, match", [
+    ("train", "wrong_m.npz", r"y has shape \(30, 7\); expected \(B, 15\)"),
+    ("train", "nan.npz", "NaN/Inf"),
+    ("train", "no_y.npz", "has no array 'y'"),
+    ("train", "bad_x.npz", r"x has shape \(30, 4\); expected \(B, 15\)"),
+    ("train", "x_rows.npz", "x has 29 rows but y has 30"),
+    ("train", "empty_y.npz", "no rows"),
+    ("train", "empty.npz", "is empty"),
+    ("train", "text.npz", "is not an .npz archive"),
+    ("train", "single.npy", "is not an .npz archive"),
+    ("train", "missing.npz", "does not exist"),
+    ("predict", "wrong_m.npz", r"y has shape \(30, 7\)"),
+    ("predict", "nan.npz", "NaN/Inf"),
+    ("predict", "no_y.npz", "has no array 'y'"),
+    ("predict", "empty.npz", "is empty"),
+])
+def test_cli_bad_data_files_exit_2_with_one_line(heat, tmp_path, capsys, command, file, match):
+    _bad_files(tmp_path, heat)
+    run = tmp_path / "run"
+    if command == "predict":
+        x, y = heat.sample(30, seed=1)
+        np.savez(tmp_path / "ok.npz", y=y)
+        assert main(["train", "heat_1d", "--data", str(tmp_path / "ok.npz"), *SMALL, "--out", str(run)]) == 0
+        capsys.readouterr()
+        argv = ["predict", str(run), "--data", str(tmp_path / file), "--out", str(tmp_path / "p.npz")]
+    else:
+        argv = ["train", "heat_1d", "--data", str(tmp_path / file), *SMALL, "--out", str(run)]
+    code = main(argv)
+    err = capsys.readouterr().err.splitlines()
+    assert code == 2 and len(err) == 1, err
+    assert err[0].startswith(f"pdeinv {command}: error: ") and "Traceback" not in err[0]
+    import re
+
+    assert re.search(match, err[0]), err[0]
+    assert not (tmp_path / "p.npz").exists()
+
+
+@pytest.mark.parametrize("setup, argv_tail, match", [
+    ("none", [], "is not a directory"),
+    ("empty", [], "holds no run.json or model.pt"),
+    ("no_model", [], "holds no model.pt"),
+    ("ok", ["--out-name", "p.txt"], "ending in .npz"),
+    ("ok", ["--vtu", "p.png"], "ending in .vtu or .xdmf"),
+])
+def test_cli_predict_refuses_a_run_folder_without_a_model(heat, pairs, tmp_path, capsys, setup, argv_tail,
+                                                         match):
+    run = tmp_path / "run"
+    x, y = pairs
+    np.savez(tmp_path / "obs.npz", y=y)
+    if setup != "none":
+        run.mkdir()
+    if setup in ("no_model", "ok"):
+        assert main(["train", "heat_1d", "--data", str(tmp_path / "obs.npz"), *SMALL, "--out", str(run)]) == 0
+        capsys.readouterr()
+    if setup == "no_model":
+        (run / "model.pt").unlink()
+    out = "p.npz"
+    if argv_tail[:1] == ["--out-name"]:
+        out, argv_tail = argv_tail[1], []
+    code = main(["predict", str(run), "--data", str(tmp_path / "obs.npz"), "--out", str(tmp_path / out),
+                 *argv_tail])
+    err = capsys.readouterr().err.splitlines()
+    assert code == 2 and len(err) == 1 and err[0].startswith("pdeinv predict: error: ") and match in err[0]
+
+
+def test_cli_n_train_with_data_is_refused(tmp_path, pairs, capsys):
+    np.savez(tmp_path / "d.npz", y=pairs[1])
+    code = main(["train", "heat_1d", "--data", str(tmp_path / "d.npz"), "--n-train", "20", *SMALL,
+                 "--out", str(tmp_path / "run")])
+    assert code == 2 and "--n-train does not apply with --data" in capsys.readouterr().err

@@ -1,0 +1,118 @@
+"""Consistent run folders: ``--overwrite`` clears the previous run's files (only pdeinv's), conflicting
+flags are refused, outputs respect the umask, a full disk during a checkpoint leaves the previous one
+intact and says so in one line."""
+
+from __future__ import annotations
+
+import errno
+import json
+import os
+import stat
+from pathlib import Path
+
+import pytest
+
+from pdeinv import Checkpoint
+from pdeinv.cli import main
+
+FAULTS = str(Path(__file__).with_name("faults.py"))
+SMALL = ["--set", "n=16", "--n-train", "32", "--n-test", "16", "--batch-size", "8",
+         "--hidden", "16", "--threads", "1"]
+
+
+@pytest.fixture(autouse=True)
+def _one_thread(one_thread):
+    yield
+
+
+def train(out, *extra, problem="heat_1d", steps=4):
+    return main(["train", problem, *SMALL, "--steps", str(steps), "--out", str(out), *extra])
+
+
+def one_line(capsys, head):
+    err = capsys.readouterr().err.splitlines()
+    assert len(err) == 1 and err[0].startswith(head) and "Traceback" not in err[0], err
+    return err[0]
+
+
+def test_overwrite_clears_the_previous_runs_files_and_only_those(tmp_path, capsys):
+    out = tmp_path / "run"
+    assert train(out, "--export-samples", "2") == 0
+    assert {"fields.vtu", "fields.png", "checkpoint.pt"} <= {p.name for p in out.iterdir()}
+    (out / "notes.txt").write_text("mine")
+    assert train(out, "--export-samples", "0", "--checkpoint-every", "0", "--overwrite") == 0
+    names = {p.name for p in out.iterdir()}
+    assert names == {"metrics.json", "history.csv", "training.png", "model.pt", "run.json", "notes.txt"}
+    capsys.readouterr()
+
+
+def test_a_stale_picture_alone_is_a_previous_run(tmp_path, capsys):
+    out = tmp_path / "run"
+    out.mkdir()
+    (out / "fields.vtu").write_text("stale")
+    assert train(out) == 2
+    assert "fields.vtu exists; " in one_line(capsys, "pdeinv train: error: ")
+
+
+def test_a_failed_overwrite_run_never_names_the_old_checkpoint(tmp_path, capsys):
+    out = tmp_path / "run"
+    assert train(out, "--checkpoint-every", "1", "--export-samples", "0") == 0
+    capsys.readouterr()
+    code = train(out, "--set", "poison=1,2,3", "--max-failures", "3", "--overwrite", problem=FAULTS)
+    err = capsys.readouterr().err.splitlines()[-1]
+    assert code == 1 and "no checkpoint was written yet" in err and "last good checkpoint" not in err
+    assert not (out / "checkpoint.pt").exists() and not (out / "metrics.json").exists()
+    assert not (out / "model.pt").exists() and "rejected" in (out / "history.csv").read_text()
+
+
+def test_resume_with_overwrite_is_refused(tmp_path, capsys):
+    assert train(tmp_path / "run", "--resume", "--overwrite") == 2
+    assert "--resume and --overwrite conflict" in one_line(capsys, "pdeinv train: error: ")
+
+
+def test_resume_with_fewer_steps_than_done_is_refused(tmp_path, capsys):
+    out = tmp_path / "run"
+    assert train(out, "--export-samples", "0", steps=6) == 0
+    capsys.readouterr()
+    before = (out / "metrics.json").read_bytes()
+    assert train(out, "--resume", "--export-samples", "0", steps=3) == 2
+    assert "6 steps done; steps=3 is below that" in one_line(capsys, "pdeinv train: error: ")
+    assert (out / "metrics.json").read_bytes() == before
+    assert train(out, "--resume", "--export-samples", "0", steps=8) == 0  # extending is fine
+    assert json.loads((out / "metrics.json").read_text())["steps"] == 8
+
+
+@pytest.mark.parametrize("umask", [0o022, 0o027])
+def test_outputs_respect_the_umask(tmp_path, capsys, umask):
+    old = os.umask(umask)
+    try:
+        assert train(tmp_path / "run", "--export-samples", "1") == 0
+    finally:
+        os.umask(old)
+    modes = {p.name: stat.S_IMODE(p.stat().st_mode) for p in (tmp_path / "run").iterdir()}
+    for name in ("metrics.json", "history.csv", "model.pt", "checkpoint.pt", "run.json"):
+        assert modes[name] == 0o666 & ~umask, (name, oct(modes[name]))
+
+
+def test_a_full_disk_during_a_checkpoint_keeps_the_previous_one(tmp_path, capsys, monkeypatch):
+    import torch
+
+    import pdeinv.checkpoint
+
+    out, calls, real = tmp_path / "run", [], torch.save
+
+    def save(obj, fh, *a, **kw):
+        calls.append(1)
+        if len(calls) == 3:  # the third checkpoint: half written, then the disk is full
+            fh.write(b"x" * 100)
+            raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
+        return real(obj, fh, *a, **kw)
+
+    monkeypatch.setattr(pdeinv.checkpoint.torch, "save", save)
+    code = train(out, "--checkpoint-every", "1", "--export-samples", "0", steps=5)
+    line = one_line(capsys, "pdeinv train: cannot write: checkpoint ")
+    assert code == 1 and "No space left on device" in line and "previous checkpoint is intact" in line
+    assert "--resume" in line
+    monkeypatch.setattr(pdeinv.checkpoint.torch, "save", real)
+    assert Checkpoint(out / "checkpoint.pt").load()["position"]["step"] == 2
+    assert not list(out.glob(".*.tmp"))
