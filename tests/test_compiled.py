@@ -20,7 +20,8 @@ CASES = [(name, kind) for name in SCENES for kind in ("dense", "svd")]
 
 
 def _pair(name, kind):
-    return load(name, backend=kind, **SCENES[name]).operator, load(name, backend="steps", **SCENES[name]).operator
+    kw = SCENES[name]
+    return load(name, backend=kind, **kw).operator, load(name, backend="steps", **kw).operator
 
 
 @pytest.mark.parametrize("name, kind", CASES)

@@ -36,7 +36,7 @@ def test_symmetric_only_solvers_refuse_a_nonsymmetric_matrix():
 
 
 def test_advection_operator_is_not_symmetric_and_its_adjoint_is_exact():
-    p = load("advection_diffusion_2d", n=8, speed=2.0, steps=10)
+    p = load("advection_diffusion_2d", n=8, speed=2.0, steps=10, backend="steps")
     op = p.operator
     assert not op.symmetric and not is_symmetric(op.stepper.A)
     P = op.forward(np.eye(op.n_in)).T
@@ -48,9 +48,10 @@ def test_advection_operator_is_not_symmetric_and_its_adjoint_is_exact():
             p.disc.M, p.disc.K, C=op.C, backend="modal")
 
 
-def test_advection_inverse_round_trip_through_the_generic_cg_solve():
-    p = load("advection_diffusion_2d", n=8, steps=10)
-    assert isinstance(p.inverse_simulator, TikhonovCG)
+@pytest.mark.parametrize("backend, inverse", [("steps", "TikhonovCG"), ("auto", "SpectralTikhonov")])
+def test_advection_inverse_round_trip_chosen_by_capability(backend, inverse):
+    p = load("advection_diffusion_2d", n=8, steps=10, backend=backend)
+    assert type(p.inverse_simulator).__name__ == inverse
     x, y = p.sample(3, seed=1)
     x0 = np.zeros_like(x)
     assert np.allclose(p.inverse(p.operator.forward(x0), x0), x0)  # exact at y = P x0
@@ -74,10 +75,12 @@ def test_streamline_diffusion_is_symmetric_psd_along_the_flow_and_off_below_pecl
 def test_sensor_records_are_plain_numbers_even_when_there_are_as_many_as_unknowns():
     """Verified bug: with n_out == N the Tikhonov inverse weighted sensor time series by the
     field mass matrix. The output space is declared, not guessed from shapes."""
-    p = load("heat_sensors_2d", n=4, sensors=9, steps=10, record_every=10)
+    p = load("heat_sensors_2d", n=4, sensors=9, steps=10, record_every=10, backend="steps")
     assert p.operator.n_out == p.operator.n_in
     assert not observes_field(p.operator)
     assert p.inverse_simulator.M_out is None
+    svd = load("heat_sensors_2d", n=4, sensors=9, steps=10, record_every=10, backend="svd").operator
+    assert svd.modes.mass_out is None  # the SVD in Euclidean norm on the records side
     assert observes_field(load("heat_2d", n=4).operator)
 
 
