@@ -106,3 +106,15 @@ def test_hig_on_compressed_rows_takes_the_same_step(name, kw):
     for da, db in zip(a.direction, b.direction, strict=True):
         assert torch.allclose(da, db, rtol=1e-6, atol=1e-9 * db.abs().max())
     assert a.info["rank"] == b.info["rank"]
+
+
+def test_bench_has_a_line_per_backend():
+    from pdeinv.bench import backends
+
+    res = backends.lines(load("wave_sensors_2d", **SCENES["wave_sensors_2d"]), repeats=1)
+    assert set(res["lines"]) == {"steps", "dense", "svd"}
+    for line in res["lines"].values():
+        assert line["outcome"] == "ok" and line["agreement"] <= 1e-10 and line["apply_s"] > 0
+    assert res["lines"]["dense"]["memory_mb"] > 0 and res["lines"]["steps"]["memory_mb"] == 0
+    heat = backends.lines(load("heat_2d", n=6, kappa=0.1), repeats=1)["lines"]
+    assert "modal" in heat and heat["modal"]["rank"] < 25

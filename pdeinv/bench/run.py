@@ -23,7 +23,7 @@ from .. import references as refs
 from ..files import atomic_write
 from ..physics import Heat
 from ..train import TEST_DATA, TRAIN_DATA, seed_stream
-from . import amortize, forward, methods, plots, skips
+from . import amortize, backends, forward, methods, plots, skips
 from .ratios import operator_ratios
 from .steps import step_ratios
 from .timing import machine
@@ -88,6 +88,8 @@ def _bench(problem, out, quick, budget_s, seed, log) -> dict:
                      batch=min(32, n_train), hig_batch=methods.HIG_BATCH, repeats=repeats, seed=seed)
     res["ratios"] = {**op_r, **st}
 
+    log("[bench] backends: build, apply, memory, agreement")
+    res["backends"] = backends.lines(problem, repeats=repeats, seed=seed)
     log("[bench] forward accuracy ladder")
     ns, ks = forward.default_ladder(problem, quick)
     lad = forward.ladder(problem, ns, ks, repeats=max(1, repeats - 2))
@@ -138,6 +140,11 @@ def summary(res: dict) -> str:
              f"reference: MMSE x_err {ref['mmse_x_err']:.4f}, "
              f"best-α Tikhonov x_err {ref['tikhonov_best_x_err']:.4f}, "
              f"best spectral filter x_err {ref['filter_best_x_err']:.4f}"]
+    for name, b in (res.get("backends") or {}).get("lines", {}).items():
+        ok = b["outcome"] == "ok"
+        text = (f"build {fmt(b['build_s'])} s  apply {b['apply_s'] * 1e3:.2f} ms  {b['memory_mb']:.1f} MB  "
+                f"agreement {b['agreement']:.1e}") if ok else b["outcome"]
+        lines.append(f"  backend {name:6s} {text}")
     for name, m in res["methods"].items():
         lines.append(f"  {name:22s} x_err {m['x_err']:.4f}  y_err {m['y_err']:.4f}  "
                      f"wall {fmt(m['wall_s'])} s  steps {m.get('steps')} ({m.get('stopped_by')})")
