@@ -186,7 +186,7 @@ def test_string_overrides_from_the_cli():
     ("wave_sensors_2d", dict(record_every=0), r"record_every=0.*integer >= 1"),
     ("wave_sensors_2d", dict(steps=10, record_every=3),
      r"record_every=3 does not divide steps=10.*1, 2, 5, 10"),
-    ("heat_sensors_2d", dict(backend="modal"), r"backend='modal'.*auto.*steps.*dense.*svd"),  # records: no modes
+    ("heat_sensors_2d", dict(backend="modal"), r"backend='modal'.*auto.*steps.*dense.*svd"),
     ("heat_plate", dict(refine=-1), r"refine=-1.*integer >= 0"),
 ])
 def test_bad_inputs(name, overrides, match):
