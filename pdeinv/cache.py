@@ -48,7 +48,7 @@ _warned: set[str] = set()
 
 
 def folder() -> Path:
-    """The cache folder (not created): ``$PDEINV_CACHE_DIR``, ``$XDG_CACHE_HOME/pdeinv`` or ``~/.cache/pdeinv``."""
+    """The folder (not created): ``$PDEINV_CACHE_DIR``, ``$XDG_CACHE_HOME/pdeinv`` or ``~/.cache/pdeinv``."""
     if os.environ.get("PDEINV_CACHE_DIR"):
         return Path(os.environ["PDEINV_CACHE_DIR"])
     base = os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache"
@@ -76,8 +76,8 @@ def _feed(h, name: str, value) -> None:
         try:
             h.update(("json" + json.dumps(value, sort_keys=True, allow_nan=True)).encode())
         except TypeError:
-            raise TypeError(f"cache key part {name!r} is a {type(value).__name__}; allowed: sparse "
-                            "matrices, numpy arrays, numbers, strings, None and lists/dicts of them") from None
+            raise TypeError(f"cache key part {name!r} is a {type(value).__name__}; allowed: sparse matrices, "
+                            "numpy arrays, numbers, strings, None and lists/dicts of them") from None
 
 
 def key(kind: str, parts: dict) -> str:
@@ -102,7 +102,7 @@ def _header(k: str, arrays: dict) -> dict:
 
 
 def _load(path: Path, k: str, verify) -> dict:
-    """The arrays of the entry at ``path``; ``ValueError`` with the reason if it is not a valid entry for ``k``."""
+    """The arrays of the entry at ``path``; ``ValueError`` saying why if it is no valid entry for ``k``."""
     try:
         with np.load(path, allow_pickle=False) as z:
             arrays = {n: z[n] for n in z.files}

@@ -6,7 +6,7 @@ import json
 import sys
 import warnings
 
-from . import UsageError, add_set_argument, parse_sets, prepare_out, set_threads
+from . import UsageError, add_set_argument, no_cache, parse_sets, prepare_out, set_threads
 
 ORDER = 1
 
@@ -92,6 +92,7 @@ def cmd_train(args) -> int:
     if args.export_samples < 0:
         raise UsageError(f"--export-samples {args.export_samples} is not allowed; expected an integer >= 0")
     set_threads(args.threads)
+    no_cache(args)
     problem = pdeinv.load_problem(args.problem, **parse_sets(args.set))
     rule, hp = make_rule(args.method, problem.name, problem.noise, lr=args.lr, eta=args.eta, tau=args.tau,
                          batch_size=args.batch_size, hidden=hidden, optimizer=args.optimizer)
@@ -152,6 +153,7 @@ def add_parser(sub) -> None:
     t.add_argument("--time-budget", type=float, default=None, metavar="SECONDS",
                    help="also stop once training wall time exceeds this")
     t.add_argument("--seed", type=int, default=0)
+    t.add_argument("--no-cache", action="store_true", help="no disk cache of factorizations")
     t.add_argument("--out", required=True, metavar="DIR")
     add_set_argument(t)
     t.add_argument("--lr", type=float, default=None, help="optimizer learning rate (gd, adam, sip)")
