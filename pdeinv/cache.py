@@ -60,6 +60,12 @@ def enabled() -> bool:
     return os.environ.get("PDEINV_NO_CACHE", "") in ("", "0")
 
 
+def _plain(value):
+    if isinstance(value, np.generic):  # numpy scalars hash like the Python numbers they equal
+        return value.item()
+    raise TypeError(type(value).__name__)
+
+
 def _feed(h, name: str, value) -> None:
     h.update(f"\0{name}\0".encode())
     if sp.issparse(value):
@@ -74,7 +80,7 @@ def _feed(h, name: str, value) -> None:
         h.update(np.ascontiguousarray(value).tobytes())
     else:
         try:
-            h.update(("json" + json.dumps(value, sort_keys=True, allow_nan=True)).encode())
+            h.update(("json" + json.dumps(value, sort_keys=True, default=_plain)).encode())
         except TypeError:
             raise TypeError(f"cache key part {name!r} is a {type(value).__name__}; allowed: sparse matrices, "
                             "numpy arrays, numbers, strings, None and lists/dicts of them") from None

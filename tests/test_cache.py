@@ -70,6 +70,8 @@ def test_key_is_a_content_hash():
     B.indices, B.indptr = B.indices.astype(np.int64), B.indptr.astype(np.int64)
     assert len({cache.key("t", {"A": X}) for X in (A, B, A.tocoo(), A.tocsc())}) == 1
     assert cache.key("t", {"A": A}) != cache.key("t", {"A": A.T})
+    numpy_scalars = {"s": {"n": np.int64(3), "x": np.float32(0.5)}}
+    assert cache.key("t", numpy_scalars) == cache.key("t", {"s": {"x": 0.5, "n": 3}})
     assert cache.key("t", parts()) != cache.key("u", parts())
     with pytest.raises(TypeError, match="'f' is a function"):
         cache.key("t", {"f": lambda: 0})
