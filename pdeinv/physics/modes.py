@@ -7,8 +7,8 @@ number of modes ``k`` it expects to need (the modal backend: Weyl's law plus a
 margin); one call computes them and ``enough(lam)`` (the ascending eigenvalues)
 checks that the cut-off was passed; only if not, ``k`` is doubled and eigsh
 called again. Each ARPACK call costs about ``N·k²`` and dominates, so the first
-guess matters: the former start at 64 modes with doubling took 4 calls (92 s)
-where one call with the Weyl count takes 25 s (heat_2d, n=128, one thread).
+guess matters: the former start at 64 modes with doubling took 4 calls (67 s)
+where one call with the Weyl count takes 22 s (heat_2d, n=128, one thread).
 ARPACK starts from a fixed random vector, so a build is reproducible.
 """
 
