@@ -14,6 +14,16 @@ def _torch_threads():
     torch.set_num_threads(n)
 
 
+@pytest.fixture(autouse=True, scope="session")
+def _private_cache(tmp_path_factory):
+    """The disk cache (pdeinv.cache) in a fresh folder, on: tests never read or write the user's cache.
+    Subprocesses started by tests inherit the environment."""
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setenv("PDEINV_CACHE_DIR", str(tmp_path_factory.mktemp("pdeinv-cache")))
+        mp.delenv("PDEINV_NO_CACHE", raising=False)
+        yield
+
+
 @pytest.fixture(autouse=True)
 def _seed():
     np.random.seed(0)

@@ -7,6 +7,8 @@ Modules import their heavy dependencies inside ``func`` so ``pdeinv --help`` sta
 
 from __future__ import annotations
 
+import os
+
 
 class UsageError(Exception):
     """A user mistake the CLI reports in one line (exit code 2)."""
@@ -59,3 +61,9 @@ def set_threads(n: int) -> None:
     import torch
 
     torch.set_num_threads(n)
+
+
+def no_cache(args) -> None:
+    """``--no-cache``: ``PDEINV_NO_CACHE=1`` for this process (:mod:`pdeinv.cache` then recomputes)."""
+    if getattr(args, "no_cache", False):
+        os.environ["PDEINV_NO_CACHE"] = "1"

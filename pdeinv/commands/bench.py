@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from . import UsageError, add_set_argument, parse_sets, prepare_out, run_parser
+from . import UsageError, add_set_argument, no_cache, parse_sets, prepare_out, run_parser
 
 ORDER = 2
 
@@ -18,6 +18,7 @@ def cmd_bench(args) -> int:
         raise UsageError(f"--budget-s {args.budget_s!r} is not allowed; expected seconds > 0")
     if args.threads < 1:
         raise UsageError(f"--threads {args.threads} is not allowed; expected an integer >= 1")
+    no_cache(args)
     problem = pdeinv.load_problem(args.problem, **parse_sets(args.set))
     out = Path(args.out)
     prepare_out(out)
@@ -35,6 +36,7 @@ def add_parser(sub) -> None:
     b.add_argument("--budget-s", type=float, default=20.0, metavar="S",
                    help="training wall time per method (default 20)")
     b.add_argument("--seed", type=int, default=0)
+    b.add_argument("--no-cache", action="store_true", help="no disk cache of factorizations")
     b.add_argument("--threads", type=int, default=1,
                    help="torch threads during the run (default 1: steadier timings on a shared machine)")
     add_set_argument(b)

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from . import add_set_argument, parse_sets, prepare_out, run_parser
+from . import add_set_argument, no_cache, parse_sets, prepare_out, run_parser
 
 ORDER = 3
 
@@ -17,6 +17,7 @@ def cmd_stress(args) -> int:
     from pdeinv.files import atomic_write
     from pdeinv.runlock import RunLock
 
+    no_cache(args)
     todo = cases.cases(args.problem, parse_sets(args.set), quick=args.quick)
     out = Path(args.out)
     prepare_out(out)
@@ -33,5 +34,6 @@ def cmd_stress(args) -> int:
 def add_parser(sub) -> None:
     s = run_parser(sub, "stress", "numerical stress sweeps; write DIR/stress.json",
                    quick="fewer values per sweep, shorter training")
+    s.add_argument("--no-cache", action="store_true", help="no disk cache of factorizations")
     add_set_argument(s)
     s.set_defaults(func=cmd_stress)

@@ -7,7 +7,7 @@ import sys
 import warnings
 from pathlib import Path
 
-from . import UsageError, add_set_argument, parse_sets, prepare_out, set_threads
+from . import UsageError, add_set_argument, no_cache, parse_sets, prepare_out, set_threads
 
 ORDER = 1
 
@@ -130,6 +130,7 @@ def cmd_train(args) -> int:
     hidden = _hidden(args.hidden) if args.hidden else None
     fresh = _Fresh(out, args.overwrite)
     set_threads(args.threads)
+    no_cache(args)
     overrides = parse_sets(args.set)
     problem = pdeinv.load_problem(args.problem, **overrides)
     y, x = read_npz(args.data, problem.operator.n_out, problem.N) if args.data else (None, None)
@@ -219,6 +220,7 @@ def add_parser(sub) -> None:
     t.add_argument("--time-budget", type=float, default=None, metavar="SECONDS",
                    help="also stop once training wall time exceeds this")
     t.add_argument("--seed", type=int, default=0)
+    t.add_argument("--no-cache", action="store_true", help="no disk cache of factorizations")
     t.add_argument("--out", required=True, metavar="DIR")
     add_set_argument(t)
     t.add_argument("--lr", type=float, default=None, help="optimizer learning rate (gd, adam, sip)")

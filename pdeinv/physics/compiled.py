@@ -29,6 +29,7 @@ import os
 
 import numpy as np
 import scipy.linalg as la
+import scipy.sparse as sp
 
 #: default memory budget of a dense or SVD backend, in GB (env PDEINV_DENSE_BUDGET_GB overrides)
 BUDGET_GB = 1.0
@@ -91,6 +92,17 @@ class SVD:
 
     name = "svd"
 
+    ARRAYS = ("g", "In", "out", "proj", "synth")
+
+    @classmethod
+    def restore(cls, arrays: dict, M_out=None) -> SVD:
+        """The SVD from its :attr:`ARRAYS` (e.g. a cache entry)."""
+        self = cls.__new__(cls)
+        for name in cls.ARRAYS:
+            setattr(self, name, np.ascontiguousarray(arrays[name]))
+        self.mass_out = M_out
+        return self
+
     def __init__(self, P: np.ndarray, M=None, M_out=None, rtol: float = SVD_RTOL):
         if not 0 < rtol < 1:
             raise ValueError(f"rtol={rtol!r} is not allowed; expected 0 < rtol < 1")
@@ -100,7 +112,7 @@ class SVD:
         U, s, Vt = np.linalg.svd(Q, full_matrices=False)
         keep = s >= rtol * s[0] if s.size and s[0] > 0 else np.zeros(s.size, bool)
         U, V = U[:, keep], Vt[keep].T
-        self.g, self.rtol, self.mass_out = s[keep], rtol, M_out
+        self.g, self.mass_out = s[keep], M_out
         self.In = np.ascontiguousarray(L @ V)
         self.out = np.ascontiguousarray(la.solve_triangular(Lo.T, U, lower=False))
         self.proj = np.ascontiguousarray(Lo @ U)
@@ -124,14 +136,40 @@ class SVD:
 KINDS = {"dense": Dense, "svd": SVD}
 
 
-def build(kind: str, run, n_in: int, n_out: int, M=None, M_out=None):
-    """A compiled backend of ``kind`` ('dense' or 'svd') for the map ``run``, within the budget."""
+def fingerprint(obj) -> dict:
+    """What determines a scheme's or an observation's map: its class, matrices, arrays and numbers."""
+    plain = (np.ndarray, float, int, str, bool)
+    return {"type": type(obj).__name__,
+            **{k: v for k, v in vars(obj).items() if sp.issparse(v) or isinstance(v, plain)}}
+
+
+def build(kind: str, run, n_in: int, n_out: int, M=None, M_out=None, parts: dict | None = None):
+    """A compiled backend of ``kind`` ('dense' or 'svd') for the map ``run``, within the budget.
+
+    With ``parts`` (what determines the map, e.g. :func:`fingerprint` of the scheme and the
+    observation) the arrays go through the disk cache (:mod:`pdeinv.cache`): a second run of
+    the same scene loads them instead of stepping ``N`` columns again.
+    """
     need, have = KINDS[kind].nbytes(n_in, n_out) / 1e9, budget_gb()
     if need > have:
         raise ValueError(f"backend={kind!r} needs about {need:.2g} GB for a {n_out}×{n_in} operator; the "
                          f"budget is {have:g} GB (PDEINV_DENSE_BUDGET_GB); use backend='steps' or 'auto'")
-    P = matrix(run, n_in, n_out)
-    return Dense(P) if kind == "dense" else SVD(P, M, M_out)
+
+    def make():
+        P = matrix(run, n_in, n_out)
+        if kind == "dense":
+            return {"P": P}
+        svd = SVD(P, M, M_out)
+        return {a: getattr(svd, a) for a in SVD.ARRAYS}
+
+    if parts is None:
+        arrays = make()
+    else:
+        from ..cache import cached
+
+        arrays = cached(f"compiled-{kind}", {**parts, "M": M, "M_out": M_out, "rtol": SVD_RTOL,
+                                               "shape": [n_out, n_in]}, make)
+    return Dense(arrays["P"]) if kind == "dense" else SVD.restore(arrays, M_out)
 
 
 def plan(step_flops: float, n_in: int, n_out: int, reversible: bool = False) -> tuple[str, str]:

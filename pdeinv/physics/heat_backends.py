@@ -10,7 +10,9 @@ import math
 
 import numpy as np
 
-from .compiled import build, plan
+from ..cache import cached
+from . import modes as _modes
+from .compiled import build, fingerprint, plan
 from .modes import DENSE_MAX, TooManyModes, largest_eigenvalue, lowest_modes
 from .propagator import FinalField, Propagator
 
@@ -41,11 +43,16 @@ class Modal:
     adjoint: ``((R Φ) g) (MΦ)ᵀ``. For Crank–Nicolson ``|r| → 1`` as ``z → ∞``:
     if the highest mode would still be kept the truncation is not exact and a
     ``ValueError`` says so.
+
+    The modes come from one eigensolver call asking for Weyl's count at the cut-off
+    plus a margin (:func:`.modes.lowest_modes`), and are kept in the disk cache
+    (:mod:`pdeinv.cache`, kind 'modal', key: M, K and every setting that decides
+    which modes are kept); ``cache=False`` (or ``PDEINV_NO_CACHE=1``) recomputes.
     """
 
     name = "modal"
 
-    def __init__(self, heat):
+    def __init__(self, heat, cache: bool = True):
         log_tol = math.log(heat.tol)
 
         def log_g(lam):  # log|r(dtκλ)ⁿ|, safe where r underflows or vanishes
@@ -60,11 +67,29 @@ class Modal:
                     f"{np.exp(log_g(lmax)):.1e} ≥ tol={heat.tol}): the modal backend "
                     "would need all modes; use backend='steps' or scheme='be'"
                 )
-        # the lowest mode is the least damped one (|r| decreases on the damped branch)
-        lam, Phi = lowest_modes(heat.M, heat.K, lambda lam: log_g(lam[-1]) < log_g(lam[0]) + log_tol)
-        logg = log_g(lam)
-        keep = logg >= logg.max() + log_tol
-        self.lam, self.Phi = lam[keep], np.ascontiguousarray(Phi[:, keep])
+        # modes to ask for: Weyl's count at the cut-off |r(dtκλ)|ⁿ = tol, plus 10% and 10
+        rho = heat.tol ** (1.0 / heat.steps)
+        z_cut = max(1.0 - rho, 0.0) / (heat.theta * rho + (1.0 - heat.theta))
+        k_guess = math.ceil(1.1 * weyl_count(heat, z_cut / (heat.dt * heat.kappa)) + 10)
+
+        def build():  # the lowest mode is the least damped one (|r| decreases on the damped branch)
+            lam, Phi = lowest_modes(heat.M, heat.K, lambda lam: log_g(lam[-1]) < log_g(lam[0]) + log_tol,
+                                    k=k_guess)
+            logg = log_g(lam)
+            keep = logg >= logg.max() + log_tol
+            return {"lam": lam[keep], "Phi": Phi[:, keep]}
+
+        N = heat.M.shape[0]
+        settings = {"dt": heat.dt, "kappa": heat.kappa, "theta": heat.theta, "steps": heat.steps,
+                    "tol": heat.tol, "dense": N <= _modes.DENSE_MAX, "k": k_guess, "method": "eigsh/1"}
+
+        def verify(a):
+            lam, Phi = a.get("lam", np.zeros(0)), a.get("Phi", np.zeros((0, 0)))
+            if lam.ndim != 1 or len(lam) == 0 or Phi.shape != (N, len(lam)):
+                return f"Phi of shape {Phi.shape} for {lam.shape} eigenvalues and {N} unknowns"
+
+        got = cached("modal", {"M": heat.M, "K": heat.K, "settings": settings}, build, verify, cache)
+        self.lam, self.Phi = got["lam"], np.ascontiguousarray(got["Phi"])
         self.g = heat.amplification(self.lam)
         self.MPhi = np.ascontiguousarray(heat.M @ self.Phi)
         self.n_total = heat.M.shape[0]
@@ -84,7 +109,12 @@ class Modal:
 
 
 def _compiled(kind):
-    return lambda heat: build(kind, Stepping(heat).forward, heat.n_in, heat.n_in, heat.M, heat.M)
+    def make(heat):
+        run = Stepping(heat).run
+        parts = {"scheme": fingerprint(run.scheme), "observation": fingerprint(run.observation),
+                 "steps": run.steps}
+        return build(kind, run._forward, heat.n_in, heat.n_in, heat.M, heat.M, parts)
+    return make
 
 
 BACKENDS = {"steps": Stepping, "modal": Modal, "dense": _compiled("dense"), "svd": _compiled("svd")}
