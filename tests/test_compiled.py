@@ -118,3 +118,16 @@ def test_bench_has_a_line_per_backend():
     assert res["lines"]["dense"]["memory_mb"] > 0 and res["lines"]["steps"]["memory_mb"] == 0
     heat = backends.lines(load("heat_2d", n=6, kappa=0.1), repeats=1)["lines"]
     assert "modal" in heat and heat["modal"]["rank"] < 25
+
+
+def test_compiled_arrays_come_from_the_disk_cache_the_second_time(monkeypatch):
+    calls = []
+    real = compiled.matrix
+    monkeypatch.setattr(compiled, "matrix", lambda *a, **k: calls.append(1) or real(*a, **k))
+    kw = dict(n=5, steps=7, record_every=7, sensors=4, backend="svd")
+    first = load("wave_sensors_2d", **kw).operator
+    second = load("wave_sensors_2d", **kw).operator
+    assert len(calls) == 1  # the second scene stepped nothing
+    np.testing.assert_array_equal(first.backend.g, second.backend.g)
+    load("wave_sensors_2d", **{**kw, "steps": 14, "record_every": 7})  # another map: a miss
+    assert len(calls) == 2

@@ -136,11 +136,16 @@ class SVD:
 KINDS = {"dense": Dense, "svd": SVD}
 
 
-def fingerprint(obj) -> dict:
-    """What determines a scheme's or an observation's map: its class, matrices, arrays and numbers."""
+def fingerprint(run) -> dict:
+    """What determines a propagator's map, as flat cache-key parts: the scheme's and the
+    observation's class, matrices, arrays and numbers, and the number of steps."""
     plain = (np.ndarray, float, int, str, bool)
-    return {"type": type(obj).__name__,
-            **{k: v for k, v in vars(obj).items() if sp.issparse(v) or isinstance(v, plain)}}
+    parts = {"steps": run.steps}
+    for name, obj in (("scheme", run.scheme), ("observation", run.observation)):
+        parts[f"{name}.type"] = type(obj).__name__
+        parts.update({f"{name}.{k}": v for k, v in vars(obj).items()
+                      if sp.issparse(v) or isinstance(v, plain)})
+    return parts
 
 
 def build(kind: str, run, n_in: int, n_out: int, M=None, M_out=None, parts: dict | None = None):
@@ -167,7 +172,7 @@ def build(kind: str, run, n_in: int, n_out: int, M=None, M_out=None, parts: dict
     else:
         from ..cache import cached
 
-        arrays = cached(f"compiled-{kind}", {**parts, "M": M, "M_out": M_out, "rtol": SVD_RTOL,
+        arrays = cached(f"compiled_{kind}", {**parts, "M": M, "M_out": M_out, "rtol": SVD_RTOL,
                                                "shape": [n_out, n_in]}, make)
     return Dense(arrays["P"]) if kind == "dense" else SVD.restore(arrays, M_out)
 

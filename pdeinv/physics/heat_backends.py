@@ -111,9 +111,7 @@ class Modal:
 def _compiled(kind):
     def make(heat):
         run = Stepping(heat).run
-        parts = {"scheme": fingerprint(run.scheme), "observation": fingerprint(run.observation),
-                 "steps": run.steps}
-        return build(kind, run._forward, heat.n_in, heat.n_in, heat.M, heat.M, parts)
+        return build(kind, run._forward, heat.n_in, heat.n_in, heat.M, heat.M, fingerprint(run))
     return make
 
 

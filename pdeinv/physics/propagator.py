@@ -91,11 +91,9 @@ class Propagator(LinearOperator):
         if kind == "auto":
             kind, why = plan(self.step_flops(), self.n_in, self.n_out, reversible(self))
         M = self.mass if M is None else M
-        parts = {"scheme": fingerprint(self.scheme), "observation": fingerprint(self.observation),
-                 "steps": self.steps}
         self.backend = None if kind == "steps" else build(
             kind, self._step_forward, self.n_in, self.n_out, M, M if self.output_space == "field" else None,
-            parts)
+            fingerprint(self))
         self.choice = why
         return self
 
