@@ -110,6 +110,9 @@ def load_problem(name_or_path: str | os.PathLike, **overrides) -> Problem:
         path = Path(spec)
         if not path.is_file():
             raise FileNotFoundError(f"problem module {spec!r} does not exist")
+        if path.suffix != ".py":
+            raise ValueError(f"problem module {spec!r} is not a .py file; expected a Python module "
+                             "with make(**overrides), or a problem name")
     else:
         found = [d / f"{spec}.py" for d in _problem_dirs() if (d / f"{spec}.py").is_file()]
         if not found:

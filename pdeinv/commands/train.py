@@ -6,7 +6,7 @@ import json
 import sys
 import warnings
 
-from . import UsageError, add_set_argument, parse_sets, prepare_out, set_threads
+from . import UsageError, _checks, add_set_argument, build_problem, prepare_out, set_threads
 
 ORDER = 1
 
@@ -66,7 +66,6 @@ def cmd_train(args) -> int:
 
     import torch
 
-    import pdeinv
     from pdeinv.checkpoint import Checkpoint
     from pdeinv.errors import NonFiniteError
     from pdeinv.files import atomic_write, write_csv
@@ -92,16 +91,17 @@ def cmd_train(args) -> int:
     if args.export_samples < 0:
         raise UsageError(f"--export-samples {args.export_samples} is not allowed; expected an integer >= 0")
     set_threads(args.threads)
-    problem = pdeinv.load_problem(args.problem, **parse_sets(args.set))
+    problem = build_problem("train", args.problem, args.set)  # says what it builds when slow
     rule, hp = make_rule(args.method, problem.name, problem.noise, lr=args.lr, eta=args.eta, tau=args.tau,
                          batch_size=args.batch_size, hidden=hidden, optimizer=args.optimizer)
+    _checks.check_run(problem, args, hp)  # memory, HIG step time, --export-samples (before allocating)
     stop = STOPS[args.stop](problem)
     torch.manual_seed(args.seed)
     if hp["hidden"] is not None:
         model = MLP(problem.operator.n_out, problem.operator.n_in, hidden=tuple(hp["hidden"]))
     else:
         model = problem.model()
-    trainer = Trainer(problem, rule, model, steps=args.steps, time_budget=args.time_budget,
+    trainer = Trainer(problem, rule, model, steps=_checks.steps(args), time_budget=args.time_budget,
                       n_train=args.n_train, n_test=args.n_test, batch_size=hp["batch_size"],
                       seed=args.seed, eval_every=args.eval_every, max_failures=args.max_failures,
                       checkpoint=Checkpoint(ckpt, args.checkpoint_every) if args.checkpoint_every else None,
@@ -143,12 +143,13 @@ def cmd_train(args) -> int:
 
 
 def add_parser(sub) -> None:
-    from pdeinv.methods.presets import METHODS
+    from pdeinv.methods.names import METHOD_NAMES as METHODS
 
     t = sub.add_parser("train", help="train a network with GD, Adam, SIP or HIG; write metrics.json")
     t.add_argument("problem")
     t.add_argument("--method", choices=sorted(METHODS), default="adam")
-    t.add_argument("--steps", type=int, default=1000)
+    t.add_argument("--steps", type=int, default=None,
+                   help="training steps (default 1000, or no limit when --time-budget is given)")
     t.add_argument("--time-budget", type=float, default=None, metavar="SECONDS",
                    help="also stop once training wall time exceeds this")
     t.add_argument("--seed", type=int, default=0)
@@ -183,4 +184,5 @@ def add_parser(sub) -> None:
     t.add_argument("--max-failures", type=int, default=5, metavar="K",
                    help="stop after K consecutive steps with a NaN/Inf loss or update "
                         "(each rejected step halves the learning rate / eta)")
+    _checks.add_arguments(t)  # --allow-slow, --max-memory-gb
     t.set_defaults(func=cmd_train)
