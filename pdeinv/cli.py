@@ -48,10 +48,9 @@ def check_common(args) -> None:
     seed = getattr(args, "seed", None)
     if seed is not None and not 0 <= seed <= SEED_MAX:
         raise UsageError(f"--seed {seed} is not allowed; expected an integer from 0 to {SEED_MAX}")
-    if getattr(args, "max_memory_gb", None) is not None:
-        from . import memory
+    from . import memory
 
-        memory.set_budget(args.max_memory_gb)
+    memory.set_budget(getattr(args, "max_memory_gb", None))  # None: the default (each call anew)
 
 
 def main(argv=None) -> int:

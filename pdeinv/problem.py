@@ -103,8 +103,8 @@ def available() -> list[str]:
     return sorted(names)
 
 
-def load_problem(name_or_path: str | os.PathLike, **overrides) -> Problem:
-    """Import ``problems/<name>.py`` (or a module file by path) and call ``make(**overrides)``."""
+def find_module(name_or_path: str | os.PathLike) -> Path:
+    """The module file of a problem name (searched as in :func:`load_problem`) or path."""
     spec = os.fspath(name_or_path)
     if spec.endswith(".py") or os.sep in spec or "/" in spec:
         path = Path(spec)
@@ -119,6 +119,12 @@ def load_problem(name_or_path: str | os.PathLike, **overrides) -> Problem:
             raise ValueError(f"unknown problem {spec!r}; available: {', '.join(available())} "
                              "(or give the path of a module file)")
         path = found[0]
+    return path
+
+
+def load_problem(name_or_path: str | os.PathLike, **overrides) -> Problem:
+    """Import ``problems/<name>.py`` (or a module file by path) and call ``make(**overrides)``."""
+    path = find_module(name_or_path)
     mod_spec = importlib.util.spec_from_file_location(f"pdeinv_problem_{path.stem}", path)
     module = importlib.util.module_from_spec(mod_spec)
     mod_spec.loader.exec_module(module)
