@@ -66,6 +66,9 @@ class Checkpoint:
         self.path = Path(self.path)
         self.every = count(self.every, "checkpoint every")
         folder = self.path.parent
+        if folder.exists() and not folder.is_dir():
+            raise ValueError(f"checkpoint {str(self.path)!r}: {str(folder)!r} is a file; "
+                             "expected a directory")
         try:
             folder.mkdir(parents=True, exist_ok=True)
             tempfile.TemporaryFile(dir=folder).close()

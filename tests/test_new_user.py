@@ -47,7 +47,7 @@ CLI = [
     ("hidden-huge", ["heat_1d", "--hidden", "100000,100000"], r"1e\+10 parameters.* GB"),
     ("small-budget", ["heat_1d", "--max-memory-gb", "1e-6"], r"budget of 1e-06 GB \(--max-memory-gb\)"),
     ("budget-negative", ["heat_1d", "--max-memory-gb=-1"], r"--max-memory-gb -1\.0 is not allowed"),
-    ("hig-slow", ["wave_sensors_2d", "--method", "hig"], r"HIG on wave_sensors_2d would take about .* s "
+    ("hig-slow", ["heat_2d", "--method", "hig", "--hidden", "32,32"], r"HIG on heat_2d would take about .* s "
                                                          r"per step .*--hidden 16 --batch-size 1"),
     ("mesh-zero-area", ["heat_2d", "--set", "mesh={d}/flat.msh"], r"cell 2 .* has zero size"),
     ("mesh-nan", ["heat_2d", "--set", "mesh={d}/nan.msh"], r"node 3 has coordinates \[nan, 1\.0\]"),
@@ -145,7 +145,7 @@ def test_checkpoint_creates_its_folder_and_fails_early(tmp_path):
     pdeinv.Checkpoint(tmp_path / "a" / "b" / "ckpt.pt")
     assert (tmp_path / "a" / "b").is_dir()
     (tmp_path / "file").write_text("x")
-    with pytest.raises(ValueError, match="is not a writable directory"):
+    with pytest.raises(ValueError, match="is a file; expected a directory"):
         pdeinv.Checkpoint(tmp_path / "file" / "ckpt.pt")
 
 
@@ -162,3 +162,13 @@ def test_wave_1d_default_sees_every_mode():
     p = pdeinv.load_problem("wave_1d")
     k = np.arange(1, p.N + 1)
     assert np.abs(np.cos(k * np.pi * p.settings["c"] * p.settings["T"])).min() > 0.49
+
+
+def test_plots_show_sensors_and_ticks():
+    import matplotlib
+
+    matplotlib.use("Agg")
+    p = pdeinv.load_problem("heat_sensors_2d", n=8, sensors=5)
+    x, _ = p.sample(1)
+    ax = pdeinv.plots.plot_prediction(p, x, x).axes[0]
+    assert len(ax.get_xticks()) > 0 and any(line.get_label() == "sensors" for line in ax.lines)

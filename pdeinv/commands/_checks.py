@@ -13,6 +13,8 @@ from . import UsageError
 #: Calibrated with one torch thread on the 2-core machine of the README (see
 #: :data:`HIG_CALIBRATION`); an estimate to a factor of ~3, enough to tell 1 s from 1 min.
 HIG_FLOPS_PER_S = 2e11
+#: HIG's default ``max_jacobian_gb``: a larger dense Jacobian is HIG's own refusal (in GB)
+HIG_DENSE_GB = 4.0
 #: refuse HIG runs whose estimated step exceeds this many seconds, unless --allow-slow
 HIG_MAX_STEP_S = 10.0
 #: what the rate rests on (one torch thread, 2-core machine shared with other jobs, so noisy)
@@ -44,8 +46,10 @@ def check_run(problem, args, hp: dict) -> None:
 
     memory.check_training(problem, args.n_train, args.n_test, hp["batch_size"], hp["hidden"])
     if args.method == "hig" and not getattr(args, "allow_slow", False):
-        est = hig_step_seconds(problem.operator.n_out, n_parameters(problem, hp["hidden"]), hp["batch_size"])
-        if est > HIG_MAX_STEP_S:
+        rows, cols = hp["batch_size"] * problem.operator.n_out, n_parameters(problem, hp["hidden"])
+        est = hig_step_seconds(problem.operator.n_out, cols, hp["batch_size"])
+        dense_fits = 4 * rows * cols <= HIG_DENSE_GB * 2**30  # else HIG refuses it itself, naming GB
+        if est > HIG_MAX_STEP_S and dense_fits:
             raise UsageError(
                 f"HIG on {problem.name} would take about {est:.3g} s per step (Jacobian "
                 f"{hp['batch_size'] * problem.operator.n_out} x {n_parameters(problem, hp['hidden'])}, "
