@@ -31,7 +31,8 @@ from .timing import machine
 #: run sizes: (n_train, n_test, repeats, ratio batch, sweep the hyper-parameters)
 SIZES = {False: (1024, 128, 5, 64, True), True: (64, 16, 1, 8, False)}
 #: training seconds per method when ``budget_s`` is not given: (full, quick). Quick was 20 s per
-#: method too, which made ``bench --quick heat_2d`` take 124 s; with 1 s it takes ~15 s (README).
+#: method too, which made ``bench --quick heat_2d`` take 124 s; with 1 s it takes
+#: 27 s (idle machine, one thread; HIG and Gauss–Newton make one 2-s step each).
 BUDGET_S = {False: 20.0, True: 1.0}
 
 

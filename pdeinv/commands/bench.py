@@ -31,7 +31,7 @@ def cmd_bench(args) -> int:
 def add_parser(sub) -> None:
     b = run_parser(sub, "bench", "benchmark run time against error; write DIR/bench.json and plots",
                    quick="tiny sizes, no sweeps, one repeat, 1 s per method (CI smoke test, "
-                         "about 15 s on heat_2d)")
+                         "27 s on heat_2d)")
     b.add_argument("--budget-s", type=float, default=None, metavar="S",
                    help="training wall time per method (default 20, 1 with --quick)")
     b.add_argument("--seed", type=int, default=0)
