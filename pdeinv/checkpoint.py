@@ -61,8 +61,24 @@ class Checkpoint:
     every: int = 100
 
     def __post_init__(self):
+        """Creates the folder and proves it writable now, so a bad path fails before training
+        (``ValueError`` naming it), not at the first save."""
+        import tempfile
+
         self.path = Path(self.path)
         self.every = count(self.every, "checkpoint every")
+        folder = self.path.parent
+        if folder.exists() and not folder.is_dir():
+            raise ValueError(f"checkpoint {str(self.path)!r}: {str(folder)!r} is a file; "
+                             "expected a directory")
+        try:
+            folder.mkdir(parents=True, exist_ok=True)
+            tempfile.TemporaryFile(dir=folder).close()
+        except OSError as err:
+            raise ValueError(f"checkpoint {str(self.path)!r}: folder {str(folder)!r} is not a writable "
+                             f"directory ({err.strerror or err}); choose another path") from None
+        if self.path.is_dir():
+            raise ValueError(f"checkpoint {str(self.path)!r} is a directory; expected a file path")
 
     def exists(self) -> bool:
         return self.path.is_file()

@@ -38,10 +38,26 @@ def build_parser() -> argparse.ArgumentParser:
     return p
 
 
+#: the seeds every command accepts: numpy's SeedSequence and torch.manual_seed both take these
+SEED_MAX = 2**32 - 1
+
+
+def check_common(args) -> None:
+    """Options several subcommands share, checked once before any work: ``--seed`` in
+    ``0..2³²−1``, ``--max-memory-gb`` > 0 (set as :mod:`pdeinv.memory`'s budget)."""
+    seed = getattr(args, "seed", None)
+    if seed is not None and not 0 <= seed <= SEED_MAX:
+        raise UsageError(f"--seed {seed} is not allowed; expected an integer from 0 to {SEED_MAX}")
+    from . import memory
+
+    memory.set_budget(getattr(args, "max_memory_gb", None))  # None: the default (each call anew)
+
+
 def main(argv=None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
     try:
+        check_common(args)
         return args.func(args)
     except numerical_types() as err:  # before ValueError: numpy's LinAlgError is one
         print(f"pdeinv {args.command}: numerical failure: {err}", file=sys.stderr)

@@ -25,6 +25,7 @@ from dataclasses import dataclass
 import numpy as np
 import skfem
 
+from . import memory
 from ._checks import count
 
 
@@ -61,6 +62,7 @@ def cell_type(mesh: skfem.Mesh) -> CellType:
 def interval(n: int = 64, a: float = 0.0, b: float = 1.0) -> skfem.MeshLine:
     """Uniform mesh of ``[a, b]`` with ``n`` elements."""
     n = count(n, "n")
+    memory.check_mesh(n + 1, 1, f"an interval mesh of n={n} elements", "use a smaller n")
     if not b > a:
         raise ValueError(f"interval [{a}, {b}] is empty; expected a < b")
     return skfem.MeshLine(np.linspace(a, b, n + 1))
@@ -69,8 +71,48 @@ def interval(n: int = 64, a: float = 0.0, b: float = 1.0) -> skfem.MeshLine:
 def unit_square(n: int = 32) -> skfem.MeshTri:
     """Unit square split into ``n x n`` squares, each cut into two triangles."""
     n = count(n, "n")
+    memory.check_mesh((n + 1) ** 2, 2, f"a unit-square mesh with n={n}", "use a smaller n")
     x = np.linspace(0.0, 1.0, n + 1)
     return skfem.MeshTri.init_tensor(x, x)
+
+
+def refined(mesh: skfem.Mesh, times: int, name: str = "refine") -> skfem.Mesh:
+    """``mesh`` refined uniformly ``times`` times (each splits an edge in two: ×2^dim cells),
+    refused first (:mod:`pdeinv.memory`) when the result would not fit."""
+    times = count(times, name, minimum=0)
+    if not times:
+        return mesh
+    dim = mesh.dim()
+    nodes = mesh.p.shape[1] * float(2 ** dim) ** times
+    memory.check_mesh(nodes, dim, f"{name}={times} of a mesh of {mesh.p.shape[1]} nodes",
+                      f"use a smaller {name}")
+    return mesh.refined(times)
+
+
+def check_geometry(points: np.ndarray, cells: np.ndarray, where: str) -> None:
+    """Refuse non-finite coordinates, coincident nodes and cells of zero size (``ValueError``).
+
+    ``points`` ``(nv, dim)``, ``cells`` ``(ne, dim + 1)`` simplices. A cell counts as degenerate
+    when its measure is below 1e-12 of the mean cell's: a zero-area triangle makes the stiffness
+    matrix singular, and duplicated nodes split the mesh into unconnected pieces.
+    """
+    bad = np.flatnonzero(~np.isfinite(points).all(axis=1))
+    if len(bad):
+        raise ValueError(f"{where}: node {int(bad[0])} has coordinates {points[bad[0]].tolist()} "
+                         f"({len(bad)} non-finite node(s)); expected finite coordinates")
+    _, first, counts = np.unique(points, axis=0, return_index=True, return_counts=True)
+    if (counts > 1).any():
+        dup = points[first[np.argmax(counts > 1)]]
+        same = np.flatnonzero((points == dup).all(axis=1))
+        raise ValueError(f"{where}: nodes {', '.join(map(str, same.tolist()))} coincide at {dup.tolist()} "
+                         f"({int((counts - 1).sum())} duplicated node(s)); expected distinct nodes "
+                         "(merge them, e.g. gmsh's Coherence)")
+    edges = points[cells[:, 1:]] - points[cells[:, :1]]  # (ne, dim, dim)
+    size = np.abs(np.linalg.det(edges)) if edges.shape[1] == edges.shape[2] else np.zeros(len(cells))
+    flat = np.flatnonzero(size <= 1e-12 * max(float(size.mean()), np.finfo(float).tiny))
+    if len(flat):
+        raise ValueError(f"{where}: cell {int(flat[0])} (nodes {cells[flat[0]].tolist()}) has zero size "
+                         f"({len(flat)} degenerate cell(s)); expected cells of positive area/volume")
 
 
 def load(path: str | os.PathLike) -> skfem.Mesh:
@@ -79,12 +121,15 @@ def load(path: str | os.PathLike) -> skfem.Mesh:
     Cells of lower dimension beside them (vertex, line, triangle) are boundary tags when
     they are facets in a physical group or cell set, and are ignored otherwise. Raises
     ``FileNotFoundError`` for a missing file and ``ValueError`` for a file meshio cannot
-    read, one with a cell type outside :data:`CELL_TYPES`, or one whose points leave the
-    mesh's dimension (a 2-D mesh with varying z).
+    read, one with a cell type outside :data:`CELL_TYPES`, one whose points leave the
+    mesh's dimension (a 2-D mesh with varying z), or bad geometry (:func:`check_geometry`:
+    NaN/Inf coordinates, coincident nodes, cells of zero size); a directory is a ``ValueError``.
     """
     import meshio
 
     path = os.fspath(path)
+    if os.path.isdir(path):
+        raise ValueError(f"mesh file {path!r} is a directory; expected a mesh file such as .msh, .vtu")
     if not os.path.isfile(path):
         raise FileNotFoundError(f"mesh file {path!r} does not exist")
     try:
@@ -111,6 +156,7 @@ def load(path: str | os.PathLike) -> skfem.Mesh:
     used = np.unique(cells)
     index = np.full(len(pts), -1)
     index[used] = np.arange(len(used))  # drop nodes no cell uses (e.g. gmsh geometry points)
+    check_geometry(pts[used, :kind.dim], index[cells], f"mesh file {path!r}")
     mesh = kind.mesh(np.ascontiguousarray(pts[used, :kind.dim].T), np.ascontiguousarray(index[cells].T))
     tags = {name: index[nodes] for name, nodes in _facet_tags(m, kind.facet).items()}
     return mesh.with_boundaries(_facets_of(mesh, tags, path)) if tags else mesh

@@ -90,10 +90,26 @@ def dense(n_in: int, n_out: int, hidden=(256, 256), activation=nn.Tanh) -> nn.Se
     for h in hidden:
         layers += [nn.Linear(width, h), activation()]
         width = h
-    head = nn.Linear(width, n_out)
-    nn.init.zeros_(head.weight)
-    nn.init.zeros_(head.bias)
-    return nn.Sequential(*layers, head)
+    return zero_last_layer(nn.Sequential(*layers, nn.Linear(width, n_out)))
+
+
+@torch.no_grad()
+def zero_last_layer(model: nn.Module) -> nn.Module:
+    """Set the weight and bias of ``model``'s last ``nn.Linear`` (in ``modules()`` order) to zero;
+    returns ``model``.
+
+    Do this to a network of your own: a random head emits components the physics cannot
+    see, and no update rule removes them (measured on heat_2d, 20 s SIP: 0.44 with torch's
+    random head, 0.27 with a zero head). ``ValueError`` if the model has no ``nn.Linear``.
+    """
+    linears = [m for m in model.modules() if isinstance(m, nn.Linear)]
+    if not linears:
+        raise ValueError(f"zero_last_layer: {type(model).__name__} has no torch.nn.Linear layer; "
+                         "zero its output layer's weight and bias yourself")
+    nn.init.zeros_(linears[-1].weight)
+    if linears[-1].bias is not None:
+        nn.init.zeros_(linears[-1].bias)
+    return model
 
 
 class Residual(nn.Module):

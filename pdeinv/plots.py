@@ -19,11 +19,13 @@ def _pyplot():
     return plt
 
 
-def plot_fields(points, cells, fields: dict, samples=None, title: str = ""):
+def plot_fields(points, cells, fields: dict, samples=None, title: str = "", sensors=None):
     """Figure with one row per sample: x_true | x_pred | x_error (2-D) or lines (1-D).
 
     ``points`` ``(nv, ≥dim)``, ``cells`` ``(ne, 3)`` triangles or ``(ne, 2)`` lines,
-    ``fields`` ``{"x_true": (B, nv), "x_pred": ..., "x_error": ...}``.
+    ``fields`` ``{"x_true": (B, nv), "x_pred": ..., "x_error": ...}``; ``sensors``
+    ``(n, dim)`` coordinates are drawn as black dots on every panel. Axes keep their ticks
+    (domain coordinates).
     """
     plt = _pyplot()
     B = len(fields["x_true"])
@@ -66,8 +68,10 @@ def plot_fields(points, cells, fields: dict, samples=None, title: str = ""):
                 ax = axes[r, c]
                 im = ax.tripcolor(tri, v, shading="gouraud", cmap=cmap, vmin=-vmax, vmax=vmax)
                 ax.set_aspect("equal")
-                ax.set_xticks([])
-                ax.set_yticks([])
+                ax.tick_params(labelsize=7)
+                if sensors is not None and len(sensors):
+                    s = np.asarray(sensors, dtype=float).reshape(len(sensors), -1)
+                    ax.plot(s[:, 0], s[:, 1], "k.", ms=3, label="sensors")
                 ax.set_title(f"sample {k}: {name}" if c == 0 else name, fontsize=9)
                 fig.colorbar(im, ax=ax, shrink=0.8)
     if title:
@@ -85,8 +89,10 @@ def save_fields_png(path, points, cells, fields: dict, samples=None, title: str 
 
 
 def plot_prediction(problem, x_true, x_pred, samples=None, title: str = ""):
-    """:func:`plot_fields` for free-unknown fields ``(B, N)`` of ``problem`` (no file needed)."""
+    """:func:`plot_fields` for free-unknown fields ``(B, N)`` of ``problem`` (no file needed),
+    with the problem's sensors (``settings["sensor_points"]``) when it has any."""
     mesh = problem.disc.basis.mesh
     fields = {"x_true": problem.disc.vertex_values(np.atleast_2d(x_true)),
               "x_pred": problem.disc.vertex_values(np.atleast_2d(x_pred))}
-    return plot_fields(mesh.p.T, mesh.t.T, fields, samples=samples, title=title)
+    return plot_fields(mesh.p.T, mesh.t.T, fields, samples=samples, title=title,
+                       sensors=problem.settings.get("sensor_points"))

@@ -103,19 +103,28 @@ def available() -> list[str]:
     return sorted(names)
 
 
-def load_problem(name_or_path: str | os.PathLike, **overrides) -> Problem:
-    """Import ``problems/<name>.py`` (or a module file by path) and call ``make(**overrides)``."""
+def find_module(name_or_path: str | os.PathLike) -> Path:
+    """The module file of a problem name (searched as in :func:`load_problem`) or path."""
     spec = os.fspath(name_or_path)
     if spec.endswith(".py") or os.sep in spec or "/" in spec:
         path = Path(spec)
         if not path.is_file():
             raise FileNotFoundError(f"problem module {spec!r} does not exist")
+        if path.suffix != ".py":
+            raise ValueError(f"problem module {spec!r} is not a .py file; expected a Python module "
+                             "with make(**overrides), or a problem name")
     else:
         found = [d / f"{spec}.py" for d in _problem_dirs() if (d / f"{spec}.py").is_file()]
         if not found:
             raise ValueError(f"unknown problem {spec!r}; available: {', '.join(available())} "
                              "(or give the path of a module file)")
         path = found[0]
+    return path
+
+
+def load_problem(name_or_path: str | os.PathLike, **overrides) -> Problem:
+    """Import ``problems/<name>.py`` (or a module file by path) and call ``make(**overrides)``."""
+    path = find_module(name_or_path)
     mod_spec = importlib.util.spec_from_file_location(f"pdeinv_problem_{path.stem}", path)
     module = importlib.util.module_from_spec(mod_spec)
     mod_spec.loader.exec_module(module)

@@ -7,6 +7,7 @@ one or raises ``ValueError`` naming the value and what is allowed.
 
 from __future__ import annotations
 
+import math
 import os
 
 from . import _checks
@@ -16,9 +17,12 @@ def _number(cast, check):
     def rule(value, name):
         if isinstance(value, str):
             try:
-                value = cast(value)
+                value = float(value)  # "1e2" is a number too; an int rule takes it if it is whole
             except ValueError:
                 raise ValueError(f"{name}={value!r} is not a number") from None
+            if cast is int and not value.is_integer():
+                kind = "a whole number" if math.isfinite(value) else "finite"
+                raise ValueError(f"{name}={value!r} is not allowed; expected an integer (not {kind})")
         if cast is int and isinstance(value, float) and value.is_integer():
             value = int(value)
         return check(value, name)
@@ -37,11 +41,13 @@ def one_of(*allowed):
 
 
 def optional_path(value, name):
-    """``None`` or the path of an existing file."""
+    """``None`` or the path of an existing file (a directory is refused by name)."""
     if value is None or value == "":
         return None
     if not isinstance(value, (str, os.PathLike)):
         raise ValueError(f"{name}={value!r} is not allowed; expected a file path")
+    if os.path.isdir(value):
+        raise ValueError(f"{name}={os.fspath(value)!r} is a directory; expected a file")
     if not os.path.isfile(value):
         raise FileNotFoundError(f"{name}={os.fspath(value)!r}: no such file")
     return os.fspath(value)

@@ -17,7 +17,15 @@ import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.linalg as sla
 
-from .errors import ConvergenceError
+from .errors import ConvergenceError, NumericalError
+
+
+def _require_finite(A: sp.spmatrix) -> None:
+    """Refuse a matrix with NaN/Inf entries (a setting such as kappa or c overflowed it)."""
+    data = sp.csr_matrix(A).data
+    if not np.isfinite(data).all():
+        raise ValueError(f"the system matrix has {int((~np.isfinite(data)).sum())} NaN/Inf entries: a "
+                         "setting (kappa, c, T or steps) makes it overflow float64; use smaller values")
 
 
 def is_symmetric(A: sp.spmatrix, rtol: float = 1e-13) -> bool:
@@ -44,10 +52,15 @@ class SuperLU:
     name = "splu"
 
     def __init__(self, A: sp.spmatrix):
+        _require_finite(A)
         self.symmetric = is_symmetric(A)
         opts = ({"permc_spec": "MMD_AT_PLUS_A", "options": {"SymmetricMode": True}}
                 if self.symmetric else {})
-        self.lu = sla.splu(sp.csc_matrix(A), **opts)
+        try:
+            self.lu = sla.splu(sp.csc_matrix(A), **opts)
+        except RuntimeError as err:  # "Factor is exactly singular"
+            raise NumericalError(f"sparse LU failed ({err}): the system matrix is singular in float64; "
+                                 "check the mesh and the settings (kappa, c, T, steps)") from None
         self.shape = A.shape
 
     def solve(self, B: np.ndarray) -> np.ndarray:
@@ -100,7 +113,10 @@ class Cholesky:
 
 
 def default_solver(A: sp.spmatrix):
-    """Sparse Cholesky for a symmetric ``A`` if cholespy is installed, else SuperLU (always available)."""
+    """Sparse Cholesky for a symmetric ``A`` if cholespy is installed, else SuperLU (always available).
+
+    A matrix with NaN/Inf entries is refused (``ValueError``) before either factorizes it."""
+    _require_finite(A)
     if not is_symmetric(A):
         return SuperLU(A)
     try:

@@ -40,8 +40,8 @@ def test_dt_above_the_cfl_limit_is_refused_with_the_limit():
     # h = 1/64 and T = 0.5 needs 32 steps
     limit = r"dt = T/steps = 0.01613.*limit 2/\(c·√λ_max\) = 0.01563.*steps >= 32"
     with pytest.raises(ValueError, match=limit):
-        load("wave_1d", scheme="leapfrog", steps=31)
-    op = load("wave_1d", scheme="leapfrog", steps=32).operator
+        load("wave_1d", scheme="leapfrog", steps=31, T=0.5)
+    op = load("wave_1d", scheme="leapfrog", steps=32, T=0.5).operator
     assert 1 / 64 == op.dt < op.dt_max < 1.001 / 64
     with pytest.raises(ValueError, match="element='P2'.*lumped mass"):
         load("wave_2d", n=4, element="P2", scheme="leapfrog")
@@ -50,7 +50,8 @@ def test_dt_above_the_cfl_limit_is_refused_with_the_limit():
 
 
 def test_cli_refuses_dt_above_cfl_in_one_line(tmp_path, capsys):
-    argv = ["train", "wave_1d", "--set", "scheme=leapfrog", "--set", "steps=10", "--out", str(tmp_path / "r")]
+    argv = ["train", "wave_1d", "--set", "scheme=leapfrog", "--set", "steps=10", "--set", "T=0.5",
+            "--out", str(tmp_path / "r")]
     assert main(argv) == 2
     err = capsys.readouterr().err.strip()
     assert len(err.splitlines()) == 1 and "stability limit" in err and "steps >= 32" in err

@@ -30,6 +30,10 @@ from .timing import machine
 
 #: run sizes: (n_train, n_test, repeats, ratio batch, sweep the hyper-parameters)
 SIZES = {False: (1024, 128, 5, 64, True), True: (64, 16, 1, 8, False)}
+#: training seconds per method when ``budget_s`` is not given: (full, quick). Quick was 20 s per
+#: method too, which made ``bench --quick heat_2d`` take 124 s; with 1 s it takes
+#: 27 s (idle machine, one thread; HIG and Gauss–Newton make one 2-s step each).
+BUDGET_S = {False: 20.0, True: 1.0}
 
 
 def jsonable(obj):
@@ -43,9 +47,11 @@ def jsonable(obj):
     return obj
 
 
-def bench(problem, out, quick: bool = False, budget_s: float = 20.0, seed: int = 0,
+def bench(problem, out, quick: bool = False, budget_s: float | None = None, seed: int = 0,
           log=print, threads: int | None = 1) -> dict:
     """Run all sections on ``problem`` (a :class:`pdeinv.Problem`); return and write the results.
+
+    ``budget_s``: training seconds per method (default :data:`BUDGET_S`: 20, 1 when ``quick``).
 
     ``threads``: torch threads during the run (restored after; None leaves them). One
     thread by default: on a shared 2-core machine a second process on one core stalls
@@ -65,6 +71,7 @@ def bench(problem, out, quick: bool = False, budget_s: float = 20.0, seed: int =
 
 
 def _bench(problem, out, quick, budget_s, seed, log) -> dict:
+    budget_s = BUDGET_S[bool(quick)] if budget_s is None else budget_s
     if not budget_s > 0:
         raise ValueError(f"budget_s={budget_s!r} is not allowed; expected a number of seconds > 0")
     out = Path(out)

@@ -30,12 +30,47 @@ def add_set_argument(parser) -> None:
                         help="problem override, e.g. --set kappa=0.02 --set n=32")
 
 
+def add_memory_argument(parser) -> None:
+    parser.add_argument("--max-memory-gb", type=float, default=None, metavar="GB",
+                        help="refuse a run whose estimated memory exceeds GB (default: half of the "
+                             "available memory; see pdeinv/memory.py)")
+
+
+def build_problem(command: str, name: str, sets: list[str], after_s: float = 1.0):
+    """``pdeinv.load_problem(name, **parse_sets(sets))``, saying on stderr what it builds when that
+    takes longer than ``after_s`` seconds (one line, then its time): a large mesh or a modal basis
+    can take minutes."""
+    import sys
+    import threading
+    import time
+
+    import pdeinv
+
+    overrides = parse_sets(sets)
+    what = f"{name} ({', '.join(f'{k}={v}' for k, v in overrides.items())})" if overrides else name
+    t0 = time.perf_counter()
+    timer = threading.Timer(after_s, lambda: print(f"pdeinv {command}: building {what}…", file=sys.stderr,
+                                                   flush=True))
+    timer.daemon = True
+    timer.start()
+    try:
+        problem = pdeinv.load_problem(name, **overrides)
+    finally:
+        timer.cancel()
+    took = time.perf_counter() - t0
+    if took > after_s:
+        print(f"pdeinv {command}: built {problem.name} ({problem.N} unknowns) in {took:.1f} s",
+              file=sys.stderr, flush=True)
+    return problem
+
+
 def run_parser(sub, name: str, help: str, quick: str):
     """A subcommand parser with the arguments every sweep shares: PROBLEM, ``--out DIR``, ``--quick``."""
     p = sub.add_parser(name, help=help)
     p.add_argument("problem")
     p.add_argument("--out", required=True, metavar="DIR")
     p.add_argument("--quick", action="store_true", help=quick)
+    add_memory_argument(p)
     return p
 
 

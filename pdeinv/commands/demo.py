@@ -4,22 +4,30 @@ from __future__ import annotations
 
 import time
 
-from . import add_set_argument, parse_sets
+from . import UsageError, add_memory_argument, add_set_argument, build_problem
 
 ORDER = 0
 
 
 def cmd_demo(args) -> int:
-    """Build a heat problem, run forward and adjoint on a batch, print what happened."""
+    """Build a problem, run forward and adjoint on a batch, print what happened.
+
+    ``y_over_x_L2`` compares L²(Ω) norms when the problem observes fields on the mesh and
+    Euclidean norms otherwise (sensor time series: the observation is not a field)."""
     import numpy as np
 
-    import pdeinv
+    from pdeinv import memory
+    from pdeinv.physics.capabilities import observes_field
 
+    if args.batch < 1:
+        raise UsageError(f"--batch {args.batch} is not allowed; expected an integer >= 1")
     t0 = time.perf_counter()
-    problem = pdeinv.load_problem(args.problem, **parse_sets(args.set))
+    problem = build_problem("demo", args.problem, args.set)
     t_build = time.perf_counter() - t0
-    x, y = problem.sample(args.batch, seed=0)
     op = problem.operator
+    memory.check(8 * 4 * args.batch * (op.n_in + op.n_out), f"demo batch of {args.batch} samples",
+                 "use a smaller --batch")
+    x, y = problem.sample(args.batch, seed=0)
     t0 = time.perf_counter()
     y = op.forward(x)
     t_fwd = time.perf_counter() - t0
@@ -38,7 +46,8 @@ def cmd_demo(args) -> int:
         "forward_s": t_fwd,
         "adjoint_s": t_adj,
         "dot_product_test": dot,
-        "y_over_x_L2": float(np.mean(problem.disc.norm(y) / problem.disc.norm(x))),
+        "y_over_x": float(np.mean((problem.disc.norm(y) if observes_field(op) else np.linalg.norm(y, axis=1))
+                                  / problem.disc.norm(x))),
     }
     for k, v in report.items():
         print(f"{k:>18}: {v:.3g}" if isinstance(v, float) else f"{k:>18}: {v}")
@@ -50,4 +59,5 @@ def add_parser(sub) -> None:
     d.add_argument("problem", nargs="?", default="heat_2d")
     d.add_argument("--batch", type=int, default=64)
     add_set_argument(d)
+    add_memory_argument(d)
     d.set_defaults(func=cmd_demo)

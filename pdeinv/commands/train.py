@@ -7,7 +7,7 @@ import sys
 import warnings
 from pathlib import Path
 
-from . import UsageError, add_set_argument, no_cache, parse_sets, prepare_out, set_threads
+from . import UsageError, _checks, add_set_argument, build_problem, no_cache, parse_sets, prepare_out, set_threads
 
 ORDER = 1
 
@@ -118,7 +118,6 @@ def cmd_train(args) -> int:
 
     import torch
 
-    import pdeinv
     from pdeinv.data import read_npz
     from pdeinv.methods.presets import make_rule
     from pdeinv.runs import network
@@ -132,14 +131,16 @@ def cmd_train(args) -> int:
     set_threads(args.threads)
     no_cache(args)
     overrides = parse_sets(args.set)
-    problem = pdeinv.load_problem(args.problem, **overrides)
+    problem = build_problem("train", args.problem, args.set)  # says what it builds when slow
     y, x = read_npz(args.data, problem.operator.n_out, problem.N) if args.data else (None, None)
     rule, hp = make_rule(args.method, problem.name, problem.noise, lr=args.lr, eta=args.eta, tau=args.tau,
                          batch_size=args.batch_size, hidden=hidden, optimizer=args.optimizer)
+    _checks.check_run(problem, args, hp)  # memory, HIG step time, --export-samples (before allocating)
     stop = STOPS[args.stop](problem)
     torch.manual_seed(args.seed)
     net = {"kind": "mlp", "hidden": list(hp["hidden"])} if hp["hidden"] is not None else {"kind": "default"}
-    trainer = Trainer(problem, rule, network(problem, net), steps=args.steps, time_budget=args.time_budget,
+    trainer = Trainer(problem, rule, network(problem, net), steps=_checks.steps(args),
+                      time_budget=args.time_budget,
                       n_train=args.n_train or 1024, n_test=args.n_test, batch_size=hp["batch_size"],
                       seed=args.seed, eval_every=args.eval_every, max_failures=args.max_failures,
                       checkpoint=_Checkpoint(ckpt, args.checkpoint_every, fresh) if args.checkpoint_every
@@ -211,12 +212,13 @@ def _run(args, out, problem, overrides, net, hp, trainer, fresh) -> int:
 
 
 def add_parser(sub) -> None:
-    from pdeinv.methods.presets import METHODS
+    from pdeinv.methods.names import METHOD_NAMES as METHODS
 
     t = sub.add_parser("train", help="train a network with GD, Adam, SIP or HIG; write metrics.json")
     t.add_argument("problem")
     t.add_argument("--method", choices=sorted(METHODS), default="adam")
-    t.add_argument("--steps", type=int, default=1000)
+    t.add_argument("--steps", type=int, default=None,
+                   help="training steps (default 1000, or no limit when --time-budget is given)")
     t.add_argument("--time-budget", type=float, default=None, metavar="SECONDS",
                    help="also stop once training wall time exceeds this")
     t.add_argument("--seed", type=int, default=0)
@@ -263,4 +265,5 @@ def add_parser(sub) -> None:
                    help="stop after K consecutive rejected steps (a NaN/Inf loss or update, or a loss "
                         "over 1000x the lowest so far); each rejection restores the last good state "
                         "and halves the learning rate / eta")
+    _checks.add_arguments(t)  # --allow-slow, --max-memory-gb
     t.set_defaults(func=cmd_train)

@@ -90,10 +90,24 @@ def sgd(lr: float = 1e-2, **kw) -> OptimizerFactory:
     return partial(torch.optim.SGD, lr=lr, **kw)
 
 
-def make_optimizer(factory: OptimizerFactory, params: list) -> torch.optim.Optimizer:
+def make_optimizer(factory, params: list) -> torch.optim.Optimizer:
+    """A fresh optimizer on ``params`` from any of three equivalent specs:
+
+    * a factory ``params -> Optimizer`` (``pdeinv.adam(1e-3)``, ``partial(torch.optim.Adam, lr=1e-3)``);
+    * an optimizer class (``torch.optim.Adam``: its own defaults);
+    * an optimizer instance (``torch.optim.Adam(model.parameters(), lr=1e-3)``): its class and
+      settings (``defaults``) are reused on ``params``, its state is not.
+    """
     if not params:
         raise ValueError("the model has no trainable parameters")
-    opt = factory(params)
+    if isinstance(factory, torch.optim.Optimizer):
+        cls, settings = type(factory), dict(factory.defaults)
+        factory = lambda ps: cls(ps, **settings)  # noqa: E731
+    try:
+        opt = factory(params)
+    except TypeError as err:
+        raise ValueError(f"optimizer {factory!r} could not be built on the parameters ({err}); expected "
+                         "a factory (pdeinv.adam(1e-3)), a torch.optim class or instance") from None
     if not isinstance(opt, torch.optim.Optimizer):
         raise ValueError(f"optimizer factory returned {type(opt).__name__}; "
                          "expected a torch.optim.Optimizer (e.g. partial(torch.optim.Adam, lr=1e-3))")

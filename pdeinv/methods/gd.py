@@ -8,8 +8,11 @@ from dataclasses import dataclass, field
 import torch
 
 from ..autograd import apply
-from .base import OptimizerFactory, Rule, State, Update, adam, gradient, prediction, y_loss
+from .base import OptimizerFactory, Rule, State, Update, gradient, prediction, sgd, y_loss
 from .transforms import OptimizerStep
+
+#: GD's default learning rate (plain SGD), shared with ``--method gd`` (methods/presets.py)
+GD_LR = 0.01
 
 
 @dataclass(frozen=True)
@@ -19,13 +22,16 @@ class GD(Rule):
     The norm is the Euclidean norm of the observation coefficients (as in the
     seeds; reported errors are L²(Ω)); the mean is over the batch. ``∇_θ L`` is
     exact: back-propagation runs through the discrete adjoint ``Pᵀ`` via
-    :func:`pdeinv.apply`. ``optimizer`` is any ``params -> torch.optim.Optimizer``
-    (default Adam with lr 1e-3; ``methods.sgd(lr)`` gives textbook GD); it is the
-    rule's transformation (:class:`~.transforms.OptimizerStep`). The context is the
+    :func:`pdeinv.apply`. ``optimizer`` is a factory ``params -> torch.optim.Optimizer``,
+    an optimizer class or an instance (:func:`~.base.make_optimizer`); it is the rule's
+    transformation (:class:`~.transforms.OptimizerStep`). The default, plain SGD with lr
+    0.01, is what ``pdeinv train --method gd`` runs (:data:`~.presets.GENERIC`; the CLI
+    also has per-problem learning rates, :data:`~.presets.PER_PROBLEM`); Adam is
+    ``GD(optimizer=pdeinv.adam(1e-3))``, the CLI's ``--method adam``. The context is the
     problem's operator.
     """
 
-    optimizer: OptimizerFactory = field(default_factory=adam)
+    optimizer: OptimizerFactory = field(default_factory=lambda: sgd(GD_LR))
     name: str = "gd"
 
     @property

@@ -41,8 +41,9 @@ from __future__ import annotations
 
 from .._checks import positive
 from .base import adam, sgd
-from .gd import GD
+from .gd import GD, GD_LR
 from .hig import HIG
+from .names import METHOD_NAMES
 from .sip import SIP
 
 #: SIP's proxy optimizer by name
@@ -55,10 +56,11 @@ METHODS = {
     "sip": lambda hp: SIP(eta=hp["eta"], optimizer=OPTIMIZERS[hp["optimizer"]](hp["lr"])),
     "hig": lambda hp: HIG(eta=hp["eta"], tau=hp["tau"]),
 }
+assert sorted(METHODS) == sorted(METHOD_NAMES), "add the method's name to methods/names.py too"
 
 #: generic defaults per method (``batch_size`` and ``hidden`` size the run and the MLP)
 GENERIC = {
-    "gd": {"lr": 0.01, "batch_size": 32},  # 0.1 diverges on heat_2d
+    "gd": {"lr": GD_LR, "batch_size": 32},  # 0.01 = pdeinv.GD()'s default; 0.1 diverges on heat_2d
     "adam": {"lr": 1e-3, "batch_size": 32},
     "sip": {"lr": 1e-3, "eta": 1.0, "batch_size": 32, "optimizer": "adam"},
     "hig": {"eta": 0.1, "tau": 1e-5, "batch_size": 8, "hidden": (32, 32)},

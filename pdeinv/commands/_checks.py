@@ -1,0 +1,76 @@
+"""Checks ``pdeinv train`` runs after building the problem and before building the network:
+memory, HIG's step time, the number of exported samples. Each raises :class:`UsageError`
+(exit 2, one line) or prints one warning line; none allocates anything large."""
+
+from __future__ import annotations
+
+import sys
+
+from . import UsageError
+
+#: HIG step-time model: the dense stacked Jacobian (``batch · n_out`` rows × ``n_params``
+#: columns) and its SVD cost about ``rows · cols · min(rows, cols)`` flops at this rate.
+#: Calibrated with one torch thread on the 2-core machine of the README (see
+#: :data:`HIG_CALIBRATION`); an estimate to a factor of ~3, enough to tell 1 s from 1 min.
+HIG_FLOPS_PER_S = 2e11
+#: HIG's default ``max_jacobian_gb``: a larger dense Jacobian is HIG's own refusal (in GB)
+HIG_DENSE_GB = 4.0
+#: refuse HIG runs whose estimated step exceeds this many seconds, unless --allow-slow
+HIG_MAX_STEP_S = 10.0
+#: what the rate rests on (one torch thread, 2-core machine shared with other jobs, so noisy)
+HIG_CALIBRATION = """issue 17: the defaults (MLP (32, 32), batch 8) took 20-50 s per step on heat_2d
+and the sensor scenes; this model gives 19 s for heat_2d (7688 x 63 553) and ~400 s for
+wave_sensors_2d (24 576 x 134 k), 0.007 s for heat_1d. Measured here under load: heat_2d
+(16,) batch 1 (961 x 31 729) 6.4 s (2.1 s idle, README), (32, 32) batch 8 1.8 s after the HIG
+routes got faster, (16,) batch 4 (3844 x 31 729) 187 s: the routes differ by shape, the model
+is an order of magnitude, to be recalibrated when methods/hig*.py change."""
+
+
+def hig_step_seconds(n_out: int, n_params: int, batch: int) -> float:
+    rows = batch * n_out
+    return rows * n_params * min(rows, n_params) / HIG_FLOPS_PER_S
+
+
+def n_parameters(problem, hidden) -> int:
+    from pdeinv.memory import network_parameters
+
+    m, n = problem.operator.n_out, problem.operator.n_in
+    return network_parameters(m, n, hidden) if hidden else m * m + m * n + n
+
+
+def check_run(problem, args, hp: dict) -> None:
+    """Refuse a run that would not fit in memory (:func:`pdeinv.memory.check_training`) or a HIG
+    run whose step would take longer than :data:`HIG_MAX_STEP_S` (unless ``--allow-slow``);
+    warn when ``--export-samples`` is above ``--n-test``."""
+    from pdeinv import memory
+
+    memory.check_training(problem, args.n_train, args.n_test, hp["batch_size"], hp["hidden"])
+    if args.method == "hig" and not getattr(args, "allow_slow", False):
+        rows, cols = hp["batch_size"] * problem.operator.n_out, n_parameters(problem, hp["hidden"])
+        est = hig_step_seconds(problem.operator.n_out, cols, hp["batch_size"])
+        dense_fits = 4 * rows * cols <= HIG_DENSE_GB * 2**30  # else HIG refuses it itself, naming GB
+        if est > HIG_MAX_STEP_S and dense_fits:
+            raise UsageError(
+                f"HIG on {problem.name} would take about {est:.3g} s per step (Jacobian "
+                f"{hp['batch_size'] * problem.operator.n_out} x {n_parameters(problem, hp['hidden'])}, "
+                f"--hidden {','.join(map(str, hp['hidden'] or ()))} --batch-size {hp['batch_size']}); "
+                f"limit {HIG_MAX_STEP_S:g} s: use e.g. --hidden 16 --batch-size 1, or pass --allow-slow")
+    if args.export_samples > args.n_test:
+        print(f"pdeinv train: warning: --export-samples {args.export_samples} is more than the "
+              f"{args.n_test} test samples (--n-test); exporting {args.n_test}", file=sys.stderr)
+
+
+def steps(args) -> int | None:
+    """``--steps`` as given; when it is not: 1000, or no step limit if ``--time-budget`` is given."""
+    if args.steps is not None:
+        return args.steps
+    return None if args.time_budget is not None else 1000
+
+
+def add_arguments(parser) -> None:
+    """The flags :func:`check_run` reads besides train's own: --allow-slow, --max-memory-gb."""
+    from . import add_memory_argument
+
+    parser.add_argument("--allow-slow", action="store_true",
+                        help=f"run HIG even when its estimated step exceeds {HIG_MAX_STEP_S:g} s")
+    add_memory_argument(parser)
