@@ -7,7 +7,16 @@ import sys
 import warnings
 from pathlib import Path
 
-from . import UsageError, _checks, add_set_argument, build_problem, no_cache, parse_sets, prepare_out, set_threads
+from . import (
+    UsageError,
+    _checks,
+    add_set_argument,
+    build_problem,
+    no_cache,
+    parse_sets,
+    prepare_out,
+    set_threads,
+)
 
 ORDER = 1
 
