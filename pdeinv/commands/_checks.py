@@ -44,7 +44,7 @@ def check_run(problem, args, hp: dict) -> None:
     warn when ``--export-samples`` is above ``--n-test``."""
     from pdeinv import memory
 
-    memory.check_training(problem, args.n_train, args.n_test, hp["batch_size"], hp["hidden"])
+    memory.check_training(problem, args.n_train or 1024, args.n_test, hp["batch_size"], hp["hidden"])
     if args.method == "hig" and not getattr(args, "allow_slow", False):
         rows, cols = hp["batch_size"] * problem.operator.n_out, n_parameters(problem, hp["hidden"])
         est = hig_step_seconds(problem.operator.n_out, cols, hp["batch_size"])
