@@ -12,7 +12,7 @@ from . import UsageError
 #: columns) and its SVD cost about ``rows · cols · min(rows, cols)`` flops at this rate.
 #: Calibrated with one torch thread on the 2-core machine of the README (see
 #: :data:`HIG_CALIBRATION`); an estimate to a factor of ~3, enough to tell 1 s from 1 min.
-HIG_FLOPS_PER_S = 2e11
+HIG_FLOPS_PER_S = 1.5e10
 #: HIG's default ``max_jacobian_gb``: a larger dense Jacobian is HIG's own refusal (in GB)
 HIG_DENSE_GB = 4.0
 #: refuse HIG runs whose estimated step exceeds this many seconds, unless --allow-slow
@@ -23,7 +23,10 @@ and the sensor scenes; this model gives 19 s for heat_2d (7688 x 63 553) and ~40
 wave_sensors_2d (24 576 x 134 k), 0.007 s for heat_1d. Measured here under load: heat_2d
 (16,) batch 1 (961 x 31 729) 6.4 s (2.1 s idle, README), (32, 32) batch 8 1.8 s after the HIG
 routes got faster, (16,) batch 4 (3844 x 31 729) 187 s: the routes differ by shape, the model
-is an order of magnitude, to be recalibrated when methods/hig*.py change."""
+is an order of magnitude, to be recalibrated when methods/hig*.py change.
+Recalibrated after HIG works on the r compressed rows per sample (heat_2d: 217 of 961): the
+default heat_2d run (1736 x 63 553 rows x params, 1.9e11 by this model) took 22 s per step
+under load (8.7e9 flop/s); (16,) batch 1 idle 2.1 s for 2.9e10 (1.4e10 flop/s): 1.5e10."""
 
 
 def hig_step_seconds(n_out: int, n_params: int, batch: int) -> float:
@@ -46,13 +49,18 @@ def check_run(problem, args, hp: dict) -> None:
 
     memory.check_training(problem, args.n_train or 1024, args.n_test, hp["batch_size"], hp["hidden"])
     if args.method == "hig" and not getattr(args, "allow_slow", False):
-        rows, cols = hp["batch_size"] * problem.operator.n_out, n_parameters(problem, hp["hidden"])
-        est = hig_step_seconds(problem.operator.n_out, cols, hp["batch_size"])
+        from pdeinv.physics.capabilities import modal_basis
+
+        basis = modal_basis(problem.operator)  # HIG works on rank-r rows (pdeinv.methods.hig.compress)
+        m = problem.operator.n_out
+        per_sample = min(m, len(basis.g)) if basis is not None else m
+        rows, cols = hp["batch_size"] * per_sample, n_parameters(problem, hp["hidden"])
+        est = hig_step_seconds(per_sample, cols, hp["batch_size"])
         dense_fits = 4 * rows * cols <= HIG_DENSE_GB * 2**30  # else HIG refuses it itself, naming GB
         if est > HIG_MAX_STEP_S and dense_fits:
             raise UsageError(
                 f"HIG on {problem.name} would take about {est:.3g} s per step (Jacobian "
-                f"{hp['batch_size'] * problem.operator.n_out} x {n_parameters(problem, hp['hidden'])}, "
+                f"{rows} x {cols}, "
                 f"--hidden {','.join(map(str, hp['hidden'] or ()))} --batch-size {hp['batch_size']}); "
                 f"limit {HIG_MAX_STEP_S:g} s: use e.g. --hidden 16 --batch-size 1, or pass --allow-slow")
     if args.export_samples > args.n_test:
