@@ -38,3 +38,12 @@ def one_thread():
     torch.set_num_threads(1)
     yield
     torch.set_num_threads(n)
+
+
+@pytest.fixture(scope="session")
+def heat():
+    """A small heat_1d scene with the modal backend (its inverse is a diagonal filter); files that
+    need another one define their own ``heat``."""
+    import pdeinv
+
+    return pdeinv.load_problem("heat_1d", n=16, steps=10, backend="modal")

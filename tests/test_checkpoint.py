@@ -11,15 +11,7 @@ from pdeinv import Checkpoint, Trainer
 from pdeinv.methods import GD, HIG, SIP, adam, sgd
 from pdeinv.nets import MLP
 
-
-@pytest.fixture(autouse=True)
-def _one_thread(one_thread):
-    yield
-
-
-@pytest.fixture(scope="module")
-def heat():
-    return pdeinv.load_problem("heat_1d", n=16, steps=10, backend="modal")
+pytestmark = pytest.mark.usefixtures("one_thread")  # small dense work: one torch thread
 
 
 def trainer(problem, rule, steps, ckpt=None, resume=False, hidden=(16,), **kw):

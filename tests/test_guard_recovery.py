@@ -10,22 +10,13 @@ import math
 import pytest
 import torch
 
-import pdeinv
 from pdeinv import Checkpoint, Trainer
 from pdeinv.cli import main
 from pdeinv.methods import GD, sgd
 from pdeinv.methods.guard import Diverged, apply_if_finite
 from pdeinv.nets import MLP
 
-
-@pytest.fixture(autouse=True)
-def _one_thread(one_thread):
-    yield
-
-
-@pytest.fixture(scope="module")
-def heat():
-    return pdeinv.load_problem("heat_1d", n=16, steps=10, backend="modal")
+pytestmark = pytest.mark.usefixtures("one_thread")  # small dense work: one torch thread
 
 
 class Kick(GD):

@@ -22,14 +22,7 @@ SMALL = ["--set", "n=16", "--set", "steps=10", "--hidden", "8", "--n-train", "32
          "--batch-size", "8", "--threads", "1", "--export-samples", "0", "--checkpoint-every", "1"]
 
 
-@pytest.fixture(autouse=True)
-def _one_thread(one_thread):
-    yield
-
-
-@pytest.fixture(scope="module")
-def heat():
-    return pdeinv.load_problem("heat_1d", n=16, steps=10, backend="modal")
+pytestmark = pytest.mark.usefixtures("one_thread")  # small dense work: one torch thread
 
 
 def trainer(problem, rule, steps, ckpt, resume=False, model=None, **kw):

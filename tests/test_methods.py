@@ -16,10 +16,7 @@ from torch import nn
 import pdeinv
 from pdeinv.methods import GD, HIG, SIP, NonFiniteError, adam, sgd
 
-
-@pytest.fixture(autouse=True)
-def _one_thread(one_thread):
-    yield
+pytestmark = pytest.mark.usefixtures("one_thread")  # small dense work: one torch thread
 
 
 def toy(n=5, m=5, seed=0):

@@ -22,9 +22,7 @@ from pdeinv.nets import MLP
 FAULTS = str(Path(__file__).with_name("faults.py"))
 
 
-@pytest.fixture(autouse=True)
-def _one_thread(one_thread):
-    yield
+pytestmark = pytest.mark.usefixtures("one_thread")  # small dense work: one torch thread
 
 
 def trainer(rule, poison="", steps=6, **kw):

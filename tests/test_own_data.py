@@ -15,10 +15,7 @@ from pdeinv.methods import GD, adam
 from pdeinv.stopping import DiscrepancyStop
 from pdeinv.train import Trainer
 
-
-@pytest.fixture(autouse=True)
-def _one_thread(one_thread):
-    yield
+pytestmark = pytest.mark.usefixtures("one_thread")  # small dense work: one torch thread
 
 
 @pytest.fixture(scope="module")

@@ -20,9 +20,7 @@ SMALL = ["--set", "n=16", "--n-train", "32", "--n-test", "16", "--batch-size", "
          "--hidden", "16", "--threads", "1"]
 
 
-@pytest.fixture(autouse=True)
-def _one_thread(one_thread):
-    yield
+pytestmark = pytest.mark.usefixtures("one_thread")  # small dense work: one torch thread
 
 
 def train(out, *extra, problem="heat_1d", steps=4):

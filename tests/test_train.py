@@ -19,10 +19,7 @@ from pdeinv.methods import GD, HIG, SIP, adam, sgd
 from pdeinv.nets import MLP
 from pdeinv.train import Trainer
 
-
-@pytest.fixture(autouse=True)
-def _one_thread(one_thread):
-    yield
+pytestmark = pytest.mark.usefixtures("one_thread")  # small dense work: one torch thread
 
 
 @pytest.fixture(scope="module")

@@ -87,7 +87,22 @@ def _chol(M, n: int):
     return np.eye(n) if M is None else la.cholesky(M.toarray() if hasattr(M, "toarray") else M, lower=True)
 
 
-class SVD:
+class Spectral:
+    """``P = out diag(g) Inᵀ`` from a spectral basis (the modal heat backend, :class:`SVD`):
+    forward ``((X In) g) outᵀ``, adjoint ``((R out) g) Inᵀ``, exact transposes of each other."""
+
+    @property
+    def k(self) -> int:
+        return len(self.g)
+
+    def forward(self, X):
+        return ((X @ self.In) * self.g) @ self.out.T
+
+    def adjoint(self, R):
+        return ((R @ self.out) * self.g) @ self.In.T
+
+
+class SVD(Spectral):
     """Truncated SVD of ``P`` in the norms of ``M`` (input) and ``M_out`` (output; module docstring)."""
 
     name = "svd"
@@ -122,15 +137,6 @@ class SVD:
     def nbytes(n_in: int, n_out: int) -> int:
         return 8 * (4 * n_in * n_out + 2 * (n_in + n_out) * min(n_in, n_out))  # build peak
 
-    @property
-    def k(self) -> int:
-        return len(self.g)
-
-    def forward(self, X):
-        return ((X @ self.In) * self.g) @ self.out.T
-
-    def adjoint(self, R):
-        return ((R @ self.out) * self.g) @ self.In.T
 
 
 KINDS = {"dense": Dense, "svd": SVD}

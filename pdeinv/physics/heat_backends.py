@@ -12,7 +12,7 @@ import numpy as np
 
 from ..cache import cached
 from . import modes as _modes
-from .compiled import build, fingerprint, plan
+from .compiled import Spectral, build, fingerprint, plan
 from .modes import DENSE_MAX, TooManyModes, largest_eigenvalue, lowest_modes
 from .propagator import FinalField, Propagator
 
@@ -35,7 +35,7 @@ class Stepping:
         self.forward, self.adjoint = self.run._forward, self.run._adjoint
 
 
-class Modal:
+class Modal(Spectral):
     """Truncated modal propagator ``P = Φ diag(g) Φᵀ M``, ``g = r(dtκλ)ⁿ``.
 
     Keeps the modes with ``|g| ≥ tol·max|g|`` (compared in logs, so nothing
@@ -93,19 +93,10 @@ class Modal:
         self.g = heat.amplification(self.lam)
         self.MPhi = np.ascontiguousarray(heat.M @ self.Phi)
         self.n_total = heat.M.shape[0]
-        # the spectral-basis view (pdeinv.physics.compiled.SVD has the same): P = out diag(g) (M synth)ᵀ
+        # the spectral basis (compiled.Spectral applies it): P = out diag(g) Inᵀ, In = MΦ, out = synth = Φ
         self.proj, self.out, self.synth, self.mass_out = self.MPhi, self.Phi, self.Phi, heat.M
         self.In = self.MPhi
 
-    @property
-    def k(self) -> int:
-        return len(self.lam)
-
-    def forward(self, X):
-        return ((X @ self.MPhi) * self.g) @ self.Phi.T
-
-    def adjoint(self, R):
-        return ((R @ self.Phi) * self.g) @ self.MPhi.T
 
 
 def _compiled(kind):
