@@ -136,6 +136,11 @@ def _warn_once(where: Path, err: OSError) -> None:
                       "PDEINV_NO_CACHE=1)", RuntimeWarning, stacklevel=3)
 
 
+def has(kind: str, parts: dict) -> bool:
+    """Whether an entry for these ``parts`` is stored (not yet verified: :func:`cached` does that)."""
+    return enabled() and (folder() / f"{kind}-{key(kind, parts)}.npz").is_file()
+
+
 def cached(kind: str, parts: dict, build, verify=None, cache: bool = True) -> dict:
     """``build()``'s arrays for these ``parts``, from the disk cache when a valid entry exists.
 

@@ -68,6 +68,33 @@ def test_auto_plans_by_the_cost_of_a_run():
     assert kind == "steps" and "dense≈" in why
 
 
+def test_the_plan_counts_the_steps_the_run_will_take():
+    """A 10-step run does not pay for a dense build; a long run does (wave_2d, 961 unknowns)."""
+    with compiled.expecting(steps=10):
+        short = load("wave_2d", n=30).operator
+    with compiled.expecting(steps=2000, batch=64):
+        long = load("wave_2d", n=30).operator
+    assert short.choice.startswith("auto: steps") and "10 steps" in short.choice
+    assert long.choice.startswith("auto: dense") and "2000 steps × 64 columns" in long.choice
+    assert compiled.EXPECT["steps"] == 1000  # restored after the block
+    for bad in (0, -3, 2.5, True):
+        with pytest.raises(ValueError, match=f"steps={bad!r} is not allowed"):
+            with compiled.expecting(steps=bad):
+                pass
+
+
+def test_a_cached_build_costs_nothing_in_the_plan(tmp_path, monkeypatch):
+    """Stepping wins a 10-step run of wave_2d only while the dense matrix is not in the cache."""
+    monkeypatch.setenv("PDEINV_CACHE_DIR", str(tmp_path))
+    monkeypatch.delenv("PDEINV_NO_CACHE", raising=False)
+    with compiled.expecting(steps=10):
+        cold = load("wave_2d", n=30).operator
+        assert cold.choice.startswith("auto: steps")
+        load("wave_2d", n=30, backend="dense")  # fills the cache
+        warm = load("wave_2d", n=30).operator
+    assert warm.choice.startswith("auto: dense") and "(cached)" in warm.choice
+
+
 def test_budget_refuses_an_explicit_choice_and_auto_falls_back(monkeypatch):
     monkeypatch.setenv("PDEINV_DENSE_BUDGET_GB", "1e-6")
     with pytest.raises(ValueError, match=r"backend='dense' needs about .* GB .* budget is 1e-06 GB"):

@@ -36,15 +36,17 @@ def add_memory_argument(parser) -> None:
                              "available memory; see pdeinv/memory.py)")
 
 
-def build_problem(command: str, name: str, sets: list[str], after_s: float = 1.0):
+def build_problem(command: str, name: str, sets: list[str], after_s: float = 1.0, steps: int | None = None):
     """``pdeinv.load_problem(name, **parse_sets(sets))``, saying on stderr what it builds when that
     takes longer than ``after_s`` seconds (one line, then its time): a large mesh or a modal basis
-    can take minutes."""
+    can take minutes. ``steps``: the training steps the run will take, for the backend's cost
+    model (:func:`pdeinv.physics.compiled.expecting`; ``None``: its default)."""
     import sys
     import threading
     import time
 
     import pdeinv
+    from pdeinv.physics.compiled import expecting
 
     overrides = parse_sets(sets)
     what = f"{name} ({', '.join(f'{k}={v}' for k, v in overrides.items())})" if overrides else name
@@ -54,7 +56,8 @@ def build_problem(command: str, name: str, sets: list[str], after_s: float = 1.0
     timer.daemon = True
     timer.start()
     try:
-        problem = pdeinv.load_problem(name, **overrides)
+        with expecting(steps=steps):
+            problem = pdeinv.load_problem(name, **overrides)
     finally:
         timer.cancel()
     took = time.perf_counter() - t0

@@ -140,7 +140,7 @@ def cmd_train(args) -> int:
     set_threads(args.threads)
     no_cache(args)
     overrides = parse_sets(args.set)
-    problem = build_problem("train", args.problem, args.set)  # says what it builds when slow
+    problem = build_problem("train", args.problem, args.set, steps=args.steps)  # says so when slow
     y, x = read_npz(args.data, problem.operator.n_out, problem.N) if args.data else (None, None)
     rule, hp = make_rule(args.method, problem.name, problem.noise, lr=args.lr, eta=args.eta, tau=args.tau,
                          batch_size=args.batch_size, hidden=hidden, optimizer=args.optimizer)

@@ -26,6 +26,7 @@ choice over budget is refused with the size it needs, ``auto`` falls back to ste
 from __future__ import annotations
 
 import os
+from contextlib import contextmanager
 
 import numpy as np
 import scipy.linalg as la
@@ -39,6 +40,24 @@ SVD_RTOL = 1e-12
 EXPECT = {"steps": 1000, "batch": 32, "cg_iterations": 100}
 #: BLAS products run this many times more flops per second than sparse solves (measured 4-10x)
 BLAS_ADVANTAGE = 4.0
+
+
+@contextmanager
+def expecting(steps: int | None = None, batch: int | None = None):
+    """Within the block, :func:`plan` assumes a training run of ``steps`` steps of ``batch``
+    columns (``None``: keep :data:`EXPECT`'s). ``pdeinv train`` passes its ``--steps``:
+    ``with expecting(steps=50): problem = load_problem("wave_2d")``."""
+    given = {k: v for k, v in (("steps", steps), ("batch", batch)) if v is not None}
+    for name, v in given.items():
+        if isinstance(v, bool) or not isinstance(v, int) or v < 1:
+            raise ValueError(f"{name}={v!r} is not allowed; expected an integer >= 1")
+    before = dict(EXPECT)
+    EXPECT.update(given)
+    try:
+        yield
+    finally:
+        EXPECT.clear()
+        EXPECT.update(before)
 
 
 def budget_gb() -> float:
@@ -178,12 +197,23 @@ def build(kind: str, run, n_in: int, n_out: int, M=None, M_out=None, parts: dict
     else:
         from ..cache import cached
 
-        arrays = cached(f"compiled_{kind}", {**parts, "M": M, "M_out": M_out, "rtol": SVD_RTOL,
-                                               "shape": [n_out, n_in]}, make)
+        arrays = cached(f"compiled_{kind}", _key(parts, M, M_out, n_in, n_out), make)
     return Dense(arrays["P"]) if kind == "dense" else SVD.restore(arrays, M_out)
 
 
-def plan(step_flops: float, n_in: int, n_out: int, reversible: bool = False) -> tuple[str, str]:
+def _key(parts: dict, M, M_out, n_in: int, n_out: int) -> dict:
+    return {**parts, "M": M, "M_out": M_out, "rtol": SVD_RTOL, "shape": [n_out, n_in]}
+
+
+def in_cache(parts: dict, M, M_out, n_in: int, n_out: int) -> frozenset:
+    """The compiled kinds whose arrays for this map are already in the disk cache (no build)."""
+    from ..cache import has
+
+    return frozenset(k for k in KINDS if has(f"compiled_{k}", _key(parts, M, M_out, n_in, n_out)))
+
+
+def plan(step_flops: float, n_in: int, n_out: int, reversible: bool = False,
+         cached: frozenset = frozenset()) -> tuple[str, str]:
     """``(kind, why)``: 'steps', 'dense' or 'svd' by the flops of a training run (module docstring).
 
     Per step ``b`` columns go forward and back, and a SIP step adds a local inverse: time reversal
@@ -191,16 +221,20 @@ def plan(step_flops: float, n_in: int, n_out: int, reversible: bool = False) -> 
     in the SVD basis (two applications) or, for stepping and dense, a CG solve of about
     ``2·cg_iterations`` applications. Stepping costs ``step_flops`` per column, dense ``2mN``,
     SVD ``2r(m + N)`` with ``r ≤ min(m, N)`` (BLAS flops discounted by :data:`BLAS_ADVANTAGE`);
-    the build runs ``N`` columns of stepping, plus ``~4 m N min(m, N)`` for the SVD.
+    the build runs ``N`` columns of stepping, plus ``~4 m N min(m, N)`` for the SVD, and costs
+    nothing for the kinds in ``cached`` (:func:`in_cache`). Steps and batch: :data:`EXPECT`,
+    set for one block by :func:`expecting`.
     """
     e, blas = EXPECT, 1.0 / BLAS_ADVANTAGE
     cols, r = e["steps"] * e["batch"], min(n_in, n_out)
     apply = {"steps": step_flops, "dense": 2 * n_in * n_out * blas, "svd": 2 * r * (n_in + n_out) * blas}
     build = {"steps": 0.0, "dense": n_in * step_flops, "svd": n_in * step_flops + 4 * n_in * n_out * r * blas}
+    build = {k: 0.0 if k in cached else v for k, v in build.items()}
     cg = 2 * e["cg_iterations"]
     inverse = {k: 2 * step_flops if reversible else (2 if k == "svd" else cg) * a for k, a in apply.items()}
     cost = {k: build[k] + cols * (2 * apply[k] + inverse[k]) for k in apply}
     fits = {k: k == "steps" or KINDS[k].nbytes(n_in, n_out) / 1e9 <= budget_gb() for k in cost}
     best = min((k for k in cost if fits[k]), key=cost.get)
-    why = ", ".join(f"{k}≈{v:.2g}" + ("" if fits[k] else " (over budget)") for k, v in cost.items())
+    why = ", ".join(f"{k}≈{v:.2g}" + ("" if fits[k] else " (over budget)")
+                    + (" (cached)" if k in cached else "") for k, v in cost.items())
     return best, f"auto: {best} (flops of {e['steps']} steps × {e['batch']} columns: {why})"

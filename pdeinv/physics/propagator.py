@@ -84,16 +84,17 @@ class Propagator(LinearOperator):
         """Apply ``P`` through a compiled backend: 'dense', 'svd' (in the norms of ``M``, default
         ``self.mass``; Euclidean for records), 'steps' (none) or 'auto' (:func:`.compiled.plan`)."""
         from .capabilities import reversible
-        from .compiled import build, fingerprint, plan
+        from .compiled import build, fingerprint, in_cache, plan
 
         kind = one_of(kind, "backend", ("auto", "steps", "dense", "svd"))
         why = f"backend={kind!r} requested"
-        if kind == "auto":
-            kind, why = plan(self.step_flops(), self.n_in, self.n_out, reversible(self))
         M = self.mass if M is None else M
-        self.backend = None if kind == "steps" else build(
-            kind, self._step_forward, self.n_in, self.n_out, M, M if self.output_space == "field" else None,
-            fingerprint(self))
+        M_out, parts = (M if self.output_space == "field" else None), fingerprint(self)
+        if kind == "auto":
+            kind, why = plan(self.step_flops(), self.n_in, self.n_out, reversible(self),
+                             in_cache(parts, M, M_out, self.n_in, self.n_out))
+        self.backend = None if kind == "steps" else build(kind, self._step_forward, self.n_in, self.n_out,
+                                                          M, M_out, parts)
         self.choice = why
         return self
 
