@@ -32,6 +32,8 @@ import numpy as np
 import scipy.linalg as la
 import scipy.sparse as sp
 
+from .lowrank import RankTooHigh, svd_from_products
+
 #: default memory budget of a dense or SVD backend, in GB (env PDEINV_DENSE_BUDGET_GB overrides)
 BUDGET_GB = 1.0
 #: relative singular-value cut of :class:`SVD`
@@ -173,19 +175,34 @@ def fingerprint(run) -> dict:
     return parts
 
 
-def build(kind: str, run, n_in: int, n_out: int, M=None, M_out=None, parts: dict | None = None):
+def build(kind: str, run, n_in: int, n_out: int, M=None, M_out=None, parts: dict | None = None,
+          adjoint=None):
     """A compiled backend of ``kind`` ('dense' or 'svd') for the map ``run``, within the budget.
 
+    With ``adjoint`` an SVD is first tried from products (:func:`.lowrank.svd_from_products`,
+    about ``r + 32`` forward and ``r`` adjoint runs); once the rank passes ``(N − 32)/2`` the
+    ``N`` runs of the dense ``P`` are cheaper and it is built from those instead.
     With ``parts`` (what determines the map, e.g. :func:`fingerprint` of the scheme and the
     observation) the arrays go through the disk cache (:mod:`pdeinv.cache`): a second run of
-    the same scene loads them instead of stepping ``N`` columns again.
+    the same scene loads them instead of stepping again.
     """
     need, have = KINDS[kind].nbytes(n_in, n_out) / 1e9, budget_gb()
-    if need > have:
+    if need > have and not (kind == "svd" and adjoint is not None):
         raise ValueError(f"backend={kind!r} needs about {need:.2g} GB for a {n_out}×{n_in} operator; the "
                          f"budget is {have:g} GB (PDEINV_DENSE_BUDGET_GB); use backend='steps' or 'auto'")
 
     def make():
+        if kind == "svd" and adjoint is not None:
+            fits = need <= have
+            per_rank = 3 * 8 * (n_in + n_out)  # Q, W, B and the factors, per singular value
+            cap = (n_in - 32) // 2 if fits else int(have * 1e9 / per_rank)
+            try:
+                return svd_from_products(run, adjoint, n_in, n_out, M, M_out, SVD_RTOL, max_rank=cap)
+            except RankTooHigh as err:
+                if not fits:
+                    raise ValueError(f"backend='svd' of this {n_out}×{n_in} operator has {err} and "
+                                     f"would need more than the budget of {have:g} GB "
+                                     "(PDEINV_DENSE_BUDGET_GB); use backend='steps' or 'auto'") from None
         P = matrix(run, n_in, n_out)
         if kind == "dense":
             return {"P": P}

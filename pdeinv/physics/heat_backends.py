@@ -99,7 +99,8 @@ class Modal(Spectral):
 def _compiled(kind):
     def make(heat):
         run = Stepping(heat).run
-        return build(kind, run._forward, heat.n_in, heat.n_in, heat.M, heat.M, fingerprint(run))
+        return build(kind, run._forward, heat.n_in, heat.n_in, heat.M, heat.M, fingerprint(run),
+                     adjoint=run._adjoint)
     return make
 
 

@@ -93,8 +93,11 @@ class Propagator(LinearOperator):
         if kind == "auto":
             kind, why = plan(self.step_flops(), self.n_in, self.n_out, reversible(self),
                              in_cache(parts, M, M_out, self.n_in, self.n_out))
+        # an undamped (time-reversible) map with m ≥ N keeps every input direction: no low-rank try
+        low_rank = not (reversible(self) and self.n_out >= self.n_in)
         self.backend = None if kind == "steps" else build(kind, self._step_forward, self.n_in, self.n_out,
-                                                          M, M_out, parts)
+                                                          M, M_out, parts,
+                                                          adjoint=self._step_adjoint if low_rank else None)
         self.choice = why
         return self
 
