@@ -22,6 +22,8 @@ wave_1d    hig η (τ = 1e-5)       **0.1 y .068**, 0.3 y .14, 1.0 div
 heat_2d    gd lr                  **0.01 .56**, 0.1 div, 1.0 div
 heat_2d    adam lr                3e-4 .46, **1e-3 .44**, 3e-3 .67
 heat_2d    sip lr (η = 1)         3e-4 .33, **1e-3 .31**, 3e-3 .59
+wave_s_2d  gd lr (300 steps)      1e-4 .71, 3e-4 .54, **1e-3 .42**, 3e-3 .43,
+                                  1e-2 (GD_LR) .83 after a guard rollback at step 10
 =========  =====================  ==========================================
 
 The heat scenes' default network is now the whitened linear map (:mod:`pdeinv.nets`); SIP's
@@ -79,6 +81,8 @@ NOISY = {"sip": {"optimizer": "sgd", "lr": 0.05}}
 PER_PROBLEM: dict[str, dict[str, dict]] = {
     "heat_1d": {"gd": {"lr": 0.1}},
     "wave_1d": {"gd": {"lr": 0.1}},
+    # 3072 records per sample: ‖P‖ is ~10× heat_2d's, the loss's curvature ~100×
+    "wave_sensors_2d": {"gd": {"lr": 1e-3}},
 }
 
 
