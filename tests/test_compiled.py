@@ -158,3 +158,23 @@ def test_compiled_arrays_come_from_the_disk_cache_the_second_time(monkeypatch):
     np.testing.assert_array_equal(first.backend.g, second.backend.g)
     load("wave_sensors_2d", **{**kw, "steps": 14, "record_every": 7})  # another map: a miss
     assert len(calls) == 2
+
+
+def test_time_reversal_compiled_with_the_forward_agrees_with_stepping(monkeypatch):
+    """wave_2d (dense forward): the local inverse is one matrix, equal to reversing the run."""
+    from pdeinv.inverse import CompiledInverse, TimeReversal
+
+    p = load("wave_2d", n=8)
+    inv = p.inverse_simulator
+    assert isinstance(inv, CompiledInverse) and isinstance(inv.inverse, TimeReversal)
+    x, y = p.sample(4, seed=0)
+    x0 = np.random.default_rng(1).standard_normal(x.shape)
+    want = inv.inverse(y, x0)
+    assert np.linalg.norm(inv(y, x0) - want) <= 1e-12 * np.linalg.norm(want)
+    assert np.allclose(inv(p.operator.forward(x0), x0), x0, atol=1e-12)  # exact at y = P x0
+    assert np.allclose(inv(y[0], x0[0]), want[0], atol=1e-12)  # one sample
+    monkeypatch.setenv("PDEINV_DENSE_BUDGET_GB", "5e-5")  # P fits (38 kB), the inverse (77 kB) does not
+    with pytest.raises(ValueError, match="compiling TimeReversal needs about"):
+        CompiledInverse(TimeReversal(p.operator), p.operator.n_out, p.operator.n_in)
+    fallback = load("wave_2d", n=8)
+    assert fallback.operator.backend is not None and isinstance(fallback.inverse_simulator, TimeReversal)

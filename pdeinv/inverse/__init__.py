@@ -18,6 +18,7 @@ import numpy as np
 from ..physics.capabilities import modal_basis, output_mass, reversible
 from .alpha import Discrepancy, FixedAlpha, RelativeAlpha
 from .cg import TikhonovCG
+from .compiled import CompiledInverse
 from .modal import ModalTikhonov, SpectralTikhonov
 from .time_reversal import StateReversal, TimeReversal
 
@@ -47,7 +48,8 @@ def default_inverse(op, disc=None, noise: float = 0.0, alpha=None):
     """The local inverse simulator for ``op``, chosen by capability (never by class).
 
     * reversible (``final_state`` and ``reverse``, e.g. :class:`~pdeinv.Wave`) →
-      :class:`TimeReversal` (no α; exact at ``y₀``);
+      :class:`TimeReversal` (no α; exact at ``y₀``), as a :class:`CompiledInverse` matrix when
+      the forward is compiled (dense or SVD) and it fits the budget;
     * a spectral basis (``op.modes``: the modal heat backend, or a compiled SVD) →
       :class:`SpectralTikhonov` (a filter per mode, Morozov's α in closed form);
     * anything else → :class:`TikhonovCG` with the input mass ``disc.M`` (``op.mass``, or
@@ -57,8 +59,15 @@ def default_inverse(op, disc=None, noise: float = 0.0, alpha=None):
 
     ``alpha`` defaults to :func:`default_alpha` ``(noise)``.
     """
-    if reversible(op):
-        return TimeReversal(op)
+    if reversible(op):  # compiled too when the forward is (its build is paid once, then cached)
+        if getattr(op, "backend", None) is None:
+            return TimeReversal(op)
+        from ..physics.compiled import fingerprint
+
+        try:
+            return CompiledInverse(TimeReversal(op), op.n_out, op.n_in, fingerprint(op))
+        except ValueError:  # over the dense budget
+            return TimeReversal(op)
     rule = default_alpha(noise) if alpha is None else alpha
     if modal_basis(op) is not None:
         return SpectralTikhonov(op, rule)
@@ -67,5 +76,6 @@ def default_inverse(op, disc=None, noise: float = 0.0, alpha=None):
     return TikhonovCG(op, M, rule, M_out=output_mass(op, M), scale=known() if callable(known) else None)
 
 
-__all__ = ["Discrepancy", "FixedAlpha", "ModalTikhonov", "SpectralTikhonov", "RelativeAlpha", "StateReversal",
-           "TikhonovCG", "TimeReversal", "default_alpha", "default_inverse"]
+__all__ = ["CompiledInverse", "Discrepancy", "FixedAlpha", "ModalTikhonov", "SpectralTikhonov",
+           "RelativeAlpha",
+           "StateReversal", "TikhonovCG", "TimeReversal", "default_alpha", "default_inverse"]

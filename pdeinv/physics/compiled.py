@@ -234,10 +234,11 @@ def plan(step_flops: float, n_in: int, n_out: int, reversible: bool = False,
     """``(kind, why)``: 'steps', 'dense' or 'svd' by the flops of a training run (module docstring).
 
     Per step ``b`` columns go forward and back, and a SIP step adds a local inverse: time reversal
-    (two stepping runs, whatever the backend) for a ``reversible`` operator; otherwise a filter
-    in the SVD basis (two applications) or, for stepping and dense, a CG solve of about
-    ``2·cg_iterations`` applications. Stepping costs ``step_flops`` per column, dense ``2mN``,
-    SVD ``2r(m + N)`` with ``r ≤ min(m, N)`` (BLAS flops discounted by :data:`BLAS_ADVANTAGE`);
+    for a ``reversible`` operator (two stepping runs; with a compiled forward it is compiled too,
+    :class:`pdeinv.inverse.CompiledInverse`: an ``N × (m + N)`` product, built by ``m + N`` pairs of
+    runs); otherwise a filter in the SVD basis (two applications) or, for stepping and dense, a
+    CG solve of about ``2·cg_iterations`` applications. Stepping costs ``step_flops`` per column,
+    dense ``2mN``, SVD ``2r(m + N)`` with ``r ≤ min(m, N)`` (BLAS flops discounted by :data:`BLAS_ADVANTAGE`);
     the build runs ``N`` columns of stepping, plus ``~4 m N min(m, N)`` for the SVD, and costs
     nothing for the kinds in ``cached`` (:func:`in_cache`). Steps and batch: :data:`EXPECT`,
     set for one block by :func:`expecting`.
@@ -246,9 +247,13 @@ def plan(step_flops: float, n_in: int, n_out: int, reversible: bool = False,
     cols, r = e["steps"] * e["batch"], min(n_in, n_out)
     apply = {"steps": step_flops, "dense": 2 * n_in * n_out * blas, "svd": 2 * r * (n_in + n_out) * blas}
     build = {"steps": 0.0, "dense": n_in * step_flops, "svd": n_in * step_flops + 4 * n_in * n_out * r * blas}
-    build = {k: 0.0 if k in cached else v for k, v in build.items()}
     cg = 2 * e["cg_iterations"]
-    inverse = {k: 2 * step_flops if reversible else (2 if k == "svd" else cg) * a for k, a in apply.items()}
+    if reversible:
+        inverse = {k: 2 * step_flops if k == "steps" else 2 * n_in * (n_in + n_out) * blas for k in apply}
+        build = {k: v + (0 if k == "steps" else 2 * (n_in + n_out) * step_flops) for k, v in build.items()}
+    else:
+        inverse = {k: (2 if k == "svd" else cg) * a for k, a in apply.items()}
+    build = {k: 0.0 if k in cached else v for k, v in build.items()}
     cost = {k: build[k] + cols * (2 * apply[k] + inverse[k]) for k in apply}
     fits = {k: k == "steps" or KINDS[k].nbytes(n_in, n_out) / 1e9 <= budget_gb() for k in cost}
     best = min((k for k in cost if fits[k]), key=cost.get)
