@@ -25,6 +25,10 @@ The folder is ``$PDEINV_CACHE_DIR`` if set, else ``$XDG_CACHE_HOME/pdeinv`` or
 ``~/.cache/pdeinv``. If it cannot be created or written, one warning per folder is
 given and results are computed uncached. ``PDEINV_NO_CACHE=1`` (the CLI's
 ``--no-cache``) or ``cache=False`` turns the cache off.
+
+The folder is kept under ``$PDEINV_CACHE_MAX_GB`` (default :data:`MAX_GB`): after each
+write the least recently used entries (a hit refreshes an entry's time) are deleted until
+the rest fits; the entry just written is never deleted.
 """
 
 from __future__ import annotations
@@ -44,6 +48,8 @@ from .files import atomic_write
 #: bump when the file layout or the hashing changes: old entries then simply miss
 FORMAT = 1
 _HEADER = "__pdeinv_cache__"
+#: default size limit of the cache folder in GB (env ``PDEINV_CACHE_MAX_GB``)
+MAX_GB = 5.0
 _warned: set[str] = set()
 
 
@@ -58,6 +64,42 @@ def folder() -> Path:
 def enabled() -> bool:
     """False when ``PDEINV_NO_CACHE`` is set to anything but ``''`` or ``'0'``."""
     return os.environ.get("PDEINV_NO_CACHE", "") in ("", "0")
+
+
+def max_bytes() -> float:
+    raw = os.environ.get("PDEINV_CACHE_MAX_GB")
+    try:
+        value = MAX_GB if raw is None else float(raw)
+    except ValueError:
+        value = float("nan")
+    if not value > 0:
+        raise ValueError(f"PDEINV_CACHE_MAX_GB={raw!r} is not allowed; expected a number of GB > 0")
+    return value * 1e9
+
+
+def evict(where: Path, keep: Path) -> list[Path]:
+    """Delete the least recently used entries of ``where`` until it fits :func:`max_bytes`
+    (never ``keep``); returns what was deleted. Entries another process removes first are skipped."""
+    entries = []
+    for path in where.glob("*-*.npz"):
+        try:
+            st = path.stat()
+        except OSError:
+            continue
+        entries.append((st.st_mtime, st.st_size, path))
+    total, limit, gone = sum(e[1] for e in entries), max_bytes(), []
+    for _, size, path in sorted(entries):
+        if total <= limit:
+            break
+        if path == keep:
+            continue
+        try:
+            path.unlink()
+        except OSError:
+            continue
+        total -= size
+        gone.append(path)
+    return gone
 
 
 def _plain(value):
@@ -155,7 +197,12 @@ def cached(kind: str, parts: dict, build, verify=None, cache: bool = True) -> di
     path = where / f"{kind}-{k}.npz"
     if path.is_file():
         try:
-            return _load(path, k, verify)
+            arrays = _load(path, k, verify)
+            try:
+                os.utime(path)  # recently used: the last to be evicted
+            except OSError:
+                pass
+            return arrays
         except ValueError as err:
             warnings.warn(f"cache entry {str(path)!r} is invalid ({err}); rebuilding it",
                           RuntimeWarning, stacklevel=2)
@@ -166,6 +213,7 @@ def cached(kind: str, parts: dict, build, verify=None, cache: bool = True) -> di
     try:
         where.mkdir(parents=True, exist_ok=True)
         atomic_write(path, lambda fh: np.savez(fh, **arrays, **{_HEADER: header}))
+        evict(where, path)
     except OSError as err:
         _warn_once(where, err)
     return arrays

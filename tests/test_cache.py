@@ -238,3 +238,27 @@ def test_modal_backend_from_the_cache_equals_the_fresh_one_bitwise(folder, monke
         assert np.array_equal(getattr(stored, name), getattr(fresh, name))
     with pytest.raises(AssertionError, match="built although"):  # another tolerance: another entry
         Modal(_heat(kappa=0.05, tol=1e-12))
+
+
+def test_the_folder_is_kept_under_its_size_limit_least_recently_used_first(folder, monkeypatch):
+    import os
+    import time
+
+    big = lambda: {"a": np.zeros(20_000)}  # noqa: E731  160 kB each
+    for i in range(3):
+        cache.cached("t", parts(tol=10.0 ** -(10 + i)), big)
+    paths = {i: folder / f"t-{cache.key('t', parts(tol=10.0 ** -(10 + i)))}.npz" for i in range(3)}
+    now = time.time()
+    for i, age in ((0, 30), (1, 20), (2, 10)):
+        os.utime(paths[i], (now - age, now - age))
+    cache.cached("t", parts(tol=1e-10), big)  # a hit makes entry 0 the most recently used
+    monkeypatch.setenv("PDEINV_CACHE_MAX_GB", str(3.5 * 160_400 / 1e9))
+    cache.cached("t", parts(tol=1e-20), big)  # a fourth entry: the oldest (entry 1) goes
+    left = set(entries(folder))
+    assert paths[1] not in left and {paths[0], paths[2]} <= left and len(left) == 3
+    monkeypatch.setenv("PDEINV_CACHE_MAX_GB", "1e-9")  # smaller than any entry: only the new one stays
+    cache.cached("t", parts(tol=1e-21), big)
+    assert len(entries(folder)) == 1
+    monkeypatch.setenv("PDEINV_CACHE_MAX_GB", "-1")
+    with pytest.raises(ValueError, match="PDEINV_CACHE_MAX_GB='-1' is not allowed"):
+        cache.cached("t", parts(tol=1e-22), big)
