@@ -19,7 +19,8 @@ update with the same optimizer, so the parameters stay identical without a broad
 **Why not ``DistributedDataParallel``.** Our rules return a direction from
 ``torch.autograd.grad`` (:class:`~pdeinv.methods.base.Update`) instead of calling
 ``.backward()`` on a wrapped module, which is what DDP's gradient hooks need; averaging
-the direction with one flattened ``all_reduce`` is the same communication DDP does.
+the direction with one flattened ``all_reduce`` (in the parameters' dtype) is the same
+communication DDP does.
 
 **Only gradient-like rules.** A rule whose transformation is an optimizer step (the
 direction is a gradient of the batch-mean loss: GD, Adam, SIP's proxy) is averaged as
@@ -141,7 +142,7 @@ class DataParallel:
         return Sharded(rule, self)
 
     def average(self, params: list, direction, info: dict):
-        """Mean over ranks of ``direction`` and of ``info``'s numbers, in one ``all_reduce``:
+        """Mean over ranks of ``direction`` and of ``info``'s numbers (two ``all_reduce`` SUMs / P):
         ``(direction, info)``, or ``(None, info)`` when the mean loss is not finite.
 
         The buffer covers every parameter in ``params`` (zeros where the rule leaves one alone);
@@ -152,17 +153,19 @@ class DataParallel:
 
         keys = sorted(k for k, v in info.items() if isinstance(v, (int, float)) and not isinstance(v, bool))
         device = params[0].device
+        # the parameters' own precision on the wire (float32 for the default MLP), the numbers in float64
+        dtype = params[0].dtype if all(p.dtype == params[0].dtype for p in params) else torch.float64
         if direction is None:
-            flat = torch.full((sum(p.numel() for p in params),), math.nan, dtype=torch.float64, device=device)
+            flat = torch.full((sum(p.numel() for p in params),), math.nan, dtype=dtype, device=device)
         else:
-            flat = torch.cat([(torch.zeros_like(p) if d is None else d.detach()).reshape(-1).double()
+            flat = torch.cat([(torch.zeros_like(p) if d is None else d.detach()).reshape(-1).to(dtype)
                               for p, d in zip(params, direction, strict=True)])
         numbers = torch.tensor([float(info[k]) for k in keys], dtype=torch.float64, device=device)
-        flat = torch.cat([flat, numbers])
         dist.all_reduce(flat, op=dist.ReduceOp.SUM)
+        dist.all_reduce(numbers, op=dist.ReduceOp.SUM)
         flat /= self.world_size
-        n = len(flat) - len(keys)
-        info = {**info, **dict(zip(keys, flat[n:].tolist(), strict=True))}
+        numbers /= self.world_size
+        info = {**info, **dict(zip(keys, numbers.tolist(), strict=True))}
         if direction is None or not math.isfinite(info.get("loss", math.nan)):
             return None, info
         out, at = [], 0
