@@ -455,8 +455,8 @@ class Trainer:
         for cb in self.callbacks:
             if cb(record, run.model) and not done:
                 done, at.stopped_by = True, "callback"
-        if self.parallel.agree(done) and not done:  # another rank's time budget ran out
-            done = True
+        if self.parallel.agree(done) and not done:  # e.g. another process's time budget ran out
+            done, at.stopped_by = True, "another process"
         if done and "y_err" not in record:  # a callback stopped between evaluations
             record.update(self.evaluate(run.model, run.test))
         if self.parallel.is_writer and self.checkpoint is not None and (

@@ -29,6 +29,7 @@ from pathlib import Path
 import pytest
 import torch
 
+import pdeinv
 from pdeinv import distributed
 from pdeinv.cli import main
 from pdeinv.distributed import DataParallel, Single
@@ -37,20 +38,27 @@ ROOT = Path(__file__).resolve().parents[1]
 RUN = ["train", "heat_1d", "--set", "n=16", "--set", "steps=10", "--hidden", "16", "--steps", "12",
        "--n-train", "64", "--n-test", "16", "--batch-size", "8", "--eval-every", "4", "--seed", "3",
        "--export-samples", "0", "--threads", "1"]
-#: a rank that dies: ``python KILLER RANK_TO_DIE STEP ARGV…`` exits that rank right after its STEP-th update
-KILLER = """import importlib, os, sys
+#: ``python FAULT MODE RANK STEP ARGV…``: on rank RANK at its STEP-th step, ``exit`` dies (os._exit(9))
+#: right after the update; ``nan`` makes that step's shard loss NaN (GD/Adam's y-loss), on that rank only
+FAULT = """import importlib, math, os, sys
 train = importlib.import_module("pdeinv.train")  # the module (pdeinv.train is also a function)
-die_rank, die_step = int(sys.argv[1]), int(sys.argv[2])
-real, calls = train.apply_if_finite, [0]
+gd = importlib.import_module("pdeinv.methods.gd")
+mode, rank, step = sys.argv[1], int(sys.argv[2]), int(sys.argv[3])
+mine = int(os.environ["RANK"]) == rank
+real_step, real_loss, calls = train.apply_if_finite, gd.y_loss, {"step": 0, "loss": 0}
 def apply_if_finite(*a, **kw):
-    out = real(*a, **kw)
-    calls[0] += 1
-    if int(os.environ["RANK"]) == die_rank and calls[0] == die_step:
+    out = real_step(*a, **kw)
+    calls["step"] += 1
+    if mine and mode == "exit" and calls["step"] == step:
         os._exit(9)
     return out
-train.apply_if_finite = apply_if_finite
+def y_loss(*a):
+    calls["loss"] += 1
+    value = real_loss(*a)
+    return value * math.nan if mine and mode == "nan" and calls["loss"] == step else value
+train.apply_if_finite, gd.y_loss = apply_if_finite, y_loss
 from pdeinv.cli import main
-sys.exit(main(sys.argv[3:]))
+sys.exit(main(sys.argv[4:]))
 """
 
 
@@ -119,10 +127,10 @@ def test_two_processes_train_as_one_sip(tmp_path):
 
 def test_a_dead_rank_ends_the_run_and_resume_finishes_it(tmp_path):
     out = tmp_path / "run"
-    script = tmp_path / "killer.py"
-    script.write_text(KILLER)
+    script = tmp_path / "fault.py"
+    script.write_text(FAULT)
     argv = [*RUN, "--method", "adam", "--checkpoint-every", "4", "--out", str(out)]
-    (code0, err0), (code1, _) = _two_ranks(argv, script=[str(script), "1", "6"])
+    (code0, err0), (code1, _) = _two_ranks(argv, script=[str(script), "exit", "1", "6"])
     assert (code0, code1) == (1, 9)
     lines = [ln for ln in err0.splitlines() if ln.startswith("pdeinv train")]
     assert len(lines) == 1 and "--resume" in lines[0] and "2-process run stopped" in lines[0], err0[-2000:]
@@ -134,6 +142,19 @@ def test_a_dead_rank_ends_the_run_and_resume_finishes_it(tmp_path):
     whole = json.loads((tmp_path / "whole" / "metrics.json").read_text())
     assert resumed["steps"] == 12
     assert resumed["x_err"] == pytest.approx(whole["x_err"], rel=1e-5)
+
+
+def test_a_nan_on_one_rank_is_rejected_by_all_and_the_run_goes_on(tmp_path):
+    out = tmp_path / "run"
+    script = tmp_path / "fault.py"
+    script.write_text(FAULT)
+    (code0, err0), (code1, err1) = _two_ranks([*RUN, "--method", "adam", "--out", str(out)],
+                                              script=[str(script), "nan", "1", "5"])
+    assert (code0, code1) == (0, 0), err0[-2000:] + err1[-2000:]
+    metrics = json.loads((out / "metrics.json").read_text())
+    assert metrics["steps"] == 12 and metrics["rejected_steps"] == 1 and metrics["world_size"] == 2
+    assert "step 5 (adam)" in err0 and "rolled back" in err0 and err1.strip() == ""
+    assert math.isfinite(metrics["x_err"])
 
 
 def test_ranks_with_different_command_lines_are_refused(tmp_path):
@@ -185,6 +206,34 @@ def test_shards_are_equal_rows_in_rank_order():
     shards = [DataParallel(3, r).shard(batch) for r in range(3)]
     assert torch.equal(torch.cat(shards), batch)
     assert [len(s) for s in shards] == [2, 2, 2]
+
+
+class _Agreeing(Single):
+    """One process that plays a rank told by the others to stop at step ``at``, and not the writer."""
+
+    is_writer = False
+
+    def __init__(self, at: int):
+        self.at, self.calls = at, 0
+
+    def agree(self, flag):
+        self.calls += 1
+        return flag or self.calls == self.at
+
+
+def test_the_trainer_stops_when_the_ranks_agree_and_only_the_writer_saves(tmp_path, heat):
+    ckpt = pdeinv.Checkpoint(tmp_path / "c.pt", every=1)
+    r = pdeinv.train(heat, pdeinv.GD(), steps=10, n_train=16, n_test=4, batch_size=4, checkpoint=ckpt,
+                     parallel=_Agreeing(3))
+    assert r.metrics["steps"] == 3 and r.metrics["stopped_by"] == "another process"
+    assert "y_err" in r.history[-1]  # evaluated at the agreed stop
+    assert not ckpt.exists()
+
+
+def test_hig_on_one_process_is_allowed_and_refused_on_two():
+    assert Single().rule(pdeinv.HIG()) is not None
+    with pytest.raises(ValueError, match="cannot run on 2 processes"):
+        DataParallel(2, 1).rule(pdeinv.HIG())
 
 
 def test_single_process_strategy_changes_nothing():

@@ -140,6 +140,8 @@ def cmd_train(args) -> int:
         return 1
     except (UsageError, ValueError, FileNotFoundError, NotImplementedError):
         return 2
+    except KeyboardInterrupt:
+        return 130
 
 
 def _train(args) -> int:
