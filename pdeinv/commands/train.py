@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import re
 import sys
 import warnings
 from pathlib import Path
@@ -164,8 +165,9 @@ def _train(args) -> int:
             raise
         again = f"continue from {ckpt} with --resume" if ckpt.exists() else "no checkpoint was written"
         if parallel.is_writer:
+            why = re.sub(r"^\[[^\]]*\]\s*", "", str(err).strip().splitlines()[0])[:120]  # no C++ source path
             print(f"pdeinv train: a process of the {parallel.world_size}-process run stopped or cannot be "
-                  f"reached ({str(err).splitlines()[0][:200]}); {again}", file=sys.stderr)
+                  f"reached ({why}); {again}", file=sys.stderr)
         return 1
     finally:
         parallel.close()
