@@ -253,6 +253,9 @@ def from_env(device: torch.device):
     import torch.distributed as dist
 
     backend = "nccl" if device.type == "cuda" else "gloo"
+    if backend == "nccl" and device.index is not None:
+        raise ValueError(f"device {str(device)!r} puts all {world} processes on one GPU; with torchrun "
+                         "give device 'cuda': each process takes cuda:LOCAL_RANK")
     if backend == "nccl":
         torch.cuda.set_device(int(os.environ.get("LOCAL_RANK", "0")))
     if not dist.is_initialized():
