@@ -241,3 +241,14 @@ def test_single_process_strategy_changes_nothing():
     rule = object()
     assert s.rule(rule) is rule and s.agree(True) and not s.agree(False) and s.is_writer
     assert s.world_size == 1 and math.isfinite(distributed.timeout_s())
+
+
+def test_from_env_refuses_one_gpu_for_all_ranks_and_a_bad_world_size(monkeypatch):
+    monkeypatch.setenv("WORLD_SIZE", "2")
+    with pytest.raises(ValueError, match="puts all 2 processes on one GPU"):
+        distributed.from_env(torch.device("cuda", 1))
+    monkeypatch.setenv("WORLD_SIZE", "two")
+    with pytest.raises(ValueError, match="WORLD_SIZE='two'"):
+        distributed.from_env(torch.device("cpu"))
+    monkeypatch.setenv("WORLD_SIZE", "1")
+    assert isinstance(distributed.from_env(torch.device("cpu")), Single)
