@@ -2,7 +2,10 @@
 
 ``apply(op, x)`` computes ``y = P x`` row-wise for a batch-first tensor ``x`` of
 shape ``(B, N)`` (or ``(N,)``). The physics runs in float64 numpy under
-``no_grad``; the result comes back in ``x``'s dtype and device.
+``no_grad``; the result comes back in ``x``'s dtype and device. An operator that
+offers ``torch_forward`` (:class:`pdeinv.physics.device.Placed`: a dense, modal or
+SVD backend on a torch device) is applied in float64 torch on its device instead,
+with no round trip through numpy.
 
 Derivatives, all exact for the discrete map:
 
@@ -20,18 +23,24 @@ import torch
 from .physics.base import LinearOperator
 
 
-def _run(op_method, x: torch.Tensor) -> torch.Tensor:
-    """Call a numpy ``(B, n) -> (B, m)`` method on a tensor of any leading shape."""
+def _run(op, x: torch.Tensor) -> torch.Tensor:
+    """``P x`` for a tensor of any leading shape: ``op.torch_forward`` on its device if it has one,
+    else the numpy ``op.forward`` on the CPU."""
     lead = x.shape[:-1]
+    on_device = getattr(op, "torch_forward", None)
+    if on_device is not None:
+        flat = x.detach().reshape(-1, x.shape[-1]).to(device=op.device, dtype=torch.float64)
+        out = on_device(flat)
+        return out.to(device=x.device, dtype=x.dtype).reshape(*lead, out.shape[-1])
     flat = x.detach().reshape(-1, x.shape[-1]).to(device="cpu", dtype=torch.float64)
-    out = op_method(flat.numpy())
+    out = op.forward(flat.numpy())
     return torch.from_numpy(out).to(device=x.device, dtype=x.dtype).reshape(*lead, out.shape[-1])
 
 
 class _Physics(torch.autograd.Function):
     @staticmethod
     def forward(x, op):
-        return _run(op.forward, x)
+        return _run(op, x)
 
     @staticmethod
     def setup_context(ctx, inputs, output):

@@ -27,11 +27,13 @@ import torch
 from ._checks import count, nonnegative, positive
 from .checkpoint import Checkpoint, check_identity, network_identity, plain, rng_states, set_rng_states
 from .data import as_observations, fingerprint, split
+from .distributed import Single
 from .files import write_csv
 from .methods.base import NonFiniteError, Resumable, UpdateRule
 from .methods.guard import Snapshot, apply_if_finite
 from .nets import fit_preconditioning
 from .physics.capabilities import observes_field
+from .physics.device import placed, resolve
 
 __all__ = ["Callback", "Result", "Trainer", "seed_stream", "train", "write_csv"]
 
@@ -165,7 +167,17 @@ class Trainer:
     other thread counts reductions may be ordered differently and agreement is to
     float tolerance. Wall time spent after the last save is not counted.
 
-    ``device`` (default ``"cpu"``): the model and the training data are moved there.
+    ``device`` (default ``"cpu"``): the model and the training data are moved there, and a
+    dense, modal or SVD physics backend is applied there by torch
+    (:mod:`pdeinv.physics.device`; time stepping stays on the CPU). An unknown device, or
+    CUDA where there is none, is a ``ValueError``.
+
+    **Data parallel.** ``parallel`` (default :class:`~pdeinv.distributed.Single`) is the
+    strategy that shards each global batch over processes and averages the rule's direction
+    and loss (:class:`~pdeinv.distributed.DataParallel`, from torchrun's environment by
+    :func:`pdeinv.distributed.from_env`): ``batch_size`` is the *global* batch and must divide
+    by the number of processes; all ranks agree on every stop and rejection; only the writer
+    (rank 0) saves checkpoints, warns and shows progress. ``metrics["world_size"]`` records it.
     """
 
     problem: object
@@ -191,9 +203,11 @@ class Trainer:
     device: str | torch.device = "cpu"
     data: object = None  # own observations (B, m): array, tensor or torch Dataset
     data_x: object = None  # their true fields (B, N), for errors only
+    parallel: object = field(default_factory=Single)  # pdeinv.distributed: Single or DataParallel
     history: list[dict] = field(default_factory=list, init=False)
     _own: dict | None = field(default=None, init=False, repr=False)
     _saved_step: int | None = field(default=None, init=False, repr=False)
+    _rule: object = field(default=None, init=False, repr=False)
 
     def __post_init__(self):
         if self.steps is None and self.time_budget is None:
@@ -220,6 +234,9 @@ class Trainer:
                              "expected 0 < step_factor <= 1")
         if self.resume and self.checkpoint is None:
             raise ValueError("resume=True needs checkpoint=Checkpoint(path) to resume from")
+        self.device = resolve(self.device)
+        self.parallel.check_batch(self.batch_size)
+        self._rule = self.parallel.rule(self.rule)  # the rule on this process's shard
 
     # -- data and evaluation -------------------------------------------------------------
     def _own_data(self) -> None:
@@ -357,8 +374,11 @@ class Trainer:
         if self.fit_scaling:
             fit_preconditioning(model, y_np, getattr(self.problem, "noise", None) or None)
         stop_state = self._start_stop(y_np)
+        self.parallel.check_same("run", lambda: {
+            **self.identity(model), "steps": self.steps, "time_budget": self.time_budget,
+            "eval_every": self.eval_every, "resume": self.resume, "stop": getattr(self.stop, "name", None)})
         gen = torch.Generator().manual_seed(seed_stream(self.seed, BATCH_ORDER))
-        run = _Run(model, self.rule.init(self.problem, model), y_train, test, stop_state,
+        run = _Run(model, self.rule.init(placed(self.problem, self.device), model), y_train, test, stop_state,
                    _Position(gen, torch.randperm(self.n_train, generator=gen)))
         self.history = []
         if self.resume:
@@ -381,7 +401,7 @@ class Trainer:
         verified = self.max_loss_growth is None or run.good.step == at.step or not at.best > 0
         limit = math.inf if verified else at.best * self.max_loss_growth
         try:
-            run.state, info = apply_if_finite(self.rule, run.state, run.model, batch, at.scale, limit,
+            run.state, info = apply_if_finite(self._rule, run.state, run.model, batch, at.scale, limit,
                                               run.good)
         except NonFiniteError as err:
             at.wall += time.perf_counter() - t0
@@ -407,6 +427,8 @@ class Trainer:
             raise NonFiniteError(f"{message}; stopped after {at.failures} consecutive rejected steps "
                                  f"(max_failures={self.max_failures}); {self._last_good(run)}") from None
         at.scale *= self.step_factor
+        if not self.parallel.is_writer:
+            return
         warnings.warn(f"{message}; step rejected{back}, step size scaled by "
                       f"{self.step_factor:g} (failure {at.failures} of at most {self.max_failures})",
                       RuntimeWarning, stacklevel=4)
@@ -433,15 +455,18 @@ class Trainer:
         for cb in self.callbacks:
             if cb(record, run.model) and not done:
                 done, at.stopped_by = True, "callback"
+        if self.parallel.agree(done) and not done:  # e.g. another process's time budget ran out
+            done, at.stopped_by = True, "another process"
         if done and "y_err" not in record:  # a callback stopped between evaluations
             record.update(self.evaluate(run.model, run.test))
-        if self.checkpoint is not None and (done or at.step % self.checkpoint.every == 0):
+        if self.parallel.is_writer and self.checkpoint is not None and (
+                done or at.step % self.checkpoint.every == 0):
             self._save(run)
         return done
 
     def fit(self) -> Result:
         run = self._start()
-        bar = _progress(self.steps, self.progress, run.at.step)
+        bar = _progress(self.steps, self.progress if self.parallel.is_writer else False, run.at.step)
         done = self._done(run.at)  # a resumed run that had already finished
         while not done:
             info = self._step(run, self._batch(run), bar)
@@ -462,6 +487,7 @@ class Trainer:
             "steps": at.step, "wall_s": at.wall, "x_err": last.get("x_err"), "y_err": last["y_err"],
             "loss": last["loss"], "step_s": at.wall / at.step, "n_train": self.n_train,
             "n_test": self.n_test, "batch_size": self.batch_size, "seed": self.seed,
+            "world_size": self.parallel.world_size, "device": str(self.device),
             "n_params": sum(p.numel() for p in run.model.parameters() if p.requires_grad),
             "rejected_steps": sum(1 for h in self.history if "rejected" in h),
             "stopped_by": at.stopped_by or ("steps" if self.steps is not None and at.step >= self.steps

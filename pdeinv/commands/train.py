@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import re
 import sys
 import warnings
 from pathlib import Path
@@ -122,9 +123,66 @@ def _Checkpoint(path, every: int, fresh: _Fresh):
 
 
 def cmd_train(args) -> int:
-    """Train the default network; write metrics.json, history.csv, training.png, fields.vtu/png."""
-    from pathlib import Path
+    """Train the default network; write metrics.json, history.csv, training.png, fields.vtu/png.
 
+    Under torchrun (``WORLD_SIZE`` > 1) every process runs this with the same command line
+    (checked); only rank 0 writes and reports, the others fail quietly with the same exit code
+    (every check here runs identically on every rank, so rank 0's line speaks for all).
+    """
+    from pdeinv.distributed import rank_from_env
+
+    if rank_from_env() == 0:
+        return _train(args)
+    from pdeinv.errors import numerical_types
+
+    try:
+        return _train(args)
+    except numerical_types():
+        return 1
+    except (UsageError, ValueError, FileNotFoundError, NotImplementedError):
+        return 2
+    except KeyboardInterrupt:
+        return 130
+
+
+def _train(args) -> int:
+    from pdeinv.distributed import from_env
+    from pdeinv.physics.device import resolve
+
+    out = Path(args.out)
+    ckpt = out / "checkpoint.pt"
+    _check_flags(args, out)
+    try:
+        device = resolve(args.device)
+    except ValueError as err:
+        raise UsageError(f"--{err}") from None
+    parallel = from_env(device)  # torchrun: joins the process group (a barrier); else one process
+    try:
+        parallel.check_same("command line", {k: v for k, v in vars(args).items() if k != "func"})
+        return _parallel_train(args, out, ckpt, device, parallel)
+    except RuntimeError as err:
+        if parallel.world_size == 1 or not _lost_peer(err):
+            raise
+        again = f"continue from {ckpt} with --resume" if ckpt.exists() else "no checkpoint was written"
+        if parallel.is_writer:
+            why = re.sub(r"^\[[^\]]*\]\s*", "", str(err).strip().splitlines()[0])[:120]  # no C++ source path
+            print(f"pdeinv train: a process of the {parallel.world_size}-process run stopped or cannot be "
+                  f"reached ({why}); {again}", file=sys.stderr)
+        return 1
+    finally:
+        parallel.close()
+
+
+def _lost_peer(err: RuntimeError) -> bool:
+    """Whether ``err`` is a collective failing because another rank died or timed out."""
+    import torch.distributed as dist
+
+    text = str(err).lower()
+    return isinstance(err, dist.DistError) or any(
+        w in text for w in ("connection", "timed out", "timeout", "gloo", "nccl", "peer"))
+
+
+def _parallel_train(args, out, ckpt, device, parallel) -> int:
     import torch
 
     from pdeinv.data import read_npz
@@ -132,9 +190,6 @@ def cmd_train(args) -> int:
     from pdeinv.runs import network
     from pdeinv.train import Trainer
 
-    out = Path(args.out)
-    ckpt = out / "checkpoint.pt"
-    _check_flags(args, out)
     hidden = _hidden(args.hidden) if args.hidden else None
     fresh = _Fresh(out, args.overwrite)
     set_threads(args.threads)
@@ -154,7 +209,10 @@ def cmd_train(args) -> int:
                       seed=args.seed, eval_every=args.eval_every, max_failures=args.max_failures,
                       checkpoint=_Checkpoint(ckpt, args.checkpoint_every, fresh) if args.checkpoint_every
                       else None,
-                      resume=args.resume, stop=stop, data=y, data_x=x)
+                      resume=args.resume, stop=stop, data=y, data_x=x, device=device, parallel=parallel)
+    if not parallel.is_writer:  # trains its shard; rank 0 writes everything
+        trainer.fit()
+        return 0
     prepare_out(out)
     try:
         return _run(args, out, problem, overrides, net, hp, trainer, fresh)
@@ -256,6 +314,11 @@ def add_parser(sub) -> None:
     t.add_argument("--n-test", type=int, default=128,
                    help="test samples; with --data the last N rows of the file (default 128)")
     t.add_argument("--eval-every", type=int, default=50)
+    t.add_argument("--device", default="cpu",
+                   help="torch device of the network and of dense/modal/SVD physics: cpu (default), "
+                        "cuda, cuda:N (time stepping stays on the CPU). Data parallel: torchrun "
+                        "--nproc_per_node=P -m pdeinv train ... (gloo on cpu, NCCL on cuda; the batch "
+                        "is the global one and must divide by P; gd, adam and sip only)")
     t.add_argument("--threads", type=int, default=1,
                    help="torch threads (default 1: on 2 cores a heat_2d step of the default MLP took "
                         "6.8 ms with one thread and 18-20 ms with two, idle machine; "
