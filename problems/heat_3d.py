@@ -2,8 +2,11 @@
 
 Defaults (κT = 0.01, 10×10×10 cubes of 6 P1 tetrahedra, 729 unknowns, 100 backward-Euler
 steps, the settings of heat_2d): modes sin(jπx)sin(kπy)sin(lπz) decay like
-e^{-κTπ²(j²+k²+l²)}; MODES_SURVIVE of 729 keep an amplification ≥ 1e-3 (counted on the
-discrete eigenvalues). ``backend='auto'`` picks the modal operator (Weyl's 3-D count).
+e^{-κTπ²(j²+k²+l²)}: 232 of them keep an amplification ≥ 1e-3, but this coarse mesh
+resolves only the lowest (its eigenvalues lie above the continuous ones): 119 of the 729
+discrete modes keep ≥ 1e-3, 67 keep ≥ 1e-2. ``backend='auto'`` picks the modal operator
+(Weyl's 3-D count exceeds N, so all modes by one dense eigendecomposition; 694 kept above
+the 1e-14 tolerance). Default CLI run (Adam, 1000 steps, one thread): x-error 0.26 in ~18 s.
 ``mesh=path`` reads a tetra mesh with meshio instead (``n`` is then ignored).
 """
 
