@@ -65,31 +65,39 @@ def mid_slice(points, cells, axis: int):
 
 
 def _plot_slices(plt, points, cells, true, pred, err, rows):
-    """3-D: one row per (sample, mid-plane), panels true | predicted | error on the cut."""
+    """3-D: one row per (sample, mid-plane), panels true | predicted | error on the cut; one
+    colour bar per sample for true and predicted (shared scale) and one for the error.
+    A fixed layout: constrained layout took 3 of the 6 s of a 27-panel picture."""
     from matplotlib.tri import Triangulation
 
     cuts = [mid_slice(points, cells, axis) for axis in range(3)]
-    fig, axes = plt.subplots(3 * len(rows), 3, figsize=(10, 3.1 * 3 * len(rows)), squeeze=False,
-                             layout="constrained")
+    tris = [Triangulation(xy[:, 0], xy[:, 1], t) for xy, t, _ in cuts]
+    fig = plt.figure(figsize=(8.5, 2.5 * 3 * len(rows)))
+    grid = fig.add_gridspec(3 * len(rows), 6, width_ratios=[1, 1, 0.06, 0.3, 1, 0.06], left=0.07, right=0.93,
+                            bottom=0.03, top=1 - 0.12 / len(rows), hspace=0.4, wspace=0.35)
+    panel = {0: 0, 1: 1, 2: 4}  # grid column of true, predicted, error (2, 5: colour bars; 3: space)
     names = "xyz"
     for r, k in enumerate(rows):
         lim = float(np.abs(np.r_[true[k], pred[k]]).max()) or 1.0
         elim = float(np.abs(err[k]).max()) or 1.0
-        for axis, (xy, tris, W) in enumerate(cuts):
-            tri = Triangulation(xy[:, 0], xy[:, 1], tris)
-            at = 0.5 * (points[:, axis].min() + points[:, axis].max())
-            plane = f"{names[axis]} = {at:.3g}"
+        images = {}
+        for axis, ((xy, _, W), tri) in enumerate(zip(cuts, tris)):
             u, v = (names[i] for i in range(3) if i != axis)
+            at = 0.5 * (points[:, axis].min() + points[:, axis].max())
             for c, (name, f, vmax, cmap) in enumerate((("true", true[k], lim, "RdBu_r"),
                                                        ("predicted", pred[k], lim, "RdBu_r"),
                                                        ("error", err[k], elim, "PuOr_r"))):
-                ax = axes[3 * r + axis, c]
+                ax = fig.add_subplot(grid[3 * r + axis, panel[c]])
                 im = ax.tripcolor(tri, W @ f, shading="gouraud", cmap=cmap, vmin=-vmax, vmax=vmax)
                 ax.set_aspect("equal")
-                ax.tick_params(labelsize=7)
-                ax.set(xlabel=u, ylabel=v)
-                ax.set_title(f"sample {k}, {plane}: {name}" if c == 0 else name, fontsize=9)
-                fig.colorbar(im, ax=ax, shrink=0.8)
+                ax.tick_params(labelsize=6)
+                ax.set_xlabel(u, fontsize=7, labelpad=1)
+                ax.set_ylabel(v, fontsize=7, labelpad=1)
+                ax.set_title(f"sample {k}, {names[axis]} = {at:.3g}: {name}" if c == 0 else name, fontsize=8)
+                images[c] = im
+        for c, col in ((0, 2), (2, 5)):
+            bar = fig.colorbar(images[c], cax=fig.add_subplot(grid[3 * r:3 * r + 3, col]))
+            bar.ax.tick_params(labelsize=7)
     return fig
 
 
