@@ -1,4 +1,4 @@
-"""Heat in a cube with a cold spherical cavity, read from ``problems/meshes/cavity.msh``: recover u(0) from u(T).
+"""Heat in a cube with a cold spherical cavity (``problems/meshes/cavity.msh``): recover u(0) from u(T).
 
 The cube is the unit cube with an off-centre spherical cavity (centre (0.45, 0.55,
 0.5), radius 0.25; made by ``problems/meshes/make_cavity.py``, 1308 nodes, 6480
@@ -22,13 +22,14 @@ the modal operator (all modes by one dense eigendecomposition, 778 kept above 1e
 from functools import partial
 from pathlib import Path
 
+from pdeinv.problems.heat_plate import names
+
 from pdeinv import mesh, scenes
 from pdeinv import settings as s
 from pdeinv.forms import discretize
 from pdeinv.inverse import default_inverse
 from pdeinv.physics import Heat
 from pdeinv.problem import Problem
-from pdeinv.problems.heat_plate import names
 from pdeinv.sampling import gaussian_bumps
 
 CAVITY = Path(__file__).resolve().parent / "meshes" / "cavity.msh"
