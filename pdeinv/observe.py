@@ -195,8 +195,10 @@ def _over_faces(mesh, n: int, inset: float) -> np.ndarray:
     ``n_f`` of its faces), the move is interpolated linearly over each face, so every point
     is at least ``inset`` from the planes of the faces at its triangle's vertices — also at
     an edge or a corner of the boundary, where a move along one face's normal would leave
-    it on the neighbouring (possibly Dirichlet) face.
+    it on the neighbouring (possibly Dirichlet) face. ``inset=0`` still moves them 1e-9 of the
+    box's diagonal inward: a point computed on a slanted face can round to just outside it.
     """
+    inset = max(inset, 1e-9 * float(np.linalg.norm(np.ptp(mesh.p, axis=1))))
     tri, normal = _inward_faces(mesh)
     nv = np.zeros_like(mesh.p.T)
     np.add.at(nv, tri.ravel(), np.repeat(normal, 3, axis=0))

@@ -1,4 +1,4 @@
-"""3-D scenes (tetrahedra): heat_3d, wave_3d, heat_cavity_3d — the 2-D template applied.
+"""3-D scenes (tetrahedra): heat_3d, wave_3d, heat_cavity_3d, heat_sensors_3d — the 2-D template applied.
 
 Proves: the fitted L² rates in the unit cube (P1 → 2, P2 → 3) against the separable
 exact solutions ``u₀ = sin πx sin πy sin πz`` (λ = 3π²): heat ``e^{−3π²κT} u₀``, wave
@@ -49,6 +49,7 @@ SMALL = {
     "wave": ("wave_3d", dict(n=4, steps=5)),
     "wave-P2": ("wave_3d", dict(n=2, steps=5, element="P2")),
     "cavity": ("heat_cavity_3d", dict(steps=5, backend="steps")),
+    "sensors": ("heat_sensors_3d", dict(n=4, steps=6, record_every=2, sensors=5, backend="steps")),
 }
 
 
