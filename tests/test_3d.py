@@ -91,7 +91,7 @@ def test_taylor_remainder_through_network(problem):
     grads = torch.autograd.grad(J(params), list(params.values()))
     d = {k: torch.randn_like(v) for k, v in params.items()}
     slope = sum((g * d[k]).sum() for g, k in zip(grads, params))
-    eps = 1e-2 * 0.5 ** np.arange(5)
+    eps = 1e-3 * 0.5 ** np.arange(5)
     with torch.no_grad():
         J0 = J(params)
         rem = [abs(J({k: v + e * d[k] for k, v in params.items()}) - J0 - e * slope).item() for e in eps]
