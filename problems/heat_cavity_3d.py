@@ -15,7 +15,10 @@ these tags.
 Defaults: κ = 0.01, T = 1, 100 backward-Euler steps, P1 (the settings of heat_2d),
 refine = 0: 1090 unknowns; the lowest eigenvalue is 7.2 (amplification 0.93), 183 of
 the 1090 modes keep an amplification ≥ 1e-3, 116 keep ≥ 1e-2. ``backend='auto'`` picks
-the modal operator (all modes by one dense eigendecomposition, 778 kept above 1e-14). Inverse simulator:
+the modal operator (all modes by one dense eigendecomposition, 778 kept above 1e-14).
+Default CLI run (Adam, 1000 steps, one thread): x-error 0.18 (worst next to the cavity,
+where u = 0 erases what starts there), 32 s of CPU (the default network is a 1090×1090
+whitened linear map). Inverse simulator:
 :func:`pdeinv.inverse.default_inverse`.
 """
 

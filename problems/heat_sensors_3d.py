@@ -9,7 +9,8 @@ record u every ``record_every`` θ-scheme steps (record-major ``y.reshape(B, R, 
 
 Defaults: κ = 0.05, T = 1 (diffusion length √(κT) ≈ 0.22, about the spacing of the
 sensors), 8×8×8 cubes of 6 P1 tetrahedra (343 unknowns), 100 backward-Euler steps,
-27 sensors, every 10th step recorded (10 records, 270 observations).
+27 sensors, every 10th step recorded (10 records, 270 observations); ``auto`` compiles a
+truncated SVD. Default CLI run (Adam, 1000 steps, one thread): x-error 0.41, 12 s of training.
 """
 
 from functools import partial

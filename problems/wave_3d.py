@@ -1,7 +1,9 @@
 """Wave in the unit cube (or a tetra mesh file), u = 0 on the boundary, v(0) = 0: recover u(0) from u(T).
 
 Defaults: c = 1, T = 0.5, 50 Newmark steps (the settings of wave_2d), 10×10×10 cubes of
-6 P1 tetrahedra (729 unknowns). ``mesh=path`` reads a tetra mesh with meshio instead
+6 P1 tetrahedra (729 unknowns); ``backend='auto'`` compiles the run to a dense matrix.
+Default CLI run (Adam, 1000 steps, one thread): x-error 0.27, 15 s of training, 30 s in all.
+``mesh=path`` reads a tetra mesh with meshio instead
 (``n`` is then ignored).
 """
 
