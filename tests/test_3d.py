@@ -134,6 +134,20 @@ def test_auto_backend_in_3d():
     np.testing.assert_allclose(op.forward(x), ref.forward(x), rtol=0, atol=1e-12)
 
 
+def test_weyl_count_in_3d_errs_on_the_safe_side():
+    """The 3-D Weyl count ``|Ω|λ^{3/2}/(6π²)`` (leading term, asked for by the modal backend)
+    is at least the number of discrete Dirichlet eigenvalues below λ, and not absurdly more."""
+    import scipy.linalg as la
+
+    from pdeinv.physics.heat_backends import weyl_count
+
+    p = load("heat_3d", n=6, backend="steps")
+    lam = la.eigh(p.disc.K.toarray(), p.disc.M.toarray(), eigvals_only=True)
+    for cut in (100.0, 300.0, 1000.0):
+        count = int((lam < cut).sum())
+        assert count <= weyl_count(p.operator, cut) <= 10 * count + 20, (cut, count)
+
+
 def test_cli_training_learns(tmp_path):
     out = tmp_path / "run"
     argv = ["train", "heat_3d", "--set", "n=4", "--steps", "50", "--n-train", "64", "--n-test", "16",
