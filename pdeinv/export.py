@@ -13,7 +13,7 @@ field on the mesh too, e.g. the final temperature). The suffix picks the
 format: ``.vtu`` (one file) or ``.xdmf`` (XML + HDF5 needs h5py, so XDMF is
 written with inline XML data). Sensor positions go to a separate vertex-cell file.
 Cells are named through :data:`pdeinv.mesh.CELL_TYPES` (line, triangle, tetra); a mesh
-outside that table is refused. Pictures come from :mod:`pdeinv.plots` (1-D and 2-D only).
+outside that table is refused. Pictures come from :mod:`pdeinv.plots` (3-D: mid-plane slices).
 """
 
 from __future__ import annotations
@@ -131,9 +131,9 @@ def export_run(out, problem, model, x, y, samples: int = 3, png: bool = True) ->
     """A run's pictures and ParaView files for the first ``samples`` of ``(x, y)``.
 
     Writes ``out/fields.vtu`` (see :func:`write_fields`), ``out/sensors.vtu`` when
-    the problem has ``settings['sensor_points']``, and ``out/fields.png`` (1-D and 2-D
-    meshes, and only with true fields: ``x=None`` writes the predictions alone; a 3-D
-    field is for ParaView only). Returns
+    the problem has ``settings['sensor_points']``, and ``out/fields.png`` (only with true
+    fields: ``x=None`` writes the predictions alone; 3-D fields as mid-plane slices,
+    :func:`pdeinv.plots.mid_slice`). Returns
     ``{name: path}`` of what was written.
     """
     out = Path(out)
@@ -145,7 +145,7 @@ def export_run(out, problem, model, x, y, samples: int = 3, png: bool = True) ->
     points = problem.settings.get("sensor_points") if isinstance(problem.settings, dict) else None
     if points is not None:
         written["sensors"] = write_sensors(out / "sensors.vtu", points)
-    if png and x is not None and cell_type(problem.disc.basis.mesh).dim < 3:
+    if png and x is not None:
         written["png"] = save_fields_png(out / "fields.png", *read_fields(written["fields"]),
                                          title=f"{problem.name}: test samples")
     return written

@@ -1,4 +1,4 @@
-"""Meshes: built-in intervals and unit squares (scikit-fem) and files read with meshio.
+"""Meshes: built-in intervals, unit squares and unit cubes (scikit-fem) and files read with meshio.
 
 One table, :data:`CELL_TYPES`, says which meshes exist here: a scikit-fem mesh class, the
 meshio name of its cells, the meshio name of its facets and its dimension —
@@ -74,6 +74,15 @@ def unit_square(n: int = 32) -> skfem.MeshTri:
     memory.check_mesh((n + 1) ** 2, 2, f"a unit-square mesh with n={n}", "use a smaller n")
     x = np.linspace(0.0, 1.0, n + 1)
     return skfem.MeshTri.init_tensor(x, x)
+
+
+def unit_cube(n: int = 8) -> skfem.MeshTet:
+    """Unit cube split into ``n x n x n`` cubes, each cut into six tetrahedra (scikit-fem's
+    ``MeshTet.init_tensor``): ``(n+1)³`` vertices, ``6n³`` cells, ``(n−1)³`` interior vertices."""
+    n = count(n, "n")
+    memory.check_mesh((n + 1) ** 3, 3, f"a unit-cube mesh with n={n}", "use a smaller n")
+    x = np.linspace(0.0, 1.0, n + 1)
+    return skfem.MeshTet.init_tensor(x, x, x)
 
 
 def refined(mesh: skfem.Mesh, times: int, name: str = "refine") -> skfem.Mesh:

@@ -9,11 +9,12 @@ boundary would always read 0 and is refused.
 Placement helpers return coordinates of shape ``(n, dim)``:
 
 * :func:`boundary_points` — ``n`` points evenly spaced by arc length along the
-  mesh boundary (all boundary loops), optionally moved ``inset`` inward;
+  mesh boundary (2-D, all boundary loops) or spread over the boundary faces (3-D,
+  farthest-point sampling), optionally moved ``inset`` inward;
 * :func:`place` — either of the two for a count, or given coordinates as they are;
 * :func:`interior_points` — ``n`` well-spread points inside the mesh (Halton
-  sequence over the bounding box, kept if inside and at least ``margin`` from
-  the bounding box's edge).
+  sequence over the bounding box, 2-D or 3-D, kept if inside and at least ``margin``
+  from the bounding box's edge).
 
 :func:`sensor_spec` is the settings rule for a ``sensors`` override: an int count
 or coordinates (a list/array of shape ``(n, dim)``, or its string form from ``--set``).
@@ -125,7 +126,19 @@ def boundary_loops(mesh) -> list[np.ndarray]:
 
 
 def boundary_points(mesh, n: int, inset: float = 0.0) -> np.ndarray:
-    """``n`` points at equal arc-length spacing along the whole boundary of a 2-D mesh.
+    """``n`` well-spread points on the boundary of a 2-D (:func:`_along_loops`) or 3-D
+    (:func:`_over_faces`) mesh, moved ``inset`` inward (``inset=0``: on the boundary, for
+    natural boundaries; ``inset ≈ h`` for Dirichlet ones)."""
+    n = count(n, "sensors")
+    if mesh.dim() not in ON_BOUNDARY:
+        raise ValueError(f"boundary_points needs a 2-D or 3-D mesh; got dim={mesh.dim()}")
+    if not (np.isfinite(inset) and inset >= 0):
+        raise ValueError(f"inset={inset!r} is not allowed; expected a finite number >= 0")
+    return ON_BOUNDARY[mesh.dim()](mesh, n, inset)
+
+
+def _along_loops(mesh, n: int, inset: float) -> np.ndarray:
+    """2-D: ``n`` points at equal arc-length spacing along the whole boundary.
 
     Point ``k`` sits at arc length ``(k + ½) L/n`` of the concatenated boundary
     loops (total length ``L``), moved ``inset`` inward (``inset=0``: on the
@@ -137,11 +150,6 @@ def boundary_points(mesh, n: int, inset: float = 0.0) -> np.ndarray:
     instead of sliding along the neighbouring one (which, on a Dirichlet
     boundary, would leave it reading 0).
     """
-    n = count(n, "sensors")
-    if mesh.dim() != 2:
-        raise ValueError(f"boundary_points needs a 2-D mesh; got dim={mesh.dim()}")
-    if not (np.isfinite(inset) and inset >= 0):
-        raise ValueError(f"inset={inset!r} is not allowed; expected a finite number >= 0")
     starts, ends, offs_a, offs_b = [], [], [], []
     for loop in boundary_loops(mesh):
         a, b = mesh.p[:, loop].T, mesh.p[:, np.roll(loop, -1)].T
@@ -164,6 +172,64 @@ def boundary_points(mesh, n: int, inset: float = 0.0) -> np.ndarray:
     return a[e] + t * (b[e] - a[e]) + (1 - t) * oa[e] + t * ob[e]
 
 
+def _inward_faces(mesh) -> tuple[np.ndarray, np.ndarray]:
+    """Boundary triangles ``(F, 3)`` (vertex indices) of a tetra mesh and their inward unit normals."""
+    facets = mesh.boundary_facets()
+    tri = mesh.facets[:, facets].T
+    a, b, c = (mesh.p[:, tri[:, k]].T for k in range(3))
+    normal = np.cross(b - a, c - a)
+    normal /= np.linalg.norm(normal, axis=1)[:, None]
+    inside = mesh.p[:, mesh.t[:, mesh.f2t[0, facets]]].mean(axis=1).T - a  # toward the cell's centroid
+    normal *= np.sign(np.einsum("ij,ij->i", normal, inside))[:, None]
+    return tri, normal
+
+
+def _over_faces(mesh, n: int, inset: float) -> np.ndarray:
+    """3-D: ``n`` points on the boundary faces, spread by farthest-point sampling.
+
+    Candidates are the centroids of each boundary triangle cut into ``m²`` sub-triangles
+    (``m`` so that there are ≥ 8n candidates); starting from the one nearest the bounding
+    box's lowest corner, each next point is the candidate farthest from those already taken.
+    The inward move mirrors the 2-D rule: every boundary vertex moves by
+    ``o = inset n_v / min_f(n_v·n_f)`` (``n_v`` the normalized sum of the unit inward normals
+    ``n_f`` of its faces), the move is interpolated linearly over each face, so every point
+    is at least ``inset`` from the planes of the faces at its triangle's vertices — also at
+    an edge or a corner of the boundary, where a move along one face's normal would leave
+    it on the neighbouring (possibly Dirichlet) face. ``inset=0`` still moves them 1e-9 of the
+    box's diagonal inward: a point computed on a slanted face can round to just outside it.
+    """
+    inset = max(inset, 1e-9 * float(np.linalg.norm(np.ptp(mesh.p, axis=1))))
+    tri, normal = _inward_faces(mesh)
+    nv = np.zeros_like(mesh.p.T)
+    np.add.at(nv, tri.ravel(), np.repeat(normal, 3, axis=0))
+    nv /= np.maximum(np.linalg.norm(nv, axis=1), 1e-300)[:, None]
+    low = np.full(len(nv), np.inf)
+    np.minimum.at(low, tri.ravel(), np.einsum("ij,ij->i", nv[tri.ravel()], np.repeat(normal, 3, axis=0)))
+    moved = mesh.p.T + inset * nv / np.maximum(low, 0.1)[:, None]
+    m = int(np.ceil(np.sqrt(8 * n / len(tri))))
+    i, j = np.meshgrid(np.arange(m), np.arange(m), indexing="ij")
+    up = np.c_[i[i + j <= m - 1] + 1 / 3, j[i + j <= m - 1] + 1 / 3]
+    down = np.c_[i[i + j <= m - 2] + 2 / 3, j[i + j <= m - 2] + 2 / 3]
+    st = np.vstack([up, down]) / m  # (m², 2) barycentric coordinates of vertices 1 and 2
+    bary = np.c_[1 - st.sum(axis=1), st]
+    cand = np.einsum("sk,fkd->fsd", bary, moved[tri]).reshape(-1, 3)
+    return _farthest(cand, n)
+
+
+def _farthest(cand: np.ndarray, n: int) -> np.ndarray:
+    """``n`` of the candidate points ``(C, dim)`` by greedy farthest-point sampling (deterministic)."""
+    take = [int(np.argmin((cand - cand.min(axis=0)).sum(axis=1)))]
+    dist = np.linalg.norm(cand - cand[take[0]], axis=1)
+    for _ in range(n - 1):
+        take.append(int(np.argmax(dist)))
+        dist = np.minimum(dist, np.linalg.norm(cand - cand[take[-1]], axis=1))
+    return cand[take]
+
+
+#: boundary placement by mesh dimension
+ON_BOUNDARY = {2: _along_loops, 3: _over_faces}
+
+
 def _halton(n: int, base: int) -> np.ndarray:
     out = np.zeros(n)
     for i in range(n):
@@ -177,7 +243,7 @@ def _halton(n: int, base: int) -> np.ndarray:
 
 
 def interior_points(mesh, n: int, margin: float = 0.1) -> np.ndarray:
-    """``n`` deterministic, well-spread points inside ``mesh`` (2-D Halton sequence).
+    """``n`` deterministic, well-spread points inside ``mesh`` (Halton sequence, bases 2, 3, 5).
 
     Candidates fill the bounding box shrunk by ``margin`` (a fraction of its size)
     on each side; those outside the mesh (holes, re-entrant corners) are skipped.
@@ -185,10 +251,10 @@ def interior_points(mesh, n: int, margin: float = 0.1) -> np.ndarray:
     n = count(n, "sensors")
     lo, hi = mesh.p.min(axis=1), mesh.p.max(axis=1)
     lo, hi = lo + margin * (hi - lo), hi - margin * (hi - lo)
-    found, m = np.zeros((0, 2)), 0
+    found, m = np.zeros((0, len(lo))), 0
     while len(found) < n:
         m = max(2 * m, 2 * n)
-        cand = lo + (hi - lo) * np.stack([_halton(m, 2), _halton(m, 3)], axis=1)
+        cand = lo + (hi - lo) * np.stack([_halton(m, b) for b in (2, 3, 5)[:len(lo)]], axis=1)
         bad = outside(mesh, cand)
         found = np.delete(cand, bad, axis=0)
         if m > 1000 * n:
@@ -220,7 +286,8 @@ def place(mesh, spec, where: str = "boundary", inset: float = 0.0) -> np.ndarray
 
 
 def sensor_spec(value, name: str = "sensors"):
-    """Settings rule: an int ``>= 1`` (a count to place) or coordinates ``(n, 2)``.
+    """Settings rule: an int ``>= 1`` (a count to place) or coordinates ``(n, dim)``, dim 1–3
+    (checked against the mesh's dimension by :func:`place`).
 
     Strings from ``--set`` are parsed: ``"16"`` → 16, ``"[[0.5, 0.5], [0.2, 0.3]]"``
     → coordinates.
@@ -237,5 +304,9 @@ def sensor_spec(value, name: str = "sensors"):
         return count(value, name)
     if isinstance(value, float) and value.is_integer():
         return count(int(value), name)
-    P = _as_points(value, 2)
-    return P
+    try:
+        shape = np.shape(value)
+    except ValueError:  # ragged lists: _as_points names them
+        shape = ()
+    dim = shape[1] if len(shape) == 2 and shape[1] in (1, 2, 3) else 2  # else: "expected (n, 2)"
+    return _as_points(value, dim)

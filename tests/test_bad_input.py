@@ -53,8 +53,8 @@ def test_operator_rejects_bad_arrays(name):
 
 
 def test_unknown_problem_and_module_without_make(tmp_path):
-    with pytest.raises(ValueError, match=r"unknown problem 'heat_3d'; available: .*heat_2d"):
-        pdeinv.load_problem("heat_3d")
+    with pytest.raises(ValueError, match=r"unknown problem 'heat_4d'; available: .*heat_2d"):
+        pdeinv.load_problem("heat_4d")
     with pytest.raises(FileNotFoundError, match="nope.py"):
         pdeinv.load_problem(tmp_path / "nope.py")
     mod = tmp_path / "nomake.py"
@@ -139,7 +139,7 @@ OPTIONS = dict(zip(SMALL[4::2], SMALL[5::2]))  # --hidden 8, --n-train 16, ...
 
 #: (id, argv after ``pdeinv train``, the message (regex)); "{d}" is the folder of bad files
 CLI = [
-    ("unknown-problem", ["heat_3d"], r"unknown problem 'heat_3d'; available: .*heat_1d"),
+    ("unknown-problem", ["heat_4d"], r"unknown problem 'heat_4d'; available: .*heat_1d"),
     ("missing-module", ["{d}/nope.py"], r"problem module '.*nope\.py' does not exist"),
     ("module-without-make", ["{d}/nomake.py"], r"has no function make"),
     ("make-returns-wrong-type", ["{d}/wrongtype.py"], r"make\(\) returned int; expected pdeinv\.Problem"),

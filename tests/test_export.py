@@ -145,10 +145,11 @@ def test_3d_fields_are_written_as_tetra_cells(tmp_path, suffix):
             assert [c.type for c in r.read_points_cells()[1]] == ["tetra"]
 
 
-def test_3d_fields_have_no_picture_but_a_clear_refusal(tmp_path):
+def test_cells_without_a_picture_get_a_clear_refusal(tmp_path):
+    """3-D tetra fields are drawn as slices (tests/test_3d_io.py); other cells are refused."""
     from pdeinv.plots import plot_fields
 
     problem, x = _tetra_field()
     points, cells, fields = read_fields(write_fields(tmp_path / "f.vtu", problem, x, x))
-    with pytest.raises(ValueError, match=r"tetra.*ParaView"):
-        plot_fields(points, cells, fields)
+    with pytest.raises(ValueError, match=r"cells of 8 nodes.*ParaView"):
+        plot_fields(points, np.zeros((1, 8), dtype=int), fields)
