@@ -54,7 +54,7 @@ def test_advection_diffusion_space_rate(element, ns, rate):
     errs = []
     for n in ns:
         p = load("advection_diffusion_2d", n=n, element=element, kappa=kappa, T=T, speed=1.0,
-                 steps=2000, scheme="cn")
+                 steps=2000, scheme="cn", backend="steps")  # one forward: no compiled build
         y = p.operator.forward(mode(p.points))
         errs.append(l2_error(p.disc, y, np.exp(-kappa * eigenvalue(2) * T)))
     assert abs(fitted_rate(1.0 / np.array(ns), errs) - rate) < 0.2, errs
@@ -66,7 +66,7 @@ def test_wave_space_rate(name, element):
     c = 1.0
     errs = []
     for n in ns:
-        p = load(name, n=n, element=element, c=c, T=T, steps=steps)
+        p = load(name, n=n, element=element, c=c, T=T, steps=steps, backend="steps")  # one forward
         dim = p.points.shape[0]
         y = p.operator.forward(mode(p.points))
         errs.append(l2_error(p.disc, y, np.cos(c * np.sqrt(eigenvalue(dim)) * T)))
