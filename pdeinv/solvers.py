@@ -112,57 +112,176 @@ class Cholesky:
     solve_T = solve
 
 
-def default_solver(A: sp.spmatrix):
-    """Sparse Cholesky for a symmetric ``A`` if cholespy is installed, else SuperLU (always available).
+#: unknowns above which :func:`default_solver` takes AMG-CG instead of a direct factorization,
+#: by mesh dimension; measured by :mod:`pdeinv.bench.crossover` (table there and below).
+#: (filled in from the measurement)
+AMG_CROSSOVER = {1: None, 2: 250_000, 3: 30_000}
 
-    A matrix with NaN/Inf entries is refused (``ValueError``) before either factorizes it."""
+
+def _sparse_bytes(A) -> int:
+    A = sp.csr_matrix(A)
+    return int(A.data.nbytes + A.indices.nbytes + A.indptr.nbytes)
+
+
+def default_solver(A: sp.spmatrix, dim: int | None = None):
+    """The solver for ``A`` on a mesh of dimension ``dim``: AMG-CG for a symmetric ``A`` with
+    more than ``AMG_CROSSOVER[dim]`` unknowns; below that a sparse Cholesky (cholespy) when
+    installed, else SuperLU (always available; also for any non-symmetric ``A``).
+
+    ``dim=None`` (dimension unknown) never picks AMG: the crossover differs ~10x between
+    2-D and 3-D (factor fill grows like ``N log N`` in 2-D and ``N^{4/3}`` in 3-D), so no
+    single size threshold is right. A matrix with NaN/Inf entries is refused (``ValueError``).
+    """
     _require_finite(A)
     if not is_symmetric(A):
         return SuperLU(A)
+    if dim is not None and dim not in AMG_CROSSOVER:
+        raise ValueError(f"dim={dim!r} is not allowed; expected one of {sorted(AMG_CROSSOVER)} or None")
+    if uses_amg(A.shape[0], dim):
+        return AMGCG(A)
     try:
         return Cholesky(A)
     except ImportError:
         return SuperLU(A)
 
 
-class AMGCG:
-    """Conjugate gradients preconditioned by smoothed-aggregation AMG (pyamg).
+def uses_amg(n: int, dim: int | None) -> bool:
+    """The rule of :func:`default_solver` for a symmetric matrix: ``n > AMG_CROSSOVER[dim]``."""
+    limit = AMG_CROSSOVER.get(dim) if dim is not None else None
+    return limit is not None and n > limit
 
-    For meshes too large for a direct factorization. The AMG hierarchy is built
-    once; each column is solved to relative residual ``rtol``. Results then agree
-    with a direct solve only to about ``rtol``: adjoint identities hold to that
-    accuracy, not to rounding.
+
+def solver_for(dim: int | None):
+    """``default_solver`` with the mesh dimension bound: a factory ``A -> solver``."""
+    def factory(A):
+        return default_solver(A, dim=dim)
+
+    factory.dim = dim
+    return factory
+
+
+class AMGCG:
+    """Conjugate gradients preconditioned by one smoothed-aggregation AMG V-cycle (pyamg).
+
+    For meshes too large for a direct factorization (:data:`AMG_CROSSOVER`). The
+    hierarchy ``A₀ = A, A_{l+1} = R_l A_l P_l`` (``R_l = P_lᵀ``, pyamg's smoothed
+    aggregation) is built once in ``__init__`` and reused by every solve — all steps, all
+    columns, forward and adjoint. Each column ``x`` of ``A X = B`` is iterated until
+    ``‖b − A x‖₂ ≤ rtol ‖b‖₂``; results then agree with a direct solve only to about
+    ``rtol · cond(A)``, and adjoint identities hold to that accuracy, not to rounding.
+
+    ``block=True`` (default) runs one CG per column *in lockstep* on the ``(N, k)``
+    block: every sparse product is a matrix–block product and the V-cycle (``ν``
+    damped-Jacobi sweeps ``x ← x + ω D⁻¹(b − A x)`` before and after the coarse
+    correction, ``ω = 4/(3 ρ(D⁻¹A))``; the same sweeps before and after, so the
+    V-cycle is symmetric and a valid CG preconditioner) acts on all columns at once.
+    ``block=False`` loops over the columns with ``scipy``'s CG and pyamg's own
+    V-cycle (symmetric Gauss–Seidel): ~k times the Python and matrix traffic
+    (see :mod:`pdeinv.bench.crossover` for the measured ratio).
+
+    Reports: ``rtol``, ``operator_complexity`` (Σ nnz(A_l) / nnz(A)), ``nbytes``
+    (the hierarchy: every ``A_l``, ``P_l``, ``R_l``), ``levels``, ``iterations``
+    (of the last solve, max over columns).
     """
 
     name = "amg-cg"
     symmetric = True
 
-    def __init__(self, A: sp.spmatrix, rtol: float = 1e-12, maxiter: int = 500):
+    def __init__(self, A: sp.spmatrix, rtol: float = 1e-12, maxiter: int = 500, block: bool = True,
+                 sweeps: int = 1):
         import pyamg
+        from pyamg.util.linalg import approximate_spectral_radius
 
+        if not (isinstance(rtol, (int, float)) and 0 < rtol < 1):
+            raise ValueError(f"rtol={rtol!r} is not allowed; expected a relative residual 0 < rtol < 1")
+        if isinstance(maxiter, bool) or not isinstance(maxiter, int) or maxiter < 1:
+            raise ValueError(f"maxiter={maxiter!r} is not allowed; expected an integer >= 1")
+        _require_finite(A)
         _require_symmetric(A, "AMG-CG")
-        self.A = sp.csr_matrix(A)
-        self.ml = pyamg.smoothed_aggregation_solver(self.A)
-        self.M = self.ml.aspreconditioner(cycle="V")
-        self.rtol, self.maxiter = rtol, maxiter
+        self.A = sp.csr_matrix(A, dtype=float)
+        self.rtol, self.maxiter, self.block, self.sweeps = float(rtol), maxiter, bool(block), int(sweeps)
         self.shape = A.shape
+        self.ml = pyamg.smoothed_aggregation_solver(self.A, symmetry="hermitian")
+        self.M = self.ml.aspreconditioner(cycle="V")
+        self.omega = []
+        for lvl in self.ml.levels[:-1]:
+            d = lvl.A.diagonal()
+            rho = approximate_spectral_radius(sp.diags(1.0 / d) @ lvl.A)
+            self.omega.append((4.0 / (3.0 * rho)) / d)
+        self._coarse = sla.splu(sp.csc_matrix(self.ml.levels[-1].A))
+        self.levels = len(self.ml.levels)
+        self.operator_complexity = float(self.ml.operator_complexity())
+        self.nbytes = sum(_sparse_bytes(getattr(lvl, name)) for lvl in self.ml.levels
+                          for name in ("A", "P", "R") if hasattr(lvl, name))
+        self.iterations = 0
 
-    def solve(self, B: np.ndarray) -> np.ndarray:
-        cols = B.reshape(B.shape[0], -1)
-        out = np.empty_like(cols, dtype=float)
+    def _vcycle(self, B: np.ndarray, level: int = 0) -> np.ndarray:
+        """One symmetric V-cycle on a block of residuals ``B`` (``(n_l, k)``), from ``X = 0``."""
+        if level == self.levels - 1:
+            return self._coarse.solve(B)
+        lvl, w = self.ml.levels[level], self.omega[level][:, None]
+        X = w * B
+        for _ in range(self.sweeps - 1):
+            X += w * (B - lvl.A @ X)
+        X += lvl.P @ self._vcycle(lvl.R @ (B - lvl.A @ X), level + 1)
+        for _ in range(self.sweeps):
+            X += w * (B - lvl.A @ X)
+        return X
+
+    def _block_cg(self, B: np.ndarray) -> np.ndarray:
+        """Preconditioned CG on every column of ``B`` at once (columns that converged stop moving)."""
+        X = np.zeros_like(B)
+        R = B.copy()
+        goal = self.rtol * np.linalg.norm(B, axis=0)
+        active = np.linalg.norm(R, axis=0) > goal
+        Z = self._vcycle(R)
+        P = Z.copy()
+        rz = np.einsum("ij,ij->j", R, Z)
+        it = 0
+        while active.any():
+            if it == self.maxiter:
+                raise self._not_converged(int(np.flatnonzero(active)[0]))
+            it += 1
+            AP = self.A @ P
+            pap = np.einsum("ij,ij->j", P, AP)
+            alpha = np.where(active, rz / np.where(active, pap, 1.0), 0.0)
+            X += alpha * P
+            R -= alpha * AP
+            active &= np.linalg.norm(R, axis=0) > goal
+            Z = self._vcycle(R)
+            rz_new = np.einsum("ij,ij->j", R, Z)
+            P = Z + np.where(active, rz_new / np.where(active, rz, 1.0), 0.0) * P
+            rz = rz_new
+        self.iterations = it
+        return X
+
+    def _not_converged(self, j: int) -> ConvergenceError:
+        return ConvergenceError(f"AMG-CG did not reach rtol={self.rtol} in {self.maxiter} iterations "
+                                f"(column {j}); raise maxiter or use the direct solver SuperLU")
+
+    def _column_cg(self, cols: np.ndarray) -> np.ndarray:
+        out = np.empty_like(cols)
         for j in range(cols.shape[1]):
             x, info = sla.cg(self.A, cols[:, j], rtol=self.rtol, maxiter=self.maxiter, M=self.M)
             if info != 0:
-                raise ConvergenceError(
-                    f"AMG-CG did not reach rtol={self.rtol} in {self.maxiter} iterations "
-                    f"(column {j}); raise maxiter or use the direct solver SuperLU"
-                )
+                raise self._not_converged(j)
             out[:, j] = x
-        return out.reshape(B.shape)
+        return out
+
+    def solve(self, B: np.ndarray) -> np.ndarray:
+        cols = np.array(B, dtype=float).reshape(B.shape[0], -1)
+        X = self._block_cg(cols) if self.block else self._column_cg(cols)
+        return X.reshape(B.shape)
 
     solve_T = solve
 
+    def __repr__(self):
+        return (f"AMGCG(N={self.shape[0]}, rtol={self.rtol:g}, levels={self.levels}, "
+                f"operator_complexity={self.operator_complexity:.2f}, {self.nbytes / 1e6:.3g} MB)")
 
-def amg_cg(rtol: float = 1e-12, maxiter: int = 500):
+
+def amg_cg(rtol: float = 1e-12, maxiter: int = 500, block: bool = True):
     """A solver factory with the given tolerance: ``solver=amg_cg(1e-10)``."""
-    return lambda A: AMGCG(A, rtol=rtol, maxiter=maxiter)
+    if not (isinstance(rtol, (int, float)) and 0 < rtol < 1):
+        raise ValueError(f"rtol={rtol!r} is not allowed; expected a relative residual 0 < rtol < 1")
+    return lambda A: AMGCG(A, rtol=rtol, maxiter=maxiter, block=block)
