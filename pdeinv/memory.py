@@ -115,15 +115,17 @@ def check_training(problem, n_train: int, n_test: int, batch: int, hidden=None) 
     """Refuse a training run whose data sets and network would not fit.
 
     ``hidden``: the widths of the MLP the run builds; ``None``: the problem's default
-    network, estimated as a dense map plus a whitening (``n_obs² + n_obs · n_unknowns``).
+    network (:func:`pdeinv.nets.default_size`: ``n_obs² + n_obs · n_unknowns`` for the whitened
+    linear map, ``O(k²) + (n_obs + n_unknowns)·k`` for the reduced network on large meshes).
     """
     m, n = problem.operator.n_out, problem.operator.n_in
     if hidden:
         params = network_parameters(m, n, hidden)
         widest = max(m, n, *hidden)
-    else:
-        params = m * m + m * n + n
-        widest = max(m, n)
+    else:  # the default network's own count (whitened linear map, or the reduced network on big meshes)
+        from .nets import default_size
+
+        params, widest = default_size(problem)
     need = training_bytes(m, n, n_train, n_test, params, batch, widest)
     check(need, f"training {problem.name} ({n_train} + {n_test} samples of {m} observations and {n} "
                 f"unknowns, a network of {params:.3g} parameters)",

@@ -145,6 +145,9 @@ class Net(nn.Module):
         return self.post(self.body(self.pre(y)))
 
 
+#: leading components in and decoder columns out of :func:`reduced` (``k_in``, ``k_out``)
+REDUCED_K = 256
+
 #: unknowns above which :func:`default_model` builds :func:`reduced` instead of the whitened linear
 #: map (measured on heat_2d; the table is in :func:`reduced`)
 REDUCED_ABOVE = 2_000
@@ -156,6 +159,18 @@ def default_model(problem) -> nn.Module:
     :func:`reduced` network above (the whitened linear map has ``N² + N`` parameters)."""
     big = max(problem.operator.n_in, problem.operator.n_out) > REDUCED_ABOVE
     return (reduced() if big else whitened("linear"))(problem)
+
+
+def default_size(problem) -> tuple[int, int]:
+    """``(parameters + buffers, widest layer)`` of :func:`default_model`'s network for ``problem``,
+    without building it (the memory guard, :func:`pdeinv.memory.check_training`); a problem
+    with its own ``model_factory`` gets the dense bound ``m² + m n + n`` (an upper bound for
+    the scenes' MLP)."""
+    m, n = problem.operator.n_out, problem.operator.n_in
+    if getattr(problem, "model_factory", None) is None and max(m, n) > REDUCED_ABOVE:
+        k_in, k_out = min(REDUCED_K, m), min(REDUCED_K, n)
+        return k_in * k_out + k_out + m * k_in + n * k_out + m + k_in, max(m, n)
+    return m * m + m * n + n, max(m, n)
 
 
 def fit_preconditioning(model: nn.Module, y, noise: float | None = None) -> nn.Module:
@@ -250,7 +265,7 @@ def prior_basis(problem, k: int, samples: int | None = None, seed: int = 20_161,
     return Phi, {"captured": float(lam[:k].sum() / lam.sum()), "components": k, "samples": n}
 
 
-def reduced(k_in: int = 256, k_out: int = 256, body: str = "linear", hidden=(256, 256),
+def reduced(k_in: int = REDUCED_K, k_out: int = REDUCED_K, body: str = "linear", hidden=(256, 256),
             activation=nn.Tanh, rel_floor: float = REL_FLOOR, drop: float | str = "edge",
             samples: int | None = None):
     """A ``model_factory`` whose *trained* size does not depend on the mesh:
