@@ -244,8 +244,15 @@ def prior_basis(problem, k: int, samples: int | None = None, seed: int = 20_161,
     With ``X`` the ``n`` drawn fields (rows) and ``X M Xᵀ = U S² Uᵀ``, the M-principal
     directions are ``Xᵀ U_k S_k⁻¹`` (they maximize the captured ``E‖x‖²_M``; second
     moment, not centred, so the prior mean is in the span too); a QR makes the columns
-    orthonormal in ``ℝᴺ``, so a coefficient vector has the Euclidean size of its field and
-    an optimizer's step sizes keep their meaning. ``Φ.info``: the captured fraction.
+    orthogonal in ``ℝᴺ``. ``scaled=True`` (default) then scales column ``j`` by the prior's rms
+    amplitude ``σ_j`` along it, normalized so that ``Σ_j ‖Φ_j‖² = N`` (the trace of the
+    identity, which is the decoder of a network with nodal outputs): an optimizer step that
+    moves every coefficient by ``ε`` moves the field by ``ε`` per node in the mean, whatever
+    ``N`` (so Adam's learning rates keep their meaning across meshes), and mostly along the
+    directions the prior fills. Measured (heat_2d, SIP Adam 1e-3, n = 16, 300 steps): x-error
+    0.14 scaled against 1.0 with orthonormal columns (Adam's sign-like steps pushed the
+    low-variance, invisible directions as hard as the leading ones); without the ``N``
+    normalization the error at n = 64 was 6x that at n = 32. ``info``: the captured fraction.
     Deterministic (``seed``), so a saved network rebuilds the same buffer.
     """
     import numpy as np
@@ -259,9 +266,9 @@ def prior_basis(problem, k: int, samples: int | None = None, seed: int = 20_161,
     lam, U = lam[::-1], U[:, ::-1]
     k = min(k, int((lam > lam[0] * 1e-14).sum()))
     Phi = np.linalg.qr(X.T @ (U[:, :k] / np.sqrt(lam[:k])))[0]
-    if scaled:  # column j times the prior's rms amplitude along it (the largest is 1)
+    if scaled:  # column j ∝ the prior's rms amplitude along it, Σ_j ‖Φ_j‖² = N (see the docstring)
         rms = np.sqrt(((X @ Phi) ** 2).mean(0))
-        Phi = Phi * (rms / np.sqrt((rms**2).mean()))
+        Phi = Phi * (rms * np.sqrt(X.shape[1] / (rms**2).sum()))
     return Phi, {"captured": float(lam[:k].sum() / lam.sum()), "components": k, "samples": n}
 
 
