@@ -33,6 +33,7 @@ import datetime
 import multiprocessing as mp
 import os
 import resource
+import sys
 import time
 
 import numpy as np
@@ -159,7 +160,8 @@ def main(argv=None) -> int:
     args = ap.parse_args(argv)
     os.environ["PDEINV_NO_CACHE"] = "1"
     sizes = dict(QUICK) if args.quick else {2: args.sizes2, 3: args.sizes3}
-    lines = [f"Made by `python -m pdeinv.bench.scaling {' '.join(argv if argv is not None else [])}`".rstrip()
+    command = " ".join(["python -m pdeinv.bench.scaling", *(sys.argv[1:] if argv is None else argv)])
+    lines = [f"Made by `{command}`"
              + f" on {datetime.datetime.now(datetime.timezone.utc):%Y-%m-%d %H:%M} UTC, "
              f"{os.cpu_count()} cores, OMP_NUM_THREADS={os.environ.get('OMP_NUM_THREADS', 'unset')}.", "",
              header()]
