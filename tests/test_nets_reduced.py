@@ -131,3 +131,12 @@ def test_short_sip_training_on_heat_2d_reaches_the_measured_error():
     result = Trainer(p, rule, model, steps=300, eval_every=300, batch_size=hp["batch_size"],
                      progress=False).fit()
     assert result.metrics["x_err"] < 0.2
+
+
+def test_the_reduced_network_is_selectable_by_name_in_a_run_record():
+    from pdeinv.runs import network
+
+    p = pdeinv.load_problem("heat_2d", n=8)
+    model = network(p, {"kind": "reduced", "k_in": 12, "k_out": 10})
+    assert isinstance(model.post, nets.Decoder) and model.pre.k == 12 and model.post.basis.shape == (10, p.N)
+    assert pdeinv.reduced is nets.reduced
