@@ -7,8 +7,10 @@ then ``solve_T`` is ``solve`` (SuperLU's ``trans='T'`` is ~40% slower for no gai
 otherwise SuperLU solves with the transposed factors, and the solvers that need a
 symmetric matrix (Cholesky, CG) refuse it.
 
-``default_solver`` takes a sparse Cholesky (cholespy) for a symmetric matrix when
-installed and SuperLU otherwise; ``amg_cg`` is for meshes too large to factor.
+``default_solver(A, dim)`` takes AMG-CG for a symmetric matrix above the measured
+:data:`AMG_CROSSOVER` of the mesh dimension, below it a sparse Cholesky (cholespy) when
+installed, and SuperLU otherwise; ``solver_for(dim)`` binds the dimension (what
+:class:`pdeinv.Heat` uses); ``amg_cg(rtol)`` asks for AMG-CG explicitly.
 """
 
 from __future__ import annotations
@@ -112,10 +114,39 @@ class Cholesky:
     solve_T = solve
 
 
-#: unknowns above which :func:`default_solver` takes AMG-CG instead of a direct factorization,
-#: by mesh dimension; measured by :mod:`pdeinv.bench.crossover` (table there and below).
-#: (filled in from the measurement)
-AMG_CROSSOVER = {1: None, 2: 250_000, 3: 30_000}
+#: Unknowns above which :func:`default_solver` takes AMG-CG instead of a direct factorization, by
+#: mesh dimension (``None``: never). Measured with ``python -m pdeinv.bench.crossover --repeats 1``
+#: (2026-11-23, 2 shared cores at load 4–6, one BLAS thread; P1, unit square / cube, interior
+#: unknowns): seconds for one setup (factorization or hierarchy) + one solve of 32 right-hand
+#: sides, and a run = setup + 100 solves; AMG = block CG, rtol 1e-12 (it = CG iterations); MB =
+#: exact bytes of the SuperLU factors / of the AMG hierarchy (cholespy does not expose its factor).
+#:
+#: ====  =========  ======================  ======================  ==========  ============
+#: dim   N          Cholesky setup / solve  AMG setup / solve (it)  run C / A   MB LU / AMG
+#: ====  =========  ======================  ======================  ==========  ============
+#: 2     16 129     0.17 / 0.020            0.10 / 0.56 (18)        2.2 / 56    13 / 3
+#: 2     65 025     0.96 / 0.29             0.45 / 3.2 (21)         30 / 321    68 / 12
+#: 2     261 121    5.4 / 0.90              1.0 / 33 (24)           95 / 3270   360 / 47
+#: 2     588 289    17 / 3.1                4.6 / 118 (28)          327 / 11800 958 / 105
+#: 2     1 046 529  147 / 21                (skipped: > 60 s)       2210 / —    1908 / —
+#: 3     3 375      0.09 / 0.010            0.10 / 0.14 (11)        1.1 / 14    10 / 1
+#: 3     12 167     3.8 / 0.51              0.16 / 0.54 (8)         55 / 54     74 / 3
+#: 3     29 791     27 / 1.2                0.27 / 1.1 (9)          145 / 109   292 / 9
+#: 3     59 319     105 / 2.9               0.70 / 3.1 (11)         393 / 307   845 / 17
+#: 3     103 823    (over budget)           1.6 / 8.4 (12)          — / 842     — / 30
+#: ====  =========  ======================  ======================  ==========  ============
+#:
+#: The Newmark matrix (wave, 3-D) needs ~12 iterations instead of ~9 and moves the line up:
+#: run 45 / 94 at 12 167 and 158 / 231 at 29 791 (Cholesky / AMG; SuperLU, the wave default: 318).
+#:
+#: **3-D: 20 000** — the heat runs tie at 12 167 and AMG wins from 29 791 on (the factor's setup
+#: grows like N², its fill like N^{4/3}: 27 s and 292 MB at 29 791, 105 s and 845 MB at 59 319).
+#: **2-D: 1 000 000** — on time alone the direct solve wins at every size measured (a 32-column
+#: Cholesky solve is 10–40x cheaper than ~25 CG iterations of V-cycles on these mass-dominated
+#: matrices); the line is set where the factorization takes minutes and its factors approach
+#: 2 GB (SuperLU: 958 MB at 588 289, 1.9 GB at 1 046 529), i.e. by memory, not by time.
+#: **1-D**: never (a tridiagonal factor is always cheapest).
+AMG_CROSSOVER = {1: None, 2: 1_000_000, 3: 20_000}
 
 
 def _sparse_bytes(A) -> int:
