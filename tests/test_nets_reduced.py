@@ -140,3 +140,22 @@ def test_the_reduced_network_is_selectable_by_name_in_a_run_record():
     model = network(p, {"kind": "reduced", "k_in": 12, "k_out": 10})
     assert isinstance(model.post, nets.Decoder) and model.pre.k == 12 and model.post.basis.shape == (10, p.N)
     assert pdeinv.reduced is nets.reduced
+
+
+@pytest.mark.parametrize("n", [8, 200])
+def test_whitening_with_k_components_keeps_the_leading_directions(n):
+    """components=k: basis (m, k) with orthonormal columns, the k leading PCA directions first;
+    with fewer samples than k the unvisited directions are completed and dropped (gain 0)."""
+    rng = np.random.default_rng(0)
+    m, k = 40, 12
+    scales = np.logspace(0, -3, m)
+    y = rng.standard_normal((n, m)) * scales
+    w = Whitening(m, components=k).double().fit(y)
+    U, g = w.basis.numpy(), w.gain.numpy()
+    assert U.shape == (m, k) and np.allclose(U.T @ U, np.eye(k), atol=1e-10)
+    full = Whitening(m).double().fit(y)
+    lead = min(k, n - 1)
+    assert np.allclose(np.abs(U[:, :lead].T @ full.basis.numpy()[:, :lead]), np.eye(lead), atol=1e-8)
+    assert np.allclose(g[:lead], full.gain.numpy()[:lead])
+    assert np.all(g[lead:] == 0)  # directions no sample visited
+    assert w(torch.as_tensor(y)).shape == (n, k)
