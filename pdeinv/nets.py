@@ -4,13 +4,18 @@ Every head starts at zero: a random head emits components the physics cannot see
 (its null space), and no update rule removes them again (x-error near 1.0 against
 0.2–0.3 with a zero head on a 961-unknown heat problem).
 
-Two kinds of network:
+Three kinds of network:
 
 * :class:`Net` = a fitted input transform (:class:`~pdeinv.precondition.Whitening`,
   PCA whitening of the training observations) and a body from :data:`BODIES`:
   ``linear`` (``x = A z + b``), ``mlp`` (tanh layers), ``residual`` (both, summed);
   built by :func:`whitened`. The **default** (:func:`default_model`): the whitened
-  linear map, for the heat scenes and for problems that name no network.
+  linear map, for the heat scenes and for problems that name no network, up to
+  :data:`REDUCED_ABOVE` unknowns. It has ``N² + N`` parameters and an ``N × N``
+  whitening (heat_2d at n = 128: 260 M parameters), so above that:
+* :func:`reduced`: the same :class:`Net` on the ``k_in`` leading whitened components,
+  with a fixed decoder basis ``Φ`` (:class:`Decoder`) on the output: ``x = Φ body(z)``;
+  its trained size does not depend on the mesh (65 792 parameters at the defaults).
 * :class:`MLP`, the earlier default: a tanh MLP (256, 256) on per-node standardized
   input. The wave and sensor scenes keep it (``pdeinv.scenes.WAVE_NET``).
 
