@@ -212,7 +212,7 @@ class AMGCG:
 
     Reports: ``rtol``, ``operator_complexity`` (Σ nnz(A_l) / nnz(A)), ``nbytes``
     (the hierarchy: every ``A_l``, ``P_l``, ``R_l``), ``levels``, ``iterations``
-    (of the last solve, max over columns).
+    (of the last block solve, max over columns; ``None`` after a column-loop solve).
     """
 
     name = "amg-cg"
@@ -292,6 +292,7 @@ class AMGCG:
                                 f"(column {j}); raise maxiter or use the direct solver SuperLU")
 
     def _column_cg(self, cols: np.ndarray) -> np.ndarray:
+        self.iterations = None  # scipy's cg does not report them
         out = np.empty_like(cols)
         for j in range(cols.shape[1]):
             x, info = sla.cg(self.A, cols[:, j], rtol=self.rtol, maxiter=self.maxiter, M=self.M)
