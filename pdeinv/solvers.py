@@ -138,15 +138,28 @@ class Cholesky:
 #:
 #: The Newmark matrix (wave, 3-D) needs ~12 iterations instead of ~9 and moves the line up:
 #: run 45 / 94 at 12 167 and 158 / 231 at 29 791 (Cholesky / AMG; SuperLU, the wave default: 318).
+#: The load made these 3-D numbers noisy, so the deciding rows were re-measured interleaved (two
+#: rounds, minimum; load ~2; right-hand sides ``M x`` of smooth prior fields, as in a run):
 #:
-#: **3-D: 20 000** — the heat runs tie at 12 167 and AMG wins from 29 791 on (the factor's setup
-#: grows like N², its fill like N^{4/3}: 27 s and 292 MB at 29 791, 105 s and 845 MB at 59 319).
+#: ======  =======================  =======================  ========================
+#: N       Cholesky setup / solve   AMG setup / solve        run of 100 solves C / A
+#: ======  =======================  =======================  ========================
+#: 12 167  0.45 / 0.064             0.024 / 0.081            6.8 / 8.1
+#: 29 791  5.8 / 0.21               0.081 / 0.32             27 / 32
+#: 59 319  24 / 0.52                0.15 / 0.59              75 / 59
+#: ======  =======================  =======================  ========================
+#:
+#: **3-D: 50 000** — a run of one factorization and 100 solves crosses between 29 791 and
+#: 59 319 (the factorization grows like N², its fill like N^{4/3}: SuperLU 292 MB at 29 791,
+#: 845 MB at 59 319); a training run reuses one factorization for thousands of solves, and
+#: per solve Cholesky stays ahead up to ~10⁵ (0.52 against 0.59 s at 59 319), so the line
+#: sits at the upper end of the run crossover, where the factorization already takes ~20 s.
 #: **2-D: 1 000 000** — on time alone the direct solve wins at every size measured (a 32-column
 #: Cholesky solve is 10–40x cheaper than ~25 CG iterations of V-cycles on these mass-dominated
 #: matrices); the line is set where the factorization takes minutes and its factors approach
 #: 2 GB (SuperLU: 958 MB at 588 289, 1.9 GB at 1 046 529), i.e. by memory, not by time.
 #: **1-D**: never (a tridiagonal factor is always cheapest).
-AMG_CROSSOVER = {1: None, 2: 1_000_000, 3: 20_000}
+AMG_CROSSOVER = {1: None, 2: 1_000_000, 3: 50_000}
 
 
 def _sparse_bytes(A) -> int:
