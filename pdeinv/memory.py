@@ -18,6 +18,12 @@ Without any of these (other systems) nothing is refused.
   factorization and the modal basis. Measured on ``heat_2d`` (P1, modal backend):
   n = 128 (16 129 unknowns) raised the peak RSS by 300 MB, ~19 kB per node; 1-D and 3-D
   are scaled by the factorization fill. P2 has ~4× the nodes of P1 on the same mesh.
+  The factorization part, measured by :mod:`pdeinv.bench.crossover` (SuperLU's exact
+  ``nnz(L + U)``; cholespy needs about half): 2-D 0.8–1.9 kB per node up to 10⁶ nodes,
+  3-D 6 kB at 12 167 nodes, 10 kB at 29 791, 14 kB at 59 319 (fill grows like N^{1/3} per
+  node), so the per-node constants stay upper bounds up to ~10⁵ 3-D nodes; above
+  :data:`pdeinv.solvers.AMG_CROSSOVER` the heat operators use AMG-CG, whose hierarchy is
+  ~0.3 kB per node (2-D and 3-D).
 * sensors: the observation vector of one sample (records × sensors) and the sensor matrix.
 * training: the training and test sets (x and y in float64, y again in float32), the
   network (parameters, gradients and two Adam moments: 16 bytes each in float32) and the
@@ -115,15 +121,17 @@ def check_training(problem, n_train: int, n_test: int, batch: int, hidden=None) 
     """Refuse a training run whose data sets and network would not fit.
 
     ``hidden``: the widths of the MLP the run builds; ``None``: the problem's default
-    network, estimated as a dense map plus a whitening (``n_obs² + n_obs · n_unknowns``).
+    network (:func:`pdeinv.nets.default_size`: ``n_obs² + n_obs · n_unknowns`` for the whitened
+    linear map, ``O(k²) + (n_obs + n_unknowns)·k`` for the reduced network on large meshes).
     """
     m, n = problem.operator.n_out, problem.operator.n_in
     if hidden:
         params = network_parameters(m, n, hidden)
         widest = max(m, n, *hidden)
-    else:
-        params = m * m + m * n + n
-        widest = max(m, n)
+    else:  # the default network's own count (whitened linear map, or the reduced network on big meshes)
+        from .nets import default_size
+
+        params, widest = default_size(problem)
     need = training_bytes(m, n, n_train, n_test, params, batch, widest)
     check(need, f"training {problem.name} ({n_train} + {n_test} samples of {m} observations and {n} "
                 f"unknowns, a network of {params:.3g} parameters)",

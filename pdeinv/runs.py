@@ -4,7 +4,8 @@
 
     {"format": "pdeinv-run", "version": 1,
      "problem": "heat_2d" | "/abs/path/module.py", "overrides": {"kappa": "0.02", ...},
-     "network": {"kind": "default"} | {"kind": "mlp", "hidden": [64, 64]}}
+     "network": {"kind": "default"} | {"kind": "mlp", "hidden": [64, 64]}
+                | {"kind": "reduced", "k_in": 256, "k_out": 256, "body": "linear"}}
 
 and ``DIR/model.pt`` the network's state dict, the fitted whitening / input scaling
 buffers included. ``load_run(DIR)`` calls ``load_problem(problem, **overrides)``,
@@ -41,6 +42,7 @@ def _mlp(problem, hidden):
 NETWORKS = {
     "default": lambda problem: problem.model(),
     "mlp": _mlp,
+    "reduced": lambda problem, **kw: __import__("pdeinv.nets", fromlist=["reduced"]).reduced(**kw)(problem),
 }
 
 

@@ -19,7 +19,7 @@ from __future__ import annotations
 from functools import cached_property
 
 from .._checks import choice, count, positive
-from ..solvers import default_solver
+from ..solvers import default_solver, solver_for
 from .base import LinearOperator
 from .heat_backends import BACKENDS, amplification, choose
 from .modes import largest_eigenvalue
@@ -34,8 +34,9 @@ class Heat(LinearOperator):
 
     ``M``, ``K``: condensed mass and stiffness (sparse, symmetric); ``scheme``:
     'be' or 'cn'; ``backend``: 'auto', 'steps', 'modal' or a backend object;
-    ``solver``: factory ``A -> object with solve`` (default: Cholesky if cholespy
-    is installed, else SuperLU); ``tol``: relative amplification below which
+    ``solver``: factory ``A -> object with solve`` (default: :func:`~pdeinv.solvers.default_solver`
+    for a ``dim``-D mesh: AMG-CG above its crossover, else Cholesky if cholespy is installed,
+    else SuperLU); ``tol``: relative amplification below which
     modes are dropped (modal backend);
     ``measure``: |Ω|, used by the auto cost estimate (Weyl's law);
     ``C``: convection matrix added to ``κK`` (then stepping only).
@@ -52,7 +53,7 @@ class Heat(LinearOperator):
         self.theta = SCHEMES[scheme]
         self.dt = self.t_end / self.steps
         self.tol = positive(tol, "tol")
-        self.solver = solver
+        self.solver = solver_for(dim) if solver is default_solver else solver  # AMG above its crossover
         self.n_in = self.n_out = M.shape[0]
         self.measure, self.dim = measure, dim
         if isinstance(backend, str):

@@ -1,0 +1,161 @@
+"""The mesh-independent network (pdeinv.nets.reduced): size, gradients, default, save/load, accuracy."""
+
+import json
+
+import numpy as np
+import pytest
+import torch
+
+import pdeinv
+from pdeinv import nets
+from pdeinv.cli import main
+from pdeinv.methods.presets import make_rule
+from pdeinv.precondition import Whitening
+from pdeinv.runs import load_run
+from pdeinv.train import Trainer
+
+pytestmark = pytest.mark.usefixtures("one_thread")
+
+
+def trained(model):
+    return sum(p.numel() for p in model.parameters() if p.requires_grad)
+
+
+@pytest.mark.parametrize("body", ["linear", "mlp"])
+def test_trained_parameter_count_does_not_depend_on_the_mesh(body):
+    f = nets.reduced(k_in=24, k_out=20, body=body, hidden=(16,))
+    small, big = (pdeinv.load_problem("heat_2d", n=n) for n in (8, 24))  # 49 and 529 unknowns
+    a, b = f(small), f(big)
+    assert trained(a) == trained(b) == (24 * 20 + 20 if body == "linear" else 24 * 16 + 16 + 16 * 20 + 20)
+    assert sum(x.numel() for x in b.buffers()) > sum(x.numel() for x in a.buffers())  # buffers do grow
+    full = nets.whitened("linear")(big)
+    assert trained(full) == big.N * big.N + big.N  # what it replaces: N² + N
+
+
+def test_the_head_starts_at_zero_and_the_decoder_is_orthonormal_and_fixed():
+    p = pdeinv.load_problem("heat_2d", n=12)
+    model = nets.reduced(k_in=16, k_out=16)(p)
+    y = torch.randn(3, p.operator.n_out)
+    assert torch.count_nonzero(model(y)) == 0
+    Phi = model.post.basis.double().T.numpy()  # (N, k) with ‖columns‖ ∝ the prior's rms amplitude
+    G = Phi.T @ Phi
+    assert np.abs(G - np.diag(np.diag(G))).max() < 1e-5 * np.diag(G).max()  # orthogonal columns
+    assert np.all(np.diff(np.diag(G)) <= 1e-6)  # ordered by the prior's amplitude
+    assert "post.basis" not in dict(model.named_parameters()) and "post.basis" in model.state_dict()
+
+
+def test_the_decoder_captures_most_of_the_prior():
+    p = pdeinv.load_problem("heat_2d", n=16)
+    Phi, info = nets.prior_basis(p, 64)
+    x, _ = p.sample(50, seed=3)
+    Q = np.linalg.qr(Phi)[0]
+    err = p.relative_error(x @ Q @ Q.T, x)
+    assert info["components"] == 64 and info["captured"] > 0.99
+    assert err.mean() < 0.1  # a 64-dimensional span holds the bumps to ~10 % (225 unknowns)
+
+
+def test_gradcheck_through_the_reduced_network_in_float64():
+    p = pdeinv.load_problem("heat_2d", n=8)
+    model = nets.reduced(k_in=10, k_out=12, body="mlp", hidden=(6,))(p).double()
+    y, _ = p.sample(40, seed=1)
+    model.fit_observations(torch.as_tensor(y))
+    for prm in model.parameters():  # away from the zero head, so every path carries gradient
+        torch.nn.init.normal_(prm, std=0.3)
+    yt = torch.as_tensor(y[:2]).requires_grad_(True)
+    assert torch.autograd.gradcheck(model, (yt,), eps=1e-6, atol=1e-6)
+    head = list(model.parameters())[-2]
+    assert torch.autograd.gradcheck(lambda w: torch.func.functional_call(
+        model, {n: (w if q is head else q) for n, q in model.named_parameters()}, (yt,)),
+        (head.detach().clone().requires_grad_(True),), eps=1e-6, atol=1e-6)
+
+
+def test_the_default_switches_above_the_measured_size(monkeypatch):
+    p = pdeinv.load_problem("heat_2d", n=8)  # 49 unknowns
+    assert nets.REDUCED_ABOVE >= 961  # heat_2d at its default size keeps the whitened linear map
+    assert not isinstance(nets.default_model(p).post, nets.Decoder)
+    monkeypatch.setattr(nets, "REDUCED_ABOVE", p.N - 1)
+    model = nets.default_model(p)
+    assert isinstance(model.post, nets.Decoder) and isinstance(model.pre, Whitening)
+    assert model.pre.k == min(nets.REDUCED_K, p.N)
+    monkeypatch.setattr(nets, "REDUCED_ABOVE", p.N)
+    assert not isinstance(nets.default_model(p).post, nets.Decoder)
+
+
+def test_the_memory_estimate_follows_the_default_network(monkeypatch):
+    p = pdeinv.load_problem("heat_2d", n=8)
+    full, _ = nets.default_size(p)
+    model = nets.default_model(p)
+    assert full == sum(x.numel() for x in model.parameters()) + model.pre.basis.numel()
+    monkeypatch.setattr(nets, "REDUCED_ABOVE", p.N - 1)
+    est, _ = nets.default_size(p)
+    model = nets.default_model(p)
+    assert est >= sum(x.numel() for x in model.parameters()) + model.post.basis.numel()
+
+
+def test_bad_sizes_and_bodies_are_refused():
+    with pytest.raises(ValueError, match="k_in=0 is not allowed"):
+        nets.reduced(k_in=0)
+    with pytest.raises(ValueError, match="k_out=2.5 is not allowed"):
+        nets.reduced(k_out=2.5)
+    with pytest.raises(ValueError, match="body='cnn' is not allowed"):
+        nets.reduced(body="cnn")
+    with pytest.raises(ValueError, match="components=0 is not allowed"):
+        Whitening(10, components=0)
+
+
+def test_a_run_with_the_reduced_default_resumes_and_predicts(tmp_path, monkeypatch, capsys):
+    monkeypatch.setattr(nets, "REDUCED_ABOVE", 100)  # heat_2d n=16 (225 unknowns) gets the reduced net
+    out = tmp_path / "run"
+    args = ["train", "heat_2d", "--set", "n=16", "--n-train", "64", "--n-test", "16", "--batch-size", "8",
+            "--threads", "1", "--export-samples", "0", "--checkpoint-every", "2", "--out", str(out)]
+    assert main([*args, "--steps", "4"]) == 0
+    assert json.loads((out / "run.json").read_text())["network"] == {"kind": "default"}
+    problem, model = load_run(out)
+    assert isinstance(model.post, nets.Decoder) and bool(model.pre.fitted)
+    x, y = problem.sample(4, seed=9)
+    with torch.no_grad():
+        pred = model(torch.as_tensor(y, dtype=torch.float32)).numpy()
+    assert pred.shape == x.shape and np.isfinite(pred).all() and np.abs(pred).max() > 0
+    assert main([*args, "--steps", "6", "--resume"]) == 0
+    assert json.loads((out / "metrics.json").read_text())["steps"] == 6
+    capsys.readouterr()
+
+
+def test_short_sip_training_on_heat_2d_reaches_the_measured_error():
+    """heat_2d n=16 (225 unknowns), SIP with the CLI's defaults, 300 steps: measured x-error
+    0.141 for the reduced linear network (0.079 for the whitened linear map); threshold 0.2."""
+    p = pdeinv.load_problem("heat_2d", n=16)
+    rule, hp = make_rule("sip", p.name, p.noise)
+    torch.manual_seed(0)
+    model = nets.reduced()(p)
+    result = Trainer(p, rule, model, steps=300, eval_every=300, batch_size=hp["batch_size"],
+                     progress=False).fit()
+    assert result.metrics["x_err"] < 0.2
+
+
+def test_the_reduced_network_is_selectable_by_name_in_a_run_record():
+    from pdeinv.runs import network
+
+    p = pdeinv.load_problem("heat_2d", n=8)
+    model = network(p, {"kind": "reduced", "k_in": 12, "k_out": 10})
+    assert isinstance(model.post, nets.Decoder) and model.pre.k == 12 and model.post.basis.shape == (10, p.N)
+    assert pdeinv.reduced is nets.reduced
+
+
+@pytest.mark.parametrize("n", [8, 200])
+def test_whitening_with_k_components_keeps_the_leading_directions(n):
+    """components=k: basis (m, k) with orthonormal columns, the k leading PCA directions first;
+    with fewer samples than k the unvisited directions are completed and dropped (gain 0)."""
+    rng = np.random.default_rng(0)
+    m, k = 40, 12
+    scales = np.logspace(0, -3, m)
+    y = rng.standard_normal((n, m)) * scales
+    w = Whitening(m, components=k).double().fit(y)
+    U, g = w.basis.numpy(), w.gain.numpy()
+    assert U.shape == (m, k) and np.allclose(U.T @ U, np.eye(k), atol=1e-10)
+    full = Whitening(m).double().fit(y)
+    lead = min(k, n - 1)
+    assert np.allclose(np.abs(U[:, :lead].T @ full.basis.numpy()[:, :lead]), np.eye(lead), atol=1e-8)
+    assert np.allclose(g[:lead], full.gain.numpy()[:lead])
+    assert np.all(g[lead:] == 0)  # directions no sample visited
+    assert w(torch.as_tensor(y)).shape == (n, k)
