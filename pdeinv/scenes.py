@@ -74,6 +74,23 @@ def heat(name: str, mesh, cfg: dict) -> Problem:
                    inverse_simulator=default_inverse(op, disc, noise=cfg["noise"]))
 
 
+def heat_sensors(name: str, mesh, cfg: dict) -> Problem:
+    """Heat scene observed at ``cfg['sensors']`` interior points every ``cfg['record_every']``
+    steps; stepping, dense or SVD by the cost of a run (``cfg['backend']``)."""
+    from . import observe
+
+    disc = discretize(mesh, cfg["element"])
+    points = observe.place(mesh, cfg["sensors"], "inside")
+    heat_op = Heat(disc.M, disc.K, kappa=cfg["kappa"], T=cfg["T"], steps=cfg["steps"],
+                   scheme=cfg["scheme"], backend="steps", measure=disc.measure, dim=disc.dim)
+    op = heat_op.sensors(observe.sensor_matrix(disc, points), cfg["record_every"]).compile(cfg["backend"],
+                                                                                         disc.M)
+    return Problem(name, disc, op, partial(gaussian_bumps, disc.points),
+                   settings={**cfg, "sensor_points": points}, noise=cfg["noise"],
+                   model_factory=WAVE_NET,  # sensor scenes keep the MLP (measured: pdeinv/nets.py)
+                   inverse_simulator=default_inverse(op, disc, noise=cfg["noise"]))
+
+
 def advection_diffusion(name: str, mesh, cfg: dict) -> Problem:
     """Heat scene with convection by the cellular flow of speed ``cfg['speed']`` (:mod:`pdeinv.advection`)."""
     disc = discretize(mesh, cfg["element"])

@@ -19,15 +19,9 @@ defaults (8 bump samples from x₀ = 0, noise-free): default α (1e-8 relative)
 ~60 iterations, 2.3 s, relative L² error 0.065 — 25 sensors see the smooth part only.
 """
 
-from functools import partial
 
 from pdeinv import mesh, observe, scenes
 from pdeinv import settings as s
-from pdeinv.forms import discretize
-from pdeinv.inverse import default_inverse
-from pdeinv.physics import Heat
-from pdeinv.problem import Problem
-from pdeinv.sampling import gaussian_bumps
 
 SETTINGS = {**{k: v for k, v in scenes.HEAT.items() if k != "backend"},
             "kappa": (0.05, s.positive), "n": (32, s.positive_int), "mesh": (None, s.optional_path),
@@ -37,13 +31,4 @@ SETTINGS = {**{k: v for k, v in scenes.HEAT.items() if k != "backend"},
 def make(**overrides):
     cfg = s.resolve(SETTINGS, overrides, "heat_sensors_2d")
     m = mesh.load(cfg["mesh"]) if cfg["mesh"] else mesh.unit_square(cfg["n"])
-    disc = discretize(m, cfg["element"])
-    points = observe.place(m, cfg["sensors"], "inside")
-    heat = Heat(disc.M, disc.K, kappa=cfg["kappa"], T=cfg["T"], steps=cfg["steps"],
-                scheme=cfg["scheme"], backend="steps", measure=disc.measure, dim=disc.dim)
-    op = heat.sensors(observe.sensor_matrix(disc, points), cfg["record_every"])
-    op = op.compile(cfg["backend"], disc.M)  # stepping, dense or SVD by the cost of a run
-    return Problem("heat_sensors_2d", disc, op, partial(gaussian_bumps, disc.points),
-                   settings={**cfg, "sensor_points": points}, noise=cfg["noise"],
-                   model_factory=scenes.WAVE_NET,  # sensor scenes keep the MLP (measured: pdeinv/nets.py)
-                   inverse_simulator=default_inverse(op, disc, noise=cfg["noise"]))
+    return scenes.heat_sensors("heat_sensors_2d", m, cfg)

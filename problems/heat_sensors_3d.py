@@ -13,15 +13,9 @@ sensors), 8×8×8 cubes of 6 P1 tetrahedra (343 unknowns), 100 backward-Euler st
 truncated SVD. Default CLI run (Adam, 1000 steps, one thread): x-error 0.41, 12 s of training.
 """
 
-from functools import partial
 
 from pdeinv import mesh, observe, scenes
 from pdeinv import settings as s
-from pdeinv.forms import discretize
-from pdeinv.inverse import default_inverse
-from pdeinv.physics import Heat
-from pdeinv.problem import Problem
-from pdeinv.sampling import gaussian_bumps
 
 SETTINGS = {**{k: v for k, v in scenes.HEAT.items() if k != "backend"},
             "kappa": (0.05, s.positive), "n": (8, s.positive_int), "mesh": (None, s.optional_path),
@@ -31,13 +25,4 @@ SETTINGS = {**{k: v for k, v in scenes.HEAT.items() if k != "backend"},
 def make(**overrides):
     cfg = s.resolve(SETTINGS, overrides, "heat_sensors_3d")
     m = mesh.load(cfg["mesh"]) if cfg["mesh"] else mesh.unit_cube(cfg["n"])
-    disc = discretize(m, cfg["element"])
-    points = observe.place(m, cfg["sensors"], "inside")
-    heat = Heat(disc.M, disc.K, kappa=cfg["kappa"], T=cfg["T"], steps=cfg["steps"],
-                scheme=cfg["scheme"], backend="steps", measure=disc.measure, dim=disc.dim)
-    op = heat.sensors(observe.sensor_matrix(disc, points), cfg["record_every"])
-    op = op.compile(cfg["backend"], disc.M)  # stepping, dense or SVD by the cost of a run
-    return Problem("heat_sensors_3d", disc, op, partial(gaussian_bumps, disc.points),
-                   settings={**cfg, "sensor_points": points}, noise=cfg["noise"],
-                   model_factory=scenes.WAVE_NET,  # sensor scenes keep the MLP (measured: pdeinv/nets.py)
-                   inverse_simulator=default_inverse(op, disc, noise=cfg["noise"]))
+    return scenes.heat_sensors("heat_sensors_3d", m, cfg)
