@@ -13,7 +13,7 @@ import json
 import numpy as np
 import pytest
 import torch
-from exact import dot_test, eigenvalue, fitted_rate, l2_error, load, mode
+from exact import dot_test, eigenvalue, fitted_rate, l2_error, load, mode, taylor_rates_through_network
 
 import pdeinv
 from pdeinv.cli import main
@@ -77,25 +77,7 @@ def test_gradcheck(problem):
 
 def test_taylor_remainder_through_network(problem):
     """J(θ+εd) − J(θ) − ε∇J·d = O(ε²) for J(θ) = ½‖P f(y; θ) − y*‖², f a tanh MLP."""
-    op = problem.operator
-    torch.manual_seed(0)
-    net = torch.nn.Sequential(torch.nn.Linear(op.n_out, 8), torch.nn.Tanh(),
-                              torch.nn.Linear(8, op.n_in)).double()
-    _, y = problem.sample(3, seed=0)
-    y = torch.from_numpy(y)
-    params = dict(net.named_parameters())
-
-    def J(ps):
-        return 0.5 * ((pdeinv.apply(op, torch.func.functional_call(net, ps, (y,))) - y) ** 2).sum()
-
-    grads = torch.autograd.grad(J(params), list(params.values()))
-    d = {k: torch.randn_like(v) for k, v in params.items()}
-    slope = sum((g * d[k]).sum() for g, k in zip(grads, params))
-    eps = 1e-3 * 0.5 ** np.arange(5)
-    with torch.no_grad():
-        J0 = J(params)
-        rem = [abs(J({k: v + e * d[k] for k, v in params.items()}) - J0 - e * slope).item() for e in eps]
-    rates = np.diff(np.log(rem)) / np.diff(np.log(eps))
+    rates = taylor_rates_through_network(problem, hidden=8, samples=3, eps=1e-3 * 0.5 ** np.arange(5))
     assert rates.min() > 1.9, rates
 
 
