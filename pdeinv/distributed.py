@@ -206,11 +206,13 @@ class Sharded:
     def __getattr__(self, name):
         return getattr(self.inner, name)
 
-    def update(self, state, model, y):
+    def update(self, state, model, y, target=None):
         from .methods.base import Update, trainable
 
         try:
-            direction, info = self.inner.update(state, model, self.parallel.shard(y))
+            shard = self.parallel.shard
+            direction, info = self.inner.update(state, model, shard(y)) if target is None else \
+                self.inner.update(state, model, shard(y), target=shard(target))
         except NonFiniteError:  # e.g. a non-finite network output: join the collective with NaN
             direction, info = None, {"loss": math.nan}
         return Update(*self.parallel.average(trainable(model), direction, info))

@@ -16,7 +16,6 @@ from . import settings as s
 from .advection import cellular_flow, convection
 from .forms import discretize
 from .inverse import default_inverse
-from .nets import mlp
 from .physics import Heat, Leapfrog, Wave
 from .problem import Problem
 from .sampling import gaussian_bumps
@@ -57,13 +56,6 @@ WAVE_SCHEMES = {
 WAVE_FINAL = {**WAVE, "scheme": ("newmark", s.one_of(*WAVE_SCHEMES))}
 
 
-#: the wave scenes' default network: the standardized MLP (256, 256). Measured on wave_2d, 20 s SIP,
-#: one thread: 0.40 against 0.56 for the whitened linear map that wins on heat (sweep), 0.34 against
-#: 0.54 in the bench run of the README, because a wave step costs ~130 ms of physics and only
-#: 110–140 steps fit (pdeinv/nets.py has the sweep).
-WAVE_NET = mlp()
-
-
 def heat(name: str, mesh, cfg: dict) -> Problem:
     """Heat scene: θ-scheme final-field observation, homogeneous Dirichlet boundary."""
     disc = discretize(mesh, cfg["element"])
@@ -87,7 +79,6 @@ def heat_sensors(name: str, mesh, cfg: dict) -> Problem:
                                                                                          disc.M)
     return Problem(name, disc, op, partial(gaussian_bumps, disc.points),
                    settings={**cfg, "sensor_points": points}, noise=cfg["noise"],
-                   model_factory=WAVE_NET,  # sensor scenes keep the MLP (measured: pdeinv/nets.py)
                    inverse_simulator=default_inverse(op, disc, noise=cfg["noise"]))
 
 
@@ -111,5 +102,5 @@ def wave(name: str, mesh, cfg: dict) -> Problem:
     disc = discretize(mesh, cfg["element"])
     op = WAVE_SCHEMES[cfg.get("scheme", "newmark")](mesh, disc, cfg).compile(cfg["backend"], disc.M)
     return Problem(name, disc, op, partial(gaussian_bumps, disc.points), settings=cfg,
-                   noise=cfg["noise"], model_factory=WAVE_NET,
+                   noise=cfg["noise"],
                    inverse_simulator=default_inverse(op, disc, noise=cfg["noise"]))

@@ -101,6 +101,7 @@ class _Run:
     model: torch.nn.Module
     state: object
     y_train: torch.Tensor
+    t_train: torch.Tensor | None  # what P f(y) must match (float64) if not y_train (pdeinv.targets)
     test: tuple
     stop_state: object
     at: _Position
@@ -113,7 +114,8 @@ class Trainer:
 
     Data: ``n_train`` and ``n_test`` pairs from ``problem.sample`` with seeds derived
     from ``seed`` (the two sets are independent draws); batches are drawn without
-    replacement, reshuffled every epoch. **Own data:** ``data=y`` (numpy ``(B, m)``, a
+    replacement, reshuffled every epoch (``batch_size=None``: every training row, each step).
+    **Own data:** ``data=y`` (numpy ``(B, m)``, a
     tensor, or a torch ``Dataset`` of observations) replaces the samples; the last
     ``n_test`` rows are held out as the test set and, with a stopping rule, the
     ``stop.n_val`` rows before them as its observations (:func:`pdeinv.data.split`);
@@ -187,11 +189,12 @@ class Trainer:
     time_budget: float | None = None
     n_train: int = 1024
     n_test: int = 128
-    batch_size: int = 32
+    batch_size: int | None = 32  # None: every training row in each step (full batch)
     seed: int = 0
     eval_every: int = 50
     fit_scaling: bool = True
     stop: object | None = None  # a stopping rule (pdeinv.stopping), strategy object
+    target: object = "auto"  # what P f(y) must match (pdeinv.targets): "auto", None or a strategy
     callbacks: list[Callback] = field(default_factory=list)
     progress: bool | None = None
     dtype: torch.dtype | None = None  # None: the model's own parameter dtype (float32 for the default MLP)
@@ -205,6 +208,7 @@ class Trainer:
     data_x: object = None  # their true fields (B, N), for errors only
     parallel: object = field(default_factory=Single)  # pdeinv.distributed: Single or DataParallel
     history: list[dict] = field(default_factory=list, init=False)
+    _target_info: dict | None = field(default=None, init=False, repr=False)
     _own: dict | None = field(default=None, init=False, repr=False)
     _saved_step: int | None = field(default=None, init=False, repr=False)
     _rule: object = field(default=None, init=False, repr=False)
@@ -220,7 +224,7 @@ class Trainer:
         if self.data is not None:
             self._own_data()
         self.n_train = count(self.n_train, "n_train")
-        self.batch_size = count(self.batch_size, "batch_size")
+        self.batch_size = self.n_train if self.batch_size is None else count(self.batch_size, "batch_size")
         if self.batch_size > self.n_train:
             raise ValueError(f"batch_size={self.batch_size} is larger than n_train={self.n_train}")
         self.eval_every = count(self.eval_every, "eval_every")
@@ -303,7 +307,8 @@ class Trainer:
         """What a checkpoint must share with this run to be resumed by it (the rule's *configured*
         hyper-parameters: the guard's lowered step size is run state, not identity)."""
         trainer = {"seed": self.seed, "n_train": self.n_train, "n_test": self.n_test,
-                   "batch_size": self.batch_size, "dtype": str(self.dtype)}
+                   "batch_size": self.batch_size, "dtype": str(self.dtype),
+                   "target": getattr(self.target, "name", self.target)}
         if self._own is not None:
             trainer["data"] = self._own["fingerprint"]
         return {"problem": getattr(self.problem, "name", None),
@@ -371,38 +376,75 @@ class Trainer:
                              "has no state_dict / load_state_dict / hyperparameters "
                              "(see pdeinv.methods.base.Resumable)")
         y_np, y_train, test = self._data()
-        if self.fit_scaling:
-            fit_preconditioning(model, y_np, getattr(self.problem, "noise", None) or None)
+        t_train = self._fit_target(y_np, y_train)
+        if self.fit_scaling:  # a fitted target is denoised: the input keeps every direction it resolves
+            noise = None if self._target_info else getattr(self.problem, "noise", None) or None
+            fit_preconditioning(model, y_np, noise)
         stop_state = self._start_stop(y_np)
         self.parallel.check_same("run", lambda: {
             **self.identity(model), "steps": self.steps, "time_budget": self.time_budget,
             "eval_every": self.eval_every, "resume": self.resume, "stop": getattr(self.stop, "name", None)})
         gen = torch.Generator().manual_seed(seed_stream(self.seed, BATCH_ORDER))
-        run = _Run(model, self.rule.init(placed(self.problem, self.device), model), y_train, test, stop_state,
+        run = _Run(model, self.rule.init(placed(self.problem, self.device), model), y_train, t_train, test,
+                   stop_state,
                    _Position(gen, torch.randperm(self.n_train, generator=gen)))
+        calibrate = getattr(self._rule, "calibrate", None)  # e.g. SIP's proxy curvature, on the first batch
+        if callable(calibrate):
+            run.state = calibrate(run.state, model, y_train[run.at.order[:self.batch_size]])
         self.history = []
         if self.resume:
             self._restore(run)
         return run
 
-    def _batch(self, run: _Run) -> torch.Tensor:
-        """The next batch: without replacement, reshuffled every epoch."""
+    def _fit_target(self, y_np: np.ndarray, y_train: torch.Tensor) -> torch.Tensor | None:
+        """What ``P f(y)`` must match when it is not ``y_train`` itself (``None``): ``target(y)`` when
+        the target strategy fits one (:mod:`pdeinv.targets`), else the float64 ``y`` when the network's
+        dtype is lower (a float32 copy of ``y`` puts rounding 6e-8 into every residual, which SIP's
+        local inverse amplifies by up to ``1/(2√α)``). A rule whose ``update`` takes no ``target``
+        keeps ``y`` (precision) or is refused (a fitted target)."""
+        from .methods.base import takes_target
+        from .targets import SpectralWiener
+
+        strategy = SpectralWiener() if self.target == "auto" else self.target
+        noise = getattr(self.problem, "noise", None) or 0.0
+        if strategy is None and noise > 0:
+            warnings.warn(f"noise={noise:g} and target=None: every rule converges to the least-squares fit "
+                          "of the noise and only a stopping rule regularizes (SIP's default inverse on a "
+                          "spectral basis gets there in one step); keep target='auto'", RuntimeWarning,
+                          stacklevel=4)
+        fitted = None if strategy is None else \
+            strategy.fit(self.problem, y_np, noise or None)
+        if fitted is not None and not takes_target(self.rule):
+            if self.target != "auto":
+                raise ValueError(f"rule {getattr(self.rule, 'name', self.rule)!r} cannot use target="
+                                 f"{self.target!r}: its update(state, model, y) takes no target=")
+            fitted = None  # "auto" falls back to y for a rule that cannot take one
+        if fitted is not None:
+            self._target_info = fitted.info
+        elif y_train.dtype == torch.float64 or not takes_target(self.rule):
+            return None
+        goal = np.asarray(y_np, dtype=float) if fitted is None else fitted(y_np)
+        return torch.as_tensor(goal, dtype=torch.float64, device=y_train.device)
+
+    def _batch(self, run: _Run) -> tuple[torch.Tensor, torch.Tensor | None]:
+        """The next batch (network dtype) and its float64 targets (``None``: the batch itself): without
+        replacement, reshuffled every epoch."""
         at = run.at
         if at.pos + self.batch_size > self.n_train:
             at.order, at.pos = torch.randperm(self.n_train, generator=at.gen), 0
-        batch = run.y_train[at.order[at.pos:at.pos + self.batch_size]]
+        rows = at.order[at.pos:at.pos + self.batch_size]
         at.pos += self.batch_size
-        return batch
+        return run.y_train[rows], None if run.t_train is None else run.t_train[rows]
 
-    def _step(self, run: _Run, batch: torch.Tensor, bar) -> dict | None:
+    def _step(self, run: _Run, batch: tuple, bar) -> dict | None:
         """One guarded step: its info, or ``None`` if rejected (last good state back, step size lowered)."""
         at, t0 = run.at, time.perf_counter()
         # the growth check judges parameters not yet verified: not those just rolled back to
         verified = self.max_loss_growth is None or run.good.step == at.step or not at.best > 0
         limit = math.inf if verified else at.best * self.max_loss_growth
         try:
-            run.state, info = apply_if_finite(self._rule, run.state, run.model, batch, at.scale, limit,
-                                              run.good)
+            run.state, info = apply_if_finite(self._rule, run.state, run.model, batch[0], at.scale, limit,
+                                              run.good, target=batch[1])
         except NonFiniteError as err:
             at.wall += time.perf_counter() - t0
             self._reject(run, err, bar)
@@ -499,6 +541,8 @@ class Trainer:
                                         "the last n_test rows test"}
         if run.stop_state is not None:
             metrics["stop_rule"] = {"name": self.stop.name, **self.stop.describe(run.stop_state)}
+        if self._target_info is not None:
+            metrics["target"] = self._target_info
         return metrics
 
 

@@ -19,24 +19,12 @@ Defaults: c = 1, T = 1.5 (a wave crosses the diagonal √2), 32×32×2 P1 triang
 (1089 unknowns with Neumann), 96 steps (c·dt/h = 0.5), 64 sensors, every 2nd
 step recorded (48 records, 3072 observations).
 
-Inverse simulator: :func:`pdeinv.inverse.default_inverse` — for this generic
-operator a Tikhonov-regularized block-CG solve on ``(PᵀP + αM)Δx = Pᵀ(y − y₀)``
-(Euclidean data misfit, L² regularization), ``α`` relative to ``λ_max(P*P)``
-(power iteration on first use). Time reversal with the sensor data as boundary
-forcing is not offered. ``alpha`` (relative to ``λ_max(P*P)``) defaults to 1e-3
-here, not the library's ``max(noise, 1e-4)²``: a SIP step needs a cheap local
-inverse more than a sharp one (``alpha=None`` restores the library default).
-Measured on the defaults (8 bump samples, from x₀ = 0, noise-free, 2 cores):
-
-    alpha   CG iterations   wall     relative L² error
-    1e-8        ~900        125 s        1.6e-4
-    1e-4         284         42 s        6.2e-3
-    1e-3         121         12 s        5.7e-2
-    1e-2          48          5 s        3.7e-1
-
-Grid-scale modes barely reach the sensors within T (Newmark's discrete group
-velocity vanishes at the grid scale), so P*P has a wide spectrum and CG needs
-about √(1/α) iterations; choose α by the accuracy a SIP step needs.
+Inverse simulator: :func:`pdeinv.inverse.default_inverse` — the operator is compiled to its SVD
+(``backend='auto'``), so the local inverse is the exact Tikhonov filter per singular value, with
+the library's α (``max(noise, 1e-10)²`` relative to the largest ``g²``); ``alpha`` sets another
+relative α. (A block-CG Tikhonov solve on the time stepping needed ~900 iterations, 125 s, for
+α = 1e-8 on 8 samples: grid-scale modes barely reach the sensors within T, so P*P has a wide
+spectrum; that is why this scene used to default to α = 1e-3.)
 """
 
 from functools import partial
@@ -55,7 +43,7 @@ SETTINGS = {**scenes.WAVE, "n": (32, s.positive_int), "T": (1.5, s.positive),
             "sensors": (64, observe.sensor_spec), "record_every": (2, s.positive_int),
             "boundary": ("neumann", s.one_of("neumann", "dirichlet")),
             "scheme": ("newmark", s.one_of(*scenes.WAVE_SCHEMES)),
-            "alpha": (1e-3, lambda v, name: None if v in (None, "", "None") else s.positive(v, name))}
+            "alpha": (None, lambda v, name: None if v in (None, "", "None") else s.positive(v, name))}
 
 
 def make(**overrides):
@@ -72,5 +60,4 @@ def make(**overrides):
     alpha = None if cfg["alpha"] is None else RelativeAlpha(cfg["alpha"])
     return Problem("wave_sensors_2d", disc, op, partial(gaussian_bumps, disc.points),
                    settings={**cfg, "sensor_points": points}, noise=cfg["noise"],
-                   model_factory=scenes.WAVE_NET,  # sensor scenes keep the MLP (measured: pdeinv/nets.py)
                    inverse_simulator=default_inverse(op, disc, noise=cfg["noise"], alpha=alpha))

@@ -161,12 +161,13 @@ def test_compiled_arrays_come_from_the_disk_cache_the_second_time(monkeypatch):
 
 
 def test_time_reversal_compiled_with_the_forward_agrees_with_stepping(monkeypatch):
-    """wave_2d (dense forward): the local inverse is one matrix, equal to reversing the run."""
+    """wave_2d (dense forward): time reversal compiled to one matrix equals reversing the run."""
     from pdeinv.inverse import CompiledInverse, TimeReversal
+    from pdeinv.physics.compiled import fingerprint
 
     p = load("wave_2d", n=8)
-    inv = p.inverse_simulator
-    assert isinstance(inv, CompiledInverse) and isinstance(inv.inverse, TimeReversal)
+    op = p.operator
+    inv = CompiledInverse(TimeReversal(op), op.n_out, op.n_in, fingerprint(op))
     x, y = p.sample(4, seed=0)
     x0 = np.random.default_rng(1).standard_normal(x.shape)
     want = inv.inverse(y, x0)
@@ -176,5 +177,20 @@ def test_time_reversal_compiled_with_the_forward_agrees_with_stepping(monkeypatc
     monkeypatch.setenv("PDEINV_DENSE_BUDGET_GB", "5e-5")  # P fits (38 kB), the inverse (77 kB) does not
     with pytest.raises(ValueError, match="compiling TimeReversal needs about"):
         CompiledInverse(TimeReversal(p.operator), p.operator.n_out, p.operator.n_in)
-    fallback = load("wave_2d", n=8)
-    assert fallback.operator.backend is not None and isinstance(fallback.inverse_simulator, TimeReversal)
+
+
+def test_dense_wave_gets_the_spectral_filter_and_stepping_keeps_time_reversal(monkeypatch):
+    """The default local inverse of a dense-compiled wave is the Tikhonov filter in the SVD of its
+    ``P`` (exact at ``y = P x0``, and the exact inverse for noise-free data: P is well conditioned);
+    a time-stepping wave keeps time reversal."""
+    from pdeinv.inverse import SpectralTikhonov, TimeReversal
+
+    p = load("wave_2d", n=8)
+    inv = p.inverse_simulator
+    assert isinstance(inv, SpectralTikhonov)
+    x, y = p.sample(4, seed=0)
+    x0 = np.random.default_rng(1).standard_normal(x.shape)
+    assert np.allclose(inv(p.operator.forward(x0), x0), x0, atol=1e-12)
+    assert np.linalg.norm(inv(y, x0) - x) <= 1e-6 * np.linalg.norm(x)
+    stepping = load("wave_2d", n=8, backend="steps")
+    assert isinstance(stepping.inverse_simulator, TimeReversal)

@@ -59,8 +59,8 @@ def test_a_finite_blow_up_is_rolled_back_and_training_goes_on(heat):
 
 def test_the_guard_refuses_a_loss_above_max_loss(heat):
     t = trainer(heat, GD(sgd(0.05)))
-    state = t.rule.init(heat, t.model)
     y = torch.as_tensor(heat.sample(8, 0)[1], dtype=torch.float32)
+    state = t.rule.calibrate(t.rule.init(heat, t.model), t.model, y)  # GD's curvature (normalize=True)
     before = [p.detach().clone() for p in t.model.parameters()]
     with pytest.raises(Diverged, match="exceeds 1e-12"):
         apply_if_finite(t.rule, state, t.model, y, max_loss=1e-12)

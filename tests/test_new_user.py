@@ -176,11 +176,12 @@ def test_plots_show_sensors_and_ticks():
 
 def test_gd_defaults_do_not_blow_up_on_the_sensor_scene(tmp_path):
     """``train wave_sensors_2d --method gd`` at its defaults: 2.4e34 by step 19 with lr 0.01, one
-    rollback at step 10 with the guard; the preset's lr takes 25 steps with no rejection."""
+    rollback at step 10 with the guard; the default (lr 1 in units of the stable step 1/λ_max, GD's
+    docstring) takes 25 steps with no rejection and a falling loss."""
     out = tmp_path / "o"
     assert main(["train", "wave_sensors_2d", "--method", "gd", "--steps", "25", "--eval-every", "25",
                  "--out", str(out)]) == 0
     m = json.loads((out / "metrics.json").read_text())
     assert m["rejected_steps"] == 0, m
     losses = np.loadtxt(out / "history.csv", delimiter=",", skiprows=1, usecols=2)
-    assert losses[-1] < 0.6 * losses[0]  # 87 -> 46 measured
+    assert losses[-1] < 0.95 * losses[0]  # 87 -> 76 measured (GD is slow on this smoothing map)

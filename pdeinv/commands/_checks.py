@@ -47,7 +47,9 @@ def check_run(problem, args, hp: dict) -> None:
     warn when ``--export-samples`` is above ``--n-test``."""
     from pdeinv import memory
 
-    memory.check_training(problem, args.n_train or 1024, args.n_test, hp["batch_size"], hp["hidden"])
+    n_train = args.n_train or 1024
+    memory.check_training(problem, n_train, args.n_test, hp["batch_size"] or n_train,
+                          hp["hidden"])
     if args.method == "hig" and not getattr(args, "allow_slow", False):
         from pdeinv.physics.capabilities import modal_basis
 
@@ -68,11 +70,12 @@ def check_run(problem, args, hp: dict) -> None:
               f"{args.n_test} test samples (--n-test); exporting {args.n_test}", file=sys.stderr)
 
 
-def steps(args) -> int | None:
-    """``--steps`` as given; when it is not: 1000, or no step limit if ``--time-budget`` is given."""
+def steps(args, hp: dict | None = None) -> int | None:
+    """``--steps`` as given; when it is not: the method's preset (``hp["steps"]``, else 1000), or no
+    step limit if ``--time-budget`` is given."""
     if args.steps is not None:
         return args.steps
-    return None if args.time_budget is not None else 1000
+    return None if args.time_budget is not None else (hp or {}).get("steps") or 1000
 
 
 def add_arguments(parser) -> None:

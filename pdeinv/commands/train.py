@@ -203,7 +203,7 @@ def _parallel_train(args, out, ckpt, device, parallel) -> int:
     stop = STOPS[args.stop](problem)
     torch.manual_seed(args.seed)
     net = {"kind": "mlp", "hidden": list(hp["hidden"])} if hp["hidden"] is not None else {"kind": "default"}
-    trainer = Trainer(problem, rule, network(problem, net), steps=_checks.steps(args),
+    trainer = Trainer(problem, rule, network(problem, net), steps=_checks.steps(args, hp),
                       time_budget=args.time_budget,
                       n_train=args.n_train or 1024, n_test=args.n_test, batch_size=hp["batch_size"],
                       seed=args.seed, eval_every=args.eval_every, max_failures=args.max_failures,
@@ -285,7 +285,8 @@ def add_parser(sub) -> None:
     t.add_argument("problem")
     t.add_argument("--method", choices=sorted(METHODS), default="adam")
     t.add_argument("--steps", type=int, default=None,
-                   help="training steps (default 1000, or no limit when --time-budget is given)")
+                   help="training steps (default: the method's preset, 100 full-batch steps for sip, "
+                        "1000 otherwise; no limit when --time-budget is given)")
     t.add_argument("--time-budget", type=float, default=None, metavar="SECONDS",
                    help="also stop once training wall time exceeds this")
     t.add_argument("--seed", type=int, default=0)
@@ -295,7 +296,8 @@ def add_parser(sub) -> None:
     t.add_argument("--lr", type=float, default=None, help="optimizer learning rate (gd, adam, sip)")
     t.add_argument("--eta", type=float, default=None, help="step scale η (sip, hig)")
     t.add_argument("--tau", type=float, default=None, help="relative singular-value cut (hig)")
-    t.add_argument("--batch-size", type=int, default=None)
+    t.add_argument("--batch-size", type=int, default=None,
+                   help="samples per step (default: the method's preset; sip: every training sample)")
     t.add_argument("--optimizer", choices=("adam", "sgd"), default=None,
                    help="SIP's proxy optimizer (default: adam, sgd for noisy data; see methods/presets.py)")
     t.add_argument("--stop", choices=sorted(STOPS), default="auto",

@@ -85,6 +85,15 @@ class Discrepancy:
     target lies below ``ρ(lo)`` (the noise was under-stated) ``lo·scale`` is
     used; above ``ρ(hi)`` (nothing to fit), ``hi·scale``.
 
+    **Pooled** (``pooled=True``, default): one α for the whole batch, from the summed residual
+    ``Σ_b ρ_b(α)² = Σ_b target_b²``. Per sample (``pooled=False``) the noise norm of one sample
+    fluctuates like a χ with as many degrees of freedom as visible modes; with few of them
+    (heat_1d: ~18) it exceeds τ times its expectation on a good fraction of samples, α then
+    falls until the residual dips below the *actual* noise, i.e. it fits noise through the
+    weakest modes. Measured on heat_1d at 1 % noise, 1000 samples, spectral filter: per sample
+    the largest reconstruction was 429× the median norm (mean x-error 0.65, median 0.13); pooled
+    the fluctuation averages out over the batch (``tests/test_inverse.py``).
+
     Why ``τ = 1.1`` by default (the theory asks for ``τ > 1``): for a smoothing
     operator most of the noise sits in modes no α can fit, so ``ρ`` is nearly
     flat (≈0.9 of the noise norm) over many decades of small α, and the chi
@@ -95,8 +104,9 @@ class Discrepancy:
     """
 
     def __init__(self, noise: float, tau: float = 1.1, lo: float = 1e-16, hi: float = 1e2,
-                 rtol: float = 1e-3, maxiter: int = 60):
+                 rtol: float = 1e-3, maxiter: int = 60, pooled: bool = True):
         self.noise = positive(noise, "noise")
+        self.pooled = bool(pooled)
         self.tau = positive(tau, "tau")
         self.lo, self.hi = positive(lo, "lo"), positive(hi, "hi")
         if self.lo >= self.hi:
@@ -108,11 +118,19 @@ class Discrepancy:
         return self.tau * self.noise * rms * np.sqrt(fit.noise_trace)
 
     def select(self, fit: Fit) -> np.ndarray:
-        return discrepancy_alpha(fit.residual, self.target(fit), self.lo * fit.scale,
-                                 self.hi * fit.scale, self.rtol, self.maxiter)
+        target, lo, hi = self.target(fit), self.lo * fit.scale, self.hi * fit.scale
+        if not self.pooled or target.shape[0] == 1:
+            return discrepancy_alpha(fit.residual, target, lo, hi, self.rtol, self.maxiter)
+        B = target.shape[0]
+
+        def pooled(alpha):  # alpha: (1,) -> the batch's residual norm, (1,)
+            return np.sqrt(np.sum(fit.residual(np.full(B, alpha[0])) ** 2))[None]
+
+        alpha = discrepancy_alpha(pooled, np.sqrt(np.sum(target**2))[None], lo, hi, self.rtol, self.maxiter)
+        return np.full(B, alpha[0])
 
     def __repr__(self):
-        return f"Discrepancy(noise={self.noise:g}, tau={self.tau:g})"
+        return f"Discrepancy(noise={self.noise:g}, tau={self.tau:g}, pooled={self.pooled})"
 
 
 def as_rule(alpha):

@@ -19,10 +19,18 @@ Cost: one forward for ``y₀`` (2 products ``(B,N)·(N,k)``), one projection and
 synthesis: 2× one batched modal forward. (Using ``ΦᵀMy₀ = g ⊙ ΦᵀMx₀`` would save
 a quarter, but then ``y = y₀`` leaves a rounding residue ``(ΦᵀMΦ − I)``, amplified
 by up to ``1/(2√α)`` — 1.3e-10 relative at α = 1e-12 — whereas ``y − y₀`` computed
-by the same forward is exactly zero.) The discrepancy principle adds one product
-(the part of ``y − y₀`` outside span Φ) and a closed-form residual per trial α:
+by the same forward is exactly zero.) The discrepancy principle is applied to the part of the
+data the filter can fit (the projected problem): with ``c`` the coordinates of ``y − y₀`` in the
+basis (orthonormal in the observation norm) the residual and the noise it is compared with are
 
-    ρ(α)² = Σ_k (α/(g_k²+α))² c_k² + ‖(y − y₀) − Φc‖²_M.
+    ρ(α)² = Σ_k (α/(g_k²+α))² c_k²,        E‖ε‖² over the basis = σ² Σ_k ‖proj_k‖²,
+
+both in closed form. The part of ``y − y₀`` outside span Φ is left out of both: no α changes
+it, and counting it (as the full residual does) let its own fluctuation decide α. Measured on
+heat_1d at 1 % noise, 1000 samples, τ = 1.1: with the full residual its unfittable part alone
+exceeded τ times the expected noise on a few percent of samples, α fell to its floor and those
+reconstructions were up to 946× the median norm (mean x-error 1.97, median 0.134); projected,
+the largest is within a few times the median (``tests/test_inverse.py``).
 """
 
 from __future__ import annotations
@@ -30,13 +38,14 @@ from __future__ import annotations
 import numpy as np
 
 from ..physics.capabilities import modal_basis
-from ._inputs import mass_norms, mass_trace, out, pair
+from ._inputs import out, pair
 from .alpha import Fit, as_rule
 
 
 class SpectralTikhonov:
     """``P⁻¹_(x₀, Px₀)(y) = x₀ + synth (g/(g²+α) ⊙ c)``, ``c = (y − Px₀) proj``, for any operator
-    with a spectral basis ``op.modes`` (``g``, ``proj``, ``out``, ``synth``, ``mass_out``):
+    with a spectral basis ``op.modes`` or one given as ``modes`` (``g``, ``proj``, ``out``, ``synth``,
+    ``mass_out``; :class:`~pdeinv.physics.compiled.LazySVD` for a dense forward):
     the modal heat backend (``proj = MΦ``, ``out = synth = Φ``) or a compiled SVD
     (:mod:`pdeinv.physics.compiled`: ``proj = L_o U``, ``out = L_o⁻ᵀ U``, ``synth = L⁻ᵀ V``).
 
@@ -44,35 +53,37 @@ class SpectralTikhonov:
     :class:`~.alpha.RelativeAlpha`). After each call ``last_info`` holds the α used.
     """
 
-    def __init__(self, op, alpha):
-        backend = modal_basis(op)
-        if not all(hasattr(backend, a) for a in ("g", "proj", "out", "synth")):
+    def __init__(self, op, alpha, modes=None):
+        backend = modal_basis(op) if modes is None else modes
+        if backend is None or not all(a in dir(backend) or a in getattr(backend, "ARRAYS", ())
+                                      for a in ("g", "proj", "out", "synth")):
             raise ValueError(f"ModalTikhonov needs an operator with a modal backend or another spectral "
                              f"basis (op.modes with g, proj, out, synth); got {op!r}; use TikhonovCG")
         self.op, self.modes = op, backend
         self.rule = as_rule(alpha)
-        self.scale = float(np.max(backend.g**2))
         self.last_info: dict = {}
+
+    @property
+    def scale(self) -> float:
+        """``max g²``, the unit of a relative α (read when first asked: ``modes`` may be lazy)."""
+        return float(np.max(self.modes.g**2))
 
     def __call__(self, y, x0) -> np.ndarray:
         Y, X0, single = pair(y, x0, self.op.n_out, self.op.n_in)
         g = self.modes.g
         R = Y - self.op.forward(X0)
         c = R @ self.modes.proj
-        alpha = self.rule.select(Fit(self._residual(R, c), Y, mass_trace(self.modes.mass_out, Y.shape[1]),
-                                     self.scale))
+        noise_trace = float((self.modes.proj**2).sum())  # E‖ε‖² over the basis / σ² (module docstring)
+        alpha = self.rule.select(Fit(self._residual(c), Y, noise_trace, self.scale))
         self.last_info = {"alpha": alpha}
         return out(X0 + (g / (g**2 + alpha[:, None]) * c) @ self.modes.synth.T, single)
 
-    def _residual(self, R, c):
-        """``ρ(α)``: computes the unfittable part of ``y − y₀`` only if a rule asks."""
-        g2, cache = self.modes.g**2, {}
+    def _residual(self, c):
+        """``ρ(α)`` of the projected problem (module docstring)."""
+        g2 = self.modes.g**2
 
         def rho(alpha):
-            if "perp2" not in cache:
-                cache["perp2"] = mass_norms(self.modes.mass_out, R - c @ self.modes.out.T) ** 2
-            fitted = ((alpha[:, None] / (g2 + alpha[:, None]) * c) ** 2).sum(axis=1)
-            return np.sqrt(fitted + cache["perp2"])
+            return np.sqrt(((alpha[:, None] / (g2 + alpha[:, None]) * c) ** 2).sum(axis=1))
 
         return rho
 

@@ -8,7 +8,9 @@ parameters; applying it is someone else's job (:mod:`.guard`, the trainer)::
     update = rule.update(state, model, y)      # Update(direction, info): parameters untouched
     rule.transform                             # how a direction becomes a parameter change
 
-``y`` is a batch of target observations ``y*`` (torch, ``(B, n_out)``);
+``y`` is a batch of target observations ``y*`` (torch, ``(B, n_out)``), the network's input; an
+optional ``target`` (same shape) is what ``P f(y*)`` must match instead of ``y*`` (a denoised
+``y*``, :mod:`pdeinv.targets`; the trainer passes it only when it has one);
 ``update.direction`` holds one tensor per trainable parameter (in
 ``model.parameters()`` order, ``None`` for one the rule leaves alone) and
 ``update.info`` at least ``loss`` — the y-loss of the batch *before* the update,
@@ -28,6 +30,7 @@ the one place that does it for every rule.
 
 from __future__ import annotations
 
+import inspect
 from collections.abc import Callable
 from functools import partial
 from typing import Any, NamedTuple, Protocol, runtime_checkable
@@ -62,7 +65,17 @@ class UpdateRule(Protocol):
 
     def init(self, problem, model: torch.nn.Module) -> State: ...
 
-    def update(self, state: State, model: torch.nn.Module, y: torch.Tensor) -> Update: ...
+    def update(self, state: State, model: torch.nn.Module, y: torch.Tensor,
+               target: torch.Tensor | None = None) -> Update: ...
+
+
+def takes_target(rule) -> bool:
+    """Whether ``rule.update`` accepts ``target=`` (the built-in rules do; a user's rule written to the
+    three-argument protocol does not, and keeps working on ``y``)."""
+    try:
+        return "target" in inspect.signature(rule.update).parameters
+    except (TypeError, ValueError):  # no signature to read: assume the minimal protocol
+        return False
 
 
 @runtime_checkable
@@ -159,10 +172,17 @@ class Rule:
     def init(self, problem, model: torch.nn.Module) -> State:
         return State(self.context(problem, model), self.transform.init(trainable(model)))
 
+    def calibrate(self, state: State, model: torch.nn.Module, y: torch.Tensor) -> State:
+        """Measure what the rule needs from data once, on the run's first batch ``y`` (before the first
+        step; e.g. SIP's proxy curvature). Default: nothing."""
+        return state
+
     def step(self, state: State, model: torch.nn.Module, y: torch.Tensor):
         """One guarded update, applied at full step size: ``(state, info)`` (for one-off use)."""
         from .guard import apply_if_finite
 
+        if state.steps == 0:
+            state = self.calibrate(state, model, y)
         return apply_if_finite(self, state, model, y)
 
     def state_dict(self, state: State) -> dict:

@@ -9,10 +9,12 @@ import torch
 
 from ..autograd import apply
 from .base import OptimizerFactory, Rule, State, Update, gradient, prediction, sgd, y_loss
+from .curvature import checked, gauss_newton_max, operator_norm2
 from .transforms import OptimizerStep
 
-#: GD's default learning rate (plain SGD), shared with ``--method gd`` (methods/presets.py)
-GD_LR = 0.01
+#: GD's default learning rate (plain SGD on the normalized gradient: the stable step 1/λ_max), shared
+#: with ``--method gd`` (methods/presets.py)
+GD_LR = 1.0
 
 
 @dataclass(frozen=True)
@@ -25,13 +27,20 @@ class GD(Rule):
     :func:`pdeinv.apply`. ``optimizer`` is a factory ``params -> torch.optim.Optimizer``,
     an optimizer class or an instance (:func:`~.base.make_optimizer`); it is the rule's
     transformation (:class:`~.transforms.OptimizerStep`). The default, plain SGD with lr
-    0.01, is what ``pdeinv train --method gd`` runs (:data:`~.presets.GENERIC`; the CLI
-    also has per-problem learning rates, :data:`~.presets.PER_PROBLEM`); Adam is
-    ``GD(optimizer=pdeinv.adam(1e-3))``, the CLI's ``--method adam``. The context is the
-    problem's operator.
+    1 on the normalized gradient, is what ``pdeinv train --method gd`` runs
+    (:data:`~.presets.GENERIC`); Adam is ``GD(optimizer=pdeinv.adam(1e-3))``, the CLI's
+    ``--method adam`` (scale-invariant: the normalization changes nothing but its ε). The context
+    is the problem's operator and the curvature.
+
+    ``normalize=True`` (default) divides the gradient by ``λ̂ = λ_max(PᵀP) · λ_max((1/B) JᵀJ)`` on
+    the run's first batch (:mod:`.curvature`: the loss's largest curvature for a network linear in
+    θ, an upper bound otherwise), set by :meth:`calibrate` and saved with the state: plain SGD's lr
+    is then in units of the stable step ``1/λ_max`` (lr 1 is stable whatever the physics' scale and
+    the network's input scale), which is what ``pdeinv train --method gd`` runs.
     """
 
     optimizer: OptimizerFactory = field(default_factory=lambda: sgd(GD_LR))
+    normalize: bool = True
     name: str = "gd"
 
     @property
@@ -39,14 +48,39 @@ class GD(Rule):
         return OptimizerStep(self.optimizer)
 
     def settings(self) -> dict:
-        return {}
+        return {"normalize": self.normalize}
 
     def context(self, problem, model):
-        return problem.operator
+        return (problem.operator, None)
 
-    def update(self, state: State, model: torch.nn.Module, y_target: torch.Tensor) -> Update:
-        loss = y_loss(apply(state.context, prediction(model(y_target))), y_target)
+    def calibrate(self, state: State, model: torch.nn.Module, y: torch.Tensor) -> State:
+        """``λ̂`` on the batch ``y`` (when ``normalize``): called once, before the first step."""
+        op, lam = state.context
+        if not self.normalize or lam is not None:
+            return state
+        lam = checked(operator_norm2(op) * gauss_newton_max(model, y),
+                      "GD(normalize=True): the loss's curvature")
+        return state._replace(context=(op, lam))
+
+    def state_dict(self, state: State) -> dict:
+        return {**super().state_dict(state), "curvature": state.context[1]}
+
+    def load_state_dict(self, state: State, sd: dict) -> State:
+        state = super().load_state_dict(state, sd)
+        return state._replace(context=(state.context[0], sd.get("curvature")))
+
+    def update(self, state: State, model: torch.nn.Module, y_target: torch.Tensor,
+               target: torch.Tensor | None = None) -> Update:
+        op, lam = state.context
+        if self.normalize and lam is None:
+            raise ValueError("GD(normalize=True) needs its curvature: call state = rule.calibrate(state, "
+                             "model, y) on a first batch (pdeinv.Trainer and rule.step do)")
+        goal = y_target if target is None else target  # what P f(y*) must match (pdeinv.targets)
+        loss = y_loss(apply(op, prediction(model(y_target))), goal)
         value = float(loss.detach())
         if not math.isfinite(value):  # no backward through it: the guard refuses the update
             return Update(None, {"loss": value})
-        return Update(gradient(loss, model), {"loss": value})
+        direction = gradient(loss, model)
+        if self.normalize:
+            direction = tuple(None if d is None else d / lam for d in direction)
+        return Update(direction, {"loss": value})

@@ -37,10 +37,13 @@ class Diverged(NonFiniteError):
 
 
 def apply_if_finite(rule, state: State, model: torch.nn.Module, y: torch.Tensor, scale: float = 1.0,
-                    max_loss: float = math.inf, snapshot: Snapshot | None = None):
-    """One step of ``rule`` on batch ``y``: ``(state, info)``; refuses a non-finite loss or update, or a
-    loss above ``max_loss``; ``snapshot`` keeps the verified pre-step state (module docstring)."""
-    direction, info = rule.update(state, model, y)
+                    max_loss: float = math.inf, snapshot: Snapshot | None = None,
+                    target: torch.Tensor | None = None):
+    """One step of ``rule`` on batch ``y`` (with ``target`` if given, :mod:`pdeinv.targets`): ``(state,
+    info)``; refuses a non-finite loss or update, or a loss above ``max_loss``; ``snapshot`` keeps the
+    verified pre-step state (module docstring)."""
+    direction, info = rule.update(state, model, y) if target is None else \
+        rule.update(state, model, y, target=target)
     params = trainable(model)
     check_update(info, direction, model)
     loss = info["loss"]

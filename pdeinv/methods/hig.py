@@ -107,13 +107,14 @@ class HIG(Rule):
     def context(self, problem, model):
         return (problem.operator, *compress(problem.operator))
 
-    def update(self, state: State, model: torch.nn.Module, y_target: torch.Tensor) -> Update:
+    def update(self, state: State, model: torch.nn.Module, y_target: torch.Tensor,
+               target: torch.Tensor | None = None) -> Update:
         op, small, Q = state.context
         b = Batch.of(model, small, y_target)
         route = self._route(b)  # refuses one over the memory budget before computing anything
         with torch.no_grad():
             y = apply(op, prediction(b.f(b.params, y_target)))
-        r = (y - y_target).double()
+        r = (y - (y_target if target is None else target)).double()
         loss = 0.5 * float(r.pow(2).sum(-1).mean())
         if not math.isfinite(loss):
             return Update(None, {"loss": loss})

@@ -48,42 +48,32 @@ from .hig import HIG
 from .names import METHOD_NAMES
 from .sip import SIP
 
-#: SIP's proxy optimizer by name
-OPTIMIZERS = {"adam": adam, "sgd": sgd}
+#: SIP's proxy optimizer by name: (factory, normalize the proxy gradient by its curvature, default lr).
+#: With ``normalize`` SGD's lr is in units of the Landweber step 1/λ_max (SIP's docstring): lr 1 on
+#: every scene, no sweep. Adam is scale-invariant and keeps its own lr.
+OPTIMIZERS = {"sgd": (sgd, True, 1.0), "adam": (adam, False, 1e-3)}
 
 #: method name -> factory(hyper-parameters) -> update rule. No if-chains: add a line.
 METHODS = {
     "gd": lambda hp: GD(optimizer=sgd(hp["lr"]), name="gd"),
-    "adam": lambda hp: GD(optimizer=adam(hp["lr"]), name="adam"),
-    "sip": lambda hp: SIP(eta=hp["eta"], optimizer=OPTIMIZERS[hp["optimizer"]](hp["lr"])),
+    "adam": lambda hp: GD(optimizer=adam(hp["lr"]), normalize=False, name="adam"),  # scale-invariant
+    "sip": lambda hp: SIP(eta=hp["eta"], optimizer=OPTIMIZERS[hp["optimizer"]][0](hp["lr"]),
+                          normalize=OPTIMIZERS[hp["optimizer"]][1]),
     "hig": lambda hp: HIG(eta=hp["eta"], tau=hp["tau"]),
 }
 assert sorted(METHODS) == sorted(METHOD_NAMES), "add the method's name to methods/names.py too"
 
 #: generic defaults per method (``batch_size`` and ``hidden`` size the run and the MLP)
 GENERIC = {
-    "gd": {"lr": GD_LR, "batch_size": 32},  # 0.01 = pdeinv.GD()'s default; 0.1 diverges on heat_2d
+    "gd": {"lr": GD_LR, "batch_size": 32},  # = pdeinv.GD(): normalized, lr in units of 1/λ_max
     "adam": {"lr": 1e-3, "batch_size": 32},
-    "sip": {"lr": 1e-3, "eta": 1.0, "batch_size": 32, "optimizer": "adam"},
+    # SIP: full batch (None: every training row), normalized SGD at lr 1, 100 steps (see SIP_DEFAULTS)
+    "sip": {"lr": None, "eta": 1.0, "batch_size": None, "optimizer": "sgd", "steps": 100},
     "hig": {"eta": 0.1, "tau": 1e-5, "batch_size": 8, "hidden": (32, 32)},
 }
 
-#: overrides for noisy observations (``noise > 0``), measured on heat_2d at 1 % noise, whitened
-#: linear network, 20 s, discrepancy stop (pdeinv.stopping): SIP with plain SGD on the whitened
-#: input is a Landweber iteration whose early-stopped iterate is a regularized solution: 0.126 at
-#: the stop (1.4 s); SIP with Adam lr 1e-3 semi-converges off that path (best 0.146, 0.164 at the
-#: stop, 0.20 after 20 s). lr 0.05 sits well below the stability limit 2/(1+√(k/B))² (k kept
-#: directions, batch B): on other data (seed 1) lr 0.02, and lr 0.1 with batch 128, gave the same
-#: 0.130; lr 0.5 and 1.0 diverged (with all 961 directions kept).
-NOISY = {"sip": {"optimizer": "sgd", "lr": 0.05}}
-
-#: per-problem overrides of GENERIC, from the sweep above
-PER_PROBLEM: dict[str, dict[str, dict]] = {
-    "heat_1d": {"gd": {"lr": 0.1}},
-    "wave_1d": {"gd": {"lr": 0.1}},
-    # 3072 records per sample: ‖P‖ is ~10× heat_2d's, the loss's curvature ~100×
-    "wave_sensors_2d": {"gd": {"lr": 1e-3}},
-}
+#: per-problem overrides of GENERIC (none needed since the steps are normalized by the curvature)
+PER_PROBLEM: dict[str, dict[str, dict]] = {}
 
 
 def hyperparameters(method: str, problem: str, noise: float = 0.0, **overrides) -> dict:
@@ -92,20 +82,21 @@ def hyperparameters(method: str, problem: str, noise: float = 0.0, **overrides) 
     if method not in METHODS:
         raise ValueError(f"method={method!r} is not allowed; expected one of "
                          f"{', '.join(map(repr, METHODS))}")
-    hp = {**GENERIC[method], **PER_PROBLEM.get(problem, {}).get(method, {}),
-          **(NOISY.get(method, {}) if noise else {})}
+    hp = {**GENERIC[method], **PER_PROBLEM.get(problem, {}).get(method, {})}
     hp.setdefault("hidden", None)
-    bad = sorted(k for k, v in overrides.items() if v is not None and k not in hp)
+    bad = sorted(k for k, v in overrides.items() if v is not None and (k not in hp or k == "steps"))
     if bad:
         raise ValueError(f"{', '.join(bad)} does not apply to method {method!r} "
                          f"(its settings: {', '.join(sorted(hp))})")
     hp.update({k: v for k, v in overrides.items() if v is not None})
-    for key in ("lr", "eta"):  # torch would say "Invalid learning rate: nan" without naming the flag
-        if key in hp:
-            positive(hp[key], key)
     if "optimizer" in hp and hp["optimizer"] not in OPTIMIZERS:
         raise ValueError(f"optimizer={hp['optimizer']!r} is not allowed; expected one of "
                          f"{', '.join(map(repr, OPTIMIZERS))}")
+    if hp.get("lr", 0) is None:  # an optimizer (given or preset) brings its own lr unless one is given
+        hp["lr"] = OPTIMIZERS[hp["optimizer"]][2]
+    for key in ("lr", "eta"):  # torch would say "Invalid learning rate: nan" without naming the flag
+        if key in hp:
+            positive(hp[key], key)
     return hp
 
 

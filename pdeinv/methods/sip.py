@@ -12,7 +12,8 @@ import torch
 
 from .._checks import positive
 from ..physics.base import LinearOperator
-from .base import OptimizerFactory, Rule, State, Update, adam, check_finite, gradient, prediction, y_loss
+from .base import OptimizerFactory, Rule, State, Update, check_finite, gradient, prediction, sgd, y_loss
+from .curvature import checked, gauss_newton_max
 from .transforms import OptimizerStep
 
 #: ``(y_target, x0) -> x̃`` on numpy ``(B, ·)`` arrays: a local inverse ``P⁻¹_(x0, P x0)``
@@ -20,10 +21,12 @@ InverseSimulator = Callable[[np.ndarray, np.ndarray], np.ndarray]
 
 
 class SIPContext(NamedTuple):
-    """What SIP needs from the problem, fixed for the run (never checkpointed)."""
+    """What SIP needs from the problem (fixed for the run) and the proxy's curvature (set once by
+    :meth:`SIP.calibrate`, saved with the rule state)."""
 
     operator: LinearOperator
     inverse: InverseSimulator
+    curvature: float | None = None
 
 
 @dataclass(frozen=True)
@@ -33,7 +36,7 @@ class SIP(Rule):
         x  = f(y*; θ),   y = P(x),   Δy = η (y* − y),
         x̃  = P⁻¹_(x, y)(y + Δy)                      (local inverse simulator, no gradient)
         L̃  = ½ · mean_i ‖x_i − stopgrad(x̃_i)‖²       (Euclidean, mean over the batch)
-        direction = ∇_θ L̃,   θ ← optimizer(direction)
+        direction = ∇_θ L̃ / λ̂,   θ ← optimizer(direction)
 
     Only the network is differentiated; the physics runs forward once and the
     inverse once, both in float64 numpy. ``inverse`` defaults to the problem's
@@ -43,11 +46,25 @@ class SIP(Rule):
     is ``L̃``. The guard's step-size multiplier scales the optimizer's lr (η stays:
     it sets the target, not the step). The inverse's output is checked (shape,
     finiteness) before it is trained on: it is a user-supplied strategy.
+
+    ``normalize=True`` divides the proxy gradient by ``λ̂ = λ_max`` of the proxy's Gauss–Newton
+    matrix (:func:`~.curvature.gauss_newton_max`), measured once on the run's first batch by
+    :meth:`calibrate` (the trainer calls it; saved with the state, so a resumed run keeps it).
+    Plain SGD's learning rate is then in units of the Landweber step ``1/λ_max``: lr 1 is
+    stable (below 2) whatever the network's input scale, width or batch size. On the
+    whitened linear network the proxy is a linear least-squares problem, SGD on it is a
+    Landweber iteration, and its first steps never put energy into directions the physics
+    cannot see (Adam's sign-like steps do: measured in :mod:`.presets`). Adam is invariant to
+    the division (up to its ε): pass ``normalize=False`` with it. The defaults, normalized SGD at
+    lr 1, are what ``pdeinv train --method sip`` runs (with every training row in each step:
+    on the whitened linear network the proxy's Hessian is then the identity on the kept
+    directions, and one step solves it).
     """
 
     inverse: InverseSimulator | None = None
     eta: float = 1.0
-    optimizer: OptimizerFactory = field(default_factory=adam)
+    optimizer: OptimizerFactory = field(default_factory=lambda: sgd(1.0))
+    normalize: bool = True
     name: str = "sip"
 
     def __post_init__(self):
@@ -60,16 +77,31 @@ class SIP(Rule):
     def settings(self) -> dict:
         inverse = "problem" if self.inverse is None else getattr(self.inverse, "__qualname__",
                                                                   type(self.inverse).__qualname__)
-        return {"eta": self.eta, "inverse": inverse}
+        return {"eta": self.eta, "inverse": inverse, "normalize": self.normalize}
 
     def context(self, problem, model) -> SIPContext:
         return SIPContext(problem.operator, self.inverse if self.inverse is not None else problem.inverse)
 
-    def update(self, state: State, model: torch.nn.Module, y_target: torch.Tensor) -> Update:
-        op, inverse = state.context
+    def calibrate(self, state: State, model: torch.nn.Module, y: torch.Tensor) -> State:
+        """``λ̂`` on the batch ``y`` (when ``normalize``): called once, before the first step."""
+        if not self.normalize or state.context.curvature is not None:
+            return state
+        lam = checked(gauss_newton_max(model, y), "SIP(normalize=True): the proxy's curvature")
+        return state._replace(context=state.context._replace(curvature=lam))
+
+    def state_dict(self, state: State) -> dict:
+        return {**super().state_dict(state), "curvature": state.context.curvature}
+
+    def load_state_dict(self, state: State, sd: dict) -> State:
+        state = super().load_state_dict(state, sd)
+        return state._replace(context=state.context._replace(curvature=sd.get("curvature")))
+
+    def update(self, state: State, model: torch.nn.Module, y_target: torch.Tensor,
+               target: torch.Tensor | None = None) -> Update:
+        op, inverse, curvature = state.context
         x = prediction(model(y_target))
         x_np = x.detach().cpu().double().numpy()
-        yt = y_target.detach().cpu().double().numpy()
+        yt = (y_target if target is None else target).detach().cpu().double().numpy()
         y = op.forward(x_np)
         loss = 0.5 * float(((y - yt) ** 2).sum(-1).mean())
         if not math.isfinite(loss):  # the inverse is never called on it; the guard refuses
@@ -81,4 +113,10 @@ class SIP(Rule):
         target = torch.as_tensor(x_tilde, dtype=x.dtype, device=x.device)
         check_finite("the inverse simulator's x̃", target)
         proxy = y_loss(x, target)  # ½ mean ‖x − x̃‖², target carries no gradient
-        return Update(gradient(proxy, model), {"loss": loss, "proxy": float(proxy.detach())})
+        if self.normalize and curvature is None:
+            raise ValueError("SIP(normalize=True) needs its curvature: call state = rule.calibrate(state, "
+                             "model, y) on a first batch (pdeinv.Trainer and rule.step do)")
+        direction = gradient(proxy, model)
+        if self.normalize:
+            direction = tuple(None if d is None else d / curvature for d in direction)
+        return Update(direction, {"loss": loss, "proxy": float(proxy.detach())})

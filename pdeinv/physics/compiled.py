@@ -160,6 +160,45 @@ class SVD(Spectral):
 
 
 
+class LazySVD:
+    """The :class:`SVD` of a dense ``P`` in the norms ``M``, ``M_out``, computed on first use: a spectral
+    basis (``g``, ``proj``, ``out``, ``synth``, ``mass_out``) for a dense backend, so that only a run
+    that asks for it (SIP's spectral inverse) pays the ``O(m N min(m, N))`` factorization."""
+
+    ARRAYS = ("g", "In", "out", "proj", "synth")
+
+    def __init__(self, P: np.ndarray, M=None, M_out=None):
+        self.P, self.M, self.mass_out, self._svd = P, M, M_out, None
+
+    def __getattr__(self, name):
+        if name not in LazySVD.ARRAYS:
+            raise AttributeError(name)
+        if self.__dict__.get("_svd") is None:
+            self._svd = SVD(self.P, self.M, self.mass_out)
+        return getattr(self._svd, name)
+
+
+def spectral_basis(op, M=None):
+    """A spectral basis of ``op`` (``g``, ``proj``, ``out``, ``synth``, ``mass_out``): its own
+    (``op.modes``: modal heat, compiled SVD), else the SVD of a compiled dense ``P`` in the norms of
+    ``M`` (:class:`LazySVD`, computed once per backend and mass on first use), else ``None``."""
+    from .capabilities import modal_basis, output_mass
+
+    modes = modal_basis(op)
+    if modes is not None:
+        return modes
+    backend = getattr(op, "backend", None)
+    P = getattr(backend, "P", None)
+    if P is None:
+        return None
+    cache = backend.__dict__.setdefault("_spectral", {})  # the LazySVD keeps M alive: its id stays unique
+    M_out = output_mass(op, M)
+    key = (id(M), M_out is not None)
+    if key not in cache:
+        cache[key] = LazySVD(P, M, M_out)
+    return cache[key]
+
+
 KINDS = {"dense": Dense, "svd": SVD}
 
 

@@ -1,0 +1,102 @@
+"""What the physics must match: the observations, or a denoised version computed from them alone.
+
+Every physics loss ``½‖P f(y*) − y*‖²`` (GD's, SIP's target ``y + η(y* − y)``, HIG's residual) is
+minimized by fitting ``y*`` exactly. With noisy observations ``y* = P x + ε`` that fits the noise:
+the iteration semi-converges and only a stopping rule regularizes it (:mod:`pdeinv.stopping`).
+A **target** ``t(y*)`` fitted on the training observations replaces ``y*`` as what the physics must
+match (the network still sees ``y*``), so that the fixed point every rule converges to is a
+regularized solution.
+
+:class:`SpectralWiener`: in a spectral basis of the operator, ``P = Out diag(g) Inᵀ`` with
+coefficients ``c = y · proj`` (:mod:`pdeinv.physics.compiled`: the modal heat basis, or the SVD in the
+problem's norms), white noise of variance ``σ²`` per component puts ``σ_k² = σ²‖proj_k‖²`` into
+coefficient ``k``, independent of the signal. So the signal's second moment per mode is
+``E[c_k²] − σ_k²`` — estimated from the training observations alone, never from ``x`` — and the
+Wiener filter per mode,
+
+    f_k = 1 − σ_k² / E[c_k²],        t(y) = y − Σ_k (1 − f_k) c_k Out_k,
+
+is the best linear filter diagonal in the basis (the "best spectral filter" that any Tikhonov α,
+truncated SVD or early-stopped Landweber iteration is a special case of). A network fitted to
+``P f(y) = t(y)`` reconstructs ``x_k = f_k c_k / g_k`` on every mode.
+
+A mode is kept (``f_k > 0``) only where its signal is **significant**: ``mean(c_k²) − σ_k²`` above
+``z = 3`` standard errors of the mean of ``c_k²`` (its empirical spread over the samples, which
+also covers the per-sample noise levels of the relative noise model), and only if the x-energy
+it implies, ``(mean(c_k²) − σ_k²)/g_k²``, is not above that of all clearly detected modes (10
+standard errors) together. An estimated ``f_k`` of a mode with no signal is sampling error
+(~√(2/n)) which ``1/g_k`` amplifies without bound on a smoothing operator; the energy guard
+stops such a fluke even at ``z = 2``, and z = 3 keeps 1–2 more weak modes than z = 4–6.
+Measured in closed form (1024 training observations at 1 % noise, 128 test pairs, relative
+L²(Ω) errors, z = 3; best-α Tikhonov with the oracle α in brackets): heat_2d 0.1174 (0.1173),
+heat_3d 0.1059 (0.1069), heat_cavity_3d 0.1848 (0.1857), heat_sensors_2d 0.1418 (0.1420),
+heat_1d 0.127 (0.127), wave_2d **0.0131 (0.024)**. Where ``P`` smooths, the best spectral filter
+is about the best Tikhonov filter (y alone cannot say more about modes it cannot see); where it
+does not (wave), a filter that knows each mode's signal level beats one α for all modes.
+
+A target is a strategy object::
+
+    fitted = target.fit(problem, y_train, noise)     # None: nothing to fit (use y itself)
+    fitted(y) -> numpy (B, m),   fitted.info -> dict  (what it kept, for metrics.json)
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from ._checks import positive
+from .noise import noise_variance
+from .physics.compiled import spectral_basis
+
+
+class Filtered:
+    """``t(y) = y − ((y·proj) ⊙ (1 − f)) Outᵀ``: a fitted spectral filter on observations."""
+
+    def __init__(self, proj: np.ndarray, out: np.ndarray, f: np.ndarray, info: dict):
+        self.proj, self.out, self.f, self.info = proj, out, f, info
+
+    def __call__(self, y: np.ndarray) -> np.ndarray:
+        y = np.asarray(y, dtype=float)
+        return y - ((y @ self.proj) * (1.0 - self.f)) @ self.out.T
+
+
+@dataclass(frozen=True)
+class SpectralWiener:
+    """The y-only Wiener filter per mode of the operator's spectral basis (module docstring)."""
+
+    z: float = 3.0
+    name: str = "spectral_wiener"
+
+    def __post_init__(self):
+        positive(self.z, "z")
+
+    def fit(self, problem, y: np.ndarray, noise: float | None) -> Filtered | None:
+        """The filter fitted on observations ``y`` ``(n, m)`` with relative noise ``noise``; ``None``
+        when there is no noise or the operator has no spectral basis (nothing to filter by)."""
+        if not noise:
+            return None
+        disc = getattr(problem, "disc", None)
+        modes = spectral_basis(problem.operator, None if disc is None else disc.M)
+        if modes is None:
+            return None
+        y = np.asarray(y, dtype=float)
+        n = y.shape[0]
+        c2 = (y @ modes.proj) ** 2
+        power = c2.mean(0)
+        sigma2 = noise_variance(y, noise) * (modes.proj**2).sum(0)
+        se = c2.std(0, ddof=1) / np.sqrt(n)
+        signal = power - sigma2
+        significant = signal > self.z * se
+        # the energy guard: a barely detected mode may not claim more x-energy (signal/g²) than all
+        # clearly detected modes (10 standard errors) together; a sampling fluke on a mode with tiny
+        # g would (module docstring)
+        energy = signal / np.maximum(modes.g**2, np.finfo(float).tiny)
+        clear = signal > 10 * se
+        if clear.any():
+            significant &= energy <= energy[clear].sum()
+        f = np.where(significant, 1.0 - sigma2 / np.maximum(power, np.finfo(float).tiny), 0.0)
+        info = {"name": self.name, "modes": int(f.size), "kept": int(significant.sum()), "z": self.z,
+                "noise": float(noise)}
+        return Filtered(modes.proj, modes.out, f, info)
