@@ -87,7 +87,7 @@ def test_sip_step_matches_hand_formula():
     W, b = numpy_params(model)
     Y = rng.standard_normal((4, 5))
     eta, lr = 0.5, 0.2
-    rule = SIP(eta=eta, optimizer=sgd(lr))
+    rule = SIP(eta=eta, optimizer=sgd(lr), normalize=False)  # the raw proxy gradient
     state, info = rule.step(rule.init(problem, model), model, torch.tensor(Y))
 
     X = Y @ W.T + b
@@ -99,13 +99,15 @@ def test_sip_step_matches_hand_formula():
     np.testing.assert_allclose(model.bias.detach().numpy(), b - lr * (X - Xt).mean(0), atol=1e-13)
 
 
-def test_sip_exact_inverse_eta_one_lands_on_the_solution():
-    """Linear head, orthogonal targets of norm c, SGD lr = B/c²: after one step f(y*_i) = A⁻¹ y*_i."""
+@pytest.mark.parametrize("rule", [SIP(eta=1.0, optimizer=sgd(3 / 1.7**2), normalize=False), SIP()],
+                         ids=["raw-lr-B/c2", "default-normalized"])
+def test_sip_exact_inverse_eta_one_lands_on_the_solution(rule):
+    """Linear head, orthogonal targets of norm c, SGD lr = B/c² (= 1/λ_max of the proxy's Hessian
+    c²/B, which the default normalization finds): after one step f(y*_i) = A⁻¹ y*_i."""
     problem, A, rng = toy()
     model = linear(5, 5, bias=False)
     c, B = 1.7, 3
     Y = c * np.linalg.qr(rng.standard_normal((5, B)))[0].T  # B orthogonal rows, ‖y_i‖ = c
-    rule = SIP(eta=1.0, optimizer=sgd(B / c**2))
     rule.step(rule.init(problem, model), model, torch.tensor(Y))
     X = model(torch.tensor(Y)).detach().numpy()
     np.testing.assert_allclose(X, np.linalg.solve(A, Y.T).T, atol=1e-12)

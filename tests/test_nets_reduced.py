@@ -76,7 +76,7 @@ def test_the_default_switches_above_the_measured_size(monkeypatch):
     monkeypatch.setattr(nets, "REDUCED_ABOVE", p.N - 1)
     model = nets.default_model(p)
     assert isinstance(model.post, nets.Decoder) and isinstance(model.pre, Whitening)
-    assert model.pre.k == min(nets.REDUCED_K, p.N)
+    assert model.pre.k == min(nets.REDUCED_K_IN, p.N)
     monkeypatch.setattr(nets, "REDUCED_ABOVE", p.N)
     assert not isinstance(nets.default_model(p).post, nets.Decoder)
 
@@ -159,3 +159,29 @@ def test_whitening_with_k_components_keeps_the_leading_directions(n):
     assert np.allclose(g[:lead], full.gain.numpy()[:lead])
     assert np.all(g[lead:] == 0)  # directions no sample visited
     assert w(torch.as_tensor(y)).shape == (n, k)
+
+
+def test_one_normalized_sip_step_is_newtons_step_on_the_scaled_decoder():
+    """x = Φ(W z̃): the proxy's Gauss–Newton matrix is (Z̃ᵀZ̃/B) ⊗ ΦᵀΦ, diagonal for whitened z on the
+    full batch and Φ with orthogonal columns scaled by the prior (condition number ~1e8 here). SIP's
+    Jacobi-normalized step at lr 1 lands on the proxy's least-squares solution in one step; by λ_max
+    alone it would move the weakest column by ~1e-8 of that."""
+    p = pdeinv.load_problem("heat_1d", n=32, steps=10)
+    model = nets.reduced(k_in=8, k_out=12)(p)  # 8 whitened directions: z exact to ~1e-12
+    _, y = p.sample(200, seed=0)
+    nets.fit_preconditioning(model, y)
+    Y = torch.as_tensor(y, dtype=torch.float64)
+    phi = model.post.basis.T.numpy()  # (N, k_out)
+    s2 = (phi**2).sum(0)
+    assert s2.max() / s2.min() > 1e3  # the decoder really is badly scaled
+    rule = pdeinv.SIP()
+    state = rule.init(p, model)
+    with torch.no_grad():
+        z = model.pre(Y).numpy()
+    x_tilde = p.inverse(y, np.zeros_like(y[:, : p.operator.n_in]))  # x = 0 before the step: x̃ = P⁻¹ y*
+    rule.step(state, model, Y)
+    zt = np.hstack([z, np.ones((len(z), 1))])
+    coef = np.linalg.lstsq(zt, np.linalg.lstsq(phi, x_tilde.T, rcond=None)[0].T, rcond=None)[0]
+    best = zt @ coef @ phi.T  # argmin over (W, b) of Σ_i ‖Φ(W z_i + b) − x̃_i‖²
+    x = model(Y).detach().numpy()
+    assert np.abs(x - best).max() < 1e-9 * np.abs(best).max()

@@ -41,9 +41,14 @@ def checked(lam: float, what: str) -> float:
     return lam
 
 
-def gauss_newton_max(model: torch.nn.Module, y: torch.Tensor, iters: int = 30, seed: int = 0) -> float:
-    """``λ_max((1/B) JᵀJ)`` of ``model`` at its current parameters on the batch ``y`` ``(B, ·)``."""
+def gauss_newton_max(model: torch.nn.Module, y: torch.Tensor, iters: int = 30, seed: int = 0,
+                     diagonal: tuple[torch.Tensor, ...] | None = None) -> float:
+    """``λ_max((1/B) JᵀJ)`` of ``model`` at its current parameters on the batch ``y`` ``(B, ·)``; with
+    ``diagonal`` (one positive tensor per trainable parameter, ``d``) that of the Jacobi-preconditioned
+    ``d^{-1/2} G d^{-1/2}`` (same eigenvalues as ``d⁻¹G``, the matrix a step ``−lr·d⁻¹∇L`` iterates)."""
     params = {k: p.detach() for k, p in model.named_parameters() if p.requires_grad}
+    root = {k: torch.ones((), dtype=torch.float64) for k in params} if diagonal is None else \
+        {k: d.double().rsqrt() for k, d in zip(params, diagonal, strict=True)}
     if not params:
         raise ValueError("the model has no trainable parameters")
     frozen = {**{k: p.detach() for k, p in model.named_parameters() if not p.requires_grad},
@@ -55,16 +60,16 @@ def gauss_newton_max(model: torch.nn.Module, y: torch.Tensor, iters: int = 30, s
 
     _, pullback = vjp(f, params)
     gen = torch.Generator().manual_seed(seed)
-    v = {k: torch.randn(p.shape, generator=gen, dtype=torch.float64).to(p) for k, p in params.items()}
+    v = {k: torch.randn(p.shape, generator=gen, dtype=torch.float64) for k, p in params.items()}
     lam = 0.0
     for _ in range(iters):
         norm = math.sqrt(sum(float((t.double() ** 2).sum()) for t in v.values()))
         if not norm > 0:
             return lam
         v = {k: t / norm for k, t in v.items()}
-        _, jv = jvp(f, (params,), (v,))
+        _, jv = jvp(f, (params,), ({k: (t * root[k]).to(params[k]) for k, t in v.items()},))
         (w,) = pullback(jv)
-        w = {k: t / batch for k, t in w.items()}
+        w = {k: t.double() * root[k] / batch for k, t in w.items()}
         lam = sum(float((w[k].double() * v[k].double()).sum()) for k in v)  # Rayleigh quotient
         v = w
     return lam

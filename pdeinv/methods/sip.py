@@ -27,6 +27,7 @@ class SIPContext(NamedTuple):
     operator: LinearOperator
     inverse: InverseSimulator
     curvature: float | None = None
+    diagonal: tuple | None = None  # the network's Gauss–Newton diagonal, when it has one (calibrate)
 
 
 @dataclass(frozen=True)
@@ -48,8 +49,14 @@ class SIP(Rule):
     finiteness) before it is trained on: it is a user-supplied strategy.
 
     ``normalize=True`` divides the proxy gradient by ``λ̂ = λ_max`` of the proxy's Gauss–Newton
-    matrix (:func:`~.curvature.gauss_newton_max`), measured once on the run's first batch by
+    matrix ``G`` (:func:`~.curvature.gauss_newton_max`), measured once on the run's first batch by
     :meth:`calibrate` (the trainer calls it; saved with the state, so a resumed run keeps it).
+    A network that knows the diagonal ``d`` of its ``G`` (``model.gauss_newton_diagonal(y)``:
+    :class:`pdeinv.nets.Net` with a linear body) is Jacobi-preconditioned first, direction
+    ``d⁻¹∇L̃ / λ_max(d⁻¹G)``: for the reduced network, whose fixed decoder scales its columns by
+    the prior's amplitudes (for Adam's sake, :func:`pdeinv.nets.prior_basis`), ``G`` is diagonal
+    and this is Newton's step; by ``λ_max`` alone its condition number (the prior's amplitude
+    ratio, squared) left 100 steps at x-error 0.148 on heat_plate (Tikhonov 0.062).
     Plain SGD's learning rate is then in units of the Landweber step ``1/λ_max``: lr 1 is
     stable (below 2) whatever the network's input scale, width or batch size. On the
     whitened linear network the proxy is a linear least-squares problem, SGD on it is a
@@ -86,8 +93,12 @@ class SIP(Rule):
         """``λ̂`` on the batch ``y`` (when ``normalize``): called once, before the first step."""
         if not self.normalize or state.context.curvature is not None:
             return state
-        lam = checked(gauss_newton_max(model, y), "SIP(normalize=True): the proxy's curvature")
-        return state._replace(context=state.context._replace(curvature=lam))
+        exact = getattr(model, "gauss_newton_diagonal", None)
+        diag = exact(y) if callable(exact) else None
+        if diag is not None:  # a dropped input direction has d = 0 and a zero gradient: leave it alone
+            diag = tuple(torch.where(d > 0, d, torch.ones_like(d)) for d in diag)
+        lam = checked(gauss_newton_max(model, y, diagonal=diag), "SIP(normalize=True): the proxy's curvature")
+        return state._replace(context=state.context._replace(curvature=lam, diagonal=diag))
 
     def state_dict(self, state: State) -> dict:
         return {**super().state_dict(state), "curvature": state.context.curvature}
@@ -98,7 +109,7 @@ class SIP(Rule):
 
     def update(self, state: State, model: torch.nn.Module, y_target: torch.Tensor,
                target: torch.Tensor | None = None) -> Update:
-        op, inverse, curvature = state.context
+        op, inverse, curvature, diagonal = state.context
         x = prediction(model(y_target))
         x_np = x.detach().cpu().double().numpy()
         yt = (y_target if target is None else target).detach().cpu().double().numpy()
@@ -118,5 +129,7 @@ class SIP(Rule):
                              "model, y) on a first batch (pdeinv.Trainer and rule.step do)")
         direction = gradient(proxy, model)
         if self.normalize:
-            direction = tuple(None if d is None else d / curvature for d in direction)
+            scale = (None,) * len(direction) if diagonal is None else diagonal
+            direction = tuple(None if d is None else (d if s is None else d / s) / curvature
+                              for d, s in zip(direction, scale, strict=True))
         return Update(direction, {"loss": loss, "proxy": float(proxy.detach())})
