@@ -54,6 +54,9 @@ wave and sensors → MLP, until faster wave physics changes the count.
 
 from __future__ import annotations
 
+from collections.abc import Callable
+from typing import NamedTuple
+
 import torch
 from torch import nn
 
@@ -149,27 +152,51 @@ class Net(nn.Module):
     def forward(self, y: torch.Tensor) -> torch.Tensor:
         return self.post(self.body(self.pre(y)))
 
+    def linear_in_parameters(self) -> LinearInParameters | None:
+        """The structure ``x = D(W z(y) + b)`` when the body is one ``nn.Linear`` (alone or as the
+        only module of an ``nn.Sequential``) holding every trainable parameter: ``z = pre(y)`` is a
+        fixed feature map and ``D`` the fixed output map (:class:`Decoder` or the identity). ``None``
+        for any other body. Update rules use it to work with the exact Kronecker structure of the
+        Jacobian (:meth:`gauss_newton_diagonal`; HIG's ``kronecker`` route)."""
+        body = self.body
+        if isinstance(body, nn.Sequential) and len(body) == 1:
+            body = body[0]
+        trainable = [p for p in self.parameters() if p.requires_grad]
+        if type(body) is not nn.Linear or len(trainable) != len(list(body.parameters())) or \
+                not all(p.requires_grad for p in body.parameters()):
+            return None
+        basis = getattr(self.post, "basis", None)  # (k_out, N): rows are the decoder's columns
+        return LinearInParameters(self.pre, basis, body)
+
     @torch.no_grad()
     def gauss_newton_diagonal(self, y: torch.Tensor) -> tuple[torch.Tensor, ...] | None:
         """The diagonal of ``G = (1/B) JᵀJ`` (``J = ∂ vec x / ∂θ`` on the batch ``y``) per trainable
-        parameter, in ``parameters()`` order, when the body is one linear layer, ``x = D(W z + b)``:
+        parameter, in ``parameters()`` order, when the network is linear in them,
+        ``x = D(W z + b)`` (:meth:`linear_in_parameters`)::
 
             G = (Z̃ᵀZ̃/B) ⊗ (DᵀD),   diag G[W_ji] = (DᵀD)_jj · mean_b z_bi²,   diag G[b_j] = (DᵀD)_jj
 
-        (``D`` = :class:`Decoder` basis or the identity); ``None`` for any other body. With the
-        whitened input (``Z̃ᵀZ̃/B`` = I on the full training set) and a decoder with orthogonal
-        columns ``G`` *is* diagonal, and dividing by it is Newton's step (:class:`~pdeinv.SIP`)."""
-        layers = [m for m in self.body.modules() if isinstance(m, nn.Linear)]
-        params = [p for p in self.parameters() if p.requires_grad]
-        if len(layers) != 1 or len(params) != len(list(layers[0].parameters())):
+        ``None`` otherwise. With the whitened input (``Z̃ᵀZ̃/B`` = I on the full training set) and a
+        decoder with orthogonal columns ``G`` *is* diagonal, and dividing by it is Newton's step
+        (:class:`~pdeinv.SIP`)."""
+        lin = self.linear_in_parameters()
+        if lin is None:
             return None
-        layer = layers[0]
-        z2 = (self.pre(y).to(layer.weight.dtype) ** 2).mean(0)
-        basis = getattr(self.post, "basis", None)  # (k, N): rows are the decoder's columns
-        rows = torch.ones(layer.out_features, dtype=z2.dtype, device=z2.device) if basis is None \
-            else (basis.to(z2.dtype) ** 2).sum(1)
+        z2 = (lin.features(y).to(lin.layer.weight.dtype) ** 2).mean(0)
+        rows = torch.ones(lin.layer.out_features, dtype=z2.dtype, device=z2.device) if lin.decoder is None \
+            else (lin.decoder.to(z2.dtype) ** 2).sum(1)
         diag = {"weight": rows[:, None] * z2[None, :], "bias": rows}
-        return tuple(diag[name] for name, p in layer.named_parameters() if p.requires_grad)
+        return tuple(diag[name] for name, _ in lin.layer.named_parameters())
+
+
+class LinearInParameters(NamedTuple):
+    """``x = D(W z(y) + b)`` (:meth:`Net.linear_in_parameters`): the fixed feature map ``z``, the fixed
+    decoder's rows ``Dᵀ`` (``(k_out, N)``, ``None`` for the identity), and the ``nn.Linear`` holding
+    ``W`` and ``b`` (its ``named_parameters()`` order is the network's trainable order)."""
+
+    features: Callable[[torch.Tensor], torch.Tensor]
+    decoder: torch.Tensor | None
+    layer: nn.Linear
 
 
 #: the default networks' dtype. They are linear estimators fitted to float64 physics: noise-free, what

@@ -14,11 +14,17 @@ coefficient ``k``, independent of the signal. So the signal's second moment per 
 ``E[c_k²] − σ_k²`` — estimated from the training observations alone, never from ``x`` — and the
 Wiener filter per mode,
 
-    f_k = 1 − σ_k² / E[c_k²],        t(y) = y − Σ_k (1 − f_k) c_k Out_k,
+    f_k = 1 − σ_k² / E[c_k²],        t(y) = Σ_k f_k c_k Out_k,
 
 is the best linear filter diagonal in the basis (the "best spectral filter" that any Tikhonov α,
 truncated SVD or early-stopped Landweber iteration is a special case of). A network fitted to
-``P f(y) = t(y)`` reconstructs ``x_k = f_k c_k / g_k`` on every mode.
+``P f(y) = t(y)`` reconstructs ``x_k = f_k c_k / g_k`` on every mode. The part of ``y`` outside the
+basis (no ``x`` produces it) is dropped, so that ``t`` lies in ``range(P)`` exactly, whatever the
+geometry of the loss: the basis is orthonormal in the problem's norms, and where ``M ≠ I`` the
+``M``-complement of the basis has a Euclidean component along ``range(P)``; left in ``t``, that
+noise lands in the Euclidean losses of GD and HIG on weak modes, and HIG's near-Gauss–Newton steps
+amplify it by ``1/s``. Measured on heat_2d at 1 % (HIG, τ 1e-6, full batch): x-error 0.146 → 0.395
+over 60 steps with it, 0.1216 (= the closed form) without.
 
 A mode is kept (``f_k > 0``) only where its signal is **significant**: ``mean(c_k²) − σ_k²`` above
 ``z = 3`` standard errors of the mean of ``c_k²`` (its empirical spread over the samples, which
@@ -52,14 +58,14 @@ from .physics.compiled import spectral_basis
 
 
 class Filtered:
-    """``t(y) = y − ((y·proj) ⊙ (1 − f)) Outᵀ``: a fitted spectral filter on observations."""
+    """``t(y) = ((y·proj) ⊙ f) Outᵀ``: a fitted spectral filter on observations."""
 
     def __init__(self, proj: np.ndarray, out: np.ndarray, f: np.ndarray, info: dict):
         self.proj, self.out, self.f, self.info = proj, out, f, info
 
     def __call__(self, y: np.ndarray) -> np.ndarray:
         y = np.asarray(y, dtype=float)
-        return y - ((y @ self.proj) * (1.0 - self.f)) @ self.out.T
+        return ((y @ self.proj) * self.f) @ self.out.T
 
 
 @dataclass(frozen=True)
@@ -72,15 +78,21 @@ class SpectralWiener:
     def __post_init__(self):
         positive(self.z, "z")
 
+    @staticmethod
+    def _basis(problem):
+        disc = getattr(problem, "disc", None)
+        return spectral_basis(problem.operator, None if disc is None else disc.M)
+
+    def applies(self, problem, noise: float | None) -> bool:
+        """Whether :meth:`fit` will fit a filter: a noise level and a spectral basis to filter in."""
+        return bool(noise) and self._basis(problem) is not None
+
     def fit(self, problem, y: np.ndarray, noise: float | None) -> Filtered | None:
         """The filter fitted on observations ``y`` ``(n, m)`` with relative noise ``noise``; ``None``
         when there is no noise or the operator has no spectral basis (nothing to filter by)."""
-        if not noise:
+        if not self.applies(problem, noise):
             return None
-        disc = getattr(problem, "disc", None)
-        modes = spectral_basis(problem.operator, None if disc is None else disc.M)
-        if modes is None:
-            return None
+        modes = self._basis(problem)
         y = np.asarray(y, dtype=float)
         n = y.shape[0]
         c2 = (y @ modes.proj) ** 2

@@ -22,7 +22,7 @@ def _delta(p, model, y, **kw):
     """The parameter change of one HIG step from ``model`` (left unchanged) and the step's info."""
     m = MLP(p.operator.n_out, p.N, hidden=(8,)).double()
     m.load_state_dict(model.state_dict())
-    rule = HIG(**kw)
+    rule = HIG(**{"normalize": False, **kw})  # the raw step: each route would scale by its own σ_max
     _, info = rule.step(rule.init(p, m), m, y)
     flat = lambda net: torch.cat([q.detach().flatten() for q in net.parameters()])  # noqa: E731
     return flat(m) - flat(model), info

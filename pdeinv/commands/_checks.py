@@ -50,20 +50,24 @@ def check_run(problem, args, hp: dict) -> None:
     n_train = args.n_train or 1024
     memory.check_training(problem, n_train, args.n_test, hp["batch_size"] or n_train,
                           hp["hidden"])
-    if args.method == "hig" and not getattr(args, "allow_slow", False):
+    # the default networks (no --hidden, no network of the problem's own) are linear in θ: HIG takes
+    # its Kronecker route there, which never forms J (pdeinv.methods.hig_kron): nothing to estimate
+    default_net = not hp["hidden"] and getattr(problem, "model_factory", None) is None
+    if args.method == "hig" and not default_net and not getattr(args, "allow_slow", False):
         from pdeinv.physics.capabilities import modal_basis
 
         basis = modal_basis(problem.operator)  # HIG works on rank-r rows (pdeinv.methods.hig.compress)
         m = problem.operator.n_out
         per_sample = min(m, len(basis.g)) if basis is not None else m
-        rows, cols = hp["batch_size"] * per_sample, n_parameters(problem, hp["hidden"])
-        est = hig_step_seconds(per_sample, cols, hp["batch_size"])
+        batch = hp["batch_size"] or n_train
+        rows, cols = batch * per_sample, n_parameters(problem, hp["hidden"])
+        est = hig_step_seconds(per_sample, cols, batch)
         dense_fits = 4 * rows * cols <= HIG_DENSE_GB * 2**30  # else HIG refuses it itself, naming GB
         if est > HIG_MAX_STEP_S and dense_fits:
             raise UsageError(
                 f"HIG on {problem.name} would take about {est:.3g} s per step (Jacobian "
                 f"{rows} x {cols}, "
-                f"--hidden {','.join(map(str, hp['hidden'] or ()))} --batch-size {hp['batch_size']}); "
+                f"--hidden {','.join(map(str, hp['hidden'] or ()))} --batch-size {batch}); "
                 f"limit {HIG_MAX_STEP_S:g} s: use e.g. --hidden 16 --batch-size 1, or pass --allow-slow")
     if args.export_samples > args.n_test:
         print(f"pdeinv train: warning: --export-samples {args.export_samples} is more than the "

@@ -12,12 +12,13 @@ from .._checks import choice, count, nonnegative, positive
 from ..autograd import apply
 from ..physics.base import Matrix
 from ..physics.capabilities import modal_basis
+from . import hig_kron
 from .base import Rule, State, Update, prediction
 from .hig_routes import DECOMPOSITIONS, JACOBIANS, ROUTES, Batch
 from .transforms import Add
 
 SETTINGS = ("eta", "tau", "exponent", "route", "jacobian", "max_jacobian_gb", "gram_cond_max", "probes",
-            "power_iters", "seed")
+            "power_iters", "seed", "normalize")
 
 
 @dataclass(frozen=True)
@@ -70,6 +71,19 @@ class HIG(Rule):
     ``Uᵀ g = U_cᵀ (I ⊗ Qᵀ) g``: the same step from ``r`` rows per sample instead of ``m``
     (:func:`compress`; heat_2d: 217 of 961).
 
+    **Kronecker** (``route="kronecker"``, and ``"auto"`` whenever the network declares it is linear
+    in its parameters after a fixed feature map, :meth:`pdeinv.nets.Net.linear_in_parameters`: the
+    whitened linear and the reduced default networks): ``J Jᵀ = (Z̃Z̃ᵀ) ⊗ (P̂P̂ᵀ)``, so the exact
+    step needs one ``B × B`` eigendecomposition per step and the SVD of ``P̂ = P D`` once
+    (:mod:`.hig_kron`); ``J`` is never formed, whatever the network's size.
+
+    **Scale** (``normalize=True``, default): the step is multiplied by ``σ_max^-(1+e)``, so that
+    it changes the residual along singular direction ``k`` by the factor ``1 − η (σ_k/σ_max)^(1+e)``:
+    η = 1 solves the leading direction in one step and ``0 < η < 2`` is stable whatever the
+    scale of ``P``, of the network's input and of the batch (raw, that factor is
+    ``1 − η σ_k^(1+e)``, and the stable η moved with all three: on whitened inputs
+    ``σ_max ≈ √B · s_max(P)``). For Gauss–Newton (``e = −1``) the factor is 1: it is scale-free.
+
     A route whose memory exceeds ``max_jacobian_gb`` is refused with a
     ``ValueError`` before anything is computed. The randomized probes are drawn
     from ``SeedSequence([seed, step])``, so a resumed run repeats them.
@@ -85,6 +99,7 @@ class HIG(Rule):
     probes: int = 128
     power_iters: int = 1
     seed: int = 0
+    normalize: bool = True
     name: str = "hig"
 
     def __post_init__(self):
@@ -93,7 +108,7 @@ class HIG(Rule):
         if not self.tau < 1:
             raise ValueError(f"tau={self.tau!r} is not allowed; expected 0 <= tau < 1 "
                              "(relative to the largest singular value)")
-        choice(self.route, "route", tuple(ROUTES))
+        choice(self.route, "route", (*ROUTES, "kronecker"))
         count(self.probes, "probes")
         count(self.power_iters, "power_iters", minimum=0)
         choice(self.jacobian, "jacobian", tuple(JACOBIANS))
@@ -105,11 +120,26 @@ class HIG(Rule):
         return {k: getattr(self, k) for k in SETTINGS}
 
     def context(self, problem, model):
-        return (problem.operator, *compress(problem.operator))
+        op = problem.operator
+        lin = getattr(model, "linear_in_parameters", None)
+        lin = lin() if callable(lin) and self.route in ("auto", "kronecker") else None
+        if lin is None and self.route == "kronecker":
+            raise ValueError("HIG(route='kronecker') needs a network linear in its parameters after a fixed "
+                             "feature map (model.linear_in_parameters(), e.g. pdeinv.whitened('linear') or "
+                             f"pdeinv.reduced()); {type(model).__name__} does not declare one")
+        kron = None if lin is None else (lin, hig_kron.factors(op, lin.decoder), hig_kron.InputGram())
+        device = next(iter(model.parameters()), torch.empty(0)).device
+        if kron is None and device.type != "cpu":
+            raise ValueError(f"HIG's Jacobian routes decompose J with numpy on the CPU; the model is on "
+                             f"{device}: use a network linear in its parameters (the default networks: "
+                             "the Kronecker route runs on any device) or train on the CPU")
+        return (op, *compress(op), kron)
 
     def update(self, state: State, model: torch.nn.Module, y_target: torch.Tensor,
                target: torch.Tensor | None = None) -> Update:
-        op, small, Q = state.context
+        op, small, Q, kron = state.context
+        if kron is not None:
+            return self._kronecker(op, kron, model, y_target, y_target if target is None else target)
         b = Batch.of(model, small, y_target)
         route = self._route(b)  # refuses one over the memory budget before computing anything
         with torch.no_grad():
@@ -120,9 +150,28 @@ class HIG(Rule):
             return Update(None, {"loss": loss})
         r = r if Q is None else r @ Q  # the residual's part in range(P); the rest no step can change
         delta, info = route.direction(b, r.reshape(b.rows), self, state.steps)
+        delta = delta * self._unit(info)
         sizes = [p.numel() for p in b.params.values()]
         parts = [d.view(p.shape) for d, p in zip(torch.split(delta, sizes), b.params.values(), strict=True)]
         return Update(tuple(parts), {**info, "loss": loss})
+
+    def _kronecker(self, op, kron, model, y_target, goal) -> Update:
+        """The exact step without ``J`` for a network linear in θ (:mod:`.hig_kron`)."""
+        lin, fac, gram = kron
+        with torch.no_grad():
+            y = apply(op, prediction(model(y_target)))
+        r = (y - goal).double()
+        loss = 0.5 * float(r.pow(2).sum(-1).mean())
+        if not math.isfinite(loss):
+            return Update(None, {"loss": loss})
+        delta, info = hig_kron.direction(fac, hig_kron.features(lin, y_target), r.cpu().numpy(), self.eta,
+                                         self.tau, self.exponent, gram)
+        return Update(hig_kron.split(lin, delta * self._unit(info), lin.layer.weight), {**info, "loss": loss})
+
+    def _unit(self, info: dict) -> float:
+        """``σ_max^-(1+e)`` with ``normalize`` (class docstring), else 1."""
+        smax = info.get("sigma_max", 0.0)
+        return smax ** -(1.0 + self.exponent) if self.normalize and smax > 0 else 1.0
 
     def _direction(self, J, g, rows, n_params):
         """The direction from a given dense ``J`` (rows × n_params) with this rule's decomposition."""

@@ -101,7 +101,7 @@ def randomized_direction(model, op, y_target, g, probes: int, power_iters: int, 
     coef = Zk @ (sk ** (exponent - 1) * (Zk.T @ (Q.T @ g.double()).numpy()))
     delta = -eta * (Bt @ torch.from_numpy(coef))
     info = dict(route="randomized", rank=int(keep.sum()), probes=probes, power_iters=power_iters,
-                cond=float(s.max() / sk.min()),
+                cond=float(s.max() / sk.min()), sigma_max=float(s.max()),
                 # σ_min of the sketch above τ·σ_max: the rank cap, not τ, cut the spectrum
                 rank_limited=bool(keep.all() and probes < min(rows, n_params)))
     return delta, info

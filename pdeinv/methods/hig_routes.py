@@ -122,7 +122,8 @@ class SVD:
         keep = _kept(s, rule.tau)
         Uk, sk, Vk = U[:, keep], s[keep], Vt[keep]
         delta = -rule.eta * (Vk.T @ (sk ** rule.exponent * (Uk.T @ g.numpy())))
-        return torch.from_numpy(delta), dict(route="svd", rank=int(keep.sum()), cond=float(s[0] / sk.min()))
+        return torch.from_numpy(delta), dict(route="svd", rank=int(keep.sum()), cond=float(s[0] / sk.min()),
+                                             sigma_max=float(s[0]))
 
 
 @dataclass(frozen=True)
@@ -147,7 +148,8 @@ class Gram:
             return None, {"gram_rejected": cond}
         Uk, sk = U[:, keep], s[keep]
         coef = torch.from_numpy(Uk @ (sk ** (rule.exponent - 1) * (Uk.T @ g.numpy())))
-        return -rule.eta * (J.T @ coef), dict(route="gram", rank=int(keep.sum()), cond=cond)
+        return -rule.eta * (J.T @ coef), dict(route="gram", rank=int(keep.sum()), cond=cond,
+                                              sigma_max=float(s.max()))
 
 
 @dataclass(frozen=True)

@@ -1,0 +1,102 @@
+"""HIG's exact Kronecker route for networks linear in their parameters: ``J`` is never formed.
+
+For ``x_i = D(W z̃_i)`` (:meth:`pdeinv.nets.Net.linear_in_parameters`; ``z̃_i = [z_i; 1]`` with a bias,
+``W`` the weight with the bias as last column, ``D`` the fixed decoder or the identity) sample i's
+Jacobian of ``y_i = P x_i`` with respect to ``vec W`` (row-major) is ``J_i = P̂ ⊗ z̃_iᵀ`` with
+``P̂ = P D`` (``m × k_out``). Stacked over the batch,
+
+    J Jᵀ = A ⊗ C,      A = Z̃ Z̃ᵀ (B × B, per step),      C = P̂ P̂ᵀ (m × m, fixed for the run).
+
+With ``A = Q_A diag(a) Q_Aᵀ`` and the thin SVD ``P̂ = Q_C diag(s) Vᵀ`` (``c = s²``), ``J``'s singular
+values are ``σ_kl = √(a_k c_l)`` with left vectors ``Q_A ⊗ Q_C``, and HIG's step
+``−η V_J Σ^e U_Jᵀ g = −η Jᵀ U_J Σ^(e−1) U_Jᵀ g`` (``V_J = Jᵀ U_J Σ⁻¹``) becomes, with ``R`` the
+``B × m`` residuals ``y − y*``,
+
+    M = Q_Aᵀ R Q_C                           (B × r: the residual in J's left singular basis)
+    S_kl = σ_kl^(e−1) if σ_kl > τ·σ_max else 0
+    ΔW̃ = −η P̂ᵀ Hᵀ Z̃,   H = Q_A (M ⊙ S) Q_Cᵀ   ⇒   ΔW̃ = −η V diag(s) (M ⊙ S)ᵀ (Q_Aᵀ Z̃)
+
+Cost per step: products of sizes ``B·m·r`` and ``k̃·B·r``, and the eigendecomposition of the
+``k̃ × k̃`` input Gram (once per run with the full batch, :class:`InputGram`);
+``P̂`` is built once from ``k_out`` forward calls (the decoder's columns, or the ``N`` unit vectors)
+and its SVD once, in float64. The residual's part outside ``range(P̂)`` is out of every step's reach
+and drops out through ``Q_C``. Equal to the dense SVD route to float64 rounding
+(``tests/test_hig_kron.py``).
+"""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import numpy as np
+import torch
+
+
+class KroneckerFactors(NamedTuple):
+    """The fixed factor: ``P̂ = P D = Q diag(s) Vᵀ`` (thin SVD, zero singular values dropped)."""
+
+    Q: np.ndarray  # (m, r)
+    s: np.ndarray  # (r,)
+    V: np.ndarray  # (k_out, r)
+
+
+def factors(op, decoder: torch.Tensor | None) -> KroneckerFactors:
+    """``P̂``'s thin SVD from ``k_out`` forward calls (``decoder``: the rows ``Dᵀ``, ``(k_out, N)``;
+    ``None``: the identity, ``N`` calls)."""
+    rows = np.eye(op.n_in) if decoder is None else decoder.detach().cpu().double().numpy()
+    P_hat = np.asarray(op.forward(rows), dtype=float).T  # (m, k_out)
+    Q, s, Vt = np.linalg.svd(P_hat, full_matrices=False)
+    keep = s > s[0] * max(P_hat.shape) * np.finfo(float).eps if s.size and s[0] > 0 else np.zeros(0, bool)
+    return KroneckerFactors(Q[:, keep], s[keep], Vt[keep].T)
+
+
+def features(lin, y: torch.Tensor) -> np.ndarray:
+    """``Z̃`` (``B × (k+1)`` with a bias, else ``B × k``), float64."""
+    with torch.no_grad():
+        z = lin.features(y).detach().cpu().double().numpy()
+    return np.hstack([z, np.ones((z.shape[0], 1))]) if lin.layer.bias is not None else z
+
+
+class InputGram:
+    """The eigenpairs of the batch's input Gram, kept for the next step: ``Z̃ᵀZ̃ = W diag(a) Wᵀ`` does not
+    depend on the order of the rows, so a full-batch run (the same rows, reshuffled) decomposes it
+    once; a new Gram is reused when it equals the kept one to 1e-10 (relative, max norm), far
+    below any τ."""
+
+    def __init__(self):
+        self.G = self.a = self.W = None
+
+    def __call__(self, Z: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        G = Z.T @ Z
+        scale = float(np.abs(G).max()) if G.size else 0.0
+        if self.G is None or self.G.shape != G.shape or float(np.abs(G - self.G).max()) > 1e-10 * scale:
+            a, W = np.linalg.eigh(G)
+            self.G, self.a, self.W = G, a, W
+        return self.a, self.W
+
+
+def direction(fac: KroneckerFactors, Z: np.ndarray, R: np.ndarray, eta: float, tau: float,
+              exponent: float, gram: InputGram | None = None) -> tuple[np.ndarray, dict]:
+    """``ΔW̃`` (``k_out × k̃``, module docstring) and what was kept. ``A = Z̃Z̃ᵀ``'s nonzero eigenpairs come
+    from the smaller ``k̃ × k̃`` Gram ``Z̃ᵀZ̃ = W diag(a) Wᵀ`` (``Q_A = Z̃ W a^-½``, so
+    ``Q_Aᵀ Z̃ = a^½ Wᵀ`` and ``M = a^-½ Wᵀ Z̃ᵀ R Q_C``): the rank of ``Z̃`` is at most ``k̃``."""
+    a, W = (gram or InputGram())(Z)
+    keep_a = a > a[-1] * max(Z.shape) * np.finfo(float).eps  # the rank of Z̃
+    a, W = a[keep_a], W[:, keep_a]
+    root = np.sqrt(a)
+    M = (W.T @ (Z.T @ (R @ fac.Q))) / root[:, None]  # (rank, r)
+    sigma = np.sqrt(a[:, None] * (fac.s**2)[None, :])
+    smax = float(sigma.max()) if sigma.size else 0.0
+    keep = sigma > tau * smax if smax > 0 else np.zeros_like(sigma, bool)
+    S = np.zeros_like(sigma)
+    S[keep] = sigma[keep] ** (exponent - 1.0)
+    delta = -eta * (fac.V * fac.s) @ (M * S).T @ (root[:, None] * W.T)
+    return delta, {"route": "kronecker", "kept": int(keep.sum()), "sigma_max": smax,
+                   "sigma_min_kept": float(sigma[keep].min()) if keep.any() else 0.0}
+
+
+def split(lin, delta: np.ndarray, like: torch.Tensor) -> tuple[torch.Tensor, ...]:
+    """``ΔW̃`` as one tensor per parameter of ``lin.layer`` (weight, then the bias column)."""
+    t = torch.as_tensor(delta, dtype=like.dtype, device=like.device)
+    parts = {"weight": t[:, : lin.layer.in_features], "bias": t[:, -1]}
+    return tuple(parts[name].contiguous() for name, _ in lin.layer.named_parameters())
