@@ -19,7 +19,7 @@ install: $(BIN)/.installed
 
 # the main job: SIP training on heat_2d (under a minute on 2 cores); outputs in runs/demo
 demo: install
-	$(BIN)/pdeinv train heat_2d --method sip --steps 1000 --seed 0 --out runs/demo --overwrite
+	$(BIN)/pdeinv train heat_2d --seed 0 --out runs/demo --overwrite
 
 test: install
 	$(BIN)/ruff check pdeinv problems tests

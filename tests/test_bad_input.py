@@ -183,8 +183,8 @@ CLI = [
      r"kappa=0\.01 \(checkpoint\) vs 0\.02 \(this run\)"),
     ("resume-other-network", ["heat_1d", "--hidden", "16", "--resume", "--out", "{d}/run"],
      r"holds network MLP \(.*\(8, 15\).*this run's network is MLP \(.*\(16, 15\)"),
-    ("resume-other-method", ["heat_1d", "--method", "sip", "--resume", "--out", "{d}/run"],
-     r"written with rule 'adam'; this run has 'sip'"),
+    ("resume-other-method", ["heat_1d", "--method", "adam", "--resume", "--out", "{d}/run"],
+     r"written with rule 'sip'; this run has 'adam'"),
     ("resume-without-checkpoints", ["heat_1d", "--resume", "--checkpoint-every", "0"], r"--resume needs"),
 ]
 

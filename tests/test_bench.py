@@ -16,7 +16,8 @@ from pdeinv.bench.forward import pareto
 from pdeinv.cli import main
 
 RATIOS = ("forward_vs_splu", "adjoint_vs_forward", "modal_speedup", "sip_vs_gd_step", "hig_step_s")
-METHODS = ("sip_cli_default", "adam", "sgd", "sip", "hig", "gauss_newton", "sip_whitened_mlp")
+METHODS = ("sip_cli_default", "hig_cli_default", "adam", "sgd", "sip", "hig", "gauss_newton",
+           "sip_whitened_mlp")
 TINY = ["--set", "n=8", "--set", "steps=10"]
 
 

@@ -22,8 +22,11 @@ Grids (half-decades; whenever a winner sat on a grid's edge the grid was moved t
 inside): Adam lr 3e-4…1e-2 and SGD lr 0.03…1 (with the whitened default network on
 heat_2d they picked 3e-3 and 0.1, then 0.3, the old grids' edges), SIP lr 1e-4…3e-3, HIG η 0.1…1,
 Gauss–Newton η 0.1…1. The default network's alternatives (``NETWORKS``) train with SIP,
-Adam lr 3e-4…3e-3, and the discrepancy stop on noisy data. ``sip_cli_default`` is what
-``pdeinv train PROBLEM --method sip`` runs without flags: never swept.
+Adam lr 3e-4…3e-3, and the discrepancy stop on noisy data. ``sip_cli_default`` and
+``hig_cli_default`` are what ``pdeinv train PROBLEM --method sip|hig`` runs without flags (the
+preset rule, the default network, every training row per step, ``--stop auto``): never swept. The
+swept ``hig`` and ``gauss_newton`` rows keep the small MLP: their dense Jacobian routes are what
+they measure (the default networks take the Kronecker route, :mod:`pdeinv.methods.hig_kron`).
 """
 
 from __future__ import annotations
@@ -57,15 +60,22 @@ class Candidate:
     hidden: tuple[int, ...] | str | None = None  # None: problem.model(); a str: NETWORKS[str]
     batch_size: int = 32
     stop: Callable | None = None  # problem -> stopping rule (or None)
+    preset: str | None = None  # a method name: the rule `pdeinv train --method NAME` builds (make unused)
 
 
 def _noisy_stop(problem):
     return DiscrepancyStop() if problem.noise else None
 
 
-def _cli_sip(problem):
-    """The rule ``pdeinv train PROBLEM --method sip`` builds without flags."""
-    return lambda _: make_rule("sip", problem.name, problem.noise)[0]
+def _cli_stop(problem):
+    """The stopping rule of ``--stop auto`` (the discrepancy stop only where no target is fitted)."""
+    from ..commands.train import STOPS
+
+    return STOPS["auto"](problem)
+
+
+#: ``batch_size`` of a candidate that takes every training row (the SIP and HIG presets)
+FULL = 2**62
 
 
 #: alternative networks the methods section compares with the default (module docstring)
@@ -77,8 +87,9 @@ NETWORKS = {
 
 
 CANDIDATES = {
-    # the CLI default (preset rule, problem.model(), discrepancy stop on noisy data): never swept
-    "sip_cli_default": Candidate(None, (), 0.0, "lr", None, 32, _noisy_stop),
+    # the CLI defaults (preset rule, problem.model(), full batch, --stop auto): never swept
+    "sip_cli_default": Candidate(None, (), 0.0, "lr", None, FULL, _cli_stop, "sip"),
+    "hig_cli_default": Candidate(None, (), 0.0, "eta", None, FULL, _cli_stop, "hig"),
     "adam": Candidate(lambda lr: GD(optimizer=adam(lr), name="adam"), (3e-4, 1e-3, 3e-3, 1e-2), 1e-3),
     "sgd": Candidate(lambda lr: GD(optimizer=sgd(lr), name="sgd"), (3e-2, 1e-1, 3e-1, 1.0), 1e-2),
     "sip": Candidate(lambda lr: SIP(eta=1.0, optimizer=adam(lr)), (1e-4, 3e-4, 1e-3, 3e-3), 1e-3),
@@ -108,7 +119,8 @@ def train_once(problem, cand: Candidate, value: float, seed: int, budget_s: floa
                n_train: int, n_test: int, eval_every: int) -> dict:
     """One run; a NaN/Inf is an outcome (``x_err = inf``), not a crash."""
     batch = min(cand.batch_size, n_train)
-    make = cand.make or _cli_sip(problem)
+    make = cand.make if cand.preset is None else \
+        (lambda _: make_rule(cand.preset, problem.name, problem.noise)[0])
     trainer = Trainer(problem, make(value), network(problem, cand.hidden, seed), steps=None,
                       time_budget=budget_s, n_train=n_train, n_test=n_test, batch_size=batch,
                       seed=seed, eval_every=eval_every, progress=False,
@@ -146,7 +158,7 @@ def compare(problem, budget_s: float, seed: int = 0, sweep_s: float | None = Non
                                       eval_every)["x_err"]
         value = min(tried, key=lambda v: tried[v]) if tried else cand.default
         res = train_once(problem, cand, value, seed, budget_s, n_train, n_test, eval_every)
-        chosen = ({"preset": make_rule("sip", problem.name, problem.noise)[1]} if cand.make is None
+        chosen = ({"preset": make_rule(cand.preset, problem.name, problem.noise)[1]} if cand.preset
                   else {cand.knob: value})
         out[name] = {**res, **chosen, "sweep_val_x_err": {f"{k:g}": e for k, e in tried.items()},
                      "network": ("problem.model()" if cand.hidden is None else cand.hidden

@@ -115,9 +115,9 @@ def _bench(problem, out, quick, budget_s, seed, log) -> dict:
     torch.manual_seed(seed)
     res["methods"] = methods.compare(problem, budget_s, seed=seed, n_train=n_train, n_test=n_test,
                                      sweep=sweep, eval_every=10 if not quick else 2)
-    notes.append(f"HIG and Gauss-Newton train MLP{methods.HIG_NET} with batch {methods.HIG_BATCH}: "
-                 "the default network's dense stacked Jacobian does not fit, and the matrix-free "
-                 "route costs 2-9 s per step there (see pdeinv/bench/methods.py)")
+    notes.append(f"the swept HIG and Gauss-Newton rows train MLP{methods.HIG_NET} with batch "
+                 f"{methods.HIG_BATCH} (the dense Jacobian routes); hig_cli_default is HIG's exact "
+                 "Kronecker route on the default network (see pdeinv/bench/methods.py)")
     plots.methods(res["methods"], res["reference"], out / "methods.png",
                   f"{problem.name}: {budget_s:g} s per method")
     models = {name: m.pop("model", None) for name, m in res["methods"].items()}

@@ -294,10 +294,11 @@ def add_parser(sub) -> None:
 
     t = sub.add_parser("train", help="train a network with GD, Adam, SIP or HIG; write metrics.json")
     t.add_argument("problem")
-    t.add_argument("--method", choices=sorted(METHODS), default="adam")
+    t.add_argument("--method", choices=sorted(METHODS), default="sip",
+                   help="update rule (default: sip, the most accurate; methods/presets.py)")
     t.add_argument("--steps", type=int, default=None,
-                   help="training steps (default: the method's preset, 100 full-batch steps for sip, "
-                        "1000 otherwise; no limit when --time-budget is given)")
+                   help="training steps (default: the method's preset: 30 full-batch steps for sip, 100 "
+                        "for hig, 1000 otherwise; no limit when --time-budget is given)")
     t.add_argument("--time-budget", type=float, default=None, metavar="SECONDS",
                    help="also stop once training wall time exceeds this")
     t.add_argument("--seed", type=int, default=0)
@@ -310,7 +311,8 @@ def add_parser(sub) -> None:
     t.add_argument("--batch-size", type=int, default=None,
                    help="samples per step (default: the method's preset; sip: every training sample)")
     t.add_argument("--optimizer", choices=("adam", "sgd"), default=None,
-                   help="SIP's proxy optimizer (default: adam, sgd for noisy data; see methods/presets.py)")
+                   help="SIP's proxy optimizer (default: sgd on the curvature-normalized proxy, "
+                        "methods/presets.py)")
     t.add_argument("--stop", choices=sorted(STOPS), default="auto",
                    help="stopping rule that never looks at x: 'discrepancy' stops once the residual on "
                         "128 held-out observations reaches 1.1x the noise level (the problem's, or an "

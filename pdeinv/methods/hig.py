@@ -13,7 +13,7 @@ from ..autograd import apply
 from ..physics.base import Matrix
 from ..physics.capabilities import modal_basis
 from . import hig_kron
-from .base import Rule, State, Update, prediction
+from .base import Rule, State, Update, prediction, y_loss
 from .hig_routes import DECOMPOSITIONS, JACOBIANS, ROUTES, Batch
 from .transforms import Add
 
@@ -138,35 +138,28 @@ class HIG(Rule):
     def update(self, state: State, model: torch.nn.Module, y_target: torch.Tensor,
                target: torch.Tensor | None = None) -> Update:
         op, small, Q, kron = state.context
-        if kron is not None:
-            return self._kronecker(op, kron, model, y_target, y_target if target is None else target)
-        b = Batch.of(model, small, y_target)
-        route = self._route(b)  # refuses one over the memory budget before computing anything
+        goal = y_target if target is None else target
+        if kron is None:  # the Jacobian routes: refuse one over the memory budget before computing anything
+            b = Batch.of(model, small, y_target)
+            route = self._route(b)
         with torch.no_grad():
-            y = apply(op, prediction(b.f(b.params, y_target)))
-        r = (y - (y_target if target is None else target)).double()
-        loss = 0.5 * float(r.pow(2).sum(-1).mean())
+            y = apply(op, prediction(model(y_target)))
+        r = (y - goal).double()  # g: per-sample residuals, not divided by B (class docstring)
+        loss = float(y_loss(r, torch.zeros_like(r)))
         if not math.isfinite(loss):
             return Update(None, {"loss": loss})
+        if kron is not None:  # the exact step without J (.hig_kron)
+            lin, fac, gram = kron
+            delta, info = hig_kron.direction(fac, hig_kron.features(lin, y_target), r.cpu().numpy(),
+                                             self.eta, self.tau, self.exponent, gram)
+            parts = hig_kron.split(lin, delta * self._unit(info), lin.layer.weight)
+            return Update(parts, {**info, "loss": loss})
         r = r if Q is None else r @ Q  # the residual's part in range(P); the rest no step can change
         delta, info = route.direction(b, r.reshape(b.rows), self, state.steps)
         delta = delta * self._unit(info)
         sizes = [p.numel() for p in b.params.values()]
         parts = [d.view(p.shape) for d, p in zip(torch.split(delta, sizes), b.params.values(), strict=True)]
         return Update(tuple(parts), {**info, "loss": loss})
-
-    def _kronecker(self, op, kron, model, y_target, goal) -> Update:
-        """The exact step without ``J`` for a network linear in θ (:mod:`.hig_kron`)."""
-        lin, fac, gram = kron
-        with torch.no_grad():
-            y = apply(op, prediction(model(y_target)))
-        r = (y - goal).double()
-        loss = 0.5 * float(r.pow(2).sum(-1).mean())
-        if not math.isfinite(loss):
-            return Update(None, {"loss": loss})
-        delta, info = hig_kron.direction(fac, hig_kron.features(lin, y_target), r.cpu().numpy(), self.eta,
-                                         self.tau, self.exponent, gram)
-        return Update(hig_kron.split(lin, delta * self._unit(info), lin.layer.weight), {**info, "loss": loss})
 
     def _unit(self, info: dict) -> float:
         """``σ_max^-(1+e)`` with ``normalize`` (class docstring), else 1."""

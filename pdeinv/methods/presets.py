@@ -18,13 +18,15 @@ No per-scene table: every step size follows from the maths.
 * **gd**: plain SGD at lr 1 on the gradient normalized by ``λ_max(PᵀP)·λ_max(JᵀJ/B)`` (the stable
   step, :class:`~.gd.GD`): stable on every scene, slow on smoothing ones (it is Landweber).
 * **adam**: lr 1e-3 on the raw gradient (Adam is scale-invariant), batch 32.
-* gd and adam train the **standardized tanh MLP (256, 256)**, not the whitened linear default: a
+* adam trains the **standardized tanh MLP (256, 256)**, not the whitened linear default: a
   first-order rule stops far from the least-squares map, and whatever weight it leaves on the
   trailing whitened directions is amplified on new data wherever the observations fill about as
   many directions as there are training rows (wave_2d: 961 of 1024; the sample covariance's
   smallest eigenvalues are then ~1e-3 of the true ones, Marchenko–Pastur). Measured on wave_2d,
-  1000 steps: Adam 42.3 on the whitened linear map against 0.298 on the MLP (GD 0.80). SIP and HIG
-  solve their linear problems exactly and generalize on it.
+  1000 steps: Adam 42.3 on the whitened linear map against 0.298 on the MLP. GD's steps are smaller
+  and keep it (wave_2d 0.537 on it, 0.80 on the MLP; on the MLP lr 1 is not always stable: 4 of 25
+  steps rejected on wave_sensors_2d, its normalization bounds only the first batch's curvature).
+  SIP and HIG solve their linear problems exactly and generalize on it.
 * **hig**: the exact Kronecker route on the default network (:mod:`.hig_kron`), every training row
   in each step, η 1 on the normalized step (the leading direction solved per step, :class:`~.hig.HIG`),
   τ 1e-6 of σ_max (the HIG reference code's range), 100 steps. Measured on wave_2d (one thread):
@@ -61,9 +63,8 @@ assert sorted(METHODS) == sorted(METHOD_NAMES), "add the method's name to method
 
 #: generic defaults per method (``batch_size`` and ``hidden`` size the run and the MLP)
 GENERIC = {
-    # first-order rules train the standardized MLP (module docstring): = pdeinv.GD(), normalized
-    "gd": {"lr": GD_LR, "batch_size": 32, "hidden": (256, 256)},
-    "adam": {"lr": 1e-3, "batch_size": 32, "hidden": (256, 256)},
+    "gd": {"lr": GD_LR, "batch_size": 32},  # = pdeinv.GD(): normalized, lr in units of 1/λ_max
+    "adam": {"lr": 1e-3, "batch_size": 32, "hidden": (256, 256)},  # the MLP (module docstring)
     # SIP: full batch (None: every training row), normalized SGD at lr 1, 30 steps (module docstring)
     "sip": {"lr": None, "eta": 1.0, "batch_size": None, "optimizer": "sgd", "steps": 30},
     # HIG: the exact Kronecker route on the default network, full batch, η 1 on the normalized step
