@@ -9,47 +9,30 @@ Three kinds of network:
 * :class:`Net` = a fitted input transform (:class:`~pdeinv.precondition.Whitening`,
   PCA whitening of the training observations) and a body from :data:`BODIES`:
   ``linear`` (``x = A z + b``), ``mlp`` (tanh layers), ``residual`` (both, summed);
-  built by :func:`whitened`. The **default** (:func:`default_model`): the whitened
-  linear map, for the heat scenes and for problems that name no network, up to
-  :data:`REDUCED_ABOVE` unknowns. It has ``N² + N`` parameters and an ``N × N``
-  whitening (heat_2d at n = 128: 260 M parameters), so above that:
+  built by :func:`whitened`, in float64 (:data:`DTYPE`). The **default** of every scene
+  (:func:`default_model`): the whitened linear map up to :data:`REDUCED_ABOVE` unknowns or
+  observations. It has ``min(m, N)·N + N`` parameters and an ``N × N`` whitening (heat_2d
+  at n = 128: 260 M parameters), so above that:
 * :func:`reduced`: the same :class:`Net` on the ``k_in`` leading whitened components,
   with a fixed decoder basis ``Φ`` (:class:`Decoder`) on the output: ``x = Φ body(z)``;
-  its trained size does not depend on the mesh (262 400 parameters at the defaults).
-* :class:`MLP`, the earlier default: a tanh MLP (256, 256) on per-node standardized
-  input. The wave and sensor scenes keep it (``pdeinv.scenes.WAVE_NET``).
+  its trained size does not depend on the mesh.
+* :class:`MLP`: a tanh MLP (256, 256) on per-node standardized input, what ``--method adam``
+  trains (:mod:`pdeinv.methods.presets` says why: a first-order rule leaves weight on the
+  trailing whitened directions, which new data amplify).
 
-The whitening is fitted by the trainer on the training observations only
-(:func:`fit_preconditioning`), never on ``x``, and travels with the state dict.
+Both default networks are linear in their parameters after a fixed feature map
+(:meth:`Net.linear_in_parameters`): SIP's proxy step is then a Newton step
+(:meth:`Net.gauss_newton_diagonal`) and HIG has an exact Kronecker-factored step
+(:mod:`pdeinv.methods.hig_kron`). Measured against best-α Tikhonov on every scene with
+``benchmarks/accuracy.py``: the table is in ``README.md`` (Results). The whitening is fitted by
+the trainer on the training observations only (:func:`fit_preconditioning`), never on ``x``,
+and travels with the state dict.
 
-**The sweep** (test x-errors, relative L²(Ω), 128 held-out pairs, seed 0, one torch and
-one BLAS thread, two runs at a time on 2 cores; heat_2d at its defaults, 961 unknowns):
-
-===========================================  ==========  ===========================
-network, rule (heat_2d, noise-free, 20 s)      x-error     note
-===========================================  ==========  ===========================
-whitened linear, SIP Adam lr 1e-3            **0.032**   0.026 with the SIP α 1e-10
-whitened linear, SIP Adam lr 3e-4 / 3e-3     0.068/0.091 3e-3: 0.049 at 3.6 s, unstable
-whitened MLP (256, 256), SIP Adam 1e-3       0.073
-whitened residual (linear + MLP), SIP 1e-3   0.071       0.049 at 3.3 s, then worse
-standardized MLP (old default), SIP 3e-4     0.191
-whitened linear / MLP / residual, Adam 1e-3  0.25/0.22/0.21
-floor 1e-13 instead of 1e-10, SIP            0.061       heat_1d: 0.036 vs 0.038
-best-α Tikhonov (oracle α, same test set)    0.037
-===========================================  ==========  ===========================
-
-At 1 % noise (``--set noise=0.01``; the noise floor σ² replaces the relative one,
-directions below the Marchenko–Pastur edge are dropped, SIP uses SGD lr 0.05 and the
-discrepancy stop, :mod:`pdeinv.methods.presets`): whitened linear 0.126 at the stop
-(seed 0; 0.130 with seed 1), against 0.211 → 0.456 (best → after 20 s) for SIP Adam
-with all directions kept, 0.164 for SIP Adam with the edge drop, 0.16–0.22 for the
-whitened MLP and residual bodies (seed 1), 0.1286 for Tikhonov with Morozov's α, 0.117
-for Tikhonov with the oracle α. Other scenes (SIP Adam 1e-3, 10 s, whitened linear vs
-standardized MLP): heat_1d 0.038 vs 0.138; heat_plate 0.555 vs 0.594; wave_1d (T = 0.5
-hides the odd modes) y-error 0.013 vs 0.045; wave_2d (20 s) 0.56 vs **0.40** and
-wave_sensors_2d (Adam) 1.00 vs **0.63**: a wave step costs 0.1–0.5 s of physics, so only
-100–200 steps fit, and the MLP moves faster in so few. Hence heat → whitened linear,
-wave and sensors → MLP, until faster wave physics changes the count.
+History: an earlier sweep (SIP with Adam on the proxy, float32, 20 s per run) picked the
+whitened linear map for heat (0.032 on heat_2d against 0.073 for the whitened MLP and 0.191
+for the standardized MLP) and kept the MLP for the wave scenes, where time reversal made SIP
+a gradient step; with the spectral local inverse and the curvature-normalized proxy step the
+linear map wins there too (SIP on wave_2d: 5e-9, 1000× below the 0.2–0.3 of the MLP runs).
 """
 
 from __future__ import annotations
@@ -222,15 +205,18 @@ REDUCED_K_IN = 1024
 REDUCED_ABOVE = 2_000
 
 
-def default_model(problem) -> nn.Module:
+def default_model(problem, rows_per_component: float | None = None) -> nn.Module:
     """The problem's default network, chosen by measurement: the whitened linear map
     (:func:`whitened`) up to :data:`REDUCED_ABOVE` unknowns or observations, the mesh-independent
     :func:`reduced` network above (the whitened linear map has ``min(m, N)·N + N`` parameters).
     Measured with SIP at the CLI defaults on wave_sensors_2d (N = 1089, m = 3072): reduced 5e-5,
     whitened linear 2.6e-4, best-α Tikhonov 2.6e-4 (the reduced decoder is the prior's leading
-    principal components: a prior-informed estimator)."""
+    principal components: a prior-informed estimator). ``rows_per_component`` caps the whitened
+    directions for first-order rules (:class:`~pdeinv.precondition.Whitening`; ``--method gd``
+    and ``adam`` use 8, :mod:`pdeinv.methods.presets`)."""
     big = max(problem.operator.n_in, problem.operator.n_out) > REDUCED_ABOVE
-    return (reduced() if big else whitened("linear"))(problem)
+    kw = {"rows_per_component": rows_per_component}
+    return (reduced(**kw) if big else whitened("linear", **kw))(problem)
 
 
 def default_size(problem) -> tuple[int, int]:
@@ -268,18 +254,21 @@ BODIES = {
 
 
 def whitened(body: str = "linear", hidden=(256, 256), activation=nn.Tanh, rel_floor: float | None = None,
-             drop: float | str = "edge", dtype: torch.dtype = DTYPE):
+             drop: float | str = "edge", dtype: torch.dtype = DTYPE, rows_per_component: float | None = None):
     """A ``model_factory``: :class:`Net` of a :class:`Whitening` and a body from :data:`BODIES`, in
     ``dtype`` (default float64: see :data:`DTYPE`). With more observations than unknowns
     (``m > N``: sensor time series) the whitening keeps the ``N`` leading components: noise-free
     observations ``y = P x`` span at most ``N`` directions, so nothing is lost, and the buffers and
-    the body shrink from ``m`` to ``N`` inputs (wave_sensors_2d: 3072 → 1089)."""
+    the body shrink from ``m`` to ``N`` inputs (wave_sensors_2d: 3072 → 1089). ``rows_per_component``:
+    keep at most one whitened direction per that many training rows (for first-order rules,
+    :class:`~pdeinv.precondition.Whitening`)."""
     if body not in BODIES:
         raise ValueError(f"body={body!r} is not allowed; expected one of {', '.join(map(repr, BODIES))}")
 
     def factory(problem) -> nn.Module:
         m, n = problem.operator.n_out, problem.operator.n_in
-        pre = Whitening(m, rel_floor, drop, components=n if m > n else None)
+        pre = Whitening(m, rel_floor, drop, components=n if m > n else None,
+                        rows_per_component=rows_per_component)
         return Net(pre, BODIES[body](pre.k, n, tuple(hidden), activation)).to(dtype)
 
     return factory
@@ -352,7 +341,8 @@ def prior_basis(problem, k: int, samples: int | None = None, seed: int = 20_161,
 
 def reduced(k_in: int = REDUCED_K_IN, k_out: int = REDUCED_K, body: str = "linear", hidden=(256, 256),
             activation=nn.Tanh, rel_floor: float | None = None, drop: float | str = "edge",
-            samples: int | None = None, dtype: torch.dtype = DTYPE, scaled: bool = True):
+            samples: int | None = None, dtype: torch.dtype = DTYPE, scaled: bool = True,
+            rows_per_component: float | None = None):
     """A ``model_factory`` whose *trained* size does not depend on the mesh:
 
         x = Φ · body(z),   z = D_k U_kᵀ (y − μ)
@@ -406,7 +396,7 @@ def reduced(k_in: int = REDUCED_K_IN, k_out: int = REDUCED_K, body: str = "linea
     def factory(problem) -> nn.Module:
         m, n = problem.operator.n_out, problem.operator.n_in
         basis, info = prior_basis(problem, min(k_out, n), samples, scaled=scaled)
-        pre = Whitening(m, rel_floor, drop, components=min(k_in, m))
+        pre = Whitening(m, rel_floor, drop, components=min(k_in, m), rows_per_component=rows_per_component)
         net = Net(pre, BODIES[body](pre.k, basis.shape[1], tuple(hidden), activation),
                   Decoder(torch.as_tensor(basis, dtype=dtype))).to(dtype)
         net.decoder_info = info

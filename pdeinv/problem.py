@@ -64,13 +64,18 @@ class Problem:
             raise NotImplementedError(f"problem {self.name!r} has no inverse simulator")
         return self.inverse_simulator(y, x0)
 
-    def model(self):
-        """A fresh default network ``y -> x`` (torch.nn.Module)."""
+    def model(self, **settings):
+        """A fresh default network ``y -> x`` (torch.nn.Module): the problem's ``model_factory``, else
+        :func:`pdeinv.nets.default_model` with ``settings`` (e.g. ``rows_per_component=8``, what
+        ``--method gd`` and ``adam`` train; a ``model_factory`` takes no settings)."""
         if self.model_factory is not None:
+            if settings:
+                raise ValueError(f"this problem builds its network with its own model_factory, which "
+                                 f"takes no settings; got {', '.join(sorted(settings))}")
             return self.model_factory(self)
         from .nets import default_model
 
-        return default_model(self)
+        return default_model(self, **settings)
 
     def relative_error(self, xhat, x) -> np.ndarray:
         """Relative L²(Ω) error per sample, ``‖x̂ − x‖_M / ‖x‖_M``."""

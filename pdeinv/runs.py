@@ -40,7 +40,7 @@ def _mlp(problem, hidden):
 
 #: network kinds: ``kind -> (problem, **settings) -> nn.Module`` (untrained; the state dict fills it)
 NETWORKS = {
-    "default": lambda problem: problem.model(),
+    "default": lambda problem, **settings: problem.model(**settings),
     "mlp": _mlp,
     "reduced": lambda problem, **kw: __import__("pdeinv.nets", fromlist=["reduced"]).reduced(**kw)(problem),
 }

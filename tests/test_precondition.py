@@ -107,10 +107,25 @@ def test_bad_observations_are_refused(bad, match):
 
 
 @pytest.mark.parametrize("kw, match", [(dict(rel_floor=0), "rel_floor"), (dict(drop=-1), "drop"),
-                                       (dict(drop="x"), "drop"), (dict(rel_floor=float("nan")), "rel_floor")])
+                                       (dict(drop="x"), "drop"), (dict(rel_floor=float("nan")), "rel_floor"),
+                                       (dict(rows_per_component=0.5), "rows_per_component"),
+                                       (dict(rows_per_component=True), "rows_per_component"),
+                                       (dict(rows_per_component=float("inf")), "rows_per_component")])
 def test_bad_settings_are_refused(kw, match):
     with pytest.raises(ValueError, match=match):
         Whitening(4, **kw)
+
+
+def test_rows_per_component_keeps_the_leading_directions_the_rows_can_resolve():
+    """n = 120 rows of m = 100 components, r = 8: the 15 leading directions keep their gains, the
+    others are dropped. With k ≈ n a direction's variance on new data is far above the training
+    rows' 1 (Marchenko–Pastur); with the cap it stays near the bound (1 − √(1/8))⁻² ≈ 2.4."""
+    y, Q, lam, mu = _gaussian(120, 100, decades=2)
+    full, capped = Whitening(100).double().fit(y), Whitening(100, rows_per_component=8).double().fit(y)
+    assert capped.info["kept"] == 15 and full.info["kept"] == 100
+    assert torch.equal(capped.gain[:15], full.gain[:15]) and torch.all(capped.gain[15:] == 0)
+    y_new = torch.as_tensor(mu + (np.random.default_rng(5).standard_normal((4000, 100)) * np.sqrt(lam)) @ Q.T)
+    assert full(y_new).var(0).max() > 20 and capped(y_new).var(0)[:15].max() < 2.5
 
 
 def test_whitening_survives_state_dict_and_checkpoint_resume(tmp_path):

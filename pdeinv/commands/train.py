@@ -193,6 +193,16 @@ def _lost_peer(err: RuntimeError) -> bool:
         w in text for w in ("connection", "timed out", "timeout", "gloo", "nccl", "peer"))
 
 
+def _network_spec(problem, hp: dict) -> dict:
+    """run.json's network: the MLP of ``--hidden``, else the problem's default network, with the
+    preset's ``rows_per_component`` cap (first-order rules) where the problem has no model_factory."""
+    if hp["hidden"] is not None:
+        return {"kind": "mlp", "hidden": list(hp["hidden"])}
+    cap = hp.get("rows_per_component")
+    own = getattr(problem, "model_factory", None) is not None
+    return {"kind": "default", **({"rows_per_component": cap} if cap and not own else {})}
+
+
 def _parallel_train(args, out, ckpt, device, parallel) -> int:
     import torch
 
@@ -213,7 +223,7 @@ def _parallel_train(args, out, ckpt, device, parallel) -> int:
     _checks.check_run(problem, args, hp)  # memory, HIG step time, --export-samples (before allocating)
     stop = STOPS[args.stop](problem)
     torch.manual_seed(args.seed)
-    net = {"kind": "mlp", "hidden": list(hp["hidden"])} if hp["hidden"] is not None else {"kind": "default"}
+    net = _network_spec(problem, hp)
     trainer = Trainer(problem, rule, network(problem, net), steps=_checks.steps(args, hp),
                       time_budget=args.time_budget,
                       n_train=args.n_train or 1024, n_test=args.n_test, batch_size=hp["batch_size"],

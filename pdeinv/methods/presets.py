@@ -18,15 +18,17 @@ No per-scene table: every step size follows from the maths.
 * **gd**: plain SGD at lr 1 on the gradient normalized by ``λ_max(PᵀP)·λ_max(JᵀJ/B)`` (the stable
   step, :class:`~.gd.GD`): stable on every scene, slow on smoothing ones (it is Landweber).
 * **adam**: lr 1e-3 on the raw gradient (Adam is scale-invariant), batch 32.
-* adam trains the **standardized tanh MLP (256, 256)**, not the whitened linear default: a
-  first-order rule stops far from the least-squares map, and whatever weight it leaves on the
-  trailing whitened directions is amplified on new data wherever the observations fill about as
-  many directions as there are training rows (wave_2d: 961 of 1024; the sample covariance's
-  smallest eigenvalues are then ~1e-3 of the true ones, Marchenko–Pastur). Measured on wave_2d,
-  1000 steps: Adam 42.3 on the whitened linear map against 0.298 on the MLP. GD's steps are smaller
-  and keep it (wave_2d 0.537 on it, 0.80 on the MLP; on the MLP lr 1 is not always stable: 4 of 25
-  steps rejected on wave_sensors_2d, its normalization bounds only the first batch's curvature).
-  SIP and HIG solve their linear problems exactly and generalize on it.
+* gd and adam train the default network with **one whitened direction per 8 training rows**
+  (``rows_per_component=8``, :class:`~pdeinv.precondition.Whitening`): a first-order rule stops
+  far from the least-squares map, and whatever weight it leaves on the trailing whitened
+  directions is amplified on new data wherever the observations fill about as many directions
+  as there are training rows (wave_2d: 961 of 1024; the sample covariance's smallest eigenvalues
+  are then ~1e-3 of the true ones, Marchenko–Pastur). Measured, 1000 steps of 32, one thread
+  (all directions / the tanh MLP (256, 256) / the cap): Adam on wave_2d 42.3 / 0.298 / **0.101**,
+  wave_sensors_2d – / 0.506 / **0.0047**, heat_2d – / 0.395 / **0.286**; GD on wave_2d 0.537 /
+  0.787 / **0.074**, wave_sensors_2d 1.18 / 0.275 (lr 0.5) / **0.42**, heat_2d 0.208 / 0.736 /
+  **0.203**, heat_plate 0.419 / 1.10 / **0.416**. SIP and HIG solve their linear problems exactly
+  and generalize with every direction.
 * **hig**: the exact Kronecker route on the default network (:mod:`.hig_kron`), every training row
   in each step, η 1 on the normalized step (the leading direction solved per step, :class:`~.hig.HIG`),
   τ 1e-6 of σ_max (the HIG reference code's range), 100 steps. Measured on wave_2d (one thread):
@@ -63,8 +65,9 @@ assert sorted(METHODS) == sorted(METHOD_NAMES), "add the method's name to method
 
 #: generic defaults per method (``batch_size`` and ``hidden`` size the run and the MLP)
 GENERIC = {
-    "gd": {"lr": GD_LR, "batch_size": 32},  # = pdeinv.GD(): normalized, lr in units of 1/λ_max
-    "adam": {"lr": 1e-3, "batch_size": 32, "hidden": (256, 256)},  # the MLP (module docstring)
+    # first-order rules: the default network with one whitened direction per 8 rows (docstring)
+    "gd": {"lr": GD_LR, "batch_size": 32, "rows_per_component": 8},  # = pdeinv.GD(): lr in units of 1/λ_max
+    "adam": {"lr": 1e-3, "batch_size": 32, "rows_per_component": 8},
     # SIP: full batch (None: every training row), normalized SGD at lr 1, 30 steps (module docstring)
     "sip": {"lr": None, "eta": 1.0, "batch_size": None, "optimizer": "sgd", "steps": 30},
     # HIG: the exact Kronecker route on the default network, full batch, η 1 on the normalized step
@@ -83,6 +86,7 @@ def hyperparameters(method: str, problem: str, noise: float = 0.0, **overrides) 
                          f"{', '.join(map(repr, METHODS))}")
     hp = {**GENERIC[method], **PER_PROBLEM.get(problem, {}).get(method, {})}
     hp.setdefault("hidden", None)
+    hp.setdefault("rows_per_component", None)
     bad = sorted(k for k, v in overrides.items() if v is not None and (k not in hp or k == "steps"))
     if bad:
         raise ValueError(f"{', '.join(bad)} does not apply to method {method!r} "
