@@ -93,3 +93,22 @@ def test_hig_defaults_beat_adam_defaults_at_equal_steps(scene, settings):
         if method == "hig":
             assert r.history[-1]["route"] == "kronecker"
     assert errs["hig"] < 0.5 * errs["adam"], errs
+
+
+def test_input_gram_reuses_its_eigenpairs_for_the_same_rows_in_any_order():
+    """The full batch reshuffled: the kept eigenpairs (recognized by the rows' bytes); other rows:
+    a new decomposition that agrees with numpy's."""
+    import numpy as np
+
+    from pdeinv.methods import hig_kron
+
+    rng = np.random.default_rng(0)
+    y = torch.as_tensor(rng.standard_normal((40, 6)))
+    Z = y.numpy() * np.arange(1, 7)
+    gram = hig_kron.InputGram()
+    a, W = gram(Z, hig_kron.rows_key(y))
+    perm = torch.randperm(40)
+    a2, W2 = gram(Z[perm.numpy()], hig_kron.rows_key(y[perm]))
+    assert a2 is a and W2 is W and hig_kron.rows_key(y[perm]) == hig_kron.rows_key(y)
+    a3, _ = gram(Z[:20], hig_kron.rows_key(y[:20]))
+    assert np.allclose(a3, np.linalg.eigvalsh(Z[:20].T @ Z[:20]), rtol=1e-12) and not np.allclose(a3, a)

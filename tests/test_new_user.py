@@ -187,6 +187,7 @@ def test_gd_defaults_do_not_blow_up_on_the_sensor_scene(tmp_path):
     assert m["rejected_steps"] == 0 and m["x_err"] < 0.95, m
     losses = np.loadtxt(out / "history.csv", delimiter=",", skiprows=1, usecols=2)
     assert losses[-1] < 0.95 * losses[0]
-    assert json.loads((out / "run.json").read_text())["network"] == {"kind": "default", "rows_per_component": 8}
+    network = json.loads((out / "run.json").read_text())["network"]
+    assert network == {"kind": "default", "rows_per_component": 8}
     _, model = pdeinv.load_run(out)
-    assert model.pre.info == {} and int((model.pre.gain > 0).sum()) == 1024 // 8
+    assert int((model.pre.gain > 0).sum()) == 1024 // 8  # the fitted cap travels with model.pt

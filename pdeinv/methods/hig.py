@@ -142,16 +142,20 @@ class HIG(Rule):
         if kron is None:  # the Jacobian routes: refuse one over the memory budget before computing anything
             b = Batch.of(model, small, y_target)
             route = self._route(b)
+            with torch.no_grad():
+                x = model(y_target)
+        else:  # one pass of the feature map gives x and the features (.hig_kron)
+            x, Z = hig_kron.forward(kron[0], y_target)
         with torch.no_grad():
-            y = apply(op, prediction(model(y_target)))
+            y = apply(op, prediction(x))
         r = (y - goal).double()  # g: per-sample residuals, not divided by B (class docstring)
         loss = float(y_loss(r, torch.zeros_like(r)))
         if not math.isfinite(loss):
             return Update(None, {"loss": loss})
         if kron is not None:  # the exact step without J (.hig_kron)
             lin, fac, gram = kron
-            delta, info = hig_kron.direction(fac, hig_kron.features(lin, y_target), r.cpu().numpy(),
-                                             self.eta, self.tau, self.exponent, gram)
+            delta, info = hig_kron.direction(fac, Z, r.cpu().numpy(), self.eta, self.tau, self.exponent,
+                                             gram, hig_kron.rows_key(y_target))
             parts = hig_kron.split(lin, delta * self._unit(info), lin.layer.weight)
             return Update(parts, {**info, "loss": loss})
         r = r if Q is None else r @ Q  # the residual's part in range(P); the rest no step can change

@@ -50,37 +50,50 @@ def factors(op, decoder: torch.Tensor | None) -> KroneckerFactors:
     return KroneckerFactors(Q[:, keep], s[keep], Vt[keep].T)
 
 
-def features(lin, y: torch.Tensor) -> np.ndarray:
-    """``Z̃`` (``B × (k+1)`` with a bias, else ``B × k``), float64."""
+def forward(lin, y: torch.Tensor) -> tuple[torch.Tensor, np.ndarray]:
+    """``(x, Z̃)`` from one pass of the feature map: the network's output ``x = D(W z̃)`` (what the model
+    returns) and the features ``Z̃`` (``B × (k+1)`` with a bias, else ``B × k``), float64."""
     with torch.no_grad():
-        z = lin.features(y).detach().cpu().double().numpy()
-    return np.hstack([z, np.ones((z.shape[0], 1))]) if lin.layer.bias is not None else z
+        z = lin.features(y)
+        out = lin.layer(z)
+        x = out if lin.decoder is None else out @ lin.decoder
+    Z = z.detach().cpu().double().numpy()
+    return x, (np.hstack([Z, np.ones((Z.shape[0], 1))]) if lin.layer.bias is not None else Z)
 
 
 class InputGram:
     """The eigenpairs of the batch's input Gram, kept for the next step: ``Z̃ᵀZ̃ = W diag(a) Wᵀ`` does not
     depend on the order of the rows, so a full-batch run (the same rows, reshuffled) decomposes it
-    once; a new Gram is reused when it equals the kept one to 1e-10 (relative, max norm), far
-    below any τ."""
+    once. The rows are recognized by the bytes of the observations they came from (``key``, any
+    order), else by a new Gram equal to the kept one to 1e-10 (relative, max norm), far below any τ."""
 
     def __init__(self):
-        self.G = self.a = self.W = None
+        self.G = self.a = self.W = self.key = None
 
-    def __call__(self, Z: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    def __call__(self, Z: np.ndarray, key: frozenset | None = None) -> tuple[np.ndarray, np.ndarray]:
+        if key is not None and key == self.key and self.W.shape[0] == Z.shape[1]:
+            return self.a, self.W
         G = Z.T @ Z
         scale = float(np.abs(G).max()) if G.size else 0.0
         if self.G is None or self.G.shape != G.shape or float(np.abs(G - self.G).max()) > 1e-10 * scale:
             a, W = np.linalg.eigh(G)
             self.G, self.a, self.W = G, a, W
+        self.key = key
         return self.a, self.W
 
 
+def rows_key(y: torch.Tensor) -> frozenset:
+    """The batch's rows as a set of their bytes' hashes (:class:`InputGram`: the same rows, any order)."""
+    return frozenset(hash(r.tobytes()) for r in y.detach().cpu().contiguous().numpy())
+
+
 def direction(fac: KroneckerFactors, Z: np.ndarray, R: np.ndarray, eta: float, tau: float,
-              exponent: float, gram: InputGram | None = None) -> tuple[np.ndarray, dict]:
+              exponent: float, gram: InputGram | None = None, key: frozenset | None = None
+              ) -> tuple[np.ndarray, dict]:
     """``ΔW̃`` (``k_out × k̃``, module docstring) and what was kept. ``A = Z̃Z̃ᵀ``'s nonzero eigenpairs come
     from the smaller ``k̃ × k̃`` Gram ``Z̃ᵀZ̃ = W diag(a) Wᵀ`` (``Q_A = Z̃ W a^-½``, so
     ``Q_Aᵀ Z̃ = a^½ Wᵀ`` and ``M = a^-½ Wᵀ Z̃ᵀ R Q_C``): the rank of ``Z̃`` is at most ``k̃``."""
-    a, W = (gram or InputGram())(Z)
+    a, W = (gram or InputGram())(Z, key)
     keep_a = a > a[-1] * max(Z.shape) * np.finfo(float).eps  # the rank of Z̃
     a, W = a[keep_a], W[:, keep_a]
     root = np.sqrt(a)
