@@ -24,11 +24,14 @@ communication DDP does.
 
 **Only gradient-like rules.** A rule whose transformation is an optimizer step (the
 direction is a gradient of the batch-mean loss: GD, Adam, SIP's proxy) is averaged as
-above. HIG is refused with ``world_size > 1``: its step ``−η V Λ^{-1/2} Uᵀ g`` is a
-non-linear function of the Jacobian stacked over the *whole* batch, so shard steps do not
-average to it; gathering the Jacobian rows (``batch·n_out × n_params`` floats, e.g. 0.9 GB
-per step for heat_2d's defaults) to decompose them on every rank would cost more than the
-one physics call per step that sharding saves.
+above. HIG's step ``−η V Λ^{-1/2} Uᵀ g`` is a non-linear function of the Jacobian stacked
+over the *whole* batch, so shard steps do not average to it. A rule with ``data_parallel``
+(HIG) sums what it needs itself (:meth:`sum`): on the Kronecker route (the default networks)
+the batch enters only through two sums over rows, ``Z̃ᵀZ̃`` and ``Z̃ᵀ R Q_C``
+(:mod:`pdeinv.methods.hig_kron`), so every rank computes the single-process step from one
+``all_reduce`` of ``k̃² + k̃·r`` numbers. HIG's Jacobian routes (other networks) are refused:
+gathering the Jacobian rows (``batch·n_out × n_params`` floats) to decompose them on every
+rank would cost more than the one physics call per step that sharding saves.
 
 **Agreement, never a deadlock.** Decisions that could differ between ranks are reduced:
 the guard sees the *reduced* loss and direction (a NaN on any rank is a NaN on all, so all
@@ -135,11 +138,28 @@ class DataParallel:
         """``rule`` run on this rank's shard with directions averaged over the ranks."""
         from .methods.transforms import OptimizerStep
 
+        parallel = getattr(rule, "data_parallel", None)
+        if callable(parallel):  # the rule sums what it needs over the ranks itself (HIG's Kronecker route)
+            return Sharded(parallel(self.sum, self.world_size), self)
         if not isinstance(rule.transform, OptimizerStep):
             raise ValueError(f"rule {getattr(rule, 'name', rule)!r} cannot run on {self.world_size} "
                              "processes: its step is not a mean of per-sample gradients (HIG's SVD "
                              "couples the whole batch); run it with one process, or use gd, adam or sip")
         return Sharded(rule, self)
+
+    def sum(self, arrays: list) -> list:
+        """Element-wise sums over the ranks of numpy arrays (one float64 ``all_reduce`` SUM)."""
+        import numpy as np
+        import torch.distributed as dist
+
+        flat = torch.from_numpy(np.concatenate([np.ravel(a) for a in arrays]).astype(np.float64))
+        flat = flat.to(self._device)
+        dist.all_reduce(flat, op=dist.ReduceOp.SUM)
+        flat, out, at = flat.cpu().numpy(), [], 0
+        for a in arrays:
+            out.append(flat[at:at + np.size(a)].reshape(np.shape(a)))
+            at += np.size(a)
+        return out
 
     def average(self, params: list, direction, info: dict):
         """Mean over ranks of ``direction`` and of ``info``'s numbers (two ``all_reduce`` SUMs / P):

@@ -385,7 +385,7 @@ class Trainer:
             **self.identity(model), "steps": self.steps, "time_budget": self.time_budget,
             "eval_every": self.eval_every, "resume": self.resume, "stop": getattr(self.stop, "name", None)})
         gen = torch.Generator().manual_seed(seed_stream(self.seed, BATCH_ORDER))
-        run = _Run(model, self.rule.init(placed(self.problem, self.device), model), y_train, t_train, test,
+        run = _Run(model, self._rule.init(placed(self.problem, self.device), model), y_train, t_train, test,
                    stop_state,
                    _Position(gen, torch.randperm(self.n_train, generator=gen)))
         calibrate = getattr(self._rule, "calibrate", None)  # e.g. SIP's proxy curvature, on the first batch

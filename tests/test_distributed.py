@@ -179,7 +179,7 @@ class _TwoOfTwo(DataParallel):
 @pytest.mark.parametrize("extra, says", [
     (["--method", "gd", "--batch-size", "5"], "batch_size=5 does not split over 2 processes"),
     (["--method", "gd", "--batch-size", "1"], "batch_size=1 does not split over 2 processes"),
-    (["--method", "hig", "--batch-size", "2"], "rule 'hig' cannot run on 2 processes"),
+    (["--method", "hig", "--batch-size", "2"], "rule 'hig' cannot run on several processes with MLP"),
 ])
 def test_bad_parallel_input_is_one_line_exit_2_nothing_written(tmp_path, monkeypatch, capsys, extra, says):
     monkeypatch.setattr(distributed, "from_env", lambda device: _TwoOfTwo(2, 0))
@@ -230,10 +230,22 @@ def test_the_trainer_stops_when_the_ranks_agree_and_only_the_writer_saves(tmp_pa
     assert not ckpt.exists()
 
 
-def test_hig_on_one_process_is_allowed_and_refused_on_two():
+def test_hig_runs_on_two_processes_only_on_its_kronecker_route():
     assert Single().rule(pdeinv.HIG()) is not None
-    with pytest.raises(ValueError, match="cannot run on 2 processes"):
-        DataParallel(2, 1).rule(pdeinv.HIG())
+    sharded = DataParallel(2, 1).rule(pdeinv.HIG())
+    assert sharded.inner.route == "kronecker" and sharded.inner.sum_over is not None
+    with pytest.raises(ValueError, match=r"HIG\(route='svd'\) cannot run on 2 processes"):
+        DataParallel(2, 1).rule(pdeinv.HIG(route="svd"))
+
+
+def test_two_processes_train_hig_as_one(tmp_path):
+    """HIG's Kronecker step from the moments summed over the ranks equals the one-process step."""
+    at = RUN.index("--hidden")
+    run = RUN[:at] + RUN[at + 2:]  # the default network: linear in θ
+    assert main([*run, "--method", "hig", "--out", str(tmp_path / "one")]) == 0
+    ranks = _two_ranks([*run, "--method", "hig", "--out", str(tmp_path / "two")])
+    assert [code for code, _ in ranks] == [0, 0], ranks[0][1][-2000:]
+    _same_run(tmp_path / "one", tmp_path / "two")
 
 
 def test_single_process_strategy_changes_nothing():

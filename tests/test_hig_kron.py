@@ -96,8 +96,8 @@ def test_hig_defaults_beat_adam_defaults_at_equal_steps(scene, settings):
 
 
 def test_input_gram_reuses_its_eigenpairs_for_the_same_rows_in_any_order():
-    """The full batch reshuffled: the kept eigenpairs (recognized by the rows' bytes); other rows:
-    a new decomposition that agrees with numpy's."""
+    """The full batch reshuffled: the kept Gram (recognized by the rows' bytes, not formed again) and
+    its eigenpairs; other rows: a new decomposition that agrees with numpy's."""
     import numpy as np
 
     from pdeinv.methods import hig_kron
@@ -106,9 +106,14 @@ def test_input_gram_reuses_its_eigenpairs_for_the_same_rows_in_any_order():
     y = torch.as_tensor(rng.standard_normal((40, 6)))
     Z = y.numpy() * np.arange(1, 7)
     gram = hig_kron.InputGram()
-    a, W = gram(Z, hig_kron.rows_key(y))
+    key = hig_kron.rows_key(y)
+    assert gram.kept(key) is None
+    a, W = gram(Z.T @ Z, key)
     perm = torch.randperm(40)
-    a2, W2 = gram(Z[perm.numpy()], hig_kron.rows_key(y[perm]))
-    assert a2 is a and W2 is W and hig_kron.rows_key(y[perm]) == hig_kron.rows_key(y)
-    a3, _ = gram(Z[:20], hig_kron.rows_key(y[:20]))
+    assert hig_kron.rows_key(y[perm]) == key and gram.kept(hig_kron.rows_key(y[perm])) is gram.G
+    a2, W2 = gram(gram.kept(key), key)
+    assert a2 is a and W2 is W
+    half = hig_kron.rows_key(y[:20])
+    assert gram.kept(half) is None
+    a3, _ = gram(Z[:20].T @ Z[:20], half)
     assert np.allclose(a3, np.linalg.eigvalsh(Z[:20].T @ Z[:20]), rtol=1e-12) and not np.allclose(a3, a)

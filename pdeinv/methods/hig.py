@@ -3,13 +3,15 @@
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from collections.abc import Callable
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 import torch
 
 from .._checks import choice, count, nonnegative, positive
 from ..autograd import apply
+from ..errors import NonFiniteError
 from ..physics.base import Matrix
 from ..physics.capabilities import modal_basis
 from . import hig_kron
@@ -84,6 +86,10 @@ class HIG(Rule):
     ``1 − η σ_k^(1+e)``, and the stable η moved with all three: on whitened inputs
     ``σ_max ≈ √B · s_max(P)``). For Gauss–Newton (``e = −1``) the factor is 1: it is scale-free.
 
+    **Data-parallel** (:meth:`data_parallel`, what ``torchrun`` uses): on the Kronecker route the
+    shards' moments are summed over the processes, so every rank takes the whole batch's exact
+    step (:mod:`.hig_kron`); the Jacobian routes couple the whole stacked ``J`` and are refused.
+
     A route whose memory exceeds ``max_jacobian_gb`` is refused with a
     ``ValueError`` before anything is computed. The randomized probes are drawn
     from ``SeedSequence([seed, step])``, so a resumed run repeats them.
@@ -101,6 +107,8 @@ class HIG(Rule):
     seed: int = 0
     normalize: bool = True
     name: str = "hig"
+    #: sums numpy arrays over data-parallel processes (:meth:`data_parallel`); None: one process
+    sum_over: Callable | None = field(default=None, compare=False, repr=False)
 
     def __post_init__(self):
         positive(self.eta, "eta")
@@ -119,10 +127,24 @@ class HIG(Rule):
     def settings(self) -> dict:
         return {k: getattr(self, k) for k in SETTINGS}
 
+    def data_parallel(self, sum_over: Callable, processes: int) -> HIG:
+        """This rule on one shard of ``processes``: ``sum_over(arrays) -> arrays`` sums over the
+        processes (``all_reduce``); only the Kronecker route runs so (class docstring)."""
+        if self.route not in ("auto", "kronecker"):
+            raise ValueError(f"HIG(route={self.route!r}) cannot run on {processes} processes: its step "
+                             "decomposes the Jacobian stacked over the whole batch; only the Kronecker "
+                             "route (route='auto' or 'kronecker', the default networks) is data-parallel")
+        return replace(self, route="kronecker", sum_over=sum_over)
+
     def context(self, problem, model):
         op = problem.operator
         lin = getattr(model, "linear_in_parameters", None)
         lin = lin() if callable(lin) and self.route in ("auto", "kronecker") else None
+        if lin is None and self.sum_over is not None:
+            raise ValueError(f"rule 'hig' cannot run on several processes with {type(model).__name__}: "
+                             "only its Kronecker route is data-parallel, and that needs a network linear in "
+                             "its parameters (the default networks); run it with one process, or use gd, "
+                             "adam or sip")
         if lin is None and self.route == "kronecker":
             raise ValueError("HIG(route='kronecker') needs a network linear in its parameters after a fixed "
                              "feature map (model.linear_in_parameters(), e.g. pdeinv.whitened('linear') or "
@@ -139,31 +161,46 @@ class HIG(Rule):
                target: torch.Tensor | None = None) -> Update:
         op, small, Q, kron = state.context
         goal = y_target if target is None else target
-        if kron is None:  # the Jacobian routes: refuse one over the memory budget before computing anything
-            b = Batch.of(model, small, y_target)
-            route = self._route(b)
-            with torch.no_grad():
-                x = model(y_target)
-        else:  # one pass of the feature map gives x and the features (.hig_kron)
-            x, Z = hig_kron.forward(kron[0], y_target)
+        if kron is not None:
+            return self._kronecker(op, kron, y_target, goal)
+        b = Batch.of(model, small, y_target)  # refuse a route over the memory budget before computing
+        route = self._route(b)
         with torch.no_grad():
-            y = apply(op, prediction(x))
+            y = apply(op, prediction(model(y_target)))
         r = (y - goal).double()  # g: per-sample residuals, not divided by B (class docstring)
         loss = float(y_loss(r, torch.zeros_like(r)))
         if not math.isfinite(loss):
             return Update(None, {"loss": loss})
-        if kron is not None:  # the exact step without J (.hig_kron)
-            lin, fac, gram = kron
-            delta, info = hig_kron.direction(fac, Z, r.cpu().numpy(), self.eta, self.tau, self.exponent,
-                                             gram, hig_kron.rows_key(y_target))
-            parts = hig_kron.split(lin, delta * self._unit(info), lin.layer.weight)
-            return Update(parts, {**info, "loss": loss})
         r = r if Q is None else r @ Q  # the residual's part in range(P); the rest no step can change
         delta, info = route.direction(b, r.reshape(b.rows), self, state.steps)
         delta = delta * self._unit(info)
         sizes = [p.numel() for p in b.params.values()]
         parts = [d.view(p.shape) for d, p in zip(torch.split(delta, sizes), b.params.values(), strict=True)]
         return Update(tuple(parts), {**info, "loss": loss})
+
+    def _kronecker(self, op, kron, y_target: torch.Tensor, goal: torch.Tensor) -> Update:
+        """The exact step without ``J`` (:mod:`.hig_kron`); one pass of the feature map gives ``x`` and
+        the features. Data-parallel (``sum_over``): every rank joins the one sum of the moments,
+        NaN where its shard failed, so all ranks take or refuse the same step."""
+        lin, fac, gram = kron
+        x, Z = hig_kron.forward(lin, y_target)
+        try:
+            with torch.no_grad():
+                r = (apply(op, prediction(x)) - goal).double()
+        except NonFiniteError:
+            if self.sum_over is None:
+                raise
+            r = torch.full((len(Z), op.n_out), math.nan, dtype=torch.float64)
+        loss, rows = float(y_loss(r, torch.zeros_like(r))), len(Z)
+        key = None if self.sum_over is not None else hig_kron.rows_key(y_target)
+        G, N = hig_kron.moments(fac, Z, r.cpu().numpy(), gram.kept(key))
+        if self.sum_over is not None:  # the whole batch's moments and mean loss on every rank
+            G, N, totals = self.sum_over([G, N, np.array([loss * rows, rows])])
+            loss, rows = float(totals[0] / totals[1]), int(totals[1])
+        if not (math.isfinite(loss) and np.isfinite(N).all()):
+            return Update(None, {"loss": loss})
+        delta, info = hig_kron.direction(fac, G, N, rows, self.eta, self.tau, self.exponent, gram, key)
+        return Update(hig_kron.split(lin, delta * self._unit(info), lin.layer.weight), {**info, "loss": loss})
 
     def _unit(self, info: dict) -> float:
         """``σ_max^-(1+e)`` with ``normalize`` (class docstring), else 1."""

@@ -22,6 +22,11 @@ Cost per step: products of sizes ``B·m·r`` and ``k̃·B·r``, and the eigendec
 and its SVD once, in float64. The residual's part outside ``range(P̂)`` is out of every step's reach
 and drops out through ``Q_C``. Equal to the dense SVD route to float64 rounding
 (``tests/test_hig_kron.py``).
+
+**Data-parallel.** The batch enters only through ``G = Z̃ᵀZ̃`` and ``N = Z̃ᵀ R Q_C`` (:func:`moments`),
+sums over the rows: over ``P`` shards, ``G = Σ_r G_r`` and ``N = Σ_r N_r``, so one ``all_reduce`` of
+``k̃² + k̃·r`` numbers per step gives every rank the whole batch's exact step (under ``torchrun``,
+:meth:`HIG.data_parallel <pdeinv.methods.hig.HIG.data_parallel>`); ``J`` and ``Z̃`` never travel.
 """
 
 from __future__ import annotations
@@ -62,22 +67,25 @@ def forward(lin, y: torch.Tensor) -> tuple[torch.Tensor, np.ndarray]:
 
 
 class InputGram:
-    """The eigenpairs of the batch's input Gram, kept for the next step: ``Z̃ᵀZ̃ = W diag(a) Wᵀ`` does not
-    depend on the order of the rows, so a full-batch run (the same rows, reshuffled) decomposes it
-    once. The rows are recognized by the bytes of the observations they came from (``key``, any
-    order), else by a new Gram equal to the kept one to 1e-10 (relative, max norm), far below any τ."""
+    """The eigenpairs of the batch's input Gram, kept for the next step: ``G = Z̃ᵀZ̃ = W diag(a) Wᵀ`` does
+    not depend on the order of the rows, so a full-batch run (the same rows, reshuffled) decomposes
+    it once. The rows are recognized by the bytes of the observations they came from (``key``, any
+    order: :meth:`kept` returns the kept ``G`` without forming it), else by a new ``G`` equal to the
+    kept one to 1e-10 (relative, max norm), far below any τ."""
 
     def __init__(self):
         self.G = self.a = self.W = self.key = None
 
-    def __call__(self, Z: np.ndarray, key: frozenset | None = None) -> tuple[np.ndarray, np.ndarray]:
-        if key is not None and key == self.key and self.W.shape[0] == Z.shape[1]:
-            return self.a, self.W
-        G = Z.T @ Z
-        scale = float(np.abs(G).max()) if G.size else 0.0
-        if self.G is None or self.G.shape != G.shape or float(np.abs(G - self.G).max()) > 1e-10 * scale:
-            a, W = np.linalg.eigh(G)
-            self.G, self.a, self.W = G, a, W
+    def kept(self, key: frozenset | None) -> np.ndarray | None:
+        """The kept ``G`` if it is of the rows ``key``, else ``None``."""
+        return self.G if key is not None and key == self.key else None
+
+    def __call__(self, G: np.ndarray, key: frozenset | None = None) -> tuple[np.ndarray, np.ndarray]:
+        if G is not self.G:
+            scale = float(np.abs(G).max()) if G.size else 0.0
+            if self.G is None or self.G.shape != G.shape or float(np.abs(G - self.G).max()) > 1e-10 * scale:
+                self.a, self.W = np.linalg.eigh(G)
+                self.G = G
         self.key = key
         return self.a, self.W
 
@@ -87,17 +95,24 @@ def rows_key(y: torch.Tensor) -> frozenset:
     return frozenset(hash(r.tobytes()) for r in y.detach().cpu().contiguous().numpy())
 
 
-def direction(fac: KroneckerFactors, Z: np.ndarray, R: np.ndarray, eta: float, tau: float,
+def moments(fac: KroneckerFactors, Z: np.ndarray, R: np.ndarray, G: np.ndarray | None = None):
+    """``(G, N) = (Z̃ᵀZ̃, Z̃ᵀ R Q_C)``: all the step needs from the batch. Both are sums over the rows,
+    so over data-parallel shards they add up to the whole batch's (:meth:`HIG.data_parallel`)."""
+    return (Z.T @ Z if G is None else G), Z.T @ (R @ fac.Q)
+
+
+def direction(fac: KroneckerFactors, G: np.ndarray, N: np.ndarray, rows: int, eta: float, tau: float,
               exponent: float, gram: InputGram | None = None, key: frozenset | None = None
               ) -> tuple[np.ndarray, dict]:
-    """``ΔW̃`` (``k_out × k̃``, module docstring) and what was kept. ``A = Z̃Z̃ᵀ``'s nonzero eigenpairs come
-    from the smaller ``k̃ × k̃`` Gram ``Z̃ᵀZ̃ = W diag(a) Wᵀ`` (``Q_A = Z̃ W a^-½``, so
-    ``Q_Aᵀ Z̃ = a^½ Wᵀ`` and ``M = a^-½ Wᵀ Z̃ᵀ R Q_C``): the rank of ``Z̃`` is at most ``k̃``."""
-    a, W = (gram or InputGram())(Z, key)
-    keep_a = a > a[-1] * max(Z.shape) * np.finfo(float).eps  # the rank of Z̃
+    """``ΔW̃`` (``k_out × k̃``, module docstring) and what was kept, from :func:`moments` of ``rows``
+    samples. ``A = Z̃Z̃ᵀ``'s nonzero eigenpairs come from the smaller ``k̃ × k̃`` Gram
+    ``G = Z̃ᵀZ̃ = W diag(a) Wᵀ`` (``Q_A = Z̃ W a^-½``, so ``Q_Aᵀ Z̃ = a^½ Wᵀ`` and
+    ``M = a^-½ Wᵀ N``): the rank of ``Z̃`` is at most ``k̃``."""
+    a, W = (gram or InputGram())(G, key)
+    keep_a = a > a[-1] * max(G.shape[0], rows) * np.finfo(float).eps  # the rank of Z̃
     a, W = a[keep_a], W[:, keep_a]
     root = np.sqrt(a)
-    M = (W.T @ (Z.T @ (R @ fac.Q))) / root[:, None]  # (rank, r)
+    M = (W.T @ N) / root[:, None]  # (rank, r)
     sigma = np.sqrt(a[:, None] * (fac.s**2)[None, :])
     smax = float(sigma.max()) if sigma.size else 0.0
     keep = sigma > tau * smax if smax > 0 else np.zeros_like(sigma, bool)
