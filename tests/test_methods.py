@@ -14,7 +14,7 @@ import torch
 from torch import nn
 
 import pdeinv
-from pdeinv.methods import GD, HIG, SIP, NonFiniteError, adam, sgd
+from pdeinv.methods import GD, HIG, SIP, NonFiniteError, adam, hig_routes, sgd
 
 pytestmark = pytest.mark.usefixtures("one_thread")  # small dense work: one torch thread
 
@@ -185,8 +185,8 @@ def test_hig_drops_small_singular_values_never_clamps():
     s = np.array([1.0, 0.5, 1e-9])
     J = torch.tensor(U @ np.diag(s) @ V.T)
     g = torch.tensor(U @ np.ones(3))
-    for route in ("svd", "gram"):
-        delta, info = HIG(eta=1.0, tau=1e-6, route=route)._direction(J, g, 3, 6)
+    for decomposition in (hig_routes.SVD(), hig_routes.Gram()):
+        delta, info = decomposition.direction(J, g, HIG(eta=1.0, tau=1e-6))
         assert info["rank"] == 2
         np.testing.assert_allclose(V.T @ delta.numpy(), [-1.0, -0.5**-0.5, 0.0], atol=1e-6)
 
@@ -195,15 +195,18 @@ def test_hig_auto_route_picks_gram_when_rows_are_few_and_svd_when_ill_conditione
     rng = np.random.default_rng(1)
     J = torch.tensor(rng.standard_normal((4, 40)))
     g = torch.tensor(rng.standard_normal(4))
-    d_gram, info = HIG(route="auto")._direction(J, g, 4, 40)
-    d_svd, _ = HIG(route="svd")._direction(J, g, 4, 40)
+    auto = hig_routes.auto_decomposition(4, 40, HIG().gram_cond_max)
+    d_gram, info = auto.direction(J, g, HIG())
+    d_svd, _ = hig_routes.SVD().direction(J, g, HIG())
     assert info["route"] == "gram"
     np.testing.assert_allclose(d_gram.numpy(), d_svd.numpy(), rtol=1e-10)
     U = np.linalg.qr(rng.standard_normal((4, 4)))[0]
     V = np.linalg.qr(rng.standard_normal((40, 4)))[0]
     J = torch.tensor(U @ np.diag([1, 1e-2, 1e-4, 1e-7]) @ V.T)  # cond 1e7 > gram_cond_max
-    _, info = HIG(route="auto", tau=1e-8)._direction(J, g, 4, 40)
+    _, info = auto.direction(J, g, HIG(tau=1e-8))
     assert info["route"] == "svd" and info["gram_rejected"] > 1e6
+    # its memory budget counts the SVD it may fall back to, not the Gram route's own
+    assert auto.bytes_per_entry == hig_routes.SVD.bytes_per_entry > hig_routes.Gram.bytes_per_entry
 
 
 def test_hig_refuses_a_jacobian_over_budget_before_computing_it():

@@ -16,7 +16,7 @@ from ..physics.base import Matrix
 from ..physics.capabilities import modal_basis
 from . import hig_kron
 from .base import Rule, State, Update, prediction, y_loss
-from .hig_routes import DECOMPOSITIONS, JACOBIANS, ROUTES, Batch
+from .hig_routes import JACOBIANS, ROUTES, Batch
 from .transforms import Add
 
 SETTINGS = ("eta", "tau", "exponent", "route", "jacobian", "max_jacobian_gb", "gram_cond_max", "probes",
@@ -206,10 +206,6 @@ class HIG(Rule):
         """``σ_max^-(1+e)`` with ``normalize`` (class docstring), else 1."""
         smax = info.get("sigma_max", 0.0)
         return smax ** -(1.0 + self.exponent) if self.normalize and smax > 0 else 1.0
-
-    def _direction(self, J, g, rows, n_params):
-        """The direction from a given dense ``J`` (rows × n_params) with this rule's decomposition."""
-        return DECOMPOSITIONS[self.route](self, rows, n_params).direction(J, g, self)
 
     def _route(self, b: Batch):
         """The first candidate route within ``max_jacobian_gb``; a ``ValueError`` naming them if none fits."""

@@ -35,7 +35,7 @@ from __future__ import annotations
 
 import numpy as np
 import torch
-from torch.func import functional_call, jvp, vjp, vmap
+from torch.func import jvp, vjp, vmap
 
 from ..autograd import apply
 
@@ -52,27 +52,25 @@ def _orth(A: torch.Tensor) -> torch.Tensor:
     return torch.linalg.qr(A, mode="reduced")[0]
 
 
-def randomized_direction(model, op, y_target, g, probes: int, power_iters: int, tau: float,
-                         exponent: float, eta: float, seed: int):
+def randomized_direction(batch, g, probes: int, power_iters: int, tau: float, exponent: float, eta: float,
+                         seed: int):
     """``(Δθ, info)``: the HIG step from a rank-``probes`` randomized SVD (module docstring).
 
-    ``g`` is the stacked residual ``(B·n_out,)``; ``Δθ`` is flat, in the order of the
+    ``batch`` is the routes' view of the model and the batch (:class:`~.hig_routes.Batch`, taken
+    in float64); ``g`` is the stacked residual ``(B·n_out,)``; ``Δθ`` is flat, in the order of the
     model's trainable parameters. ``seed`` fixes ``Ω`` (a resumed run repeats it).
     """
-    names = [n for n, p in model.named_parameters() if p.requires_grad]
-    params = {n: p.detach().double() for n, p in model.named_parameters() if p.requires_grad}
-    frozen = {n: p.detach().double() for n, p in model.named_parameters() if not p.requires_grad}
-    frozen.update({n: b.double() if b.is_floating_point() else b for n, b in model.named_buffers()})
+    b = batch.double()
+    params, op, names = b.params, b.op, list(b.params)
     shapes = [params[n].shape for n in names]
     sizes = [params[n].numel() for n in names]
     n_params = sum(sizes)
-    y64 = y_target.detach().double()
-    B = y64.shape[0]
+    B = b.y.shape[0]
     rows = B * op.n_out
     probes = min(probes, rows, n_params)
 
     def y_of(p):
-        return apply(op, functional_call(model, (p, frozen), (y64,)))
+        return apply(op, b.f(p, b.y))
 
     def unflat(V):  # (l, n_params) -> {name: (l, *shape)}
         parts = torch.split(V, sizes, dim=1)

@@ -48,6 +48,12 @@ class Batch(NamedTuple):
         n_params = sum(p.numel() for p in params.values())
         return cls(model, op, y, params, frozen, y.shape[0] * op.n_out, n_params)
 
+    def double(self) -> Batch:
+        """The same batch in float64: parameters, floating buffers and observations."""
+        cast = {n: t.double() if t.is_floating_point() else t for n, t in self.frozen.items()}
+        return self._replace(y=self.y.detach().double(), frozen=cast,
+                             params={n: p.double() for n, p in self.params.items()})
+
     def f(self, p, y):
         return functional_call(self.model, (p, self.frozen), (y,))
 
@@ -158,7 +164,7 @@ class GramOrSVD:
 
     cond_max: float
     name = "gram"
-    bytes_per_entry = Gram.bytes_per_entry
+    bytes_per_entry = SVD.bytes_per_entry  # it may fall back to the SVD: budget for it (not Gram's 12)
 
     def direction(self, J, g, rule):
         delta, info = Gram(self.cond_max).direction(J, g, rule)
@@ -216,8 +222,8 @@ class MatrixFree:
 
     def direction(self, b: Batch, r: torch.Tensor, rule, step: int):
         seed = int(np.random.SeedSequence([self.seed, step]).generate_state(1)[0])
-        delta, info = randomized_direction(b.model, b.op, b.y, r, self.probes, self.power_iters, rule.tau,
-                                           rule.exponent, rule.eta, seed)
+        delta, info = randomized_direction(b, r, self.probes, self.power_iters, rule.tau, rule.exponent,
+                                           rule.eta, seed)
         return delta, {**info, "jacobian": "matrix-free"}
 
 
