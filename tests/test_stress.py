@@ -68,6 +68,8 @@ def test_stress_cli_quick(tmp_path):
     assert by[("explicit", "fe")]["outcome"] == "refused" and "'be'" in by[("explicit", "fe")]["message"]
     assert by[("hig_tau", 0.0)]["outcome"] in ("nan", "diverged")  # full inversion explodes
     assert by[("hig_tau", 0.01)]["outcome"] == "ok"
+    for tau in (0.0, 0.01):  # --method hig as shipped (Kronecker route): stable at every τ of the sweep
+        assert by[("hig_tau_default", tau)]["outcome"] == "ok" and by[("hig_tau_default", tau)]["x_err"] < 0.9
     for r in rows:
         if r["sweep"].startswith("dt_"):
             assert r["outcome"] == "ok" and r["growth"] <= 1.0  # BE and CN never amplify
