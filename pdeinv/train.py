@@ -30,7 +30,7 @@ from .data import as_observations, fingerprint, split
 from .distributed import Single
 from .files import write_csv
 from .methods.base import NonFiniteError, Resumable, UpdateRule
-from .methods.guard import Snapshot, apply_if_finite
+from .methods.guard import ADVICE, Snapshot, apply_if_finite
 from .nets import fit_preconditioning
 from .physics.capabilities import observes_field
 from .physics.device import placed, resolve
@@ -455,11 +455,14 @@ class Trainer:
         at.best = min(at.best, float(info["loss"]))
         return info
 
-    def _reject(self, run: _Run, err: NonFiniteError, bar) -> None:
+    def _reject(self, run: _Run, err: NonFiniteError, bar, failed: int | None = None) -> None:
+        """Count and record a rejected step (``failed``: its number, default the next one), roll back to
+        the last good state and lower the step size; raise once ``max_failures`` are consecutive."""
         at = run.at
         at.failures += 1
-        message = f"step {at.step + 1} ({getattr(self.rule, 'name', 'rule')}): {err}"
-        self.history.append({"step": at.step + 1, "wall_s": at.wall, "loss": math.nan, "rejected": message})
+        failed = at.step + 1 if failed is None else failed
+        message = f"step {failed} ({getattr(self.rule, 'name', 'rule')}): {err}"
+        self.history.append({"step": failed, "wall_s": at.wall, "loss": math.nan, "rejected": message})
         back = ""
         if run.good.step is not None and run.good.step < at.step:  # undo the update that blew up
             run.state = run.good.restore(self.rule, run.state, run.model)
@@ -493,6 +496,7 @@ class Trainer:
         done = self._done(at)
         if at.step % self.eval_every == 0 or done or at.step == 1:
             record.update(self.evaluate(run.model, run.test))
+            self._check_evaluation(record["y_err"])
         self.history.append(record)
         for cb in self.callbacks:
             if cb(record, run.model) and not done:
@@ -506,6 +510,16 @@ class Trainer:
             self._save(run)
         return done
 
+    def _check_evaluation(self, y_err: float) -> None:
+        """Reject the step just taken when its test predictions are not finite, or their relative
+        y-error exceeds ``√max_loss_growth`` (the zero network's is 1; the loss is its square): the
+        loss-growth guard judges an update only at the next step, and the last step has none."""
+        bound = math.inf if self.max_loss_growth is None else math.sqrt(self.max_loss_growth)
+        if not math.isfinite(y_err) or y_err > bound:
+            raise NonFiniteError(f"the network's test y-error after this step is {y_err:.3g} (a zero "
+                                 f"network's is 1, the bound {bound:.3g}): its update blew up; it is undone "
+                                 f"({ADVICE})")
+
     def fit(self) -> Result:
         run = self._start()
         bar = _progress(self.steps, self.progress if self.parallel.is_writer else False, run.at.step)
@@ -516,7 +530,12 @@ class Trainer:
                 continue
             record = {"step": run.at.step, "wall_s": run.at.wall, **info}
             self._check_stop(run, record)
-            done = self._after(run, record)
+            try:
+                done = self._after(run, record)
+            except NonFiniteError as err:  # rejected after the fact: the state before the update is back
+                run.at.stopped_by = None
+                self._reject(run, err, bar, failed=run.at.step)
+                continue
             bar.update(1)
             bar.set_postfix(loss=f"{info['loss']:.3g}", refresh=False)
         bar.close()

@@ -82,12 +82,13 @@ def test_resume_after_a_saved_blow_up_rolls_back_bitwise(heat, tmp_path):
 
     def kill(record, model):
         seen.append(record["step"])
-        if seen.count(1) == 3:
-            raise KeyboardInterrupt  # the checkpoint on disk: the 2nd blown-up step 1
+        if seen.count(2) == 3:
+            raise KeyboardInterrupt  # the checkpoint on disk: the 3rd blown-up step 2 (step 1's blow-ups
+            # are caught at its evaluation, the trainer's check of the test predictions)
 
     with pytest.raises(KeyboardInterrupt), pytest.warns(RuntimeWarning):
         trainer(heat, GD(sgd(1e3)), steps=8, max_failures=3, checkpoint=ckpt, callbacks=[kill]).fit()
-    assert ckpt.load()["good"]["step"] == 0
+    assert ckpt.load()["good"]["step"] == 1
     with pytest.warns(RuntimeWarning):
         resumed = trainer(heat, GD(sgd(1e3)), steps=8, max_failures=3, checkpoint=ckpt, resume=True).fit()
     rows = lambda r: [repr((h["step"], h["loss"], h.get("x_err"))) for h in r.history]  # noqa: E731
@@ -106,3 +107,12 @@ def test_cli_gd_with_lr_1e6_recovers_by_lowering_the_step(tmp_path, capsys):
     m = json.loads((out / "metrics.json").read_text())
     assert m["rejected_steps"] >= 10 and m["steps"] == 120
     assert 0 < m["x_err"] < 0.6  # measured 0.27 (lr lowered 2^21-fold: about 0.5)
+
+
+def test_a_blow_up_at_the_last_step_is_rejected_at_its_evaluation(heat):
+    """No later loss judges the last step: the trainer checks its test predictions instead (``--lr 1e308
+    --steps 1`` once exited 0 with x_err nan, or 7e153)."""
+    with pytest.warns(RuntimeWarning, match="test y-error after this step"):
+        r = trainer(heat, GD(sgd(1e30)), steps=1).fit()
+    assert r.metrics["rejected_steps"] >= 1 and r.metrics["steps"] == 1
+    assert math.isfinite(r.metrics["x_err"]) and r.metrics["y_err"] <= 1e3**0.5

@@ -187,3 +187,26 @@ def test_cli_n_train_with_data_is_refused(tmp_path, pairs, capsys):
     code = main(["train", "heat_1d", "--data", str(tmp_path / "d.npz"), "--n-train", "20", *SMALL,
                  "--out", str(tmp_path / "run")])
     assert code == 2 and "--n-train does not apply with --data" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("out, vtu, match", [
+    ("obs.npz", None, "--out 'OBS' is the same file as --data"),
+    ("p.npz", "run/model.pt", "is the same file as the run's model"),
+    ("p.npz", "p.npz", "--vtu 'P' is the same file as --out"),
+])
+def test_cli_predict_never_writes_over_an_input(tmp_path, pairs, capsys, out, vtu, match):
+    """``predict RUN --data F.npz --out F.npz`` once overwrote the user's observations (exit 0)."""
+    x, y = pairs
+    np.savez(tmp_path / "obs.npz", y=y)
+    assert main(["train", "heat_1d", "--data", str(tmp_path / "obs.npz"), *SMALL,
+                 "--out", str(tmp_path / "run")]) == 0
+    capsys.readouterr()
+    before = {p: p.read_bytes() for p in tmp_path.rglob("*") if p.is_file()}
+    argv = ["predict", str(tmp_path / "run"), "--data", str(tmp_path / "obs.npz"),
+            "--out", str(tmp_path / out)]
+    argv += ["--vtu", str(tmp_path / vtu)] if vtu else []
+    code = main(argv)
+    err = capsys.readouterr().err.splitlines()
+    match = match.replace("OBS", str(tmp_path / "obs.npz")).replace("'P'", repr(str(tmp_path / "p.npz")))
+    assert code == 2 and len(err) == 1 and match in err[0], err
+    assert {p: p.read_bytes() for p in tmp_path.rglob("*") if p.is_file()} == before

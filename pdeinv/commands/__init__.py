@@ -8,6 +8,7 @@ Modules import their heavy dependencies inside ``func`` so ``pdeinv --help`` sta
 from __future__ import annotations
 
 import os
+from pathlib import Path
 
 
 class UsageError(Exception):
@@ -75,6 +76,22 @@ def run_parser(sub, name: str, help: str, quick: str):
     p.add_argument("--quick", action="store_true", help=quick)
     add_memory_argument(p)
     return p
+
+
+def out_path(text: str, flag: str = "--out") -> Path:
+    """``--out`` as a path, refusing an empty one (it would silently mean the current folder)."""
+    if not str(text).strip():
+        raise UsageError(f"{flag} {text!r} is empty; expected a path")
+    return Path(text)
+
+
+def not_an_input(outputs, inputs) -> None:
+    """Refuse an output path that resolves to an input file (it would be overwritten or deleted)."""
+    ins = {Path(p).resolve(): name for name, p in inputs if p}
+    for name, p in outputs:
+        if p and Path(p).resolve() in ins:
+            raise UsageError(f"{name} {str(p)!r} is the same file as {ins[Path(p).resolve()]}: writing it "
+                             "would destroy that input; choose another path")
 
 
 def prepare_out(out) -> None:

@@ -2,13 +2,12 @@
 
 from __future__ import annotations
 
-from . import UsageError, add_set_argument, build_problem, no_cache, prepare_out, run_parser
+from . import UsageError, add_set_argument, build_problem, no_cache, out_path, prepare_out, run_parser
 
 ORDER = 2
 
 
 def cmd_bench(args) -> int:
-    from pathlib import Path
 
     from pdeinv.bench import bench, summary
     from pdeinv.runlock import RunLock
@@ -19,7 +18,7 @@ def cmd_bench(args) -> int:
         raise UsageError(f"--threads {args.threads} is not allowed; expected an integer >= 1")
     no_cache(args)
     problem = build_problem("bench", args.problem, args.set)
-    out = Path(args.out)
+    out = out_path(args.out)
     prepare_out(out)
     with RunLock(out):  # one run per --out: a second one is refused
         res = bench(problem, out, quick=args.quick, budget_s=args.budget_s, seed=args.seed,

@@ -11,7 +11,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from . import UsageError, set_threads
+from . import UsageError, not_an_input, out_path, set_threads
 
 ORDER = 2
 
@@ -26,7 +26,11 @@ def cmd_predict(args) -> int:
     from pdeinv.files import atomic_write
     from pdeinv.runs import load_run
 
-    out = Path(args.out)
+    out = out_path(args.out)
+    not_an_input([("--out", args.out), ("--vtu", args.vtu)],
+                 [("--data", args.data), ("the run's model", Path(args.run) / "model.pt"),
+                  ("the run's record", Path(args.run) / "run.json")])
+    not_an_input([("--vtu", args.vtu)], [("--out", args.out)])
     if out.suffix != ".npz":
         raise UsageError(f"--out {args.out!r}: expected a file name ending in .npz")
     if out.is_dir():

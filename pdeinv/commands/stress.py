@@ -2,14 +2,13 @@
 
 from __future__ import annotations
 
-from . import add_set_argument, no_cache, parse_sets, prepare_out, run_parser
+from . import add_set_argument, no_cache, out_path, parse_sets, prepare_out, run_parser
 
 ORDER = 3
 
 
 def cmd_stress(args) -> int:
     import json
-    from pathlib import Path
 
     from pdeinv.bench import cases, stress
     from pdeinv.bench.run import jsonable
@@ -19,7 +18,7 @@ def cmd_stress(args) -> int:
 
     no_cache(args)
     todo = cases.cases(args.problem, parse_sets(args.set), quick=args.quick)
-    out = Path(args.out)
+    out = out_path(args.out)
     prepare_out(out)
     with RunLock(out):  # one run per --out: a second one is refused
         rows = stress.run(todo, log=print)

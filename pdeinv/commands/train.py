@@ -14,6 +14,7 @@ from . import (
     add_set_argument,
     build_problem,
     no_cache,
+    out_path,
     parse_sets,
     prepare_out,
     set_threads,
@@ -100,6 +101,11 @@ def _check_flags(args, out) -> None:
         raise UsageError("--resume needs checkpoints; drop --checkpoint-every 0")
     if args.export_samples < 0:
         raise UsageError(f"--export-samples {args.export_samples} is not allowed; expected an integer >= 0")
+    if args.n_train is not None and args.n_train < 2:
+        raise UsageError(f"--n-train {args.n_train} is not allowed; expected an integer >= 2 (the whitening "
+                         "fits a covariance)")
+    if args.n_test is not None and args.n_test < 1:
+        raise UsageError(f"--n-test {args.n_test} is not allowed; expected an integer >= 1")
     if args.data and args.n_train is not None:
         raise UsageError("--n-train does not apply with --data: the file's rows train, except the last "
                          "--n-test (and the stopping rule's) rows, which are held out")
@@ -160,7 +166,7 @@ def _train(args) -> int:
     from pdeinv.distributed import from_env
     from pdeinv.physics.device import resolve
 
-    out = Path(args.out)
+    out = out_path(args.out)
     ckpt = out / "checkpoint.pt"
     _check_flags(args, out)
     try:
@@ -211,7 +217,7 @@ def _parallel_train(args, out, ckpt, device, parallel) -> int:
     from pdeinv.runs import network
     from pdeinv.train import Trainer
 
-    hidden = _hidden(args.hidden) if args.hidden else None
+    hidden = _hidden(args.hidden) if args.hidden is not None else None
     fresh = _Fresh(out, args.overwrite)
     set_threads(args.threads)
     no_cache(args)
