@@ -124,8 +124,9 @@ def check_geometry(points: np.ndarray, cells: np.ndarray, where: str) -> None:
                          f"({len(flat)} degenerate cell(s)); expected cells of positive area/volume")
 
 
-def load(path: str | os.PathLike) -> skfem.Mesh:
-    """Read a mesh file with meshio: line (1-D), triangle (2-D) or tetra (3-D) cells.
+def load(path: str | os.PathLike, dim: int | None = None) -> skfem.Mesh:
+    """Read a mesh file with meshio: line (1-D), triangle (2-D) or tetra (3-D) cells; with ``dim``
+    (what a problem module expects: ``heat_2d`` passes 2) a mesh of another dimension is refused.
 
     Cells of lower dimension beside them (vertex, line, triangle) are boundary tags when
     they are facets in a physical group or cell set, and are ignored otherwise. Raises
@@ -157,8 +158,16 @@ def load(path: str | os.PathLike) -> skfem.Mesh:
             "beside them are read as boundary tags or ignored)"
         )
     kind = found[-1]
+    if dim is not None and kind.dim != dim:
+        want = next((c for c in CELL_TYPES if c.dim == dim), None)
+        raise ValueError(f"mesh file {path!r} holds a {kind.dim}-D mesh ({kind.cell} cells); this problem "
+                         f"expects a {dim}-D mesh" + (f" ({want.cell} cells)" if want else ""))
     cells = np.concatenate([c.data for c in m.cells if c.type == kind.cell])
     pts = np.asarray(m.points, dtype=float)
+    if cells.size and (cells.min() < 0 or cells.max() >= len(pts)):
+        bad = int(cells.max()) if cells.max() >= len(pts) else int(cells.min())
+        raise ValueError(f"mesh file {path!r}: a {kind.cell} cell refers to node {bad}, but the file has "
+                         f"{len(pts)} nodes (0 … {len(pts) - 1}); the file is inconsistent")
     if pts.shape[1] > kind.dim and np.ptp(pts[:, kind.dim:], axis=0).max() > 0:
         raise ValueError(f"mesh file {path!r} has {kind.cell} cells but its points vary in more than "
                          f"{kind.dim} coordinates; expected a {kind.dim}-D mesh")

@@ -14,5 +14,5 @@ SETTINGS = {**scenes.HEAT, "n": (32, s.positive_int), "mesh": (None, s.optional_
 
 def make(**overrides):
     cfg = s.resolve(SETTINGS, overrides, "heat_2d")
-    m = mesh.load(cfg["mesh"]) if cfg["mesh"] else mesh.unit_square(cfg["n"])
+    m = mesh.load(cfg["mesh"], dim=2) if cfg["mesh"] else mesh.unit_square(cfg["n"])
     return scenes.heat("heat_2d", m, cfg)

@@ -20,5 +20,5 @@ SETTINGS = {**scenes.HEAT, "n": (10, s.positive_int), "mesh": (None, s.optional_
 
 def make(**overrides):
     cfg = s.resolve(SETTINGS, overrides, "heat_3d")
-    m = mesh.load(cfg["mesh"]) if cfg["mesh"] else mesh.unit_cube(cfg["n"])
+    m = mesh.load(cfg["mesh"], dim=3) if cfg["mesh"] else mesh.unit_cube(cfg["n"])
     return scenes.heat("heat_3d", m, cfg)

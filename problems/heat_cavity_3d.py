@@ -43,7 +43,7 @@ SETTINGS = {**scenes.HEAT, "refine": (0, s.nonnegative_int), "mesh": (None, s.op
 
 def make(**overrides):
     cfg = s.resolve(SETTINGS, overrides, "heat_cavity_3d")
-    m = mesh.refined(mesh.load(cfg["mesh"] or CAVITY), cfg["refine"])  # refused first if too large
+    m = mesh.refined(mesh.load(cfg["mesh"] or CAVITY, dim=3), cfg["refine"])  # refused first if too large
     disc = discretize(m, cfg["element"], dirichlet=cfg["dirichlet"].split(","))
     op = Heat(disc.M, disc.K, kappa=cfg["kappa"], T=cfg["T"], steps=cfg["steps"],
               scheme=cfg["scheme"], backend=cfg["backend"], measure=disc.measure, dim=disc.dim)

@@ -59,7 +59,7 @@ def outer_dirichlet_dofs(basis) -> np.ndarray:
 
 def make(**overrides):
     cfg = s.resolve(SETTINGS, overrides, "heat_plate")
-    m = mesh.refined(mesh.load(cfg["mesh"] or PLATE), cfg["refine"])  # refused first if too large
+    m = mesh.refined(mesh.load(cfg["mesh"] or PLATE, dim=2), cfg["refine"])  # refused first if too large
     if m.boundaries or cfg["dirichlet"] != "outer":
         fixed = cfg["dirichlet"].split(",")  # names, checked against the file's tags by discretize
     else:

@@ -30,5 +30,5 @@ SETTINGS = {**{k: v for k, v in scenes.HEAT.items() if k != "backend"},
 
 def make(**overrides):
     cfg = s.resolve(SETTINGS, overrides, "heat_sensors_2d")
-    m = mesh.load(cfg["mesh"]) if cfg["mesh"] else mesh.unit_square(cfg["n"])
+    m = mesh.load(cfg["mesh"], dim=2) if cfg["mesh"] else mesh.unit_square(cfg["n"])
     return scenes.heat_sensors("heat_sensors_2d", m, cfg)

@@ -24,5 +24,5 @@ SETTINGS = {**{k: v for k, v in scenes.HEAT.items() if k != "backend"},
 
 def make(**overrides):
     cfg = s.resolve(SETTINGS, overrides, "heat_sensors_3d")
-    m = mesh.load(cfg["mesh"]) if cfg["mesh"] else mesh.unit_cube(cfg["n"])
+    m = mesh.load(cfg["mesh"], dim=3) if cfg["mesh"] else mesh.unit_cube(cfg["n"])
     return scenes.heat_sensors("heat_sensors_3d", m, cfg)

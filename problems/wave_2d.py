@@ -13,5 +13,5 @@ SETTINGS = {**scenes.WAVE_FINAL, "n": (32, s.positive_int), "T": (0.5, s.positiv
 
 def make(**overrides):
     cfg = s.resolve(SETTINGS, overrides, "wave_2d")
-    m = mesh.load(cfg["mesh"]) if cfg["mesh"] else mesh.unit_square(cfg["n"])
+    m = mesh.load(cfg["mesh"], dim=2) if cfg["mesh"] else mesh.unit_square(cfg["n"])
     return scenes.wave("wave_2d", m, cfg)

@@ -18,5 +18,5 @@ SETTINGS = {**scenes.WAVE_FINAL, "n": (10, s.positive_int), "T": (0.5, s.positiv
 
 def make(**overrides):
     cfg = s.resolve(SETTINGS, overrides, "wave_3d")
-    m = mesh.load(cfg["mesh"]) if cfg["mesh"] else mesh.unit_cube(cfg["n"])
+    m = mesh.load(cfg["mesh"], dim=3) if cfg["mesh"] else mesh.unit_cube(cfg["n"])
     return scenes.wave("wave_3d", m, cfg)

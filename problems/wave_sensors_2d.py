@@ -48,7 +48,7 @@ SETTINGS = {**scenes.WAVE, "n": (32, s.positive_int), "T": (1.5, s.positive),
 
 def make(**overrides):
     cfg = s.resolve(SETTINGS, overrides, "wave_sensors_2d")
-    m = mesh.load(cfg["mesh"]) if cfg["mesh"] else mesh.unit_square(cfg["n"])
+    m = mesh.load(cfg["mesh"], dim=2) if cfg["mesh"] else mesh.unit_square(cfg["n"])
     dirichlet = cfg["boundary"] == "dirichlet"
     disc = discretize(m, cfg["element"], dirichlet=dirichlet)
     inset = float(np.mean(np.linalg.norm(np.diff(m.p[:, m.facets[:, m.boundary_facets()]], axis=1),

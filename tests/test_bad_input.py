@@ -123,6 +123,9 @@ def files(tmp_path_factory):
     text = (d / "ok.msh").read_bytes()
     (d / "truncated.msh").write_bytes(text[: len(text) // 2])
     (d / "empty.msh").write_bytes(b"")
+    cube = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1.0]])
+    meshio.write(d / "tet.vtu", meshio.Mesh(cube, [("tetra", np.array([[0, 1, 2, 3]]))]))
+    meshio.write(d / "past.vtu", meshio.Mesh(pts, [("triangle", np.array([[0, 1, 2], [0, 2, 7]]))]))
     meshio.write(d / "quads.vtu", meshio.Mesh(pts, [("quad", np.array([[0, 1, 2, 3]]))]))
     assert main(["train", "heat_1d", *SMALL, "--steps", "2", "--checkpoint-every", "1",
                  "--out", str(d / "run")]) == 0
@@ -160,6 +163,11 @@ CLI = [
     ("mesh-truncated", ["heat_2d", "--set", "mesh={d}/truncated.msh"], r"could not be read"),
     ("mesh-corrupt", ["heat_2d", "--set", "mesh={d}/file.txt"], r"could not be read"),
     ("mesh-quads", ["heat_2d", "--set", "mesh={d}/quads.vtu"], r"cell types \['quad'\]"),
+    ("mesh-3d-for-2d", ["heat_2d", "--set", "mesh={d}/tet.vtu"], r"holds a 3-D mesh \(tetra cells\); "
+                                                                  r"this problem expects a 2-D mesh"),
+    ("mesh-2d-for-3d", ["heat_3d", "--set", "mesh={d}/ok.msh"], r"holds a 2-D mesh .* expects a 3-D mesh"),
+    ("mesh-cells-past-nodes", ["heat_2d", "--set", "mesh={d}/past.vtu"], r"refers to node 7, but the file "
+                                                                         r"has 4 nodes"),
     ("sensor-outside", ["heat_sensors_2d", "--set", "sensors=[[0.5, 0.5], [1.5, 0.5]]", "--set",
                         "record_every=1"], r"outside the mesh.*sensor 1 at \[1\.5, 0\.5\]"),
     ("batch-above-data", ["heat_1d", "--batch-size", "64"], r"batch_size=64 is larger than n_train=16"),
