@@ -72,6 +72,10 @@ def main(argv=None) -> int:
     except KeyboardInterrupt:  # `train` reports its checkpoint itself and returns 130
         print(f"pdeinv {args.command}: interrupted", file=sys.stderr)
         return 130
+    finally:
+        from .threads import restore
+
+        restore()  # --threads bounded the BLAS pools for this command only
 
 
 if __name__ == "__main__":

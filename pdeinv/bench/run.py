@@ -59,14 +59,17 @@ def bench(problem, out, quick: bool = False, budget_s: float | None = None, seed
     from 0.03 s to 1 s within one run), which would make equal-wall-clock comparisons
     a lottery.
     """
+    from .. import threads as pools
+
     before = torch.get_num_threads()
     if threads is not None:
         if int(threads) < 1:
             raise ValueError(f"threads={threads!r} is not allowed; expected an integer >= 1")
-        torch.set_num_threads(int(threads))
+        pools.limit(int(threads))  # torch's and the BLAS/OpenMP pools (pdeinv.threads)
     try:
         return _bench(problem, out, quick, budget_s, seed, log)
     finally:
+        pools.restore()
         torch.set_num_threads(before)
 
 

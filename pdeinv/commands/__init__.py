@@ -110,12 +110,12 @@ def prepare_out(out) -> None:
 
 
 def set_threads(n: int) -> None:
-    """``torch.set_num_threads(n)`` for ``--threads``, refusing n < 1."""
+    """``--threads``: torch's threads and every BLAS/OpenMP pool (:func:`pdeinv.threads.limit`), n >= 1."""
     if n < 1:
         raise UsageError(f"--threads {n} is not allowed; expected an integer >= 1")
-    import torch
+    from pdeinv.threads import limit
 
-    torch.set_num_threads(n)
+    limit(n)
 
 
 def no_cache(args) -> None:

@@ -37,6 +37,7 @@ def add_parser(sub) -> None:
     b.add_argument("--seed", type=int, default=0)
     b.add_argument("--no-cache", action="store_true", help="no disk cache of factorizations")
     b.add_argument("--threads", type=int, default=1,
-                   help="torch threads during the run (default 1: steadier timings on a shared machine)")
+                   help="threads of torch and of numpy/scipy's BLAS during the run (default 1: steadier "
+                        "timings on a shared machine)")
     add_set_argument(b)
     b.set_defaults(func=cmd_bench)

@@ -59,5 +59,6 @@ def add_parser(sub) -> None:
     p.add_argument("--out", required=True, metavar="FILE.npz", help="where to write x (B, N)")
     p.add_argument("--vtu", default=None, metavar="FILE.vtu",
                    help="also write the predicted fields (and true ones and errors, with x) for ParaView")
-    p.add_argument("--threads", type=int, default=1, help="torch threads (default 1)")
+    p.add_argument("--threads", type=int, default=1,
+                   help="threads of torch and of numpy/scipy's BLAS (default 1)")
     p.set_defaults(func=cmd_predict)

@@ -352,9 +352,9 @@ def add_parser(sub) -> None:
                         "--nproc_per_node=P -m pdeinv train ... (gloo on cpu, NCCL on cuda; the batch "
                         "is the global one and must divide by P; gd, adam and sip only)")
     t.add_argument("--threads", type=int, default=1,
-                   help="torch threads (default 1: on 2 cores a heat_2d step of the default MLP took "
-                        "6.8 ms with one thread and 18-20 ms with two, idle machine; "
-                        "set OMP_NUM_THREADS to limit numpy's BLAS as well)")
+                   help="threads of torch and of numpy/scipy's BLAS/OpenMP pools (default 1: on 2 cores a "
+                        "heat_2d step of an MLP took 6.8 ms with one thread and 18-20 ms with two, idle "
+                        "machine; pdeinv.threads)")
     t.add_argument("--export-samples", type=int, default=3, metavar="K",
                    help="write fields.vtu (ParaView) and fields.png for K test samples (0: none)")
     t.add_argument("--overwrite", action="store_true",

@@ -1,0 +1,37 @@
+"""``--threads`` bounds every thread pool (:mod:`pdeinv.threads`): torch's and the BLAS/OpenMP pools."""
+
+import torch
+
+from pdeinv import threads
+from pdeinv.cli import main
+from pdeinv.train import Trainer
+
+
+def _counts():
+    return {p["filepath"]: p["num_threads"] for p in threads.info()}
+
+
+def test_limit_bounds_every_blas_pool_and_restore_undoes_it():
+    before = _counts()
+    assert any("blas" in p["user_api"] for p in threads.info())  # numpy's and scipy's BLAS are seen
+    threads.limit(1)
+    try:
+        assert set(_counts().values()) == {1} and torch.get_num_threads() == 1
+    finally:
+        threads.restore()
+    assert _counts() == before
+
+
+def test_cli_threads_1_holds_during_training_and_is_undone_after(tmp_path, monkeypatch):
+    seen, fit = [], Trainer.fit
+    before = _counts()
+
+    def spy(self):
+        seen.append(_counts())
+        return fit(self)
+
+    monkeypatch.setattr(Trainer, "fit", spy)
+    assert main(["train", "heat_1d", "--set", "n=16", "--set", "steps=10", "--n-train", "16", "--n-test",
+                 "8", "--steps", "2", "--threads", "1", "--export-samples", "0", "--out", str(tmp_path)]) == 0
+    assert seen and set(seen[0].values()) == {1}
+    assert _counts() == before
