@@ -11,6 +11,13 @@ its held-out observations; the first ``B − n_test − n_val`` rows train. Noth
 shuffled, so put the rows in random order if the file is sorted (by time, by
 sample…) and the test rows should be representative.
 
+**Checked against our physics** (:func:`model_mismatch`): when ``x`` is given, the mean over the
+rows of ``‖P x − y‖ / ‖y‖`` (Euclidean on the observation coefficients) says how far the file's
+simulator (or instrument) is from ours; with noise of relative level ``δ``
+(:func:`pdeinv.sampling.add_noise`: ``y + δ·rms(y)·ε``) it is about ``δ`` from the noise alone.
+The trainer records it (``metrics["data"]["model_mismatch"]``) and warns when it exceeds what the
+run's noise level explains (:data:`MISMATCH_SLACK`).
+
 Refused with a ``ValueError`` naming the file and what was expected: not an npz,
 an empty file, a missing ``y``, a wrong shape (``y`` must have the problem's ``m``
 columns, ``x`` its ``N`` and as many rows as ``y``), NaN or Inf, a non-numeric array,
@@ -87,6 +94,25 @@ def read_npz(path, m: int, n: int) -> tuple[np.ndarray, np.ndarray | None]:
         if len(x) != len(y):
             raise ValueError(f"{where}: x has {len(x)} rows but y has {len(y)}; expected one x per y")
     return y, x
+
+
+#: the mismatch a run explains: ``MISMATCH_SLACK[0]·δ`` with noise level ``δ`` (the noise alone gives
+#: ≈ δ; 1.1 leaves room for the spread of a finite file), else ``MISMATCH_SLACK[1]`` (a float32 file of
+#: our own simulator is off by ~6e-8)
+MISMATCH_SLACK = (1.1, 1e-6)
+
+
+def model_mismatch(op, x: np.ndarray, y: np.ndarray) -> float:
+    """Mean over rows of ``‖P x_i − y_i‖ / ‖y_i‖`` (Euclidean): how far data ``(x, y)`` made elsewhere is
+    from ``op`` (module docstring)."""
+    r = np.linalg.norm(np.asarray(op.forward(x)) - y, axis=1)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        return float(np.mean(np.where(r == 0, 0.0, r / np.linalg.norm(y, axis=1))))
+
+
+def explained(mismatch: float, noise: float) -> bool:
+    """Whether ``mismatch`` is within what noise of relative level ``noise`` explains."""
+    return mismatch <= (MISMATCH_SLACK[0] * noise if noise else MISMATCH_SLACK[1])
 
 
 def split(rows: int, n_test: int, n_val: int = 0) -> tuple[slice, slice, slice]:

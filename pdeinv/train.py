@@ -26,7 +26,7 @@ import torch
 
 from ._checks import count, nonnegative, positive
 from .checkpoint import Checkpoint, check_identity, network_identity, plain, rng_states, set_rng_states
-from .data import as_observations, fingerprint, split
+from .data import as_observations, explained, fingerprint, model_mismatch, split
 from .distributed import Single
 from .files import write_csv
 from .methods.base import NonFiniteError, Resumable, UpdateRule
@@ -249,10 +249,17 @@ class Trainer:
         x = None if self.data_x is None else as_observations(self.data_x, self.problem.N, "data_x")
         if x is not None and len(x) != len(y):
             raise ValueError(f"data_x has {len(x)} rows but data has {len(y)}; expected one x per y")
+        mismatch = None if x is None else model_mismatch(self.problem.operator, x, y)
+        if mismatch is not None and not explained(mismatch, self.problem.noise) and self.parallel.is_writer:
+            warnings.warn(f"the data's y differ from this problem's P x by {mismatch:.3g} (mean "
+                          f"‖P x − y‖/‖y‖ over the file's rows), more than its noise level "
+                          f"{self.problem.noise:g} explains: another simulator, grid or column order? "
+                          "(--set noise=… declares noisy data)", RuntimeWarning, stacklevel=3)
         train, val, test = split(len(y), self.n_test, self.stop.n_val if self.stop is not None else 0)
         self.n_train = train.stop
         self._own = {"y": y[train], "y_val": y[val], "y_test": y[test],
                      "x_test": None if x is None else x[test], "fingerprint": fingerprint(y),
+                     "model_mismatch": mismatch,
                      "rows": {"train": [0, train.stop], "stop": [val.start, val.stop],
                               "test": [test.start, test.stop]}}
 
@@ -556,6 +563,7 @@ class Trainer:
         }
         if self._own is not None:
             metrics["data"] = {"rows": self._own["rows"], "x": self._own["x_test"] is not None,
+                               "model_mismatch": self._own["model_mismatch"],
                                "split": "in order: first rows train, then the stopping rule's rows, "
                                         "the last n_test rows test"}
         if run.stop_state is not None:

@@ -210,3 +210,34 @@ def test_cli_predict_never_writes_over_an_input(tmp_path, pairs, capsys, out, vt
     match = match.replace("OBS", str(tmp_path / "obs.npz")).replace("'P'", repr(str(tmp_path / "p.npz")))
     assert code == 2 and len(err) == 1 and match in err[0], err
     assert {p: p.read_bytes() for p in tmp_path.rglob("*") if p.is_file()} == before
+
+
+def test_data_from_another_discretization_is_measured_and_warned_about(heat, tmp_path, capsys):
+    """The same scene with 10 instead of 100 backward-Euler steps: a model mismatch well above rounding,
+    recorded in metrics.json and said on stderr with both numbers; our own data: rounding, no warning."""
+    from pdeinv.data import model_mismatch
+
+    other = pdeinv.load_problem("heat_1d", n=16, steps=10)
+    x, y = other.sample(60, seed=3)
+    ours = pdeinv.load_problem("heat_1d", n=16, backend="steps")
+    own_x, own_y = ours.sample(60, seed=3)
+    assert model_mismatch(ours.operator, own_x, own_y) < 1e-12
+    mismatch = model_mismatch(ours.operator, x, y)
+    assert mismatch > 1e-3
+    np.savez(tmp_path / "other.npz", y=y, x=x)
+    np.savez(tmp_path / "own.npz", y=own_y, x=own_x)
+    tail = ["--set", "n=16", "--set", "backend=steps", "--n-test", "10", "--batch-size", "8", "--steps", "2",
+            "--export-samples", "0"]
+    assert main(["train", "heat_1d", "--data", str(tmp_path / "other.npz"), *tail,
+                 "--out", str(tmp_path / "a")]) == 0
+    err = capsys.readouterr().err
+    assert f"differ from this problem's P x by {mismatch:.3g}" in err and "noise level 0 explains" in err
+    assert json.loads((tmp_path / "a" / "metrics.json").read_text())["data"]["model_mismatch"] == \
+        pytest.approx(mismatch)
+    assert main(["train", "heat_1d", "--data", str(tmp_path / "own.npz"), *tail,
+                 "--out", str(tmp_path / "b")]) == 0
+    assert "differ from this problem" not in capsys.readouterr().err
+    # noisy data of our own simulator at its declared level: explained
+    noisy = pdeinv.load_problem("heat_1d", n=16, backend="steps", noise=0.05)
+    nx, ny = noisy.sample(60, seed=4)
+    assert 0.04 < model_mismatch(noisy.operator, nx, ny) < 1.1 * 0.05

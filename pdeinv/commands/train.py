@@ -176,7 +176,10 @@ def _train(args) -> int:
     parallel = from_env(device)  # torchrun: joins the process group (a barrier); else one process
     try:
         parallel.check_same("command line", {k: v for k, v in vars(args).items() if k != "func"})
-        return _parallel_train(args, out, ckpt, device, parallel)
+        with warnings.catch_warnings():  # the trainer's warnings (data, rejected steps): one line each
+            warnings.simplefilter("always", RuntimeWarning)
+            warnings.showwarning = _one_line
+            return _parallel_train(args, out, ckpt, device, parallel)
     except RuntimeError as err:
         if parallel.world_size == 1 or not _lost_peer(err):
             raise
@@ -264,10 +267,7 @@ def _run(args, out, problem, overrides, net, hp, trainer, fresh) -> int:
     ckpt = out / "checkpoint.pt"
     with RunLock(out):  # one run per --out: a second one is refused
         try:
-            with warnings.catch_warnings():  # a rejected step: one line on stderr, not a warning's two
-                warnings.simplefilter("always", RuntimeWarning)
-                warnings.showwarning = _one_line
-                result = trainer.fit()
+            result = trainer.fit()  # its warnings: one line on stderr each (_train)
         except NonFiniteError:
             fresh()
             if trainer.history:
