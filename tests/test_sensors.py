@@ -245,3 +245,19 @@ def test_plate_default_p2_loads():
     p = load("heat_plate", refine=0, element="P2", backend="steps", steps=5)
     assert p.N == p.disc.basis.N - 2 * 64  # outer loop: 64 nodes + 64 edge midpoints
     assert dot_test(p.operator) <= 1e-12
+
+
+def test_a_long_sensor_list_goes_through_the_finder_in_chunks(monkeypatch):
+    """Chunks of the element finder and probes (pdeinv.observe.CHUNK) give the same sensor matrix and
+    the same points outside as one call (one call at 10⁶ sensors needed a 5.45 GiB temporary)."""
+    p = pdeinv.load_problem("heat_sensors_2d", n=8, sensors=5)
+    disc = p.disc
+    rng = np.random.default_rng(0)
+    pts = rng.uniform(0.05, 0.95, (50, 2))
+    pts[[3, 17, 41]] = [[1.5, 0.5], [-0.2, 0.3], [0.5, 2.0]]
+    whole = observe.outside(disc.basis.mesh, pts)
+    inside = np.delete(pts, whole, axis=0)
+    S = observe.sensor_matrix(disc, inside).toarray()
+    monkeypatch.setattr(observe, "CHUNK", 7)
+    assert observe.outside(disc.basis.mesh, pts).tolist() == whole.tolist() == [3, 17, 41]
+    assert np.array_equal(observe.sensor_matrix(disc, inside).toarray(), S)

@@ -178,6 +178,8 @@ def _train(args) -> int:
         parallel.check_same("command line", {k: v for k, v in vars(args).items() if k != "func"})
         with warnings.catch_warnings():  # the trainer's warnings (data, rejected steps): one line each
             warnings.simplefilter("always", RuntimeWarning)
+            # numpy's and scipy's overflow notes are internals: our checks report what they lead to
+            warnings.filterwarnings("ignore", category=RuntimeWarning, module=r"(numpy|scipy)(\.|$)")
             warnings.showwarning = _one_line
             return _parallel_train(args, out, ckpt, device, parallel)
     except RuntimeError as err:
