@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import importlib.util
 import os
+import sys
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from importlib import resources
@@ -92,17 +93,19 @@ def builtin_dir() -> Path:
     return Path(os.fspath(resources.files(BUILTIN_PACKAGE)))
 
 
-def _problem_dirs() -> list[Path]:
+def _problem_dirs(cwd: bool = True) -> list[Path]:
     """Where ``load_problem('name')`` looks, in order: the folders in ``PDEINV_PROBLEMS``
-    (``os.pathsep``-separated), ``./problems``, then the built-ins."""
+    (``os.pathsep``-separated), ``./problems``, the built-ins, then the current folder (after the
+    built-ins: a stray ``heat_2d.py`` there does not shadow the scene)."""
     extra = [Path(p) for p in os.environ.get("PDEINV_PROBLEMS", "").split(os.pathsep) if p]
-    return extra + [Path.cwd() / "problems", builtin_dir()]
+    return extra + [Path.cwd() / "problems", builtin_dir()] + ([Path.cwd()] if cwd else [])
 
 
 def available() -> list[str]:
-    """Names of the problem modules ``load_problem`` can find."""
+    """Names of the problem modules in the problem folders (the current folder's modules are found by
+    name too, but not listed: it holds other Python files)."""
     names = set()
-    for d in _problem_dirs():
+    for d in _problem_dirs(cwd=False):
         if d.is_dir():
             names |= {p.stem for p in d.glob("*.py") if not p.stem.startswith("_")}
     return sorted(names)
@@ -130,6 +133,10 @@ def find_module(name_or_path: str | os.PathLike) -> Path:
 def load_problem(name_or_path: str | os.PathLike, **overrides) -> Problem:
     """Import ``problems/<name>.py`` (or a module file by path) and call ``make(**overrides)``."""
     path = find_module(name_or_path)
+    folder = str(path.resolve().parent)
+    if folder not in sys.path and path.resolve().parent != builtin_dir().resolve():
+        # a user's module: its siblings import as a script's do (a helper next to the module)
+        sys.path.insert(0, folder)
     mod_spec = importlib.util.spec_from_file_location(f"pdeinv_problem_{path.stem}", path)
     module = importlib.util.module_from_spec(mod_spec)
     mod_spec.loader.exec_module(module)

@@ -81,3 +81,26 @@ def test_every_pdeinv_subpackage_is_listed_in_pyproject(monkeypatch):
     dist, _ = _build_py()
     found = set(setuptools.find_packages(include=["pdeinv*"])) | {"pdeinv.problems", "pdeinv.problems.meshes"}
     assert set(dist.packages) == found, f"add {sorted(found - set(dist.packages))} to pyproject.toml"
+
+
+def test_a_problem_module_imports_its_sibling_and_is_found_by_name_in_the_current_folder(tmp_path,
+                                                                                        monkeypatch):
+    """A helper next to the problem module imports as it would next to a script (it used to end in a
+    ModuleNotFoundError traceback); ``pdeinv train myscene`` finds ./myscene.py by name."""
+    from pdeinv.cli import main
+
+    (tmp_path / "my_helper_mod.py").write_text("N_CELLS = 8\n")
+    (tmp_path / "myscene.py").write_text(
+        "from my_helper_mod import N_CELLS\n"
+        f"from pdeinv.problem import load_problem\n"
+        f"def make(**kw):\n    return load_problem({str(ROOT / 'problems' / 'heat_1d.py')!r}, n=N_CELLS)\n")
+    monkeypatch.syspath_prepend(str(ROOT))  # keep sys.path restorable: the loader prepends tmp_path
+    other = tmp_path / "elsewhere"
+    other.mkdir()
+    monkeypatch.chdir(other)
+    monkeypatch.delenv("PDEINV_PROBLEMS", raising=False)
+    assert pdeinv.load_problem(str(tmp_path / "myscene.py")).N == 7
+    monkeypatch.chdir(tmp_path)
+    assert pdeinv.load_problem("myscene").N == 7 and "myscene" not in available()
+    assert main(["train", "myscene", "--steps", "1", "--n-train", "16", "--n-test", "4",
+                 "--export-samples", "0", "--out", str(tmp_path / "run")]) == 0
