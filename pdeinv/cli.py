@@ -31,7 +31,10 @@ def command_modules() -> list:
 
 
 def build_parser() -> argparse.ArgumentParser:
+    from . import __version__
+
     p = argparse.ArgumentParser(prog="pdeinv", description="PDE inverse problems on finite elements.")
+    p.add_argument("--version", action="version", version=f"pdeinv {__version__}")
     sub = p.add_subparsers(dest="command", required=True)
     for module in command_modules():
         module.add_parser(sub)
