@@ -59,8 +59,9 @@ class MLP(nn.Module):
         self.register_buffer("shift", torch.zeros(n_in))
         self.register_buffer("scale", torch.ones(()))
 
-    def fit_observations(self, y, noise: float | None = None) -> MLP:
-        """The preconditioning hook (:func:`fit_preconditioning`): per-node standardization."""
+    def fit_observations(self, y, noise: float | None = None, **settings) -> MLP:
+        """The preconditioning hook (:func:`fit_preconditioning`): per-node standardization (the
+        whitening's ``settings`` do not apply)."""
         return self.fit_input_scaling(y)
 
     @torch.no_grad()
@@ -126,10 +127,10 @@ class Net(nn.Module):
         self.pre, self.body = pre, body
         self.post = nn.Identity() if post is None else post
 
-    def fit_observations(self, y, noise: float | None = None) -> Net:
+    def fit_observations(self, y, noise: float | None = None, **settings) -> Net:
         fit = getattr(self.pre, "fit_observations", None)
         if callable(fit):
-            fit(y, noise)
+            fit(y, noise, **settings)
         return self
 
     def forward(self, y: torch.Tensor) -> torch.Tensor:
@@ -232,16 +233,17 @@ def default_size(problem) -> tuple[int, int]:
     return m * k + k * n + n, max(m, n)
 
 
-def fit_preconditioning(model: nn.Module, y, noise: float | None = None) -> nn.Module:
+def fit_preconditioning(model: nn.Module, y, noise: float | None = None, **settings) -> nn.Module:
     """Fit ``model``'s input transform on training observations ``y`` (never on ``x``).
 
-    Calls ``model.fit_observations(y, noise)`` if the model has one (:class:`Net`,
-    :class:`MLP`); ``noise`` is the relative noise level when known (it sets the
-    whitening floor). Other models are left alone.
+    Calls ``model.fit_observations(y, noise, **settings)`` if the model has one (:class:`Net`,
+    :class:`MLP`); ``noise`` is the relative noise level when known (it sets the whitening floor);
+    ``settings`` go to the whitening (``drop=0``: floor at the noise, drop nothing). Other models
+    are left alone.
     """
     fit = getattr(model, "fit_observations", None)
     if callable(fit):
-        fit(y, noise)
+        fit(y, noise, **settings)
     return model
 
 

@@ -104,8 +104,9 @@ class Whitening(nn.Module):
         self.info: dict = {}
 
     @torch.no_grad()
-    def fit(self, y, noise: float | None = None) -> Whitening:
-        """Fit μ, U, D on observations ``y`` ``(n, m)``; ``noise`` is the relative level if known."""
+    def fit(self, y, noise: float | None = None, drop: float | str | None = None) -> Whitening:
+        """Fit μ, U, D on observations ``y`` ``(n, m)``; ``noise`` is the relative level if known;
+        ``drop`` overrides the constructor's for this fit (0: floor at σ² but drop nothing)."""
         y = np.asarray(torch.as_tensor(y).detach().cpu().double())
         if y.ndim != 2 or y.shape[1] != self.m:
             raise ValueError(f"whitening: observations of shape {y.shape}; expected (n, {self.m})")
@@ -129,7 +130,8 @@ class Whitening(nn.Module):
         if noise:
             sigma2 = noise_variance(y, noise)
             floor, rule = sigma2, f"noise: σ² = {sigma2:.3g} (δ = {noise:g})"
-            drop = (1 + np.sqrt(self.m / (n - 1))) ** 2 if self.drop == "edge" else float(self.drop)
+            rule_drop = self.drop if drop is None else drop
+            drop = (1 + np.sqrt(self.m / (n - 1))) ** 2 if rule_drop == "edge" else float(rule_drop)
             cut = max(cut, drop * sigma2)
         else:
             rel = REL_FLOORS.get(self.mean.dtype, REL_FLOOR) if self.rel_floor is None else self.rel_floor
@@ -148,9 +150,9 @@ class Whitening(nn.Module):
                      "unit_scale": int((lam >= floor).sum()), "lambda_max": float(lam[0])}
         return self
 
-    def fit_observations(self, y, noise: float | None = None) -> Whitening:
+    def fit_observations(self, y, noise: float | None = None, **settings) -> Whitening:
         """The hook :func:`pdeinv.nets.fit_preconditioning` calls on every submodule that has it."""
-        return self.fit(y, noise)
+        return self.fit(y, noise, **settings)
 
     def forward(self, y: torch.Tensor) -> torch.Tensor:
         return ((y - self.mean) @ self.basis) * self.gain

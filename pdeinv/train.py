@@ -384,9 +384,10 @@ class Trainer:
                              "(see pdeinv.methods.base.Resumable)")
         y_np, y_train, test = self._data()
         t_train = self._fit_target(y_np, y_train)
-        if self.fit_scaling:  # a fitted target is denoised: the input keeps every direction it resolves
-            noise = None if self._target_info else getattr(self.problem, "noise", None) or None
-            fit_preconditioning(model, y_np, noise)
+        if self.fit_scaling:  # a fitted target is denoised: the input keeps every direction (drop=0),
+            # each scaled at most to the noise floor σ² (clean data's rounding-level directions stay small)
+            noise = getattr(self.problem, "noise", None) or None
+            fit_preconditioning(model, y_np, noise, **({"drop": 0} if self._target_info else {}))
         stop_state = self._start_stop(y_np)
         self.parallel.check_same("run", lambda: {
             **self.identity(model), "steps": self.steps, "time_budget": self.time_budget,

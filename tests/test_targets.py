@@ -90,3 +90,15 @@ def test_target_lies_in_the_range_of_p(name):
     x_hat = (fitted.f * (y @ modes.proj) / modes.g) @ modes.synth.T
     t = fitted(y)
     assert np.abs(t - p.operator.forward(x_hat)).max() < 1e-10 * np.abs(t).max()
+
+
+def test_a_dominant_mode_is_kept_whatever_the_spread_of_its_signal():
+    """Significance is judged against the noise-only spread of c_k²: on 172 clean heat_1d observations
+    (seed 0) with a declared level of 6e-8 the leading mode, 1e15 above the noise, was dropped because
+    its signal's own spread was large (the closed-form estimate then had x-error 0.50, now 0.03)."""
+    p0 = pdeinv.load_problem("heat_1d")
+    x, y = p0.sample(300, 0)
+    p = pdeinv.load_problem("heat_1d", noise=6e-8)
+    fitted = SpectralWiener().fit(p, y[:172], 6e-8)
+    assert fitted.f[0] > 0.99
+    assert float(np.mean(p.relative_error(_filtered_estimate(p, fitted, y[172:]), x[172:]))) < 0.05

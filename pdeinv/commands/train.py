@@ -217,7 +217,7 @@ def _network_spec(problem, hp: dict) -> dict:
 def _parallel_train(args, out, ckpt, device, parallel) -> int:
     import torch
 
-    from pdeinv.data import read_npz
+    from pdeinv.data import npz_rounding_level, read_npz
     from pdeinv.methods.presets import make_rule
     from pdeinv.runs import network
     from pdeinv.train import Trainer
@@ -229,6 +229,14 @@ def _parallel_train(args, out, ckpt, device, parallel) -> int:
     overrides = parse_sets(args.set)
     problem = build_problem("train", args.problem, args.set, steps=args.steps)  # says so when slow
     y, x = read_npz(args.data, problem.operator.n_out, problem.N) if args.data else (None, None)
+    level = npz_rounding_level(args.data) if args.data else 0.0
+    if level > problem.noise and "noise" in problem.settings:  # rounding is noise: say so, train with it
+        warnings.warn(f"--data {args.data!r} is stored in lower precision than float64: its rounding is "
+                      f"noise of relative level {level:.2g}, above the problem's {problem.noise:g}; training "
+                      f"with --set noise={level:.2g}", RuntimeWarning, stacklevel=2)
+        args.set = [*args.set, f"noise={level:.2g}"]  # run.json and --resume see the level trained with
+        overrides = parse_sets(args.set)
+        problem = build_problem("train", args.problem, args.set, steps=args.steps)
     rule, hp = make_rule(args.method, problem.name, problem.noise, lr=args.lr, eta=args.eta, tau=args.tau,
                          batch_size=args.batch_size, hidden=hidden, optimizer=args.optimizer)
     _checks.check_run(problem, args, hp)  # memory, HIG step time, --export-samples (before allocating)
