@@ -81,17 +81,21 @@ class _Position:
     stopped_by: str | None = None  # a stopping rule or callback that ended the run
     scale: float = 1.0  # the step-size multiplier, lowered by step_factor after each rejected step
     best: float = math.inf  # the lowest accepted batch loss (the loss-growth guard's reference)
+    y_err0: float | None = None  # the test y-error of the network training started from (_check_evaluation)
+    rejected_evals: int = 0  # consecutive steps rejected at their evaluation
 
     def saved(self) -> dict:
         return {"gen": self.gen.get_state(), "order": self.order, "pos": self.pos, "step": self.step,
                 "wall": self.wall, "failures": self.failures, "stopped_by": self.stopped_by,
-                "scale": self.scale, "best": self.best}
+                "scale": self.scale, "best": self.best, "y_err0": self.y_err0,
+                "rejected_evals": self.rejected_evals}
 
     def restore(self, p: dict) -> None:
         self.gen.set_state(p["gen"])
         self.order, self.pos, self.step, self.wall = p["order"], p["pos"], p["step"], p["wall"]
         self.failures, self.stopped_by, self.scale = p["failures"], p.get("stopped_by"), p["scale"]
         self.best = p.get("best", math.inf)
+        self.y_err0, self.rejected_evals = p.get("y_err0"), p.get("rejected_evals", 0)
 
 
 @dataclass
@@ -402,6 +406,9 @@ class Trainer:
         self.history = []
         if self.resume:
             self._restore(run)
+        if run.at.y_err0 is None:  # a fresh run (a resumed one keeps its starting point's)
+            start = self.evaluate(model, test)["y_err"]
+            run.at.y_err0 = start if math.isfinite(start) else 1.0
         return run
 
     def _fit_target(self, y_np: np.ndarray, y_train: torch.Tensor) -> torch.Tensor | None:
@@ -504,7 +511,7 @@ class Trainer:
         done = self._done(at)
         if at.step % self.eval_every == 0 or done or at.step == 1:
             record.update(self.evaluate(run.model, run.test))
-            self._check_evaluation(record["y_err"])
+            self._check_evaluation(record["y_err"], run.at.y_err0)
         self.history.append(record)
         for cb in self.callbacks:
             if cb(record, run.model) and not done:
@@ -518,15 +525,19 @@ class Trainer:
             self._save(run)
         return done
 
-    def _check_evaluation(self, y_err: float) -> None:
+    def _check_evaluation(self, y_err: float, start: float) -> None:
         """Reject the step just taken when its test predictions are not finite, or their relative
-        y-error exceeds ``√max_loss_growth`` (the zero network's is 1; the loss is its square): the
-        loss-growth guard judges an update only at the next step, and the last step has none."""
-        bound = math.inf if self.max_loss_growth is None else math.sqrt(self.max_loss_growth)
+        y-error exceeds ``√max_loss_growth`` times that of the network training started from (at
+        least 1, a zero network's; the loss is its square): the loss-growth guard judges an update
+        only at the next step, and the last step has none."""
+        growth = math.inf if self.max_loss_growth is None else math.sqrt(self.max_loss_growth)
+        bound = growth * max(start, 1.0)
         if not math.isfinite(y_err) or y_err > bound:
-            raise NonFiniteError(f"the network's test y-error after this step is {y_err:.3g} (a zero "
-                                 f"network's is 1, the bound {bound:.3g}): its update blew up; it is undone "
+            err = NonFiniteError(f"the network's test y-error after this step is {y_err:.3g} (at the start "
+                                 f"{start:.3g}, the bound {bound:.3g}): its update blew up; it is undone "
                                  f"({ADVICE})")
+            err.overshoot = bound / y_err if math.isfinite(y_err) else None
+            raise err
 
     def fit(self) -> Result:
         run = self._start()
@@ -542,8 +553,13 @@ class Trainer:
                 done = self._after(run, record)
             except NonFiniteError as err:  # rejected after the fact: the state before the update is back
                 run.at.stopped_by = None
+                run.at.failures = run.at.rejected_evals  # the step's acceptance does not end this streak
+                if getattr(err, "overshoot", None):  # a finite blow-up: the step shrinks by its overshoot
+                    run.at.scale *= err.overshoot
                 self._reject(run, err, bar, failed=run.at.step)
+                run.at.rejected_evals = run.at.failures
                 continue
+            run.at.rejected_evals = 0
             bar.update(1)
             bar.set_postfix(loss=f"{info['loss']:.3g}", refresh=False)
         bar.close()

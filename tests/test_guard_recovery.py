@@ -105,8 +105,10 @@ def test_cli_gd_with_lr_1e6_recovers_by_lowering_the_step(tmp_path, capsys):
     assert code == 0
     assert err and all(w.startswith("pdeinv train: warning: step ") and "rolled back" in w for w in err)
     m = json.loads((out / "metrics.json").read_text())
-    assert m["rejected_steps"] >= 10 and m["steps"] == 120
-    assert 0 < m["x_err"] < 0.6  # measured 0.27 (lr lowered 2^21-fold: about 0.5)
+    # each rejection at an evaluation shrinks the step by its overshoot (test y-error / bound), so
+    # a few suffice where halving needed ~21 (measured: 5 rejections, x_err 0.148; before: 0.27)
+    assert 3 <= m["rejected_steps"] <= 10 and m["steps"] == 120
+    assert 0 < m["x_err"] < 0.6
 
 
 def test_a_blow_up_at_the_last_step_is_rejected_at_its_evaluation(heat):
