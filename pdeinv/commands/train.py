@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 import re
 import sys
+import time
 import warnings
 from pathlib import Path
 
@@ -130,13 +131,35 @@ class _Fresh:
 def _Checkpoint(path, every: int, fresh: _Fresh):
     """A :class:`~pdeinv.checkpoint.Checkpoint` that calls ``fresh()`` before each save."""
     from pdeinv.checkpoint import Checkpoint
+    from pdeinv.files import write_csv
 
     class Fresh(Checkpoint):
         def save(self, payload: dict) -> None:
             fresh()
             super().save(payload)
+            if payload.get("history"):  # history.csv grows with the run, not only at its end
+                write_csv(payload["history"], self.path.parent / "history.csv")
 
     return Fresh(path, every)
+
+
+class _Heartbeat:
+    """A callback that prints one progress line every ``every_s`` seconds of training when stderr is
+    not a terminal (a log file, CI, ``nohup``), where tqdm's bar stays silent: a long run is never
+    mute (a user's run once printed nothing for 580 s)."""
+
+    def __init__(self, steps: int | None, every_s: float = 60.0):
+        self.steps, self.every_s, self.last = steps, every_s, time.monotonic()
+
+    def __call__(self, record: dict, model) -> bool:
+        now = time.monotonic()
+        if now - self.last >= self.every_s:
+            self.last = now
+            of = f"/{self.steps}" if self.steps else ""
+            errs = "".join(f", {k} {record[k]:.4g}" for k in ("x_err", "y_err") if k in record)
+            print(f"pdeinv train: step {record['step']}{of}, loss {record['loss']:.4g}{errs}, "
+                  f"{record['wall_s']:.0f} s", file=sys.stderr, flush=True)
+        return False
 
 
 def cmd_train(args) -> int:
@@ -249,7 +272,8 @@ def _parallel_train(args, out, ckpt, device, parallel) -> int:
                       seed=args.seed, eval_every=args.eval_every, max_failures=args.max_failures,
                       checkpoint=_Checkpoint(ckpt, args.checkpoint_every, fresh) if args.checkpoint_every
                       else None,
-                      resume=args.resume, stop=stop, data=y, data_x=x, device=device, parallel=parallel)
+                      resume=args.resume, stop=stop, data=y, data_x=x, device=device, parallel=parallel,
+                      callbacks=[] if sys.stderr.isatty() else [_Heartbeat(_checks.steps(args, hp))])
     if not parallel.is_writer:  # trains its shard; rank 0 writes everything
         trainer.fit()
         return 0
