@@ -222,6 +222,12 @@ class Sharded:
 
     def __init__(self, rule, parallel: DataParallel):
         self.inner, self.parallel = rule, parallel
+        # the checkpoint protocol as real attributes, not through __getattr__: from Python 3.12
+        # isinstance(self, Resumable) looks them up statically, and the guard's snapshot would keep
+        # an optimizer's moments from the step it rolls back
+        for name in ("state_dict", "load_state_dict", "hyperparameters"):
+            if callable(getattr(rule, name, None)):
+                setattr(self, name, getattr(rule, name))
 
     def __getattr__(self, name):
         return getattr(self.inner, name)

@@ -264,3 +264,17 @@ def test_from_env_refuses_one_gpu_for_all_ranks_and_a_bad_world_size(monkeypatch
         distributed.from_env(torch.device("cpu"))
     monkeypatch.setenv("WORLD_SIZE", "1")
     assert isinstance(distributed.from_env(torch.device("cpu")), Single)
+
+
+def test_the_sharded_rule_is_resumable_when_looked_up_statically():
+    """Python ≥ 3.12 checks runtime protocols with inspect.getattr_static, which ignores __getattr__:
+    the data-parallel wrapper must carry the checkpoint protocol itself (issue 24's latent bug)."""
+    import inspect
+
+    from pdeinv.methods.base import Resumable
+
+    sharded = DataParallel(2, 0).rule(pdeinv.GD())
+    assert isinstance(sharded, Resumable)
+    for name in ("state_dict", "load_state_dict", "hyperparameters"):
+        assert callable(inspect.getattr_static(sharded, name))
+    assert sharded.hyperparameters() == pdeinv.GD().hyperparameters()
