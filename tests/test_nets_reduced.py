@@ -178,10 +178,32 @@ def test_one_normalized_sip_step_is_newtons_step_on_the_scaled_decoder():
     state = rule.init(p, model)
     with torch.no_grad():
         z = model.pre(Y).numpy()
-    x_tilde = p.inverse(y, np.zeros_like(y[:, : p.operator.n_in]))  # x = 0 before the step: x̃ = P⁻¹ y*
+    # x = 0 before the step: x̃ = the rule's local inverse of y* (for a decoder: the solve in its span)
+    x_tilde = state.context.inverse(y, np.zeros_like(y[:, : p.operator.n_in]))
     rule.step(state, model, Y)
     zt = np.hstack([z, np.ones((len(z), 1))])
     coef = np.linalg.lstsq(zt, np.linalg.lstsq(phi, x_tilde.T, rcond=None)[0].T, rcond=None)[0]
     best = zt @ coef @ phi.T  # argmin over (W, b) of Σ_i ‖Φ(W z_i + b) − x̃_i‖²
     x = model(Y).detach().numpy()
     assert np.abs(x - best).max() < 1e-9 * np.abs(best).max()
+
+
+def test_sip_on_a_decoder_inverts_inside_its_span():
+    """The default SIP inverse for x = D c is the Tikhonov solve in span D: its output lies in the span,
+    and on fields of the span it inverts the physics exactly; a user's inverse still wins."""
+    from pdeinv.inverse.decoder import DecoderTikhonov
+    from pdeinv.methods.sip import decoder_inverse
+
+    p = pdeinv.load_problem("heat_1d", n=32, steps=10)
+    model = nets.reduced(k_in=8, k_out=6)(p)
+    inverse = pdeinv.SIP().context(p, model).inverse
+    assert isinstance(inverse, DecoderTikhonov) and decoder_inverse(p, nets.whitened()(p)) is None
+    D = model.post.basis.numpy()  # (k, N): rows are the decoder's columns
+    c = np.random.default_rng(0).standard_normal((5, D.shape[0]))
+    x = c @ D
+    xt = inverse(p.operator.forward(x))
+    assert np.abs(xt - x).max() < 1e-6 * np.abs(x).max()  # exact on the span (weakest s ~ 1e-3·s_max)
+    y = p.sample(5, 1)[1]
+    coef = np.linalg.lstsq(D.T, inverse(y).T, rcond=None)[0]
+    assert np.abs(coef.T @ D - inverse(y)).max() < 1e-10 * np.abs(inverse(y)).max()
+    assert pdeinv.SIP(inverse=p.inverse).context(p, model).inverse == p.inverse

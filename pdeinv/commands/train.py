@@ -384,7 +384,7 @@ def add_parser(sub) -> None:
                    help="torch device of the network and of dense/modal/SVD physics: cpu (default), "
                         "cuda, cuda:N (time stepping stays on the CPU). Data parallel: torchrun "
                         "--nproc_per_node=P -m pdeinv train ... (gloo on cpu, NCCL on cuda; the batch "
-                        "is the global one and must divide by P; gd, adam and sip only)")
+                        "is the global one and must divide by P; hig on the default networks only)")
     t.add_argument("--threads", type=int, default=1,
                    help="threads of torch and of numpy/scipy's BLAS/OpenMP pools (default 1: on 2 cores a "
                         "heat_2d step of an MLP took 6.8 ms with one thread and 18-20 ms with two, idle "

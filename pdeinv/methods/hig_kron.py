@@ -31,28 +31,19 @@ sums over the rows: over ``P`` shards, ``G = Σ_r G_r`` and ``N = Σ_r N_r``, so
 
 from __future__ import annotations
 
-from typing import NamedTuple
-
 import numpy as np
 import torch
 
+from ..inverse.decoder import DecodedSVD, decoded_svd
 
-class KroneckerFactors(NamedTuple):
-    """The fixed factor: ``P̂ = P D = Q diag(s) Vᵀ`` (thin SVD, zero singular values dropped)."""
-
-    Q: np.ndarray  # (m, r)
-    s: np.ndarray  # (r,)
-    V: np.ndarray  # (k_out, r)
+#: the fixed factor ``P̂ = P D = Q diag(s) Vᵀ`` (thin SVD, zero singular values dropped)
+KroneckerFactors = DecodedSVD
 
 
 def factors(op, decoder: torch.Tensor | None) -> KroneckerFactors:
     """``P̂``'s thin SVD from ``k_out`` forward calls (``decoder``: the rows ``Dᵀ``, ``(k_out, N)``;
-    ``None``: the identity, ``N`` calls)."""
-    rows = np.eye(op.n_in) if decoder is None else decoder.detach().cpu().double().numpy()
-    P_hat = np.asarray(op.forward(rows), dtype=float).T  # (m, k_out)
-    Q, s, Vt = np.linalg.svd(P_hat, full_matrices=False)
-    keep = s > s[0] * max(P_hat.shape) * np.finfo(float).eps if s.size and s[0] > 0 else np.zeros(0, bool)
-    return KroneckerFactors(Q[:, keep], s[keep], Vt[keep].T)
+    ``None``: the identity, ``N`` calls) — :func:`pdeinv.inverse.decoder.decoded_svd`."""
+    return decoded_svd(op, decoder)
 
 
 def forward(lin, y: torch.Tensor) -> tuple[torch.Tensor, np.ndarray]:

@@ -30,6 +30,22 @@ class SIPContext(NamedTuple):
     diagonal: tuple | None = None  # the network's Gauss–Newton diagonal, when it has one (calibrate)
 
 
+def decoder_inverse(problem, model):
+    """The default local inverse for a network with a fixed decoder ``x = D c``
+    (``model.linear_in_parameters().decoder``: :func:`pdeinv.nets.reduced`): the Tikhonov solve in
+    ``span D`` (:class:`~pdeinv.inverse.decoder.DecoderTikhonov`), where observations are exact or a
+    denoised target will be fitted; ``None`` otherwise (the problem's own inverse)."""
+    from ..inverse.decoder import DecoderTikhonov
+    from ..targets import SpectralWiener
+
+    lin = getattr(model, "linear_in_parameters", None)
+    lin = lin() if callable(lin) else None
+    noise = getattr(problem, "noise", 0.0) or 0.0
+    if lin is None or lin.decoder is None or (noise and not SpectralWiener().applies(problem, noise)):
+        return None
+    return DecoderTikhonov(problem.operator, lin.decoder)
+
+
 @dataclass(frozen=True)
 class SIP(Rule):
     """One SIP step (Holl et al. 2022, Alg. 1)::
@@ -42,7 +58,10 @@ class SIP(Rule):
     Only the network is differentiated; the physics runs forward once and the
     inverse once, both in float64 numpy. ``inverse`` defaults to the problem's
     own (``problem.inverse(y_target, x0)``), which for linear ``P`` and η = 1 with
-    an exact inverse makes ``x̃`` the exact solution. The y-loss reported in
+    an exact inverse makes ``x̃`` the exact solution; for a network with a fixed decoder
+    (:func:`pdeinv.nets.reduced`) to the solve in the decoder's span (:func:`decoder_inverse`:
+    heat_plate 0.0496 → 0.0101 noise-free and 0.142 → 0.127 at 1 % noise, CLI defaults, where SIP's
+    Euclidean proxy projected a full-space solution onto the decoder). The y-loss reported in
     ``info["loss"]`` is the GD loss at ``x`` (before the update); ``info["proxy"]``
     is ``L̃``. The guard's step-size multiplier scales the optimizer's lr (η stays:
     it sets the target, not the step). The inverse's output is checked (shape,
@@ -87,7 +106,8 @@ class SIP(Rule):
         return {"eta": self.eta, "inverse": inverse, "normalize": self.normalize}
 
     def context(self, problem, model) -> SIPContext:
-        return SIPContext(problem.operator, self.inverse if self.inverse is not None else problem.inverse)
+        return SIPContext(problem.operator, self.inverse if self.inverse is not None else
+                          decoder_inverse(problem, model) or problem.inverse)
 
     def calibrate(self, state: State, model: torch.nn.Module, y: torch.Tensor) -> State:
         """``λ̂`` on the batch ``y`` (when ``normalize``): called once, before the first step."""
