@@ -260,6 +260,12 @@ class Trainer:
                           f"{self.problem.noise:g} explains: another simulator, grid or column order? "
                           "(--set noise=… declares noisy data)", RuntimeWarning, stacklevel=3)
         train, val, test = split(len(y), self.n_test, self.stop.n_val if self.stop is not None else 0)
+        held = len(y) - train.stop
+        if train.stop < held and self.parallel.is_writer:  # say what the default splits took
+            stop = f" and {val.stop - val.start} for the stopping rule" if val.stop > val.start else ""
+            warnings.warn(f"the data's {len(y)} rows: the last {test.stop - test.start} are held out as the "
+                          f"test set{stop}, only {train.stop} train; hold out fewer with --n-test "
+                          "(Trainer(n_test=...))", RuntimeWarning, stacklevel=3)
         self.n_train = train.stop
         self._own = {"y": y[train], "y_val": y[val], "y_test": y[test],
                      "x_test": None if x is None else x[test], "fingerprint": fingerprint(y),

@@ -255,3 +255,18 @@ def test_a_float32_file_trains_at_its_rounding_level(tmp_path, capsys):
     assert "rounding is noise of relative level 6e-08" in err
     assert json.loads((tmp_path / "run" / "run.json").read_text())["overrides"]["noise"] == "6e-08"
     assert json.loads((tmp_path / "run" / "metrics.json").read_text())["x_err"] < 0.1
+
+
+def test_a_small_file_says_what_the_default_splits_hold_out(tmp_path, capsys):
+    """150 rows and the default --n-test 128: 22 rows train; said in one line, with the way out."""
+    p = pdeinv.load_problem("heat_1d", n=16)
+    x, y = p.sample(150, 2)
+    np.savez(tmp_path / "small.npz", y=y, x=x)
+    assert main(["train", "heat_1d", "--data", str(tmp_path / "small.npz"), "--set", "n=16",
+                 "--export-samples", "0", "--out", str(tmp_path / "run")]) == 0
+    err = capsys.readouterr().err.splitlines()
+    assert err == ["pdeinv train: warning: the data's 150 rows: the last 128 are held out as the test set, "
+                   "only 22 train; hold out fewer with --n-test (Trainer(n_test=...))"]
+    assert main(["train", "heat_1d", "--data", str(tmp_path / "small.npz"), "--set", "n=16", "--n-test", "30",
+                 "--export-samples", "0", "--out", str(tmp_path / "run2")]) == 0
+    assert capsys.readouterr().err == ""
