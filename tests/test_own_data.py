@@ -270,3 +270,25 @@ def test_a_small_file_says_what_the_default_splits_hold_out(tmp_path, capsys):
     assert main(["train", "heat_1d", "--data", str(tmp_path / "small.npz"), "--set", "n=16", "--n-test", "30",
                  "--export-samples", "0", "--out", str(tmp_path / "run2")]) == 0
     assert capsys.readouterr().err == ""
+
+
+def test_cli_classical_solves_a_data_file(tmp_path, capsys):
+    """``pdeinv classical``: Morozov Tikhonov and the Wiener target without x; with x also the oracle α
+    and the model mismatch; the noise level estimated when the problem declares none."""
+    p = pdeinv.load_problem("heat_1d", n=16, noise=0.01)
+    x, y = p.sample(200, 5)
+    np.savez(tmp_path / "d.npz", y=y, x=x)
+    assert main(["classical", "heat_1d", "--data", str(tmp_path / "d.npz"), "--set", "n=16",
+                 "--out", str(tmp_path / "c.json")]) == 0
+    res = json.loads((tmp_path / "c.json").read_text())
+    assert res["rows"] == 200 and res["noise"]["source"] == "estimated from the file"
+    assert 0.007 < res["noise"]["level"] < 0.013
+    oracle = res["tikhonov_best_alpha"]["x_err"]
+    assert res["tikhonov_morozov"]["x_err"] < 1.5 * oracle and res["wiener_target"]["x_err"] < 1.1 * oracle
+    assert 0.005 < res["model_mismatch"] < 0.011  # the noise itself
+    assert 0.005 < res["wiener_target"]["residual"] < 0.02
+    assert "heat_1d tikhonov_morozov" in capsys.readouterr().out
+    np.savez(tmp_path / "y.npz", y=y)
+    assert main(["classical", "heat_1d", "--data", str(tmp_path / "y.npz"), "--set", "n=16",
+                 "--set", "noise=0.01"]) == 0
+    assert "tikhonov_best_alpha" not in capsys.readouterr().out
