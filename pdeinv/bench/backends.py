@@ -40,8 +40,8 @@ def lines(problem, batch: int = 16, repeats: int = 3, seed: int = 0) -> dict:
             out[kind] = {"outcome": "refused", "message": str(err)}
             continue
         out[kind] = {"build_s": time.perf_counter() - t, "backend": cand.backend}
-    backend = getattr(op, "backend", None)
-    if getattr(backend, "name", None) not in out:  # e.g. the modal heat basis
+    backend = getattr(op, "backend", None)  # None: the scene steps through time itself (backend=steps)
+    if backend is not None and backend.name not in out:  # e.g. the modal heat basis
         out[backend.name] = {"build_s": None, "backend": backend}
     for line in out.values():
         if "backend" not in line:
