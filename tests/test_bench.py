@@ -110,3 +110,17 @@ def test_backend_lines_of_a_scene_that_steps_through_time():
     res = lines(pdeinv.load_problem("wave_1d", n=8, steps=10, backend="steps"), batch=4, repeats=1)
     assert set(res["lines"]) == {"steps", "dense", "svd"}
     assert all(line["outcome"] == "ok" and line["agreement"] < 1e-12 for line in res["lines"].values())
+
+
+def test_the_stepping_line_of_a_compiled_scene_steps():
+    """bench's "steps" figures of a compiled scene (wave_2d: a dense map) once timed the dense map and
+    compared it with itself (agreement 0); stepping() now rebuilds the time stepping."""
+    from pdeinv.bench.timing import stepping
+
+    op = pdeinv.load_problem("wave_2d", n=8).operator
+    assert op.backend is not None
+    run = stepping(op)
+    assert run is not op and run.backend is None
+    X = np.random.default_rng(0).standard_normal((3, op.n_in))
+    diff = np.linalg.norm(run.forward(X) - op.forward(X)) / np.linalg.norm(op.forward(X))
+    assert 0 < diff < 1e-12  # the same map, by another computation

@@ -64,9 +64,14 @@ def machine() -> dict:
 
 def stepping(op):
     """``op`` as a time-stepping :class:`~pdeinv.physics.Propagator` (``scheme`` public), or ``None``:
-    a propagator as is, an operator with a ``stepper`` (:attr:`pdeinv.Heat.stepper`) its final-field run."""
+    a stepping propagator as is, a compiled one (its ``backend`` a dense or SVD map) rebuilt without
+    the backend — the bench once timed the dense map as "steps" and compared it with itself — and an
+    operator with a ``stepper`` (:attr:`pdeinv.Heat.stepper`) its final-field run."""
     from ..physics import FinalField, Propagator
 
-    if isinstance(op, Propagator) or getattr(op, "stepper", None) is None:
-        return op if isinstance(op, Propagator) else None
+    if isinstance(op, Propagator):  # a compiled one (dense, SVD) rebuilt uncompiled: its time stepping
+        return op if getattr(op, "backend", None) is None else \
+            Propagator(op.scheme, op.observation, op.steps, op.mass)
+    if getattr(op, "stepper", None) is None:
+        return None
     return Propagator(op.stepper, FinalField(op.n_in, op.steps), op.steps, getattr(op, "mass", None))
