@@ -71,7 +71,7 @@ def applies(problem) -> str | None:
     if type(problem.operator) not in (Heat, Wave, Leapfrog):
         return f"no analytic solution for a {type(problem.operator).__name__} operator"
     if "n" not in cfg or cfg.get("mesh"):
-        return "the analytic mode needs the built-in unit square / interval mesh (setting n)"
+        return "the analytic mode needs the built-in interval / unit square / unit cube mesh (setting n)"
     return None
 
 
@@ -84,7 +84,7 @@ def ladder(problem, ns, steps, repeats: int = 3, batch: int = 16) -> dict:
     backends = HEAT_BACKENDS if isinstance(problem.operator, Heat) else WAVE_BACKENDS
     points = []
     for n in ns:
-        m = meshes.unit_square(n) if dim == 2 else meshes.interval(n)
+        m = {1: meshes.interval, 2: meshes.unit_square, 3: meshes.unit_cube}[dim](n)  # the scene's dimension
         disc = discretize(m, cfg["element"])
         x0 = np.prod(np.sin(np.pi * disc.points), axis=0)
         X = np.tile(x0, (batch, 1))
