@@ -82,8 +82,7 @@ def rounding_level(a) -> float:
     roundoff ``eps/2`` (float32: 6e-8, float16: 5e-4); 0 for float64 and wider. Information below it is
     gone, and a solve that assumes exact data amplifies it (heat_1d from a float32 file: SIP's x-error
     17.7 against 0.02 with the same data in float64)."""
-    dtype = np.asarray(a).dtype if not hasattr(a, "dtype") else a.dtype
-    dtype = np.dtype(str(dtype).removeprefix("torch."))
+    dtype = np.asarray(a).dtype
     if not np.issubdtype(dtype, np.floating) or np.finfo(dtype).eps <= np.finfo(np.float64).eps:
         return 0.0
     return float(np.finfo(dtype).eps / 2)

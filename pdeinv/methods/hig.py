@@ -12,6 +12,7 @@ import torch
 from .._checks import choice, count, nonnegative, positive
 from ..autograd import apply
 from ..errors import NonFiniteError
+from ..inverse.decoder import decoded_svd
 from ..physics.base import Matrix
 from ..physics.capabilities import modal_basis
 from . import hig_kron
@@ -149,7 +150,7 @@ class HIG(Rule):
             raise ValueError("HIG(route='kronecker') needs a network linear in its parameters after a fixed "
                              "feature map (model.linear_in_parameters(), e.g. pdeinv.whitened('linear') or "
                              f"pdeinv.reduced()); {type(model).__name__} does not declare one")
-        kron = None if lin is None else (lin, hig_kron.factors(op, lin.decoder), hig_kron.InputGram())
+        kron = None if lin is None else (lin, decoded_svd(op, lin.decoder), hig_kron.InputGram())
         device = next(iter(model.parameters()), torch.empty(0)).device
         if kron is None and device.type != "cpu":
             raise ValueError(f"HIG's Jacobian routes decompose J with numpy on the CPU; the model is on "

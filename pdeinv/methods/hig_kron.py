@@ -19,7 +19,8 @@ values are ``σ_kl = √(a_k c_l)`` with left vectors ``Q_A ⊗ Q_C``, and HIG's
 Cost per step: products of sizes ``B·m·r`` and ``k̃·B·r``, and the eigendecomposition of the
 ``k̃ × k̃`` input Gram (once per run with the full batch, :class:`InputGram`);
 ``P̂`` is built once from ``k_out`` forward calls (the decoder's columns, or the ``N`` unit vectors)
-and its SVD once, in float64. The residual's part outside ``range(P̂)`` is out of every step's reach
+and its SVD once, in float64 (:func:`pdeinv.inverse.decoder.decoded_svd`, shared with SIP).
+The residual's part outside ``range(P̂)`` is out of every step's reach
 and drops out through ``Q_C``. Equal to the dense SVD route to float64 rounding
 (``tests/test_hig_kron.py``).
 
@@ -34,16 +35,7 @@ from __future__ import annotations
 import numpy as np
 import torch
 
-from ..inverse.decoder import DecodedSVD, decoded_svd
-
-#: the fixed factor ``P̂ = P D = Q diag(s) Vᵀ`` (thin SVD, zero singular values dropped)
-KroneckerFactors = DecodedSVD
-
-
-def factors(op, decoder: torch.Tensor | None) -> KroneckerFactors:
-    """``P̂``'s thin SVD from ``k_out`` forward calls (``decoder``: the rows ``Dᵀ``, ``(k_out, N)``;
-    ``None``: the identity, ``N`` calls) — :func:`pdeinv.inverse.decoder.decoded_svd`."""
-    return decoded_svd(op, decoder)
+from ..inverse.decoder import DecodedSVD
 
 
 def forward(lin, y: torch.Tensor) -> tuple[torch.Tensor, np.ndarray]:
@@ -86,13 +78,13 @@ def rows_key(y: torch.Tensor) -> frozenset:
     return frozenset(hash(r.tobytes()) for r in y.detach().cpu().contiguous().numpy())
 
 
-def moments(fac: KroneckerFactors, Z: np.ndarray, R: np.ndarray, G: np.ndarray | None = None):
+def moments(fac: DecodedSVD, Z: np.ndarray, R: np.ndarray, G: np.ndarray | None = None):
     """``(G, N) = (Z̃ᵀZ̃, Z̃ᵀ R Q_C)``: all the step needs from the batch. Both are sums over the rows,
     so over data-parallel shards they add up to the whole batch's (:meth:`HIG.data_parallel`)."""
     return (Z.T @ Z if G is None else G), Z.T @ (R @ fac.Q)
 
 
-def direction(fac: KroneckerFactors, G: np.ndarray, N: np.ndarray, rows: int, eta: float, tau: float,
+def direction(fac: DecodedSVD, G: np.ndarray, N: np.ndarray, rows: int, eta: float, tau: float,
               exponent: float, gram: InputGram | None = None, key: frozenset | None = None
               ) -> tuple[np.ndarray, dict]:
     """``ΔW̃`` (``k_out × k̃``, module docstring) and what was kept, from :func:`moments` of ``rows``
