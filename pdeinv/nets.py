@@ -136,6 +136,12 @@ class Net(nn.Module):
     def forward(self, y: torch.Tensor) -> torch.Tensor:
         return self.post(self.body(self.pre(y)))
 
+    @property
+    def decoder(self) -> torch.Tensor | None:
+        """The fixed output map's rows ``Dᵀ`` (``(k, N)``; :class:`Decoder`), ``None`` without one: the
+        network's fields lie in ``span D`` whatever its body (targets and inverses work there)."""
+        return getattr(self.post, "basis", None)
+
     def linear_in_parameters(self) -> LinearInParameters | None:
         """The structure ``x = D(W z(y) + b)`` when the body is one ``nn.Linear`` (alone or as the
         only module of an ``nn.Sequential``) holding every trainable parameter: ``z = pre(y)`` is a
@@ -149,8 +155,7 @@ class Net(nn.Module):
         if type(body) is not nn.Linear or len(trainable) != len(list(body.parameters())) or \
                 not all(p.requires_grad for p in body.parameters()):
             return None
-        basis = getattr(self.post, "basis", None)  # (k_out, N): rows are the decoder's columns
-        return LinearInParameters(self.pre, basis, body)
+        return LinearInParameters(self.pre, self.decoder, body)
 
     @torch.no_grad()
     def gauss_newton_diagonal(self, y: torch.Tensor) -> tuple[torch.Tensor, ...] | None:
@@ -190,8 +195,16 @@ class LinearInParameters(NamedTuple):
 #: costs about twice the float32 one on CPU.
 DTYPE = torch.float64
 
-#: decoder columns out of :func:`reduced` (``k_out``)
-REDUCED_K = 256
+#: at most this many decoder columns out of :func:`reduced` (``k_out``); fewer when they hold all but
+#: :data:`REDUCED_UNCAPTURED` of the prior's energy. Measured in closed form (the decoder's
+#: rounding-level solve on 128 noise-free test pairs): heat_3d 0.0209 with 256 columns (5.2e-5 of the
+#: prior's energy outside), 0.0122 with 512 (3.9e-7), 0.0119 with all 729; heat_2d, heat_plate and
+#: the sensor scenes need ~270 (below 1e-10 outside).
+REDUCED_K = 512
+
+#: the fraction of the prior's energy (``E‖x‖²_M``) the decoder may leave out: an error floor of
+#: ``√1e-10 = 1e-5`` relative, far below what any scene's observations resolve
+REDUCED_UNCAPTURED = 1e-10
 
 #: leading whitened components into :func:`reduced` (``k_in``). 1024 rather than 256: with noisy
 #: observations the denoised target depends on y's coordinates along the kept modes, which 256 data
@@ -201,32 +214,53 @@ REDUCED_K = 256
 #: (noise-free 5e-5 → 4e-5), heat_plate noise-free 0.049 → 0.050.
 REDUCED_K_IN = 1024
 
-#: unknowns above which :func:`default_model` builds :func:`reduced` instead of the whitened linear
-#: map (measured on heat_2d; the table is in :func:`reduced`)
+#: unknowns above which :func:`default_model` builds :func:`reduced` even for a reversible operator
+#: (measured on heat_2d; the table is in :func:`reduced`)
 REDUCED_ABOVE = 2_000
 
 
 def default_model(problem, rows_per_component: float | None = None) -> nn.Module:
-    """The problem's default network, chosen by measurement: the whitened linear map
-    (:func:`whitened`) up to :data:`REDUCED_ABOVE` unknowns or observations, the mesh-independent
-    :func:`reduced` network above (the whitened linear map has ``min(m, N)·N + N`` parameters).
-    Measured with SIP at the CLI defaults on wave_sensors_2d (N = 1089, m = 3072): reduced 5e-5,
-    whitened linear 2.6e-4, best-α Tikhonov 2.6e-4 (the reduced decoder is the prior's leading
-    principal components: a prior-informed estimator). ``rows_per_component`` caps the whitened
-    directions for first-order rules (:class:`~pdeinv.precondition.Whitening`; ``--method gd``
-    and ``adam`` use 8, :mod:`pdeinv.methods.presets`)."""
+    """The problem's default network, chosen by what the operator is
+    (:func:`pdeinv.physics.capabilities.reversible`):
+
+    * a **reversible** operator (the wave scenes' final state: an energy-conserving, time-reversible
+      map) loses nothing: every ``x`` is recoverable from ``y`` to rounding, and a network restricted
+      to a prior subspace could only add the prior's uncaptured part. It gets the whitened linear map
+      (:func:`whitened`; wave_2d SIP 5e-9) up to :data:`REDUCED_ABOVE` unknowns or observations.
+    * every other operator (heat: dissipative; sensors: partial) has directions ``y`` does not see,
+      which only the prior can fill. It gets :func:`reduced`, whose fixed decoder is the prior's
+      principal components: the rules then solve *in the decoder's span*
+      (:class:`~pdeinv.inverse.decoder.DecoderTikhonov`) and the noisy target is the Wiener filter in
+      the basis of ``P D`` (:class:`~pdeinv.targets.SpectralWiener`), which reaches the linear MMSE.
+      Measured in closed form (1024 training observations, 128 test pairs; relative L²(Ω)
+      x-errors, noise-free / 1 %; best-α Tikhonov and the MMSE fitted on the *training x* in
+      brackets): heat_2d 0.0085 / 0.0908 (0.037 / 0.117; MMSE 0.090 at 1 %), heat_sensors_2d
+      0.012 / 0.102 (0.045 / 0.147; 0.101), advection_diffusion_2d 0.0089 / 0.097 (0.034 / 0.124;
+      0.097), heat_sensors_3d 0.050 / 0.156 (0.064 / 0.206; 0.155), heat_cavity_3d 0.0099 / 0.070
+      (0.067 / 0.186; 0.072), heat_plate 0.0101 / 0.088 (0.066 / 0.142; 0.086), heat_1d 0.015 /
+      0.119 (0.024 / 0.127; 0.119).
+
+    ``rows_per_component`` caps the whitened directions for first-order rules
+    (:class:`~pdeinv.precondition.Whitening`; ``--method gd`` and ``adam`` use 8,
+    :mod:`pdeinv.methods.presets`)."""
+    from .physics.capabilities import reversible
+
     big = max(problem.operator.n_in, problem.operator.n_out) > REDUCED_ABOVE
     kw = {"rows_per_component": rows_per_component}
-    return (reduced(**kw) if big else whitened("linear", **kw))(problem)
+    return (reduced(**kw) if big or not reversible(problem.operator) else whitened("linear", **kw))(problem)
 
 
 def default_size(problem) -> tuple[int, int]:
     """``(parameters + buffers, widest layer)`` of :func:`default_model`'s network for ``problem``,
-    without building it (the memory guard, :func:`pdeinv.memory.check_training`); a problem
+    without building it (the memory guard, :func:`pdeinv.memory.check_training`; an upper bound:
+    the decoder may keep fewer than :data:`REDUCED_K` columns); a problem
     with its own ``model_factory`` gets the dense bound ``m² + m n + n`` (an upper bound for
     the scenes' MLP)."""
+    from .physics.capabilities import reversible
+
     m, n = problem.operator.n_out, problem.operator.n_in
-    if getattr(problem, "model_factory", None) is None and max(m, n) > REDUCED_ABOVE:
+    if getattr(problem, "model_factory", None) is None and (max(m, n) > REDUCED_ABOVE or
+                                                            not reversible(problem.operator)):
         k_in, k_out = min(REDUCED_K_IN, m), min(REDUCED_K, n)
         return k_in * k_out + k_out + m * k_in + n * k_out + m + k_in, max(m, n)
     k = min(m, n)  # the whitening's components (:func:`whitened`)
@@ -306,14 +340,17 @@ class Decoder(nn.Module):
 
 
 def prior_basis(problem, k: int, samples: int | None = None, seed: int = 20_161, chunk: int = 128,
-                scaled: bool = True):
-    """``Φ`` (``N × k``): the span of the ``k`` leading L²(Ω) principal components of fields
+                scaled: bool = True, uncaptured: float = 0.0):
+    """``Φ`` (``N × k'``): the span of the ``k' ≤ k`` leading L²(Ω) principal components of fields
     drawn from the problem's prior (``problem.sampler``), with Euclidean-orthonormal columns.
 
-    With ``X`` the ``n`` drawn fields (rows) and ``X M Xᵀ = U S² Uᵀ``, the M-principal
-    directions are ``Xᵀ U_k S_k⁻¹`` (they maximize the captured ``E‖x‖²_M``; second
-    moment, not centred, so the prior mean is in the span too); a QR makes the columns
-    orthogonal in ``ℝᴺ``. ``scaled=True`` (default) then scales column ``j`` by the prior's rms
+    The M-principal directions maximize the captured ``E‖x‖²_M`` (second moment, not centred, so
+    the prior mean is in the span too): the generalized eigenvectors of ``(M C M, M)`` with
+    ``C = XᵀX`` of the ``n`` drawn fields ``X`` (rows), computed on whichever side is smaller —
+    ``N × N`` when ``N < n``, else from the ``n × n`` Gram ``X M Xᵀ = U S² Uᵀ`` as ``Xᵀ U S⁻¹`` —
+    then a QR makes the columns orthogonal in ``ℝᴺ``. ``k' = k`` unless fewer components hold
+    all but a fraction ``uncaptured`` of the drawn energy (or the draws have lower rank).
+    ``scaled=True`` (default) then scales column ``j`` by the prior's rms
     amplitude ``σ_j`` along it, normalized so that ``Σ_j ‖Φ_j‖² = N`` (the trace of the
     identity, which is the decoder of a network with nodal outputs): an optimizer step that
     moves every coefficient by ``ε`` moves the field by ``ε`` per node in the mean, whatever
@@ -325,26 +362,35 @@ def prior_basis(problem, k: int, samples: int | None = None, seed: int = 20_161,
     Deterministic (``seed``), so a saved network rebuilds the same buffer.
     """
     import numpy as np
+    import scipy.linalg as sla
 
     n = samples or 4 * k
     rng = np.random.default_rng(seed)
     X = np.vstack([problem.sampler(min(chunk, n - i), rng) for i in range(0, n, chunk)])
     M = problem.disc.M if getattr(problem, "disc", None) is not None else None
-    G = X @ (M @ X.T) if M is not None else X @ X.T
-    lam, U = np.linalg.eigh(G)
-    lam, U = lam[::-1], U[:, ::-1]
-    k = min(k, int((lam > lam[0] * 1e-14).sum()))
-    Phi = np.linalg.qr(X.T @ (U[:, :k] / np.sqrt(lam[:k])))[0]
+    N = X.shape[1]
+    if N < n:  # the N × N side: generalized eigenvectors of (M XᵀX M, M), M-orthonormal
+        Md = np.eye(N) if M is None else M.toarray()
+        XM = X @ Md
+        lam, vecs = sla.eigh(XM.T @ XM, Md)
+    else:  # the n × n side: X M Xᵀ = U S² Uᵀ, directions Xᵀ U S⁻¹
+        lam, vecs = np.linalg.eigh(X @ (M @ X.T) if M is not None else X @ X.T)
+    lam, vecs = lam[::-1], vecs[:, ::-1]
+    rank = int((lam > lam[0] * 1e-14).sum())
+    tail = 1.0 - np.cumsum(lam[:rank]) / lam[lam > 0].sum()  # uncaptured after j + 1 components
+    k = min(k, rank, int(np.searchsorted(-tail, -uncaptured)) + 1)
+    dirs = vecs[:, :k] if N < n else X.T @ (vecs[:, :k] / np.sqrt(lam[:k]))
+    Phi = np.linalg.qr(dirs)[0]
     if scaled:  # column j ∝ the prior's rms amplitude along it, Σ_j ‖Φ_j‖² = N (see the docstring)
         rms = np.sqrt(((X @ Phi) ** 2).mean(0))
-        Phi = Phi * (rms * np.sqrt(X.shape[1] / (rms**2).sum()))
-    return Phi, {"captured": float(lam[:k].sum() / lam.sum()), "components": k, "samples": n}
+        Phi = Phi * (rms * np.sqrt(N / (rms**2).sum()))
+    return Phi, {"captured": float(lam[:k].sum() / lam[lam > 0].sum()), "components": k, "samples": n}
 
 
 def reduced(k_in: int = REDUCED_K_IN, k_out: int = REDUCED_K, body: str = "linear", hidden=(256, 256),
             activation=nn.Tanh, rel_floor: float | None = None, drop: float | str = "edge",
             samples: int | None = None, dtype: torch.dtype = DTYPE, scaled: bool = True,
-            rows_per_component: float | None = None):
+            rows_per_component: float | None = None, uncaptured: float = REDUCED_UNCAPTURED):
     """A ``model_factory`` whose *trained* size does not depend on the mesh:
 
         x = Φ · body(z),   z = D_k U_kᵀ (y − μ)
@@ -397,7 +443,7 @@ def reduced(k_in: int = REDUCED_K_IN, k_out: int = REDUCED_K, body: str = "linea
 
     def factory(problem) -> nn.Module:
         m, n = problem.operator.n_out, problem.operator.n_in
-        basis, info = prior_basis(problem, min(k_out, n), samples, scaled=scaled)
+        basis, info = prior_basis(problem, min(k_out, n), samples, scaled=scaled, uncaptured=uncaptured)
         pre = Whitening(m, rel_floor, drop, components=min(k_in, m), rows_per_component=rows_per_component)
         net = Net(pre, BODIES[body](pre.k, basis.shape[1], tuple(hidden), activation),
                   Decoder(torch.as_tensor(basis, dtype=dtype))).to(dtype)

@@ -47,15 +47,26 @@ Where ``P`` smooths, the best spectral filter
 is about the best Tikhonov filter (y alone cannot say more about modes it cannot see); where it
 does not (wave), a filter that knows each mode's signal level beats one α for all modes.
 
+**In a decoder's span.** A network with a fixed decoder ``x = D c`` (:func:`pdeinv.nets.reduced`: the
+prior's principal components, column ``j`` scaled by the prior's rms amplitude along it) sees the
+physics ``P̂ = P D = Q diag(s) Vᵀ``. Where the prior makes ``c`` white (``E[c cᵀ] ≈ I/κ²``: the columns'
+scaling) and the noise is white, ``Qᵀy = diag(s) Vᵀc + Qᵀε`` has independent components, and the
+Wiener filter per mode of this basis *is* the linear MMSE estimator in ``span D``: ``f_k =
+s_k²/(s_k² + σ²κ²) = 1 − σ²/E[(Qᵀy)_k²]``, again estimated from ``y`` alone (the prior chooses the
+basis, the data each mode's signal level). Measured in closed form at 1 % (the MMSE fitted on the
+*training x* in brackets): heat_2d 0.0908 (0.0897), heat_sensors_2d 0.1017 (0.1007),
+advection_diffusion_2d 0.0971 (0.0968), heat_sensors_3d 0.156 (0.155), heat_1d 0.1190 (0.1186).
+
 A target is a strategy object::
 
-    fitted = target.fit(problem, y_train, noise)     # None: nothing to fit (use y itself)
+    fitted = target.fit(problem, y_train, noise[, model])   # None: nothing to fit (use y itself)
     fitted(y) -> numpy (B, m),   fitted.info -> dict  (what it kept, for metrics.json)
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
+from types import SimpleNamespace
 
 import numpy as np
 
@@ -86,20 +97,33 @@ class SpectralWiener:
         positive(self.z, "z")
 
     @staticmethod
-    def _basis(problem):
+    def _basis(problem, model=None):
+        decoder = getattr(model, "decoder", None)
+        if decoder is not None:  # the physics as the network sees it: P̂ = P D = Q diag(s) Vᵀ
+            from .inverse.decoder import decoded_svd
+
+            Q, s, _ = decoded_svd(problem.operator, decoder)
+            return SimpleNamespace(proj=Q, out=Q, g=s)
         disc = getattr(problem, "disc", None)
         return spectral_basis(problem.operator, None if disc is None else disc.M)
 
-    def applies(self, problem, noise: float | None) -> bool:
+    def applies(self, problem, noise: float | None, model=None) -> bool:
         """Whether :meth:`fit` will fit a filter: a noise level and a spectral basis to filter in."""
-        return bool(noise) and self._basis(problem) is not None
+        return bool(noise) and (getattr(model, "decoder", None) is not None or
+                                self._basis(problem) is not None)
 
-    def fit(self, problem, y: np.ndarray, noise: float | None) -> Filtered | None:
+    def fit(self, problem, y: np.ndarray, noise: float | None, model=None) -> Filtered | None:
         """The filter fitted on observations ``y`` ``(n, m)`` with relative noise ``noise``; ``None``
-        when there is no noise or the operator has no spectral basis (nothing to filter by)."""
-        if not self.applies(problem, noise):
+        when there is no noise or the operator has no spectral basis (nothing to filter by). With a
+        ``model`` that has a fixed decoder ``D`` (``model.decoder``, :func:`pdeinv.nets.reduced`) the
+        basis is the SVD of ``P D`` (module docstring: the MMSE in ``span D``)."""
+        if not self.applies(problem, noise, model):
             return None
-        modes = self._basis(problem)
+        return self.fit_basis(self._basis(problem, model), y, noise)
+
+    def fit_basis(self, modes, y: np.ndarray, noise: float) -> Filtered:
+        """The filter in a given basis ``modes`` (``proj``, ``out``, ``g``: ``P = out diag(g) projᵀ``-like,
+        ``c = y·proj``), fitted on observations ``y`` with relative noise ``noise``."""
         y = np.asarray(y, dtype=float)
         n = y.shape[0]
         c2 = (y @ modes.proj) ** 2

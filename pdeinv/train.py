@@ -13,6 +13,7 @@ not evaluations, so runs can be compared at equal wall-clock time.
 
 from __future__ import annotations
 
+import inspect
 import math
 import os
 import sys
@@ -393,7 +394,7 @@ class Trainer:
                              "has no state_dict / load_state_dict / hyperparameters "
                              "(see pdeinv.methods.base.Resumable)")
         y_np, y_train, test = self._data()
-        t_train = self._fit_target(y_np, y_train)
+        t_train = self._fit_target(y_np, y_train, model)
         if self.fit_scaling:  # a fitted target is denoised: the input keeps every direction (drop=0),
             # each scaled at most to the noise floor σ² (clean data's rounding-level directions stay small)
             noise = getattr(self.problem, "noise", None) or None
@@ -417,12 +418,13 @@ class Trainer:
             run.at.y_err0 = start if math.isfinite(start) else 1.0
         return run
 
-    def _fit_target(self, y_np: np.ndarray, y_train: torch.Tensor) -> torch.Tensor | None:
+    def _fit_target(self, y_np: np.ndarray, y_train: torch.Tensor, model=None) -> torch.Tensor | None:
         """What ``P f(y)`` must match when it is not ``y_train`` itself (``None``): ``target(y)`` when
         the target strategy fits one (:mod:`pdeinv.targets`), else the float64 ``y`` when the network's
         dtype is lower (a float32 copy of ``y`` puts rounding 6e-8 into every residual, which SIP's
         local inverse amplifies by up to ``1/(2√α)``). A rule whose ``update`` takes no ``target``
-        keeps ``y`` (precision) or is refused (a fitted target)."""
+        keeps ``y`` (precision) or is refused (a fitted target). A strategy whose ``fit`` takes
+        ``model=`` gets the network (a fixed decoder changes the basis the target filters in)."""
         from .methods.base import takes_target
         from .targets import SpectralWiener
 
@@ -433,8 +435,10 @@ class Trainer:
                           "of the noise and only a stopping rule regularizes (SIP's default inverse on a "
                           "spectral basis gets there in one step); keep target='auto'", RuntimeWarning,
                           stacklevel=4)
-        fitted = None if strategy is None else \
-            strategy.fit(self.problem, y_np, noise or None)
+        fitted = None
+        if strategy is not None:
+            kw = {"model": model} if "model" in inspect.signature(strategy.fit).parameters else {}
+            fitted = strategy.fit(self.problem, y_np, noise or None, **kw)
         if fitted is not None and not takes_target(self.rule):
             if self.target != "auto":
                 raise ValueError(f"rule {getattr(self.rule, 'name', self.rule)!r} cannot use target="

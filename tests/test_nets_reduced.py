@@ -69,27 +69,40 @@ def test_gradcheck_through_the_reduced_network_in_float64():
         (head.detach().clone().requires_grad_(True),), eps=1e-6, atol=1e-6)
 
 
-def test_the_default_switches_above_the_measured_size(monkeypatch):
-    p = pdeinv.load_problem("heat_2d", n=8)  # 49 unknowns
-    assert nets.REDUCED_ABOVE >= 961  # heat_2d at its default size keeps the whitened linear map
-    assert not isinstance(nets.default_model(p).post, nets.Decoder)
-    monkeypatch.setattr(nets, "REDUCED_ABOVE", p.N - 1)
-    model = nets.default_model(p)
+def test_the_default_follows_reversibility_then_size(monkeypatch):
+    """A non-reversible operator (heat) gets the prior decoder at any size; a reversible one (wave)
+    keeps the whitened linear map up to REDUCED_ABOVE unknowns."""
+    heat = pdeinv.load_problem("heat_2d", n=8)  # 49 unknowns
+    model = nets.default_model(heat)
     assert isinstance(model.post, nets.Decoder) and isinstance(model.pre, Whitening)
-    assert model.pre.k == min(nets.REDUCED_K_IN, p.N)
-    monkeypatch.setattr(nets, "REDUCED_ABOVE", p.N)
-    assert not isinstance(nets.default_model(p).post, nets.Decoder)
+    assert model.pre.k == min(nets.REDUCED_K_IN, heat.N) and model.decoder is not None
+    wave = pdeinv.load_problem("wave_2d", n=8)
+    assert nets.REDUCED_ABOVE >= 961  # wave_2d at its default size keeps the whitened linear map
+    assert nets.default_model(wave).decoder is None
+    monkeypatch.setattr(nets, "REDUCED_ABOVE", wave.N - 1)
+    assert nets.default_model(wave).decoder is not None
+
+
+def test_the_decoder_keeps_what_the_prior_fills():
+    """prior_basis stops at the components holding all but `uncaptured` of the drawn energy."""
+    p = pdeinv.load_problem("heat_1d")
+    full, _ = nets.prior_basis(p, 64, samples=256)
+    cut, info = nets.prior_basis(p, 64, samples=256, uncaptured=1e-6)
+    one_less = nets.prior_basis(p, cut.shape[1] - 1, samples=256)[1]
+    assert cut.shape[1] < full.shape[1]
+    assert 1 - info["captured"] <= 1e-6 < 1 - one_less["captured"]
 
 
 def test_the_memory_estimate_follows_the_default_network(monkeypatch):
-    p = pdeinv.load_problem("heat_2d", n=8)
-    full, _ = nets.default_size(p)
-    model = nets.default_model(p)
+    wave = pdeinv.load_problem("wave_2d", n=8)
+    full, _ = nets.default_size(wave)
+    model = nets.default_model(wave)
     assert full == sum(x.numel() for x in model.parameters()) + model.pre.basis.numel()
-    monkeypatch.setattr(nets, "REDUCED_ABOVE", p.N - 1)
-    est, _ = nets.default_size(p)
-    model = nets.default_model(p)
-    assert est >= sum(x.numel() for x in model.parameters()) + model.post.basis.numel()
+    heat = pdeinv.load_problem("heat_2d", n=8)
+    est, _ = nets.default_size(heat)  # an upper bound: the decoder may keep fewer columns
+    model = nets.default_model(heat)
+    size = sum(x.numel() for x in model.parameters()) + model.post.basis.numel()
+    assert size <= est
 
 
 def test_bad_sizes_and_bodies_are_refused():

@@ -31,7 +31,7 @@ from .._checks import batch
 from ._inputs import out
 
 #: α relative to s_max² of the decoded physics (module docstring)
-REL_ALPHA = 1e-16
+REL_ALPHA = 1e-24
 
 
 class DecodedSVD(NamedTuple):

@@ -41,7 +41,7 @@ def decoder_inverse(problem, model):
     lin = getattr(model, "linear_in_parameters", None)
     lin = lin() if callable(lin) else None
     noise = getattr(problem, "noise", 0.0) or 0.0
-    if lin is None or lin.decoder is None or (noise and not SpectralWiener().applies(problem, noise)):
+    if lin is None or lin.decoder is None or (noise and not SpectralWiener().applies(problem, noise, model)):
         return None
     return DecoderTikhonov(problem.operator, lin.decoder)
 
