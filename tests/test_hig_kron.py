@@ -117,3 +117,26 @@ def test_input_gram_reuses_its_eigenpairs_for_the_same_rows_in_any_order():
     assert gram.kept(half) is None
     a3, _ = gram(Z[:20].T @ Z[:20], half)
     assert np.allclose(a3, np.linalg.eigvalsh(Z[:20].T @ Z[:20]), rtol=1e-12) and not np.allclose(a3, a)
+
+
+@pytest.mark.parametrize("rows", [5, 40])
+def test_the_batch_side_gram_equals_the_feature_side_gram(rows):
+    """A minibatch decomposes A = Z̃Z̃ᵀ (B × B), the full batch G = Z̃ᵀZ̃ (k̃ × k̃): the same step, fewer or
+    more rows than features, with τ dropping directions."""
+    import numpy as np
+
+    from pdeinv.inverse.decoder import DecodedSVD
+    from pdeinv.methods import hig_kron
+
+    rng = np.random.default_rng(3)
+    k, m, r = 12, 9, 6
+    Z = np.hstack([rng.standard_normal((rows, k)) * np.logspace(0, -3, k), np.ones((rows, 1))])
+    Q = np.linalg.qr(rng.standard_normal((m, r)))[0]
+    fac = DecodedSVD(Q, np.logspace(0, -4, r), np.linalg.qr(rng.standard_normal((7, r)))[0])
+    R = rng.standard_normal((rows, m))
+    for tau in (0.0, 1e-3):
+        G, N = hig_kron.moments(fac, Z, R)
+        a, info_a = hig_kron.direction(fac, G, N, rows, 0.7, tau, -0.5)
+        b, info_b = hig_kron.direction_rows(fac, Z, R, 0.7, tau, -0.5)
+        assert info_a["kept"] == info_b["kept"] and info_a["sigma_max"] == pytest.approx(info_b["sigma_max"])
+        assert np.abs(a - b).max() < 1e-9 * np.abs(a).max(), (rows, tau)

@@ -76,6 +76,7 @@ def test_the_default_follows_reversibility_then_size(monkeypatch):
     model = nets.default_model(heat)
     assert isinstance(model.post, nets.Decoder) and isinstance(model.pre, Whitening)
     assert model.pre.k == min(nets.REDUCED_K_IN, heat.N) and model.decoder is not None
+    assert nets.default_model(heat, rows_per_component=8).decoder is None  # first-order rules: no decoder
     wave = pdeinv.load_problem("wave_2d", n=8)
     assert nets.REDUCED_ABOVE >= 961  # wave_2d at its default size keeps the whitened linear map
     assert nets.default_model(wave).decoder is None

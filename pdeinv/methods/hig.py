@@ -193,14 +193,23 @@ class HIG(Rule):
                 raise
             r = torch.full((len(Z), op.n_out), math.nan, dtype=torch.float64)
         loss, rows = float(y_loss(r, torch.zeros_like(r))), len(Z)
+        R = r.cpu().numpy()
         key = None if self.sum_over is not None else hig_kron.rows_key(y_target)
-        G, N = hig_kron.moments(fac, Z, r.cpu().numpy(), gram.kept(key))
-        if self.sum_over is not None:  # the whole batch's moments and mean loss on every rank
-            G, N, totals = self.sum_over([G, N, np.array([loss * rows, rows])])
-            loss, rows = float(totals[0] / totals[1]), int(totals[1])
-        if not (math.isfinite(loss) and np.isfinite(N).all()):
-            return Update(None, {"loss": loss})
-        delta, info = hig_kron.direction(fac, G, N, rows, self.eta, self.tau, self.exponent, gram, key)
+        repeated, gram.seen = key is not None and key == gram.seen, key
+        if self.sum_over is None and rows < Z.shape[1] and not repeated:
+            # new rows, fewer than features (a minibatch): A = Z̃Z̃ᵀ is the smaller Gram. The same rows
+            # again (the full batch) take G = Z̃ᵀZ̃, whose eigenpairs are then kept for the run.
+            if not math.isfinite(loss):
+                return Update(None, {"loss": loss})
+            delta, info = hig_kron.direction_rows(fac, Z, R, self.eta, self.tau, self.exponent)
+        else:
+            G, N = hig_kron.moments(fac, Z, R, gram.kept(key))
+            if self.sum_over is not None:  # the whole batch's moments and mean loss on every rank
+                G, N, totals = self.sum_over([G, N, np.array([loss * rows, rows])])
+                loss, rows = float(totals[0] / totals[1]), int(totals[1])
+            if not (math.isfinite(loss) and np.isfinite(N).all()):
+                return Update(None, {"loss": loss})
+            delta, info = hig_kron.direction(fac, G, N, rows, self.eta, self.tau, self.exponent, gram, key)
         return Update(hig_kron.split(lin, delta * self._unit(info), lin.layer.weight), {**info, "loss": loss})
 
     def _unit(self, info: dict) -> float:

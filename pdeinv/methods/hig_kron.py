@@ -17,7 +17,8 @@ values are ``σ_kl = √(a_k c_l)`` with left vectors ``Q_A ⊗ Q_C``, and HIG's
     ΔW̃ = −η P̂ᵀ Hᵀ Z̃,   H = Q_A (M ⊙ S) Q_Cᵀ   ⇒   ΔW̃ = −η V diag(s) (M ⊙ S)ᵀ (Q_Aᵀ Z̃)
 
 Cost per step: products of sizes ``B·m·r`` and ``k̃·B·r``, and the eigendecomposition of the
-``k̃ × k̃`` input Gram (once per run with the full batch, :class:`InputGram`);
+``k̃ × k̃`` input Gram (once per run with the full batch, :class:`InputGram`), or of the ``B × B``
+``A`` itself when the batch has fewer rows than ``k̃`` (:func:`direction_rows`: a minibatch);
 ``P̂`` is built once from ``k_out`` forward calls (the decoder's columns, or the ``N`` unit vectors)
 and its SVD once, in float64 (:func:`pdeinv.inverse.decoder.decoded_svd`, shared with SIP).
 The residual's part outside ``range(P̂)`` is out of every step's reach
@@ -58,6 +59,7 @@ class InputGram:
 
     def __init__(self):
         self.G = self.a = self.W = self.key = None
+        self.seen = None  # the rows of the last step (HIG: the same rows again take this Gram)
 
     def kept(self, key: frozenset | None) -> np.ndarray | None:
         """The kept ``G`` if it is of the rows ``key``, else ``None``."""
@@ -95,13 +97,31 @@ def direction(fac: DecodedSVD, G: np.ndarray, N: np.ndarray, rows: int, eta: flo
     keep_a = a > a[-1] * max(G.shape[0], rows) * np.finfo(float).eps  # the rank of Z̃
     a, W = a[keep_a], W[:, keep_a]
     root = np.sqrt(a)
-    M = (W.T @ N) / root[:, None]  # (rank, r)
+    return _step(fac, a, (W.T @ N) / root[:, None], root[:, None] * W.T, eta, tau, exponent)
+
+
+def direction_rows(fac: DecodedSVD, Z: np.ndarray, R: np.ndarray, eta: float, tau: float,
+                   exponent: float) -> tuple[np.ndarray, dict]:
+    """The same ``ΔW̃`` as :func:`direction` from the batch's own ``B × B`` Gram ``A = Z̃Z̃ᵀ =
+    Q_A diag(a) Q_Aᵀ``: ``M = Q_Aᵀ R Q_C`` directly. Cheaper when the batch has fewer rows than
+    ``Z̃`` has columns (``B²k̃ + B³`` against ``k̃³`` per step: a minibatch), but not a sum over rows
+    (one process only)."""
+    a, QA = np.linalg.eigh(Z @ Z.T)
+    keep_a = a > a[-1] * max(Z.shape) * np.finfo(float).eps  # the rank of Z̃
+    a, QA = a[keep_a], QA[:, keep_a]
+    return _step(fac, a, QA.T @ (R @ fac.Q), QA.T @ Z, eta, tau, exponent)
+
+
+def _step(fac: DecodedSVD, a: np.ndarray, M: np.ndarray, QtZ: np.ndarray, eta: float, tau: float,
+          exponent: float) -> tuple[np.ndarray, dict]:
+    """``ΔW̃ = −η V diag(s) (M ⊙ S)ᵀ Q_Aᵀ Z̃`` with ``S_kl = σ_kl^(e−1)`` where ``σ_kl = √(a_k c_l) > τ·σ_max``
+    (module docstring)."""
     sigma = np.sqrt(a[:, None] * (fac.s**2)[None, :])
     smax = float(sigma.max()) if sigma.size else 0.0
     keep = sigma > tau * smax if smax > 0 else np.zeros_like(sigma, bool)
     S = np.zeros_like(sigma)
     S[keep] = sigma[keep] ** (exponent - 1.0)
-    delta = -eta * (fac.V * fac.s) @ (M * S).T @ (root[:, None] * W.T)
+    delta = -eta * (fac.V * fac.s) @ (M * S).T @ QtZ
     return delta, {"route": "kronecker", "kept": int(keep.sum()), "sigma_max": smax,
                    "sigma_min_kept": float(sigma[keep].min()) if keep.any() else 0.0}
 
