@@ -4,8 +4,11 @@
 
 No per-scene table: every step size follows from the maths.
 
-* **sip**: η = 1 (the paper's full inverse step), the problem's local inverse (a Tikhonov filter
-  on the operator's spectral basis at rounding-level α, :func:`pdeinv.inverse.default_inverse`),
+* **sip**: η = 1 (the paper's full inverse step), the local inverse of what the network can produce:
+  on the prior-decoder network (the default where the operator is not reversible,
+  :func:`pdeinv.nets.default_model`) the Tikhonov solve in the decoder's span at rounding-level α
+  (:class:`pdeinv.inverse.decoder.DecoderTikhonov`), else the problem's own (a Tikhonov filter on
+  the operator's spectral basis at rounding-level α, :func:`pdeinv.inverse.default_inverse`),
   plain SGD at lr 1 on the proxy gradient normalized by its largest curvature (the Landweber step,
   :class:`~.sip.SIP`), **every training row in each step** (``batch_size=None``) and 30 steps (the
   training loss is at 1e-24 of its start by step 5 on every full-rank scene; from step 50 to 100
