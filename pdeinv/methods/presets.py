@@ -37,6 +37,13 @@ No per-scene table: every step size follows from the maths.
   τ 1e-6 of σ_max (the HIG reference code's range), 100 steps. Measured on wave_2d (one thread):
   batch 32 ends at 0.49 after 300 steps (η 1; 2.98 at η 0.5), the full batch at 2.5e-4 after 30
   and < 1e-8 after 100; heat_2d 0.061 (batch 32, 300 steps) against 0.052 (full, 100).
+  Re-measured with the minibatch Gram route (:func:`.hig_kron.direction_rows`), 1000 steps,
+  (batch, η): wave_2d (32, 0.3) 0.74, (64, 0.3) 0.065, (64, 1) 0.25, (128, 0.5) 0.13 — a
+  minibatch leaves weight on the trailing whitened directions, which test data amplify
+  (Marchenko–Pastur, as for Adam) —; heat_2d (prior decoder) (32, 0.3) 0.063, (64, 0.3) 0.048,
+  (64, 1) 0.031, (128, 0.5) 0.032 against 0.0425 full batch. At batch 32–64 a step costs
+  0.03–0.11 s on one shared thread, about Adam's; the full batch stays the default because
+  only it is accurate on every scene.
 
 Measured with ``benchmarks/accuracy.py`` (CLI defaults, one thread) against best-α Tikhonov on
 the same 128 test pairs: see ``README.md``.
