@@ -1,15 +1,59 @@
-"""The README's tutorial runs as written (in a temporary folder: it writes two files)."""
+"""The README's tutorial and every python block of the docs pages run as written.
+
+Each runs in a temporary folder (they write files). Blocks not meant to run are fenced ```bash,
+```sh or ```text; the ```bash lines of the sections with a dedicated test below run through the CLI.
+"""
 
 import json
 import re
 from pathlib import Path
 
-README = Path(__file__).resolve().parents[1] / "README.md"
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+README = ROOT / "README.md"
+DOCS = ROOT / "docs"
+PAGES = sorted(DOCS.glob("*.md"))
+FENCE = re.compile(r"^```(\w*)\n(.*?)^```", flags=re.S | re.M)
+LANGUAGES = {"python", "bash", "sh", "text"}
+#: sections whose blocks a dedicated test runs (with their `pdeinv` lines): page -> headings
+DEDICATED = {"own-data.md": ["# Your own observations"], "problems.md": ["## Your own problem"]}
 
 
-def _section(heading: str) -> str:
-    """The README's text from ``heading`` to the next heading of level 2 or 3."""
-    return re.split(r"\n#{2,3} ", README.read_text().split(heading, 1)[1], maxsplit=1)[0]
+def _section(page: Path, heading: str) -> str:
+    """The text of ``page`` after the line ``heading`` up to the next heading of level 1 to 3.
+
+    Lines inside fenced blocks (a python comment starts with ``# `` too) are not headings.
+    """
+    lines, found, fenced = [], False, False
+    for line in page.read_text().splitlines(keepends=True):
+        fenced ^= line.startswith("```")
+        is_heading = not fenced and re.match(r"#{1,3} ", line) is not None
+        if found and is_heading:
+            break
+        if found:
+            lines.append(line)
+        found = found or (is_heading and line.rstrip("\n") == heading)
+    assert found, f"{page.name} has no heading {heading!r}"
+    return "".join(lines)
+
+
+def _blocks(text: str) -> list[tuple[str, str]]:
+    return FENCE.findall(text)
+
+
+def test_every_block_names_its_language():
+    """An unnamed fence would be neither run nor marked as not meant to run."""
+    for page in [README, *PAGES]:
+        for lang, _ in _blocks(page.read_text()):
+            assert lang in LANGUAGES, f"{page.name}: a ```{lang} block (use one of {sorted(LANGUAGES)})"
+
+
+def test_readme_has_only_the_tutorial_block():
+    """The tutorial test runs the README's first python block: more would go unrun."""
+    assert [lang for lang, _ in _blocks(README.read_text())].count("python") == 1
+    for name in DEDICATED:
+        assert (DOCS / name).is_file(), f"docs/{name} is gone: update DEDICATED"
 
 
 def test_readme_tutorial_runs(tmp_path, monkeypatch, capsys):
@@ -24,22 +68,36 @@ def test_readme_tutorial_runs(tmp_path, monkeypatch, capsys):
     capsys.readouterr()
 
 
-def test_readme_own_observations_section_runs(tmp_path, monkeypatch, capsys):
-    """The "Your own observations" section: its python blocks, and its `pdeinv` lines through the CLI."""
+@pytest.mark.parametrize("page", PAGES, ids=lambda p: p.name)
+def test_docs_page_python_blocks_run(page, tmp_path, monkeypatch, capsys):
+    """Every python block of a docs page outside the dedicated sections, in order, one namespace."""
+    text = page.read_text()
+    for heading in DEDICATED.get(page.name, []):
+        text = text.replace(_section(page, heading), "")
+    monkeypatch.chdir(tmp_path)
+    namespace = {}
+    for lang, code in _blocks(text):
+        if lang == "python":
+            exec(compile(code, str(page), "exec"), namespace)
+    capsys.readouterr()
+
+
+def test_own_observations_section_runs(tmp_path, monkeypatch, capsys):
+    """docs/own-data.md: its python blocks, and its `pdeinv` lines through the CLI."""
     import shlex
 
     import numpy as np
 
     from pdeinv.cli import main
 
-    section = _section("### Your own observations")
-    blocks = re.findall(r"```(python|bash)\n(.*?)```", section, flags=re.S)
+    page = DOCS / "own-data.md"
+    blocks = _blocks(_section(page, "# Your own observations"))
     assert [kind for kind, _ in blocks] == ["python", "bash", "python"]
     monkeypatch.chdir(tmp_path)
     namespace = {}
     for kind, code in blocks:
         if kind == "python":
-            exec(compile(code, str(README), "exec"), namespace)
+            exec(compile(code, str(page), "exec"), namespace)
             continue
         for line in code.strip().splitlines():
             argv = shlex.split(line)
@@ -55,14 +113,13 @@ def test_readme_own_observations_section_runs(tmp_path, monkeypatch, capsys):
     capsys.readouterr()
 
 
-def test_readme_own_problem_section_runs(tmp_path, monkeypatch, capsys):
-    """The "Your own problem" section: its module, saved where it says, trains by name."""
+def test_own_problem_section_runs(tmp_path, monkeypatch, capsys):
+    """docs/problems.md "Your own problem": its module, saved where it says, trains by name."""
     import shlex
 
     from pdeinv.cli import main
 
-    section = _section("### Your own problem")
-    blocks = re.findall(r"```(python|bash)\n(.*?)```", section, flags=re.S)
+    blocks = _blocks(_section(DOCS / "problems.md", "## Your own problem"))
     assert [kind for kind, _ in blocks] == ["python", "bash"]
     code = blocks[0][1]
     where = code.splitlines()[0].removeprefix("# ").strip()
