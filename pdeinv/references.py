@@ -143,6 +143,38 @@ def tikhonov_best(problem, Y_test, X_test, grid=ALPHA_GRID, P=None) -> dict:
             "sweep": dict(zip([f"{a:.0e}" for a in grid], errs, strict=True))}
 
 
+def prior_wiener(problem, Y_train: np.ndarray, noise: float):
+    """``(estimator, info)``: the y-only estimator the default network converges to where the operator
+    is not reversible (:func:`pdeinv.nets.default_model`): in the prior decoder's span ``D``
+    (:func:`pdeinv.nets.prior_basis`) with ``P D = Q diag(s) Vᵀ``,
+
+        x̂ = D V diag(f / s) Qᵀ y,
+
+    ``f`` the Wiener factors fitted on the observations ``Y_train`` alone
+    (:meth:`pdeinv.targets.SpectralWiener.fit_basis`; with ``noise = 0`` the rounding-level Tikhonov
+    factors of :class:`~pdeinv.inverse.decoder.DecoderTikhonov`). Where the problem's prior describes
+    the data it reaches the linear MMSE (module docstring of :mod:`pdeinv.targets`) without ``x``."""
+    from types import SimpleNamespace
+
+    from .inverse.decoder import REL_ALPHA, decoded_svd
+    from .nets import REDUCED_K, REDUCED_UNCAPTURED, prior_basis
+    from .targets import SpectralWiener
+
+    D, info = prior_basis(problem, min(REDUCED_K, problem.N), uncaptured=REDUCED_UNCAPTURED)
+    Q, s, V = decoded_svd(problem.operator, D.T)
+    if noise:
+        fitted = SpectralWiener().fit_basis(SimpleNamespace(proj=Q, out=Q, g=s), Y_train, noise)
+        f, kept = fitted.f, fitted.info["kept"]
+    else:
+        f, kept = s**2 / (s**2 + REL_ALPHA * s[0] ** 2), len(s)
+    back = (V * (f / s)).T @ D.T  # diag(f/s) Vᵀ Dᵀ, (r, N)
+
+    def estimate(Y):
+        return (np.asarray(Y, dtype=float) @ Q) @ back
+
+    return estimate, {"components": D.shape[1], "modes": len(s), "kept": int(kept)}
+
+
 def references(problem, X_train, X_test, Y_test, Y_train=None) -> dict:
     """``mmse_x_err``, ``tikhonov_best_x_err`` and what they used, on the given test set;
     with the training data ``Y_train`` also ``filter_best_x_err`` (:func:`best_filter`)."""

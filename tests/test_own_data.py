@@ -287,6 +287,7 @@ def test_cli_classical_solves_a_data_file(tmp_path, capsys):
     assert res["tikhonov_morozov"]["x_err"] < 1.5 * oracle and res["wiener_target"]["x_err"] < 1.1 * oracle
     assert 0.005 < res["model_mismatch"] < 0.011  # the noise itself
     assert 0.005 < res["wiener_target"]["residual"] < 0.02
+    assert res["prior_wiener"]["x_err"] < res["wiener_target"]["x_err"]  # the prior fills unseen modes
     assert "heat_1d tikhonov_morozov" in capsys.readouterr().out
     np.savez(tmp_path / "y.npz", y=y)
     assert main(["classical", "heat_1d", "--data", str(tmp_path / "y.npz"), "--set", "n=16",

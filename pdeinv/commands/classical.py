@@ -9,6 +9,9 @@ reconstructs every row with what needs no training:
   estimated from the file (:func:`pdeinv.estimate_noise`);
 * **the y-only Wiener target** (x-free, where the operator has a spectral basis): what ``pdeinv train``
   fits the physics to (:mod:`pdeinv.targets`), solved in closed form;
+* **the prior Wiener estimate** (x-free): the same filter in the basis of ``P D``, ``D`` the prior's
+  principal components (:func:`pdeinv.references.prior_wiener`): what the default network converges
+  to where the operator is not reversible; it assumes the problem's prior describes the data;
 * with ``x``: **best-α Tikhonov** (the oracle α, chosen with the file's x) and the data's
   **model mismatch** ``mean ‖P x − y‖/‖y‖`` (:func:`pdeinv.data.model_mismatch`).
 
@@ -61,6 +64,9 @@ def cmd_classical(args) -> int:
         if fitted is not None:
             rows["wiener_target"] = {**err(problem.inverse(fitted(y), zeros)), "kept": fitted.info["kept"],
                                      "modes": fitted.info["modes"]}
+    if getattr(problem, "sampler", None) is not None:
+        estimate, info = references.prior_wiener(problem, y, noise)
+        rows["prior_wiener"] = {**err(estimate(y)), **info}
     if x is not None:
         best = references.tikhonov_best(problem, y, x)
         rows["tikhonov_best_alpha"] = {"x_err": best["x_err"], "alpha_rel": best["alpha_rel"]}
