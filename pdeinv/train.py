@@ -25,13 +25,13 @@ from dataclasses import dataclass, field
 import numpy as np
 import torch
 
-from ._checks import count, nonnegative, positive
+from ._checks import count, nonnegative
 from .checkpoint import Checkpoint, check_identity, network_identity, plain, rng_states, set_rng_states
 from .data import as_observations, explained, fingerprint, model_mismatch, split
 from .distributed import Single
 from .files import write_csv
 from .methods.base import NonFiniteError, Resumable, UpdateRule
-from .methods.guard import ADVICE, Snapshot, apply_if_finite
+from .methods.guard import ADVICE, Guard
 from .nets import fit_preconditioning
 from .physics.capabilities import observes_field
 from .physics.device import placed, resolve
@@ -78,25 +78,17 @@ class _Position:
     pos: int = 0
     step: int = 0  # accepted steps
     wall: float = 0.0
-    failures: int = 0  # consecutive rejected steps
     stopped_by: str | None = None  # a stopping rule or callback that ended the run
-    scale: float = 1.0  # the step-size multiplier, lowered by step_factor after each rejected step
-    best: float = math.inf  # the lowest accepted batch loss (the loss-growth guard's reference)
     y_err0: float | None = None  # the test y-error of the network training started from (_check_evaluation)
-    rejected_evals: int = 0  # consecutive steps rejected at their evaluation
 
     def saved(self) -> dict:
         return {"gen": self.gen.get_state(), "order": self.order, "pos": self.pos, "step": self.step,
-                "wall": self.wall, "failures": self.failures, "stopped_by": self.stopped_by,
-                "scale": self.scale, "best": self.best, "y_err0": self.y_err0,
-                "rejected_evals": self.rejected_evals}
+                "wall": self.wall, "stopped_by": self.stopped_by, "y_err0": self.y_err0}
 
     def restore(self, p: dict) -> None:
         self.gen.set_state(p["gen"])
         self.order, self.pos, self.step, self.wall = p["order"], p["pos"], p["step"], p["wall"]
-        self.failures, self.stopped_by, self.scale = p["failures"], p.get("stopped_by"), p["scale"]
-        self.best = p.get("best", math.inf)
-        self.y_err0, self.rejected_evals = p.get("y_err0"), p.get("rejected_evals", 0)
+        self.stopped_by, self.y_err0 = p.get("stopped_by"), p.get("y_err0")
 
 
 @dataclass
@@ -110,7 +102,7 @@ class _Run:
     test: tuple
     stop_state: object
     at: _Position
-    good: Snapshot = field(default_factory=Snapshot)  # the last verified state (methods.guard)
+    guard: Guard  # step size, failures, lowest loss, last good state (methods.guard)
 
 
 @dataclass
@@ -141,23 +133,18 @@ class Trainer:
     (``steps``, ``time_budget``, the rule's name, or ``callback``) and
     ``metrics["steps"]`` at which step.
 
-    **Guard.** A step whose loss, prediction or update holds NaN/Inf, or whose finite
-    loss exceeds ``max_loss_growth`` (default 1e3; None: off) times the lowest accepted
-    batch loss so far (not checked right after a roll-back: those parameters passed once), is
-    *rejected*: :func:`pdeinv.methods.guard.apply_if_finite`
-    checks the rule's update before its transformation applies anything. A step's loss
-    is that of the parameters the previous update left, so a rejection puts back the
-    **last good state** (:class:`~pdeinv.methods.guard.Snapshot`: the parameters and
-    rule/optimizer state whose loss last passed, i.e. from before the previous update,
-    and their step count): the update that blew up is undone, not only the rejected
-    one. The trainer records the rejection in ``history`` (a row
-    with the step number, ``loss`` NaN and the message under ``rejected``), warns,
-    multiplies the run's step-size multiplier by ``step_factor`` (default ½: the
-    optimizer's lr for GD/SIP, the step for HIG; one multiplier for every rule)
-    and retries with the next batch. After ``max_failures`` (default 5) consecutive rejections it raises
-    :class:`NonFiniteError` naming the step, the last good state (the model is left
-    in it) and the last checkpoint this run wrote. The reduced step size, the lowest
-    loss and the snapshot are kept for the rest of the run (and checkpointed).
+    **Guard** (:class:`~pdeinv.methods.guard.Guard`, its policy there). A step whose loss,
+    prediction or update holds NaN/Inf, whose finite loss exceeds ``max_loss_growth`` (default
+    1e3; None: off) times the lowest accepted batch loss so far, or whose test predictions blow
+    up at an evaluation is *rejected*: the **last good state** (the parameters and rule/optimizer
+    state whose loss last passed, i.e. from before the update that blew up) is put back and the
+    step-size multiplier (the optimizer's lr for GD/SIP, the step for HIG) multiplied by
+    ``step_factor`` (½); ``history`` gets a row with the step number, ``loss`` NaN and the message
+    under ``rejected``, and the trainer warns. After ``recover_after`` (50) accepted steps in a row
+    the multiplier doubles back toward 1. ``max_failures`` (5) rejections in a row (re-accepting
+    the rolled-back state does not end a streak), or a rejection with the multiplier at its floor
+    ``min_scale`` (1e-12, ~40 halvings), raise :class:`NonFiniteError` naming the step, the
+    last good state (the model is left in it) and the last checkpoint this run wrote.
 
     **Checkpoints.** With ``checkpoint=Checkpoint(path, every=k)`` the run is saved
     atomically every ``k`` accepted steps and after the last one (see
@@ -208,6 +195,8 @@ class Trainer:
     max_failures: int = 5
     step_factor: float = 0.5
     max_loss_growth: float | None = 1e3
+    min_scale: float = 1e-12
+    recover_after: int | None = 50
     device: str | torch.device = "cpu"
     data: object = None  # own observations (B, m): array, tensor or torch Dataset
     data_x: object = None  # their true fields (B, N), for errors only
@@ -233,14 +222,7 @@ class Trainer:
         if self.batch_size > self.n_train:
             raise ValueError(f"batch_size={self.batch_size} is larger than n_train={self.n_train}")
         self.eval_every = count(self.eval_every, "eval_every")
-        self.max_failures = count(self.max_failures, "max_failures")
-        positive(self.step_factor, "step_factor")
-        if self.max_loss_growth is not None and not positive(self.max_loss_growth, "max_loss_growth") > 1:
-            raise ValueError(f"max_loss_growth={self.max_loss_growth!r} is not allowed; "
-                             "expected a number > 1 or None")
-        if not self.step_factor <= 1:
-            raise ValueError(f"step_factor={self.step_factor!r} is not allowed; "
-                             "expected 0 < step_factor <= 1")
+        self._guard()  # checks its settings
         if self.resume and self.checkpoint is None:
             raise ValueError("resume=True needs checkpoint=Checkpoint(path) to resume from")
         self.device = resolve(self.device)
@@ -338,7 +320,7 @@ class Trainer:
         self.checkpoint.save({
             "identity": self.identity(run.model), "model": run.model.state_dict(),
             "rule_state": self.rule.state_dict(run.state), "position": run.at.saved(),
-            "good": run.good.saved(), "rng": rng_states(), "history": plain(self.history)})
+            "guard": run.guard.state_dict(), "rng": rng_states(), "history": plain(self.history)})
         self._saved_step = run.at.step
 
     def _restore(self, run: _Run) -> None:
@@ -360,15 +342,15 @@ class Trainer:
         run.model.load_state_dict(saved["model"])  # copies into the same Parameters the optimizer holds
         run.state = self.rule.load_state_dict(run.state, saved["rule_state"])
         run.at.restore(saved["position"])
-        run.good.load(saved.get("good"))
+        run.guard.load_state_dict(saved.get("guard") or {**saved["position"], "good": saved.get("good")})
         set_rng_states(saved["rng"])
         self.history = saved["history"]
         self._saved_step = done
 
     def _last_good(self, run: _Run) -> str:
         """The last good state the model was put back to, and the last checkpoint *this* run wrote."""
-        state = "no step was verified" if run.good.step is None else \
-            f"the model holds the last good state (after step {run.good.step})"
+        state = "no step was verified" if run.guard.good.step is None else \
+            f"the model holds the last good state (after step {run.guard.good.step})"
         if self.checkpoint is None:
             return f"{state}; checkpointing is off, nothing was saved"
         if self._saved_step is None:
@@ -381,6 +363,10 @@ class Trainer:
             self.time_budget is not None and at.wall >= self.time_budget))
 
     # -- the loop ------------------------------------------------------------------------
+    def _guard(self) -> Guard:
+        return Guard(self.max_failures, self.step_factor, self.max_loss_growth, self.min_scale,
+                     self.recover_after)
+
     def _start(self) -> _Run:
         """Model on ``device``, data, preconditioning, rule and stopping states, batch order; resumed."""
         if self.model is None:
@@ -405,8 +391,7 @@ class Trainer:
             "eval_every": self.eval_every, "resume": self.resume, "stop": getattr(self.stop, "name", None)})
         gen = torch.Generator().manual_seed(seed_stream(self.seed, BATCH_ORDER))
         run = _Run(model, self._rule.init(placed(self.problem, self.device), model), y_train, t_train, test,
-                   stop_state,
-                   _Position(gen, torch.randperm(self.n_train, generator=gen)))
+                   stop_state, _Position(gen, torch.randperm(self.n_train, generator=gen)), self._guard())
         calibrate = getattr(self._rule, "calibrate", None)  # e.g. SIP's proxy curvature, on the first batch
         if callable(calibrate):
             run.state = calibrate(run.state, model, y_train[run.at.order[:self.batch_size]])
@@ -464,44 +449,29 @@ class Trainer:
     def _step(self, run: _Run, batch: tuple, bar) -> dict | None:
         """One guarded step: its info, or ``None`` if rejected (last good state back, step size lowered)."""
         at, t0 = run.at, time.perf_counter()
-        # the growth check judges parameters not yet verified: not those just rolled back to
-        verified = self.max_loss_growth is None or run.good.step == at.step or not at.best > 0
-        limit = math.inf if verified else at.best * self.max_loss_growth
         try:
-            run.state, info = apply_if_finite(self._rule, run.state, run.model, batch[0], at.scale, limit,
-                                              run.good, target=batch[1])
+            run.state, info = run.guard.step(self._rule, run.state, run.model, *batch)
         except NonFiniteError as err:
             at.wall += time.perf_counter() - t0
             self._reject(run, err, bar)
             return None
         at.wall += time.perf_counter() - t0
         at.step += 1
-        at.failures = 0
-        at.best = min(at.best, float(info["loss"]))
         return info
 
     def _reject(self, run: _Run, err: NonFiniteError, bar, failed: int | None = None) -> None:
-        """Count and record a rejected step (``failed``: its number, default the next one), roll back to
-        the last good state and lower the step size; raise once ``max_failures`` are consecutive."""
-        at = run.at
-        at.failures += 1
-        failed = at.step + 1 if failed is None else failed
+        """Record a rejected step (``failed``: its number, default the next one) and let the guard roll
+        back and lower the step size; raise when it says the run must stop."""
+        failed = run.at.step + 1 if failed is None else failed
         message = f"step {failed} ({getattr(self.rule, 'name', 'rule')}): {err}"
-        self.history.append({"step": failed, "wall_s": at.wall, "loss": math.nan, "rejected": message})
-        back = ""
-        if run.good.step is not None and run.good.step < at.step:  # undo the update that blew up
-            run.state = run.good.restore(self.rule, run.state, run.model)
-            back, at.step = f", rolled back to the state after step {run.good.step}", run.good.step
-        if at.failures >= self.max_failures:
+        self.history.append({"step": failed, "wall_s": run.at.wall, "loss": math.nan, "rejected": message})
+        run.state, run.at.step, note, stop = run.guard.reject(self.rule, run.state, run.model, run.at.step,
+                                                              failed, getattr(err, "overshoot", None))
+        if stop:
             bar.close()
-            raise NonFiniteError(f"{message}; stopped after {at.failures} consecutive rejected steps "
-                                 f"(max_failures={self.max_failures}); {self._last_good(run)}") from None
-        at.scale *= self.step_factor
-        if not self.parallel.is_writer:
-            return
-        warnings.warn(f"{message}; step rejected{back}, step size scaled by "
-                      f"{self.step_factor:g} (failure {at.failures} of at most {self.max_failures})",
-                      RuntimeWarning, stacklevel=4)
+            raise NonFiniteError(f"{message}; {stop}; {self._last_good(run)}") from None
+        if self.parallel.is_writer:
+            warnings.warn(f"{message}; step rejected{note}", RuntimeWarning, stacklevel=4)
 
     def _check_stop(self, run: _Run, record: dict) -> None:
         """The stopping rule, every ``stop.every`` accepted steps (its time counts as training)."""
@@ -522,6 +492,7 @@ class Trainer:
         if at.step % self.eval_every == 0 or done or at.step == 1:
             record.update(self.evaluate(run.model, run.test))
             self._check_evaluation(record["y_err"], run.at.y_err0)
+        run.guard.accept(at.step)
         self.history.append(record)
         for cb in self.callbacks:
             if cb(record, run.model) and not done:
@@ -561,15 +532,10 @@ class Trainer:
             self._check_stop(run, record)
             try:
                 done = self._after(run, record)
-            except NonFiniteError as err:  # rejected after the fact: the state before the update is back
+            except NonFiniteError as err:  # rejected after the fact (a finite blow-up: cut by its overshoot)
                 run.at.stopped_by = None
-                run.at.failures = run.at.rejected_evals  # the step's acceptance does not end this streak
-                if getattr(err, "overshoot", None):  # a finite blow-up: the step shrinks by its overshoot
-                    run.at.scale *= err.overshoot
                 self._reject(run, err, bar, failed=run.at.step)
-                run.at.rejected_evals = run.at.failures
                 continue
-            run.at.rejected_evals = 0
             bar.update(1)
             bar.set_postfix(loss=f"{info['loss']:.3g}", refresh=False)
         bar.close()

@@ -16,7 +16,7 @@ from pathlib import Path
 from pdeinv.cli import main
 
 checkpoint = importlib.import_module("pdeinv.checkpoint")
-train = importlib.import_module("pdeinv.train")  # the module: ``pdeinv.train`` is also a function
+guard = importlib.import_module("pdeinv.methods.guard")  # the Guard applies every update through it
 
 KIND, N = os.environ["PDEINV_PAUSE"].split(":")
 N = int(N)
@@ -34,7 +34,7 @@ def counted(kind):
     return KIND == kind and calls[kind] == N
 
 
-real_step, real_write = train.apply_if_finite, checkpoint.atomic_write
+real_step, real_write = guard.apply_if_finite, checkpoint.atomic_write
 
 
 def apply_if_finite(*args, **kw):
@@ -60,5 +60,5 @@ def atomic_write(path, write):
     return real_write(path, half)
 
 
-train.apply_if_finite, checkpoint.atomic_write = apply_if_finite, atomic_write
+guard.apply_if_finite, checkpoint.atomic_write = apply_if_finite, atomic_write
 sys.exit(main(sys.argv[1:]))

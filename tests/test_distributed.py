@@ -41,11 +41,11 @@ RUN = ["train", "heat_1d", "--set", "n=16", "--set", "steps=10", "--hidden", "16
 #: ``python FAULT MODE RANK STEP ARGV…``: on rank RANK at its STEP-th step, ``exit`` dies (os._exit(9))
 #: right after the update; ``nan`` makes that step's shard loss NaN (GD/Adam's y-loss), on that rank only
 FAULT = """import importlib, math, os, sys
-train = importlib.import_module("pdeinv.train")  # the module (pdeinv.train is also a function)
+guard = importlib.import_module("pdeinv.methods.guard")  # the Guard applies every update through it
 gd = importlib.import_module("pdeinv.methods.gd")
 mode, rank, step = sys.argv[1], int(sys.argv[2]), int(sys.argv[3])
 mine = int(os.environ["RANK"]) == rank
-real_step, real_loss, calls = train.apply_if_finite, gd.y_loss, {"step": 0, "loss": 0}
+real_step, real_loss, calls = guard.apply_if_finite, gd.y_loss, {"step": 0, "loss": 0}
 def apply_if_finite(*a, **kw):
     out = real_step(*a, **kw)
     calls["step"] += 1
@@ -56,7 +56,7 @@ def y_loss(*a):
     calls["loss"] += 1
     value = real_loss(*a)
     return value * math.nan if mine and mode == "nan" and calls["loss"] == step else value
-train.apply_if_finite, gd.y_loss = apply_if_finite, y_loss
+guard.apply_if_finite, gd.y_loss = apply_if_finite, y_loss
 from pdeinv.cli import main
 sys.exit(main(sys.argv[4:]))
 """

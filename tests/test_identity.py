@@ -80,7 +80,7 @@ def test_more_steps_and_a_guard_lowered_step_size_are_no_mismatch(tmp_path):
     with pytest.warns(RuntimeWarning, match="scaled by 0.5"):
         first = trainer(problem(), GD(sgd(0.05)), 5, ckpt).fit()
     assert first.state.transform.param_groups[0]["lr"] == 0.025
-    assert ckpt.load()["position"]["scale"] == 0.5
+    assert ckpt.load()["guard"]["scale"] == 0.5
     # more steps: accepted (a fresh faults problem poisons its 3rd call again: resume for two steps)
     longer = trainer(problem(), GD(sgd(0.05)), 7, ckpt, resume=True).fit()
     assert longer.state.transform.param_groups[0]["lr"] == 0.025  # the lowered step size survives

@@ -93,9 +93,11 @@ def test_consecutive_failures_stop_with_the_last_good_checkpoint(tmp_path):
         t.fit()
     saved = ckpt.load()
     assert saved["position"]["step"] == 2 and [h["step"] for h in saved["history"]] == [1, 2]
-    # non-consecutive failures do not add up
+    # failures with progress in between do not add up: call 2 rejects step 2 (back to step 0), call 3
+    # redoes step 1, call 4 passes step 2 (new parameters: the streak ends), call 5 rejects step 3.
+    # (Poison "2,4" would reject step 2 twice in a row: a re-accepted step 1 is no progress.)
     with pytest.warns(RuntimeWarning):
-        r = trainer(GD(adam(1e-3)), poison="2,4", max_failures=2).fit()
+        r = trainer(GD(adam(1e-3)), poison="2,5", max_failures=2).fit()
     assert r.metrics["steps"] == 6 and r.metrics["rejected_steps"] == 2
 
 

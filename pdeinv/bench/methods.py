@@ -120,7 +120,7 @@ def train_once(problem, cand: Candidate, value: float, seed: int, budget_s: floa
     """One run; a NaN/Inf is an outcome (``x_err = inf``), not a crash."""
     batch = min(cand.batch_size, n_train)
     make = cand.make if cand.preset is None else \
-        (lambda _: make_rule(cand.preset, problem.name, problem.noise)[0])
+        (lambda _: make_rule(cand.preset, problem, problem.noise)[0])
     trainer = Trainer(problem, make(value), network(problem, cand.hidden, seed), steps=None,
                       time_budget=budget_s, n_train=n_train, n_test=n_test, batch_size=batch,
                       seed=seed, eval_every=eval_every, progress=False,
@@ -158,7 +158,7 @@ def compare(problem, budget_s: float, seed: int = 0, sweep_s: float | None = Non
                                       eval_every)["x_err"]
         value = min(tried, key=lambda v: tried[v]) if tried else cand.default
         res = train_once(problem, cand, value, seed, budget_s, n_train, n_test, eval_every)
-        chosen = ({"preset": make_rule(cand.preset, problem.name, problem.noise)[1]} if cand.preset
+        chosen = ({"preset": make_rule(cand.preset, problem, problem.noise)[1]} if cand.preset
                   else {cand.knob: value})
         out[name] = {**res, **chosen, "sweep_val_x_err": {f"{k:g}": e for k, e in tried.items()},
                      "network": ("problem.model()" if cand.hidden is None else cand.hidden

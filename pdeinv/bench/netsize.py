@@ -29,7 +29,7 @@ def row(n: int, net: str, method: str, steps: int, seed: int = 0) -> dict:
     from ..train import Trainer
 
     problem = load_problem("heat_2d", n=n)
-    rule, hp = make_rule(method, problem.name, problem.noise)
+    rule, hp = make_rule(method, problem, problem.noise)
     torch.manual_seed(seed)
     model = NETS[net]()(problem)
     result = Trainer(problem, rule, model, steps=steps, n_train=1024, n_test=128,

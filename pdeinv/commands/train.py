@@ -260,7 +260,7 @@ def _parallel_train(args, out, ckpt, device, parallel) -> int:
         args.set = [*args.set, f"noise={level:.2g}"]  # run.json and --resume see the level trained with
         overrides = parse_sets(args.set)
         problem = build_problem("train", args.problem, args.set, steps=args.steps)
-    rule, hp = make_rule(args.method, problem.name, problem.noise, lr=args.lr, eta=args.eta, tau=args.tau,
+    rule, hp = make_rule(args.method, problem, problem.noise, lr=args.lr, eta=args.eta, tau=args.tau,
                          batch_size=args.batch_size, hidden=hidden, optimizer=args.optimizer)
     _checks.check_run(problem, args, hp)  # memory, HIG step time, --export-samples (before allocating)
     stop = STOPS[args.stop](problem)
@@ -347,8 +347,9 @@ def add_parser(sub) -> None:
     t.add_argument("--method", choices=sorted(METHODS), default="sip",
                    help="update rule (default: sip, the most accurate; methods/presets.py)")
     t.add_argument("--steps", type=int, default=None,
-                   help="training steps (default: the method's preset: 30 full-batch steps for sip, 100 "
-                        "for hig, 1000 otherwise; no limit when --time-budget is given)")
+                   help="training steps (default: the method's preset: 30 full-batch steps for sip; for "
+                        "hig 100 full-batch steps on the reversible (wave) scenes, 1000 batches of 64 on "
+                        "the others; 1000 otherwise; no limit when --time-budget is given)")
     t.add_argument("--time-budget", type=float, default=None, metavar="SECONDS",
                    help="also stop once training wall time exceeds this")
     t.add_argument("--seed", type=int, default=0)

@@ -25,7 +25,7 @@ e.g. a torch optimizer's moments, and the count of accepted steps) from the
 static ``context`` built once from the problem (operator, inverse simulator),
 which is rebuilt by ``init`` and never saved. Checking the update for NaN/Inf
 and applying it with the run's step-size multiplier is :func:`.guard.apply_if_finite`,
-the one place that does it for every rule.
+the one place that does it for every rule; :mod:`.guard` imports nothing from here.
 """
 
 from __future__ import annotations
@@ -39,6 +39,8 @@ import torch
 
 from ..checkpoint import plain
 from ..errors import NonFiniteError  # noqa: F401  (re-exported)
+from . import guard
+from .guard import describe, trainable  # noqa: F401  (re-exported)
 
 #: ``params -> torch.optim.Optimizer``, e.g. ``functools.partial(torch.optim.Adam, lr=1e-3)``
 OptimizerFactory = Callable[[Any], torch.optim.Optimizer]
@@ -88,11 +90,6 @@ class Resumable(Protocol):
     def load_state_dict(self, state, sd: dict) -> Any: ...
 
     def hyperparameters(self) -> dict: ...
-
-
-def trainable(model: torch.nn.Module) -> list[torch.nn.Parameter]:
-    """The parameters a rule updates, in ``model.parameters()`` order (its direction's order)."""
-    return [p for p in model.parameters() if p.requires_grad]
 
 
 def adam(lr: float = 1e-3, **kw) -> OptimizerFactory:
@@ -150,11 +147,6 @@ def prediction(x: torch.Tensor) -> torch.Tensor:
     return x
 
 
-def describe(t: torch.Tensor) -> str:
-    t = t.detach()
-    return f"{int(torch.isnan(t).sum())} NaN, {int(torch.isinf(t).sum())} Inf of {t.numel()}"
-
-
 def y_loss(y: torch.Tensor, y_target: torch.Tensor) -> torch.Tensor:
     """``½ · mean_i ‖y_i − y*_i‖²`` (Euclidean, mean over the batch)."""
     return 0.5 * (y - y_target).pow(2).sum(-1).mean()
@@ -178,12 +170,9 @@ class Rule:
         return state
 
     def step(self, state: State, model: torch.nn.Module, y: torch.Tensor):
-        """One guarded update, applied at full step size: ``(state, info)`` (for one-off use)."""
-        from .guard import apply_if_finite
-
-        if state.steps == 0:
-            state = self.calibrate(state, model, y)
-        return apply_if_finite(self, state, model, y)
+        """One guarded update, applied at full step size: ``(state, info)`` (for one-off use;
+        :func:`.guard.step`)."""
+        return guard.step(self, state, model, y)
 
     def state_dict(self, state: State) -> dict:
         """The resumable part (plain dicts / tensors, ``torch.save``-able); the context is not saved."""
