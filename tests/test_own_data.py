@@ -257,6 +257,27 @@ def test_a_float32_file_trains_at_its_rounding_level(tmp_path, capsys):
     assert json.loads((tmp_path / "run" / "metrics.json").read_text())["x_err"] < 0.1
 
 
+def test_noisy_data_without_a_declared_level_trains_at_the_level_it_shows(tmp_path, capsys):
+    """1 % noise, no --set noise: the level is read off the directions outside range(P) (0.0100; the
+    Gavish–Donoho estimate says 0.0079 on heat_2d, and a Wiener target 20 % low keeps pure-noise modes:
+    x-error 6.6e4 measured), said in one line, recorded in run.json, and the run reaches the oracle-α
+    Tikhonov of the same test rows; --set noise=0 is obeyed."""
+    from pdeinv import references
+
+    p = pdeinv.load_problem("heat_2d", n=16, noise=0.01)
+    x, y = p.sample(600, 7)
+    np.savez(tmp_path / "noisy.npz", y=y, x=x)
+    data = ["--data", str(tmp_path / "noisy.npz"), "--set", "n=16", "--export-samples", "0"]
+    assert main(["train", "heat_2d", *data, "--n-test", "100", "--out", str(tmp_path / "run")]) == 0
+    assert "observations show noise of relative level 0.01 " in capsys.readouterr().err
+    assert json.loads((tmp_path / "run" / "run.json").read_text())["overrides"]["noise"] == "0.01"
+    oracle = references.tikhonov_best(p, y[-100:], x[-100:])["x_err"]
+    assert json.loads((tmp_path / "run" / "metrics.json").read_text())["x_err"] < oracle
+    assert main(["train", "heat_2d", *data, "--set", "noise=0", "--steps", "1",
+                 "--out", str(tmp_path / "r0")]) == 0
+    assert "observations show noise" not in capsys.readouterr().err
+
+
 def test_a_small_file_says_what_the_default_splits_hold_out(tmp_path, capsys):
     """150 rows and the default --n-test 128: 22 rows train; said in one line, with the way out."""
     p = pdeinv.load_problem("heat_1d", n=16)

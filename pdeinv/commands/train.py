@@ -240,7 +240,7 @@ def _network_spec(problem, hp: dict) -> dict:
 def _parallel_train(args, out, ckpt, device, parallel) -> int:
     import torch
 
-    from pdeinv.data import npz_rounding_level, read_npz
+    from pdeinv.data import npz_rounding_level, read_npz, undeclared_noise
     from pdeinv.methods.presets import make_rule
     from pdeinv.runs import network
     from pdeinv.train import Trainer
@@ -252,11 +252,17 @@ def _parallel_train(args, out, ckpt, device, parallel) -> int:
     overrides = parse_sets(args.set)
     problem = build_problem("train", args.problem, args.set, steps=args.steps)  # says so when slow
     y, x = read_npz(args.data, problem.operator.n_out, problem.N) if args.data else (None, None)
-    level = npz_rounding_level(args.data) if args.data else 0.0
-    if level > problem.noise and "noise" in problem.settings:  # rounding is noise: say so, train with it
-        warnings.warn(f"--data {args.data!r} is stored in lower precision than float64: its rounding is "
-                      f"noise of relative level {level:.2g}, above the problem's {problem.noise:g}; training "
-                      f"with --set noise={level:.2g}", RuntimeWarning, stacklevel=2)
+    rounding = npz_rounding_level(args.data) if args.data else 0.0
+    # noisy data with no declared level would be fitted exactly (the noise amplified by the inverse):
+    # rounding is noise, and so is what the observations show (pdeinv.data.undeclared_noise)
+    level = undeclared_noise(args.data, y, problem) if args.data and "noise" not in overrides else rounding
+    if level > problem.noise and "noise" in problem.settings:  # say so, train with it
+        why = (f"is stored in lower precision than float64: its rounding is noise of relative level "
+               f"{level:.2g}" if level == rounding else f"declares no noise level; its observations show "
+               f"noise of relative level {level:.2g} (pdeinv.data.undeclared_noise)")
+        warnings.warn(f"--data {args.data!r} {why}, above the problem's {problem.noise:g}; training "
+                      f"with --set noise={level:.2g} (--set noise=… declares the level)", RuntimeWarning,
+                      stacklevel=2)
         args.set = [*args.set, f"noise={level:.2g}"]  # run.json and --resume see the level trained with
         overrides = parse_sets(args.set)
         problem = build_problem("train", args.problem, args.set, steps=args.steps)
