@@ -141,19 +141,3 @@ def test_the_batch_side_gram_equals_the_feature_side_gram(rows):
         assert info_a["kept"] == info_b["kept"] and info_a["sigma_max"] == pytest.approx(info_b["sigma_max"])
         assert np.abs(a - b).max() < 1e-9 * np.abs(a).max(), (rows, tau)
 
-
-def test_hig_presets_follow_the_scene_family():
-    """A scene whose default network has a prior decoder (heat: not reversible) trains HIG in batches
-    of 64 for 1000 steps; a reversible one (wave) on the full batch for 100; a bare name gets the
-    generic preset; an explicit --batch-size still wins."""
-    from pdeinv.methods.presets import family, hyperparameters
-
-    heat, wave = pdeinv.load_problem("heat_1d", n=16), pdeinv.load_problem("wave_1d", n=16)
-    assert family(heat) == "prior_decoder" and family(wave) is None
-    assert {k: hyperparameters("hig", heat)[k] for k in ("batch_size", "steps")} == {"batch_size": 64,
-                                                                                     "steps": 1000}
-    assert {k: hyperparameters("hig", wave)[k] for k in ("batch_size", "steps")} == {"batch_size": None,
-                                                                                     "steps": 100}
-    assert hyperparameters("hig", "heat_1d")["batch_size"] is None
-    assert hyperparameters("hig", heat, batch_size=8)["batch_size"] == 8
-    assert hyperparameters("sip", heat) == hyperparameters("sip", "heat_1d")  # SIP: one preset

@@ -353,9 +353,8 @@ def add_parser(sub) -> None:
     t.add_argument("--method", choices=sorted(METHODS), default="sip",
                    help="update rule (default: sip, the most accurate; methods/presets.py)")
     t.add_argument("--steps", type=int, default=None,
-                   help="training steps (default: the method's preset: 30 full-batch steps for sip; for "
-                        "hig 100 full-batch steps on the reversible (wave) scenes, 1000 batches of 64 on "
-                        "the others; 1000 otherwise; no limit when --time-budget is given)")
+                   help="training steps (default: the method's preset: 30 full-batch steps for sip, 100 "
+                        "for hig, 1000 otherwise; no limit when --time-budget is given)")
     t.add_argument("--time-budget", type=float, default=None, metavar="SECONDS",
                    help="also stop once training wall time exceeds this")
     t.add_argument("--seed", type=int, default=0)
@@ -408,7 +407,9 @@ def add_parser(sub) -> None:
                         "data); --steps may grow, not shrink below the steps done")
     t.add_argument("--max-failures", type=int, default=5, metavar="K",
                    help="stop after K consecutive rejected steps (a NaN/Inf loss or update, or a loss "
-                        "over 1000x the lowest so far); each rejection restores the last good state "
-                        "and halves the learning rate / eta")
+                        "over 1000x the lowest so far; redoing the rolled-back step does not end a "
+                        "streak); each rejection restores the last good state and halves the learning "
+                        "rate / eta, never below 1e-12 of it (the run stops there), and it doubles back "
+                        "after 50 accepted steps")
     _checks.add_arguments(t)  # --allow-slow, --max-memory-gb
     t.set_defaults(func=cmd_train)

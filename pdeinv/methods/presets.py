@@ -2,8 +2,7 @@
 
 ``make_rule("sip", "heat_1d", lr=3e-3)`` -> ``(SIP(...), {"lr": 3e-3, "eta": 1.0, ...})``.
 
-No per-scene table: every step size follows from the maths; HIG's batch and steps differ per scene
-family (:data:`PER_FAMILY`, by what the default network is).
+No per-scene table: every step size follows from the maths.
 
 * **sip**: η = 1 (the paper's full inverse step), the local inverse of what the network can produce:
   on the prior-decoder network (the default where the operator is not reversible,
@@ -43,8 +42,11 @@ family (:data:`PER_FAMILY`, by what the default network is).
   minibatch leaves weight on the trailing whitened directions, which test data amplify
   (Marchenko–Pastur, as for Adam) —; heat_2d (prior decoder) (32, 0.3) 0.063, (64, 0.3) 0.048,
   (64, 1) 0.031, (128, 0.5) 0.032 against 0.0425 full batch. At batch 32–64 a step costs
-  0.03–0.11 s on one shared thread, about Adam's. Hence :data:`PER_FAMILY`: batches of 64 and
-  1000 steps on the prior-decoder scenes, the full batch and 100 steps on the reversible ones.
+  0.03–0.11 s on one shared thread, about Adam's. Batches of 64 and 1000 steps on every
+  prior-decoder scene were tried as a preset: heat_2d 0.031, heat_sensors_2d 0.0305, heat_plate
+  0.0351, heat_cavity_3d 0.0367 noise-free (full batch: 0.0425, 0.0421, 0.0469, 0.0342), equal at
+  1 %, but wave_sensors_2d blew up at step 50 (test y-error 32× its start): the full batch stays
+  the preset on every scene; ``--batch-size 64 --steps 1000`` is the fast option on heat scenes.
 
 Measured with ``benchmarks/accuracy.py`` (CLI defaults, one thread) against best-α Tikhonov on
 the same 128 test pairs: see ``README.md``.
@@ -88,38 +90,14 @@ GENERIC = {
 #: per-problem overrides of GENERIC (none needed since the steps are normalized by the curvature)
 PER_PROBLEM: dict[str, dict[str, dict]] = {}
 
-#: per scene family (:func:`family`) overrides of GENERIC. HIG on the prior-decoder network: batches
-#: of 64 at η 1, 1000 steps (module docstring: heat_2d 0.031 against 0.0425 for 100 full-batch steps,
-#: below best-α Tikhonov's 0.0328, at about Adam's step time); the whitened map of the reversible
-#: scenes keeps the full batch (wave_2d: 0.065–0.74 with minibatches, < 1e-6 full).
-PER_FAMILY: dict[str, dict[str, dict]] = {
-    "prior_decoder": {"hig": {"batch_size": 64, "steps": 1000}},
-}
-
-
-def family(problem) -> str | None:
-    """The scene family of a :class:`~pdeinv.Problem` for :data:`PER_FAMILY`: ``"prior_decoder"`` where
-    its default network has a prior decoder (:func:`pdeinv.nets.default_model`: an operator that is not
-    reversible, or above the size limit), ``None`` for a problem with its own network or a bare name."""
-    from .. import nets
-
-    op = getattr(problem, "operator", None)
-    if op is None or getattr(problem, "model_factory", None) is not None:
-        return None
-    big = max(op.n_in, op.n_out) > nets.REDUCED_ABOVE
-    return "prior_decoder" if big or nets._prior_decoded(problem, None) else None
-
-
 def hyperparameters(method: str, problem, noise: float = 0.0, **overrides) -> dict:
-    """Defaults for ``method`` on ``problem`` (a :class:`~pdeinv.Problem`, whose :func:`family` may
-    override them, or a name) with observation ``noise``, ``overrides`` applied (unknown keys
-    refused)."""
+    """Defaults for ``method`` on ``problem`` (a :class:`~pdeinv.Problem` or its name) with observation
+    ``noise``, ``overrides`` applied (unknown keys refused)."""
     if method not in METHODS:
         raise ValueError(f"method={method!r} is not allowed; expected one of "
                          f"{', '.join(map(repr, METHODS))}")
     name = getattr(problem, "name", problem)
-    hp = {**GENERIC[method], **PER_FAMILY.get(family(problem), {}).get(method, {}),
-          **PER_PROBLEM.get(name, {}).get(method, {})}
+    hp = {**GENERIC[method], **PER_PROBLEM.get(name, {}).get(method, {})}
     hp.setdefault("hidden", None)
     hp.setdefault("rows_per_component", None)
     bad = sorted(k for k, v in overrides.items() if v is not None and (k not in hp or k == "steps"))
