@@ -9,13 +9,14 @@ Three kinds of network:
 * :class:`Net` = a fitted input transform (:class:`~pdeinv.precondition.Whitening`,
   PCA whitening of the training observations) and a body from :data:`BODIES`:
   ``linear`` (``x = A z + b``), ``mlp`` (tanh layers), ``residual`` (both, summed);
-  built by :func:`whitened`, in float64 (:data:`DTYPE`). The **default** of every scene
-  (:func:`default_model`): the whitened linear map up to :data:`REDUCED_ABOVE` unknowns or
+  built by :func:`whitened`, in float64 (:data:`DTYPE`). The **default** where the operator is
+  reversible (the wave scenes, :func:`default_model`) up to :data:`REDUCED_ABOVE` unknowns or
   observations. It has ``min(m, N)·N + N`` parameters and an ``N × N`` whitening (heat_2d
-  at n = 128: 260 M parameters), so above that:
+  at n = 128: 260 M parameters), so above that, and on every other scene:
 * :func:`reduced`: the same :class:`Net` on the ``k_in`` leading whitened components,
-  with a fixed decoder basis ``Φ`` (:class:`Decoder`) on the output: ``x = Φ body(z)``;
-  its trained size does not depend on the mesh.
+  with a fixed decoder basis ``Φ`` (:class:`Decoder`, the prior's principal components) on the
+  output: ``x = Φ body(z)``; its trained size does not depend on the mesh, and the prior fills
+  what the observations do not see.
 * :class:`MLP`: a tanh MLP (256, 256) on per-node standardized input, what ``--method adam``
   trains (:mod:`pdeinv.methods.presets` says why: a first-order rule leaves weight on the
   trailing whitened directions, which new data amplify).
@@ -24,7 +25,7 @@ Both default networks are linear in their parameters after a fixed feature map
 (:meth:`Net.linear_in_parameters`): SIP's proxy step is then a Newton step
 (:meth:`Net.gauss_newton_diagonal`) and HIG has an exact Kronecker-factored step
 (:mod:`pdeinv.methods.hig_kron`). Measured against best-α Tikhonov on every scene with
-``benchmarks/accuracy.py``: the table is in ``README.md`` (Results). The whitening is fitted by
+``benchmarks/accuracy.py``: the table is in ``docs/results.md``. The whitening is fitted by
 the trainer on the training observations only (:func:`fit_preconditioning`), never on ``x``,
 and travels with the state dict.
 

@@ -49,7 +49,7 @@ No per-scene table: every step size follows from the maths.
   the preset on every scene; ``--batch-size 64 --steps 1000`` is the fast option on heat scenes.
 
 Measured with ``benchmarks/accuracy.py`` (CLI defaults, one thread) against best-α Tikhonov on
-the same 128 test pairs: see ``README.md``.
+the same 128 test pairs: see ``docs/results.md``.
 """
 
 from __future__ import annotations
