@@ -179,6 +179,33 @@ class Net(nn.Module):
         return tuple(diag[name] for name, _ in lin.layer.named_parameters())
 
 
+    @torch.no_grad()
+    def gauss_newton_max(self, y: torch.Tensor) -> float | None:
+        """``λ_max(d^{-1/2} G d^{-1/2})`` exactly, ``d`` = :meth:`gauss_newton_diagonal` (zeros read as 1),
+        when the network is linear in its parameters; ``None`` otherwise. ``G = A ⊗ C`` with
+        ``A = Z̃ᵀZ̃/B`` and ``C = DDᵀ`` (:meth:`gauss_newton_diagonal`), and ``d = diag(C) ⊗ diag(A)``,
+        so the normalized matrix is the Kronecker product of the normalized factors and its largest
+        eigenvalue the product of theirs: two small symmetric eigenproblems (``k̃ × k̃`` and
+        ``k_out × k_out``) instead of :func:`~pdeinv.methods.curvature.gauss_newton_max`'s 30 power
+        iterations through the network (heat_2d, the full batch: ~0.5 s against ~5 s, one thread)."""
+        lin = self.linear_in_parameters()
+        if lin is None:
+            return None
+        z = lin.features(y).double()
+        if lin.layer.bias is not None:
+            z = torch.cat([z, torch.ones(len(z), 1, dtype=z.dtype, device=z.device)], 1)
+        factors = [z.T @ z / len(z)]
+        if lin.decoder is not None:
+            D = lin.decoder.double()
+            factors.append(D @ D.T)
+        lam = 1.0
+        for S in factors:
+            d = S.diagonal().clone()
+            r = torch.where(d > 0, d, torch.ones_like(d)).rsqrt()
+            lam *= float(torch.linalg.eigvalsh(S * r[:, None] * r[None, :]).max())
+        return lam
+
+
 class LinearInParameters(NamedTuple):
     """``x = D(W z(y) + b)`` (:meth:`Net.linear_in_parameters`): the fixed feature map ``z``, the fixed
     decoder's rows ``Dᵀ`` (``(k_out, N)``, ``None`` for the identity), and the ``nn.Linear`` holding

@@ -221,3 +221,20 @@ def test_sip_on_a_decoder_inverts_inside_its_span():
     coef = np.linalg.lstsq(D.T, inverse(y).T, rcond=None)[0]
     assert np.abs(coef.T @ D - inverse(y)).max() < 1e-10 * np.abs(inverse(y)).max()
     assert pdeinv.SIP(inverse=p.inverse).context(p, model).inverse == p.inverse
+
+
+@pytest.mark.parametrize("factory", [nets.whitened("linear"), nets.reduced(k_in=20, k_out=12)])
+def test_the_exact_curvature_equals_power_iteration(factory):
+    """Net.gauss_newton_max (two small eigenproblems) against the power iteration through the network,
+    with the Jacobi normalization SIP uses, on a problem small enough to iterate to convergence."""
+    from pdeinv.methods.curvature import gauss_newton_max
+
+    p = pdeinv.load_problem("heat_2d", n=8)
+    model = factory(p)
+    _, y = p.sample(64, seed=1)
+    Y = torch.as_tensor(y, dtype=torch.float64)
+    nets.fit_preconditioning(model, Y)
+    diag = tuple(torch.where(d > 0, d, torch.ones_like(d)) for d in model.gauss_newton_diagonal(Y))
+    slow = gauss_newton_max(model, Y, iters=500, diagonal=diag)
+    assert model.gauss_newton_max(Y) == pytest.approx(slow, rel=1e-6)
+    assert nets.whitened("mlp", hidden=(4,))(p).gauss_newton_max(Y) is None
