@@ -147,6 +147,36 @@ def read_npz(path, m: int, n: int) -> tuple[np.ndarray, np.ndarray | None]:
     return y, x
 
 
+def read_meta(path, points) -> dict:
+    """The optional keys of a data file, checked: ``noise`` (one number ≥ 0, the relative level, as
+    ``--set noise=``) and ``points`` (the coordinates of the columns of ``x``, ``(dim, N)``, which must
+    be the problem's ``points`` to 1e-9 of their largest coordinate: the same unknowns in the same
+    order). ``{"noise": δ}`` when the file declares a level; a mismatch is a ``ValueError`` naming it."""
+    where = f"data file {os.fspath(path)!r}"
+    with np.load(path, allow_pickle=False) as f:
+        meta = {k: f[k] for k in f.files if k in ("noise", "points")}
+    out = {}
+    if "noise" in meta:
+        v = meta["noise"]
+        if v.size != 1 or not np.issubdtype(v.dtype, np.number) or not np.isfinite(v).all() or float(v) < 0:
+            raise ValueError(f"{where}: noise={v.tolist()!r} is not allowed; expected one number >= 0 "
+                             "(the relative noise level, as --set noise=)")
+        out["noise"] = float(v)
+    if "points" in meta:
+        got, ref = meta["points"], np.asarray(points, dtype=float)
+        if got.shape != ref.shape or not np.issubdtype(got.dtype, np.number):
+            raise ValueError(f"{where}: points has shape {got.shape}; expected {ref.shape} (the coordinates "
+                             "of the problem's unknowns, problem.points: one column per column of x)")
+        diff = np.abs(got.astype(float) - ref).max(0)
+        worst = int(np.argmax(diff))
+        if not diff[worst] <= 1e-9 * max(float(np.abs(ref).max()), np.finfo(float).tiny):
+            a, b = got[:, worst].tolist(), ref[:, worst].tolist()
+            raise ValueError(f"{where}: points differ from the problem's by up to {diff[worst]:.3g} "
+                             f"(column {worst}: {a} against {b}); the columns must be the problem's unknowns "
+                             "in its order (docs/own-data.md: data on another grid is interpolated first)")
+    return out
+
+
 #: the mismatch a run explains: ``MISMATCH_SLACK[0]·δ`` with noise level ``δ`` (the noise alone gives
 #: ≈ δ; 1.1 leaves room for the spread of a finite file), else ``MISMATCH_SLACK[1]`` (a float32 file of
 #: our own simulator is off by ~6e-8)

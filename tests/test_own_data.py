@@ -314,3 +314,30 @@ def test_cli_classical_solves_a_data_file(tmp_path, capsys):
     assert main(["classical", "heat_1d", "--data", str(tmp_path / "y.npz"), "--set", "n=16",
                  "--set", "noise=0.01"]) == 0
     assert "tikhonov_best_alpha" not in capsys.readouterr().out
+
+
+def test_a_file_may_carry_its_points_and_noise_level(tmp_path, capsys):
+    """Optional keys: ``points`` must be the problem's (refused, exit 2, naming the largest difference,
+    when not); ``noise`` trains at the file's level (in run.json), and a different --set noise is refused."""
+    p = pdeinv.load_problem("heat_1d", n=16, noise=0.02)
+    x, y = p.sample(160, 3)
+    base = ["train", "heat_1d", "--set", "n=16", "--n-test", "32", "--steps", "2", "--export-samples", "0"]
+    np.savez(tmp_path / "ok.npz", y=y, x=x, points=p.points, noise=0.02)
+    assert main([*base, "--data", str(tmp_path / "ok.npz"), "--out", str(tmp_path / "run")]) == 0
+    assert json.loads((tmp_path / "run" / "run.json").read_text())["overrides"]["noise"] == "0.02"
+    assert "observations show noise" not in capsys.readouterr().err  # declared, not estimated
+    shifted = p.points.copy()
+    shifted[0, 5] += 1e-3
+    np.savez(tmp_path / "moved.npz", y=y, points=shifted)
+    assert main([*base, "--data", str(tmp_path / "moved.npz"), "--out", str(tmp_path / "r2")]) == 2
+    err = capsys.readouterr().err
+    assert "points differ from the problem's by up to 0.001 (column 5" in err
+    assert not (tmp_path / "r2").exists()
+    ok = ["--data", str(tmp_path / "ok.npz")]
+    assert main([*base, *ok, "--set", "noise=0.05", "--out", str(tmp_path / "r3")]) == 2
+    assert "conflicts with the noise=0.02" in capsys.readouterr().err
+    np.savez(tmp_path / "bad.npz", y=y, noise=-1.0)
+    assert main([*base, "--data", str(tmp_path / "bad.npz"), "--out", str(tmp_path / "r4")]) == 2
+    assert "noise=-1.0 is not allowed" in capsys.readouterr().err
+    assert main(["classical", "heat_1d", "--set", "n=16", "--data", str(tmp_path / "ok.npz")]) == 0
+    assert "the file's" in capsys.readouterr().out

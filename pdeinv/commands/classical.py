@@ -34,7 +34,7 @@ def cmd_classical(args) -> int:
     import numpy as np
 
     from pdeinv import references
-    from pdeinv.data import model_mismatch, read_npz
+    from pdeinv.data import model_mismatch, read_meta, read_npz
     from pdeinv.files import atomic_write
     from pdeinv.inverse import Discrepancy, default_inverse
     from pdeinv.noise import estimate_noise
@@ -46,8 +46,9 @@ def cmd_classical(args) -> int:
     set_threads(args.threads)
     problem = build_problem("classical", args.problem, args.set)
     y, x = read_npz(args.data, problem.operator.n_out, problem.N)
-    noise = problem.noise or (estimate_noise(y) if min(y.shape) >= 4 else 0.0)
-    source = "the problem's" if problem.noise else "estimated from the file"
+    declared = read_meta(args.data, problem.points).get("noise")
+    noise = problem.noise or declared or (estimate_noise(y) if min(y.shape) >= 4 else 0.0)
+    source = "the problem's" if problem.noise else "the file's" if declared else "estimated from the file"
 
     def err(xh) -> dict:
         """x-error (with x) and the relative residual ``mean ‖P x̂ − y‖/‖y‖`` (always)."""

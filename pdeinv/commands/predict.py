@@ -21,7 +21,7 @@ def cmd_predict(args) -> int:
 
     import numpy as np
 
-    from pdeinv.data import read_npz
+    from pdeinv.data import read_meta, read_npz
     from pdeinv.export import predict, write_fields
     from pdeinv.files import atomic_write
     from pdeinv.runs import load_run
@@ -40,6 +40,7 @@ def cmd_predict(args) -> int:
     set_threads(args.threads)
     problem, model = load_run(args.run)
     y, x = read_npz(args.data, problem.operator.n_out, problem.N)
+    read_meta(args.data, problem.points)  # the file's points, if any, are the run's problem's
     xhat = predict(model, y)
     buffer = io.BytesIO()
     np.savez(buffer, x=xhat)

@@ -240,7 +240,7 @@ def _network_spec(problem, hp: dict) -> dict:
 def _parallel_train(args, out, ckpt, device, parallel) -> int:
     import torch
 
-    from pdeinv.data import npz_rounding_level, read_npz, undeclared_noise
+    from pdeinv.data import npz_rounding_level, read_meta, read_npz, undeclared_noise
     from pdeinv.methods.presets import make_rule
     from pdeinv.runs import network
     from pdeinv.train import Trainer
@@ -252,6 +252,14 @@ def _parallel_train(args, out, ckpt, device, parallel) -> int:
     overrides = parse_sets(args.set)
     problem = build_problem("train", args.problem, args.set, steps=args.steps)  # says so when slow
     y, x = read_npz(args.data, problem.operator.n_out, problem.N) if args.data else (None, None)
+    meta = read_meta(args.data, problem.points) if args.data else {}
+    if "noise" in meta and "noise" in overrides and float(overrides["noise"]) != meta["noise"]:
+        raise UsageError(f"--set noise={overrides['noise']} conflicts with the noise={meta['noise']:g} the "
+                         f"data file {args.data!r} declares; drop one of them")
+    if "noise" in meta and "noise" not in overrides and "noise" in problem.settings:  # the file's level
+        args.set = [*args.set, f"noise={meta['noise']:g}"]
+        overrides = parse_sets(args.set)
+        problem = build_problem("train", args.problem, args.set, steps=args.steps)
     rounding = npz_rounding_level(args.data) if args.data else 0.0
     # noisy data with no declared level would be fitted exactly (the noise amplified by the inverse):
     # rounding is noise, and so is what the observations show (pdeinv.data.undeclared_noise)
