@@ -50,7 +50,16 @@ class DecodedSVD(NamedTuple):
 
 def decoded_svd(op, decoder) -> DecodedSVD:
     """``P̂``'s thin SVD from ``k`` forward calls; ``decoder``: the rows ``Dᵀ`` (``(k, N)``, numpy or
-    torch), ``None`` for the identity (``N`` calls)."""
+    torch), ``None`` for the identity (``N`` calls). Computed once per operator and decoder object (the
+    trainer's target, SIP's inverse and HIG's step all ask for it)."""
+    cache = op.__dict__.setdefault("_decoded_svd", {}) if hasattr(op, "__dict__") else {}
+    key = id(decoder)
+    if key not in cache:  # the entry keeps the decoder alive: its id stays unique
+        cache[key] = (decoder, _decoded_svd(op, decoder))
+    return cache[key][1]
+
+
+def _decoded_svd(op, decoder) -> DecodedSVD:
     P_hat = np.asarray(op.forward(decoded_rows(decoder, op.n_in)), dtype=float).T  # (m, k)
     Q, s, Vt = np.linalg.svd(P_hat, full_matrices=False)
     keep = s > s[0] * max(P_hat.shape) * np.finfo(float).eps if s.size and s[0] > 0 else np.zeros(0, bool)
