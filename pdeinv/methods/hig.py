@@ -15,7 +15,7 @@ from ..errors import NonFiniteError
 from ..inverse.decoder import decoded_svd
 from ..physics.base import Matrix
 from ..physics.capabilities import modal_basis
-from . import hig_kron
+from . import hig_fixed, hig_kron
 from .base import Rule, State, Update, prediction, y_loss
 from .hig_routes import JACOBIANS, ROUTES, Batch
 from .transforms import Add
@@ -150,7 +150,7 @@ class HIG(Rule):
             raise ValueError("HIG(route='kronecker') needs a network linear in its parameters after a fixed "
                              "feature map (model.linear_in_parameters(), e.g. pdeinv.whitened('linear') or "
                              f"pdeinv.reduced()); {type(model).__name__} does not declare one")
-        kron = None if lin is None else (lin, decoded_svd(op, lin.decoder), hig_kron.InputGram())
+        kron = None if lin is None else (lin, decoded_svd(op, lin.decoder), hig_kron.InputGram(), {})
         device = next(iter(model.parameters()), torch.empty(0)).device
         if kron is None and device.type != "cpu":
             raise ValueError(f"HIG's Jacobian routes decompose J with numpy on the CPU; the model is on "
@@ -181,9 +181,15 @@ class HIG(Rule):
 
     def _kronecker(self, op, kron, y_target: torch.Tensor, goal: torch.Tensor) -> Update:
         """The exact step without ``J`` (:mod:`.hig_kron`); one pass of the feature map gives ``x`` and
-        the features. Data-parallel (``sum_over``): every rank joins the one sum of the moments,
-        NaN where its shard failed, so all ranks take or refuse the same step."""
-        lin, fac, gram = kron
+        the features, and rows taken before need neither (:meth:`_fixed`). Data-parallel
+        (``sum_over``): every rank joins the one sum of the moments, NaN where its shard failed, so all
+        ranks take or refuse the same step."""
+        lin, fac, gram, seen = kron
+        key = None if self.sum_over is not None else \
+            hig_kron.rows_key(y_target, None if goal is y_target else goal)
+        if key is not None and key == gram.seen:  # the same rows again (the full batch): hig_fixed
+            return self._fixed(lin, fac, gram, seen, key, y_target, goal)
+        gram.seen = key
         x, Z = hig_kron.forward(lin, y_target)
         try:
             with torch.no_grad():
@@ -194,11 +200,9 @@ class HIG(Rule):
             r = torch.full((len(Z), op.n_out), math.nan, dtype=torch.float64)
         loss, rows = float(y_loss(r, torch.zeros_like(r))), len(Z)
         R = r.cpu().numpy()
-        key = None if self.sum_over is not None else hig_kron.rows_key(y_target)
-        repeated, gram.seen = key is not None and key == gram.seen, key
-        if self.sum_over is None and rows < Z.shape[1] and not repeated:
-            # new rows, fewer than features (a minibatch): A = Z̃Z̃ᵀ is the smaller Gram. The same rows
-            # again (the full batch) take G = Z̃ᵀZ̃, whose eigenpairs are then kept for the run.
+        if self.sum_over is None and rows < Z.shape[1]:
+            # new rows, fewer than features (a minibatch): A = Z̃Z̃ᵀ is the smaller Gram; as many rows as
+            # features or more: G = Z̃ᵀZ̃, whose eigenpairs are kept should the same rows come again.
             if not math.isfinite(loss):
                 return Update(None, {"loss": loss})
             delta, info = hig_kron.direction_rows(fac, Z, R, self.eta, self.tau, self.exponent)
@@ -211,6 +215,24 @@ class HIG(Rule):
                 return Update(None, {"loss": loss})
             delta, info = hig_kron.direction(fac, G, N, rows, self.eta, self.tau, self.exponent, gram, key)
         return Update(hig_kron.split(lin, delta * self._unit(info), lin.layer.weight), {**info, "loss": loss})
+
+    def _fixed(self, lin, fac, gram, seen: dict, key: frozenset, y_target, goal) -> Update:
+        """The step on rows taken before, from what they gave once (:mod:`.hig_fixed`): ``seen`` holds
+        the :class:`~.hig_fixed.Carried` state of the last such rows."""
+        if seen.get("key") != key:
+            _, Z = hig_kron.forward(lin, y_target)
+            a, W = gram(gram.kept(key) if gram.kept(key) is not None else Z.T @ Z, key)
+            fixed = hig_fixed.FixedRows.of(fac, Z, goal.detach().cpu().double().numpy(), a, W,
+                                           self.tau, self.exponent)
+            seen.update(key=key, carried=hig_fixed.Carried(fixed))
+        carried, layer = seen["carried"], lin.layer
+        weight = layer.weight.detach() if layer.bias is None else \
+            torch.cat([layer.weight.detach(), layer.bias.detach()[:, None]], 1)
+        info = carried.fixed.info
+        delta, loss = carried.step(weight.cpu().numpy(), self.eta, self._unit(info))
+        if not math.isfinite(loss):
+            return Update(None, {"loss": loss})
+        return Update(hig_kron.split(lin, delta, layer.weight), {**info, "loss": loss})
 
     def _unit(self, info: dict) -> float:
         """``σ_max^-(1+e)`` with ``normalize`` (class docstring), else 1."""

@@ -17,8 +17,8 @@ values are ``σ_kl = √(a_k c_l)`` with left vectors ``Q_A ⊗ Q_C``, and HIG's
     ΔW̃ = −η P̂ᵀ Hᵀ Z̃,   H = Q_A (M ⊙ S) Q_Cᵀ   ⇒   ΔW̃ = −η V diag(s) (M ⊙ S)ᵀ (Q_Aᵀ Z̃)
 
 Cost per step: products of sizes ``B·m·r`` and ``k̃·B·r``, and the eigendecomposition of the
-``k̃ × k̃`` input Gram (once per run with the full batch, :class:`InputGram`), or of the ``B × B``
-``A`` itself when the batch has fewer rows than ``k̃`` (:func:`direction_rows`: a minibatch);
+``k̃ × k̃`` input Gram, or of the ``B × B`` ``A`` itself when the batch has fewer rows than ``k̃``
+(:func:`direction_rows`: a minibatch); rows seen before (the full batch) take :mod:`.hig_fixed`;
 ``P̂`` is built once from ``k_out`` forward calls (the decoder's columns, or the ``N`` unit vectors)
 and its SVD once, in float64 (:func:`pdeinv.inverse.decoder.decoded_svd`, shared with SIP).
 The residual's part outside ``range(P̂)`` is out of every step's reach
@@ -75,9 +75,14 @@ class InputGram:
         return self.a, self.W
 
 
-def rows_key(y: torch.Tensor) -> frozenset:
-    """The batch's rows as a set of their bytes' hashes (:class:`InputGram`: the same rows, any order)."""
-    return frozenset(hash(r.tobytes()) for r in y.detach().cpu().contiguous().numpy())
+def rows_key(y: torch.Tensor, goal: torch.Tensor | None = None) -> frozenset:
+    """The batch's rows as a set of their bytes' hashes (:class:`InputGram`: the same rows, any order),
+    each with its target row when the targets are not the observations."""
+    Y = y.detach().cpu().contiguous().numpy()
+    if goal is None:
+        return frozenset(hash(r.tobytes()) for r in Y)
+    T = goal.detach().cpu().contiguous().numpy()
+    return frozenset(hash((r.tobytes(), t.tobytes())) for r, t in zip(Y, T, strict=True))
 
 
 def moments(fac: DecodedSVD, Z: np.ndarray, R: np.ndarray, G: np.ndarray | None = None):
@@ -93,9 +98,7 @@ def direction(fac: DecodedSVD, G: np.ndarray, N: np.ndarray, rows: int, eta: flo
     samples. ``A = Z̃Z̃ᵀ``'s nonzero eigenpairs come from the smaller ``k̃ × k̃`` Gram
     ``G = Z̃ᵀZ̃ = W diag(a) Wᵀ`` (``Q_A = Z̃ W a^-½``, so ``Q_Aᵀ Z̃ = a^½ Wᵀ`` and
     ``M = a^-½ Wᵀ N``): the rank of ``Z̃`` is at most ``k̃``."""
-    a, W = (gram or InputGram())(G, key)
-    keep_a = a > a[-1] * max(G.shape[0], rows) * np.finfo(float).eps  # the rank of Z̃
-    a, W = a[keep_a], W[:, keep_a]
+    a, W = rank(*(gram or InputGram())(G, key), (G.shape[0], rows))
     root = np.sqrt(a)
     return _step(fac, a, (W.T @ N) / root[:, None], root[:, None] * W.T, eta, tau, exponent)
 
@@ -106,24 +109,33 @@ def direction_rows(fac: DecodedSVD, Z: np.ndarray, R: np.ndarray, eta: float, ta
     Q_A diag(a) Q_Aᵀ``: ``M = Q_Aᵀ R Q_C`` directly. Cheaper when the batch has fewer rows than
     ``Z̃`` has columns (``B²k̃ + B³`` against ``k̃³`` per step: a minibatch), but not a sum over rows
     (one process only)."""
-    a, QA = np.linalg.eigh(Z @ Z.T)
-    keep_a = a > a[-1] * max(Z.shape) * np.finfo(float).eps  # the rank of Z̃
-    a, QA = a[keep_a], QA[:, keep_a]
+    a, QA = rank(*np.linalg.eigh(Z @ Z.T), Z.shape)
     return _step(fac, a, QA.T @ (R @ fac.Q), QA.T @ Z, eta, tau, exponent)
 
 
 def _step(fac: DecodedSVD, a: np.ndarray, M: np.ndarray, QtZ: np.ndarray, eta: float, tau: float,
           exponent: float) -> tuple[np.ndarray, dict]:
-    """``ΔW̃ = −η V diag(s) (M ⊙ S)ᵀ Q_Aᵀ Z̃`` with ``S_kl = σ_kl^(e−1)`` where ``σ_kl = √(a_k c_l) > τ·σ_max``
-    (module docstring)."""
+    """``ΔW̃ = −η V diag(s) (M ⊙ S)ᵀ Q_Aᵀ Z̃`` (module docstring)."""
+    S, info = kept_spectrum(fac, a, tau, exponent)
+    return -eta * (fac.V * fac.s) @ (M * S).T @ QtZ, info
+
+
+def kept_spectrum(fac: DecodedSVD, a: np.ndarray, tau: float, exponent: float) -> tuple[np.ndarray, dict]:
+    """``S_kl = σ_kl^(e−1)`` where ``σ_kl = √(a_k c_l) > τ·σ_max``, else 0 (module docstring), and what
+    was kept."""
     sigma = np.sqrt(a[:, None] * (fac.s**2)[None, :])
     smax = float(sigma.max()) if sigma.size else 0.0
     keep = sigma > tau * smax if smax > 0 else np.zeros_like(sigma, bool)
     S = np.zeros_like(sigma)
     S[keep] = sigma[keep] ** (exponent - 1.0)
-    delta = -eta * (fac.V * fac.s) @ (M * S).T @ QtZ
-    return delta, {"route": "kronecker", "kept": int(keep.sum()), "sigma_max": smax,
-                   "sigma_min_kept": float(sigma[keep].min()) if keep.any() else 0.0}
+    return S, {"route": "kronecker", "kept": int(keep.sum()), "sigma_max": smax,
+               "sigma_min_kept": float(sigma[keep].min()) if keep.any() else 0.0}
+
+
+def rank(a: np.ndarray, W: np.ndarray, shape: tuple) -> tuple[np.ndarray, np.ndarray]:
+    """The eigenpairs of ``G = Z̃ᵀZ̃`` (or ``A = Z̃Z̃ᵀ``) within ``Z̃``'s numerical rank (``shape``: its own)."""
+    keep = a > a[-1] * max(shape) * np.finfo(float).eps
+    return a[keep], W[:, keep]
 
 
 def split(lin, delta: np.ndarray, like: torch.Tensor) -> tuple[torch.Tensor, ...]:
