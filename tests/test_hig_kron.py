@@ -222,3 +222,14 @@ def close(got, want, rel, what):
     for a, b in zip(want, got, strict=True):
         assert a.shape == b.shape
         assert float((a - b).abs().max()) < rel * scale, what
+
+
+@pytest.mark.skipif(not torch.cuda.is_available(), reason="needs CUDA")
+@pytest.mark.parametrize("scene", ["heat_1d", "wave_1d"])
+def test_hig_on_cuda_matches_the_cpu(scene):
+    """The Kronecker route (and its kept-rows form) on a CUDA model: the same run as on the CPU."""
+    problem = pdeinv.load_problem(scene, n=16)
+    runs = [pdeinv.train(problem, HIG(), steps=6, n_train=64, n_test=8, batch_size=None, eval_every=3,
+                         dtype=torch.float64, device=d, seed=0) for d in ("cpu", "cuda")]
+    assert runs[1].metrics["device"].startswith("cuda")
+    assert runs[1].metrics["x_err"] == pytest.approx(runs[0].metrics["x_err"], rel=1e-8)

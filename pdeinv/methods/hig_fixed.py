@@ -36,8 +36,8 @@ import numpy as np
 from ..inverse.decoder import DecodedSVD
 from .hig_kron import kept_spectrum, rank
 
-#: steps between exact recomputations of the carried ``M`` (module docstring)
-REFRESH = 10
+#: steps between exact recomputations of the carried ``M`` (module docstring): 2 float64 products each
+REFRESH = 50
 #: ``k_out·r·k̃`` above which ``ΔW̃``'s products run in float32 (wave_2d: 9e8; heat_2d's reduced network: 7e7)
 FLOAT32_ABOVE = 2e8
 
