@@ -37,7 +37,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..physics.capabilities import modal_basis
+from ..physics.capabilities import Spectral, modal_basis
 from ._inputs import out, pair
 from .alpha import Fit, as_rule
 
@@ -55,10 +55,10 @@ class SpectralTikhonov:
 
     def __init__(self, op, alpha, modes=None):
         backend = modal_basis(op) if modes is None else modes
-        if backend is None or not all(a in dir(backend) or a in getattr(backend, "ARRAYS", ())
-                                      for a in ("g", "proj", "out", "synth")):
+        if not isinstance(backend, Spectral):
             raise ValueError(f"ModalTikhonov needs an operator with a modal backend or another spectral "
-                             f"basis (op.modes with g, proj, out, synth); got {op!r}; use TikhonovCG")
+                             f"basis (op.modes, a pdeinv.physics.capabilities.Spectral); got {op!r}; "
+                             "use TikhonovCG")
         self.op, self.modes = op, backend
         self.rule = as_rule(alpha)
         self.last_info: dict = {}
