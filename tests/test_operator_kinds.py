@@ -57,6 +57,9 @@ def test_reaction_diffusion_scene_is_one_builder_line():
     assert p.operator.kind == "modal" and type(p.inverse_simulator) is SpectralTikhonov, p.operator.choice
     x, y = p.sample(2, seed=0)
     np.testing.assert_allclose(p.inverse(p.operator.forward(x), x), x, atol=1e-12)  # exact at y₀
+    d, r = p.disc, p.settings["reaction"]
+    ref = Heat(d.M, d.K, kappa=0.01, steps=20, C=r * d.M, backend="steps")  # the reaction is in the map
+    assert r == 1.0 and _rel(y, ref.forward(x)) <= 1e-10
 
 
 def test_convection_still_has_no_modal_form():
@@ -82,7 +85,7 @@ def _hand_built(n=16, sensors=12, with_inverse=False):
     S = observe.sensor_matrix(disc, observe.interior_points(m, sensors))
     op = Heat(disc.M, disc.K, kappa=0.05, T=1.0, steps=100, backend="steps",
               measure=disc.measure, dim=disc.dim).sensors(S, 10)
-    assert op.choice is None and op.backend is None  # nobody chose a backend yet
+    assert op.backend is None  # nobody chose a backend yet
     inverse = default_inverse(op, disc) if with_inverse else None
     return Problem("mine", disc, op, partial(gaussian_bumps, disc.points), inverse_simulator=inverse)
 
