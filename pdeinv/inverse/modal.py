@@ -1,7 +1,9 @@
-"""Heat local inverse in the modal basis: the Tikhonov filter ``g/(g² + α)`` per mode.
+"""Local inverse in a spectral basis: the Tikhonov filter ``g/(g² + α)`` per mode.
 
-With the modal backend ``P = Φ diag(g) ΦᵀM`` (``ΦᵀMΦ = I``, ``g = r(dtκλ)ⁿ`` on the
-kept modes) the regularized change
+Written for the modal backend ``P = Φ diag(g) ΦᵀM`` (``ΦᵀMΦ = I``, ``g = r(dt μ)ⁿ`` on the
+kept modes, :mod:`pdeinv.physics.modal`); any :class:`~pdeinv.physics.capabilities.Spectral`
+basis (a compiled SVD) works the same way with ``proj``, ``synth`` in place of ``MΦ``, ``Φ``. The
+regularized change
 
     Δx = argmin ½‖PΔx − (y − y₀)‖²_M + ½α‖Δx‖²_M,      y₀ = P x₀,
 
