@@ -19,6 +19,7 @@ import numpy as np
 from ._checks import batch, count
 from .forms import Discretization
 from .physics.base import LinearOperator
+from .physics.propagator import chosen
 from .sampling import add_noise
 
 #: the package that holds the built-in problems (the repository's ``problems/``, installed as
@@ -32,7 +33,9 @@ class Problem:
 
     ``sampler(n, rng) -> (n, N)`` draws true initial fields; observations are
     ``y = P x`` plus relative Gaussian noise of level ``noise`` (see
-    :func:`pdeinv.sampling.add_noise`).
+    :func:`pdeinv.sampling.add_noise`). A time-stepping operator no one chose a backend for
+    (``Heat(...).sensors(S, k)``, ``Wave(...)``) is compiled by ``auto`` here, in the norms of
+    ``disc.M`` (:func:`pdeinv.physics.propagator.chosen`): no user has to call ``.compile``.
     """
 
     name: str
@@ -43,6 +46,10 @@ class Problem:
     noise: float = 0.0
     inverse_simulator: Callable | None = None
     model_factory: Callable | None = None
+
+    def __post_init__(self):
+        # an operator built by hand goes through the backend chooser as the scenes' do
+        chosen(self.operator, getattr(self.disc, "M", None))
 
     @property
     def points(self) -> np.ndarray:

@@ -45,8 +45,8 @@ from __future__ import annotations
 import numpy as np
 import scipy.linalg as sla
 
-from .physics.capabilities import observes_field
-from .physics.compiled import matrix
+from .physics.capabilities import modal_basis, observes_field
+from .physics.compiled import Dense, matrix
 
 #: σ / s_max used when the problem is noise-free (see the module docstring)
 TINY_SIGMA = 1e-8
@@ -88,11 +88,11 @@ def dense_operator(problem, chunk: int = 256) -> np.ndarray:
     (:mod:`pdeinv.physics.compiled`), from its spectral basis ``out diag(g) Inᵀ`` (modal or SVD,
     exact to the basis' tolerance), else from forward runs on identity columns."""
     op = problem.operator
-    backend = getattr(op, "backend", None)
-    if getattr(backend, "P", None) is not None:
+    backend, basis = getattr(op, "backend", None), modal_basis(op)
+    if isinstance(backend, Dense):
         return backend.P
-    if hasattr(backend, "In") and hasattr(backend, "out"):
-        return (backend.out * backend.g) @ backend.In.T
+    if basis is not None:
+        return (basis.out * basis.g) @ basis.In.T
     return matrix(op.forward, op.n_in, op.n_out, chunk)
 
 

@@ -57,10 +57,12 @@ WAVE_FINAL = {**WAVE, "scheme": ("newmark", s.one_of(*WAVE_SCHEMES))}
 
 
 def heat(name: str, mesh, cfg: dict) -> Problem:
-    """Heat scene: θ-scheme final-field observation, homogeneous Dirichlet boundary."""
+    """Heat scene: θ-scheme final-field observation, homogeneous Dirichlet boundary; with
+    ``cfg['reaction'] = r`` the reaction–diffusion ``M u' + (κK + rM) u = 0`` (still symmetric)."""
     disc = discretize(mesh, cfg["element"])
+    C = cfg["reaction"] * disc.M if cfg.get("reaction") else None
     op = Heat(disc.M, disc.K, kappa=cfg["kappa"], T=cfg["T"], steps=cfg["steps"],
-              scheme=cfg["scheme"], backend=cfg["backend"], measure=disc.measure, dim=disc.dim)
+              scheme=cfg["scheme"], backend=cfg["backend"], measure=disc.measure, dim=disc.dim, C=C)
     return Problem(name, disc, op, partial(gaussian_bumps, disc.points), settings=cfg,
                    noise=cfg["noise"],
                    inverse_simulator=default_inverse(op, disc, noise=cfg["noise"]))

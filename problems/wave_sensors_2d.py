@@ -21,10 +21,8 @@ step recorded (48 records, 3072 observations).
 
 Inverse simulator: :func:`pdeinv.inverse.default_inverse` — the operator is compiled to its SVD
 (``backend='auto'``), so the local inverse is the exact Tikhonov filter per singular value, with
-the library's α (``max(noise, 1e-10)²`` relative to the largest ``g²``); ``alpha`` sets another
-relative α. (A block-CG Tikhonov solve on the time stepping needed ~900 iterations, 125 s, for
-α = 1e-8 on 8 samples: grid-scale modes barely reach the sensors within T, so P*P has a wide
-spectrum; that is why this scene used to default to α = 1e-3.)
+the library's α (1e-20 relative to the largest ``g²``, :data:`pdeinv.inverse.NOISE_FREE_REL_ALPHA`;
+noisy data go to a denoised target, :mod:`pdeinv.targets`); ``alpha`` sets another relative α.
 """
 
 from functools import partial

@@ -231,7 +231,7 @@ def test_modal_backend_from_the_cache_equals_the_fresh_one_bitwise(folder, monke
     def no_build(*a, **k):
         raise AssertionError("built although cached")
 
-    monkeypatch.setattr("pdeinv.physics.heat_backends.lowest_modes", no_build)
+    monkeypatch.setattr("pdeinv.physics.modal.lowest_modes", no_build)
     hit = Modal(heat)
     for name in ("lam", "Phi", "g", "MPhi"):
         assert np.array_equal(getattr(hit, name), getattr(fresh, name))

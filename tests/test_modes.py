@@ -5,8 +5,7 @@ import pytest
 
 import pdeinv
 from pdeinv.errors import TooManyModes
-from pdeinv.physics import Heat, Modal, modes
-from pdeinv.physics.heat_backends import Stepping
+from pdeinv.physics import Heat, Modal, Stepping, modes
 
 
 def _heat(n, **kw):

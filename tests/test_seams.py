@@ -42,7 +42,7 @@ def test_advection_operator_is_not_symmetric_and_its_adjoint_is_exact():
     P = op.forward(np.eye(op.n_in)).T
     assert np.abs(P - P.T).max() > 1e-3 * np.abs(P).max()  # the map itself is not symmetric
     assert dot_test(op) <= 1e-12
-    assert op.backend.name == "steps" and op.modes is None
+    assert op.kind == "steps" and op.modes is None
     with pytest.raises(ValueError, match="backend='modal' needs a symmetric operator"):
         load("advection_diffusion_2d", n=4).operator.__class__(
             p.disc.M, p.disc.K, C=op.C, backend="modal")
@@ -117,7 +117,7 @@ def test_default_inverse_chooses_by_capability_not_class():
 
 
 def test_weyl_count_has_the_three_dimensional_constant():
-    from pdeinv.physics.heat_backends import weyl_count
+    from pdeinv.physics.modal import weyl_count
 
     class Box:
         measure, dim = 1.0, 3

@@ -134,7 +134,7 @@ def test_heat_sensors_reuse_a_stepping_backend():
     S = observe.sensor_matrix(d, [[0.5, 0.5]])
     stepping = Heat(d.M, d.K, backend="steps")
     # one θ-step (one factorization) shared by the final-field backend and the sensor run
-    assert HeatSensors(stepping, S).scheme is stepping.stepper is stepping.backend.run.scheme
+    assert HeatSensors(stepping, S).scheme is stepping.stepper is stepping.scheme
     modal = Heat(d.M, d.K, kappa=0.05, steps=10, backend="modal")
     stepped = Heat(d.M, d.K, kappa=0.05, steps=10, backend="steps")
     op, ref = HeatSensors(modal, S, 10), HeatSensors(stepped, S, 10)

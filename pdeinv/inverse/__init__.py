@@ -17,6 +17,7 @@ import numpy as np
 
 from ..physics.capabilities import output_mass, reversible
 from ..physics.compiled import spectral_basis
+from ..physics.propagator import chosen
 from .alpha import Discrepancy, FixedAlpha, RelativeAlpha
 from .cg import TikhonovCG
 from .compiled import CompiledInverse
@@ -47,7 +48,9 @@ def default_alpha(noise: float = 0.0) -> RelativeAlpha:
 
 
 def default_inverse(op, disc=None, noise: float = 0.0, alpha=None):
-    """The local inverse simulator for ``op``, chosen by capability (never by class).
+    """The local inverse simulator for ``op``, chosen by capability (never by class), after ``op``'s
+    backend (a time-stepping operator no one chose one for is compiled by ``auto`` first,
+    :func:`pdeinv.physics.propagator.chosen`).
 
     * a spectral basis (``op.modes``: the modal heat backend, or a compiled SVD), or a compiled
       dense forward (``op.backend.P``, whose SVD in the problem's norms is then computed on the
@@ -76,6 +79,7 @@ def default_inverse(op, disc=None, noise: float = 0.0, alpha=None):
     iteration then semi-converges: a stopping rule ends it, :mod:`pdeinv.stopping`).
     """
     M = getattr(op, "mass", None) if disc is None else disc.M
+    chosen(op, M)  # an operator no one chose a backend for: compiled by auto, as training will use it
     modes = spectral_basis(op, M)  # a compiled dense forward: its SVD, computed on the first call
     if modes is not None:
         return SpectralTikhonov(op, default_alpha(0.0) if alpha is None else alpha, modes=modes)

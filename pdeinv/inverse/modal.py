@@ -1,7 +1,9 @@
-"""Heat local inverse in the modal basis: the Tikhonov filter ``g/(g² + α)`` per mode.
+"""Local inverse in a spectral basis: the Tikhonov filter ``g/(g² + α)`` per mode.
 
-With the modal backend ``P = Φ diag(g) ΦᵀM`` (``ΦᵀMΦ = I``, ``g = r(dtκλ)ⁿ`` on the
-kept modes) the regularized change
+Written for the modal backend ``P = Φ diag(g) ΦᵀM`` (``ΦᵀMΦ = I``, ``g = r(dt μ)ⁿ`` on the
+kept modes, :mod:`pdeinv.physics.modal`); any :class:`~pdeinv.physics.capabilities.Spectral`
+basis (a compiled SVD) works the same way with ``proj``, ``synth`` in place of ``MΦ``, ``Φ``. The
+regularized change
 
     Δx = argmin ½‖PΔx − (y − y₀)‖²_M + ½α‖Δx‖²_M,      y₀ = P x₀,
 
@@ -37,7 +39,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..physics.capabilities import modal_basis
+from ..physics.capabilities import Spectral, modal_basis
 from ._inputs import out, pair
 from .alpha import Fit, as_rule
 
@@ -55,10 +57,10 @@ class SpectralTikhonov:
 
     def __init__(self, op, alpha, modes=None):
         backend = modal_basis(op) if modes is None else modes
-        if backend is None or not all(a in dir(backend) or a in getattr(backend, "ARRAYS", ())
-                                      for a in ("g", "proj", "out", "synth")):
+        if not isinstance(backend, Spectral):
             raise ValueError(f"ModalTikhonov needs an operator with a modal backend or another spectral "
-                             f"basis (op.modes with g, proj, out, synth); got {op!r}; use TikhonovCG")
+                             f"basis (op.modes, a pdeinv.physics.capabilities.Spectral); got {op!r}; "
+                             "use TikhonovCG")
         self.op, self.modes = op, backend
         self.rule = as_rule(alpha)
         self.last_info: dict = {}

@@ -2,13 +2,19 @@
 
 from .base import LinearOperator, Matrix, Transposed
 from .heat import Heat
-from .heat_backends import Modal, Stepping
 from .leapfrog import Leapfrog
+from .modal import Modal
 from .propagator import FinalField, Propagator, Records, sensors
 from .wave import Wave
 
-#: the names the sensor scenes used before the one propagator (same call)
+#: the names the sensor scenes used before the one propagator (same call; public in ``pdeinv``)
 HeatSensors = WaveSensors = sensors
+
+
+def Stepping(op) -> Propagator:  # noqa: N802 - the name of the former stepping backend class
+    """``op``'s run applied by time stepping (:meth:`Propagator.stepping`)."""
+    return op.stepping()
+
 
 __all__ = ["LinearOperator", "Matrix", "Transposed", "Heat", "Leapfrog", "Modal", "Stepping", "Wave",
            "FinalField", "Propagator", "Records", "HeatSensors", "WaveSensors", "sensors"]

@@ -6,13 +6,32 @@ without them gets the safe answer):
 * ``output_space``: ``"field"`` when an observation is a field on the mesh (then
   it is measured with the mass matrix ``M``: ``‖y‖²_M = yᵀMy``) or ``"records"``
   (plain numbers such as sensor time series, Euclidean). Undeclared: records.
-* ``modes``: a modal basis with ``g``, ``Phi``, ``MPhi`` (``P = Φ diag(g) ΦᵀM``), or None.
+* ``modes``: a spectral basis, i.e. a :class:`Spectral` (``P = out diag(g) Inᵀ``), or None.
 * ``final_state(u₀, v₀)`` and ``reverse(u_T, v_T)``: the full state both ways
   (a reversible scheme: time reversal is an exact local inverse).
-* ``symmetric``: every matrix of the scheme is symmetric.
+* ``symmetric``: every matrix of the scheme is symmetric (the scheme's answer, :mod:`.schemes`).
 """
 
 from __future__ import annotations
+
+
+class Spectral:
+    """A spectral basis, the one declaration of "has modes": ``P = out diag(g) Inᵀ`` exactly (to the
+    basis' tolerance), with ``proj`` and ``synth`` for the filters (``c = (y − y₀) proj`` are the
+    coefficients of a residual, ``synth`` turns coefficients back into a field) and ``mass_out``
+    (the observation-space mass, None for records). forward ``((X In) g) outᵀ``, adjoint
+    ``((R out) g) Inᵀ``: exact transposes. Subclasses: the modal heat basis
+    (:class:`.modal.Modal`), the compiled SVD and its lazy form (:mod:`.compiled`)."""
+
+    @property
+    def k(self) -> int:
+        return len(self.g)
+
+    def forward(self, X):
+        return ((X @ self.In) * self.g) @ self.out.T
+
+    def adjoint(self, R):
+        return ((R @ self.out) * self.g) @ self.In.T
 
 
 def observes_field(op) -> bool:
@@ -25,12 +44,13 @@ def output_mass(op, M):
     return M if observes_field(op) else None
 
 
-def modal_basis(op):
-    """``op.modes`` (with ``g``, ``Phi``, ``MPhi``) if it has one, else ``None``."""
-    return getattr(op, "modes", None)
+def modal_basis(op) -> Spectral | None:
+    """``op.modes`` if it is a :class:`Spectral` basis (``g``, ``In``, ``out``, ``proj``, ``synth``),
+    else ``None``."""
+    modes = getattr(op, "modes", None)
+    return modes if isinstance(modes, Spectral) else None
 
 
 def reversible(op) -> bool:
     """Whether ``op`` offers ``final_state`` and ``reverse`` (a time-reversible scheme)."""
     return all(callable(getattr(op, name, None)) for name in ("final_state", "reverse"))
-

@@ -15,9 +15,10 @@ thousands of times can pay once for a form that makes each application cheap:
   from ``‖·‖_M`` to ``‖·‖_{M_out}``. It is also a *spectral basis* (``g = s``, ``proj = L_o U``,
   ``out = Out``, ``synth = L⁻ᵀ V``): the Tikhonov inverse becomes a filter per singular value
   and Morozov's α a closed form per sample (:class:`pdeinv.inverse.SpectralTikhonov`), as
-  for the modal heat backend.
+  for the modal backend (:mod:`.modal`).
 
-:func:`plan` chooses among stepping and these by a cost model of what a training run will
+:func:`plan` chooses among stepping, these and the modal form of a symmetric θ-scheme
+(:mod:`.modal`) by a cost model of what a training run will
 do (forward, adjoint and the local inverse per step over the expected steps, plus the
 build) under a memory budget (:data:`BUDGET_GB`, env ``PDEINV_DENSE_BUDGET_GB``); an explicit
 choice over budget is refused with the size it needs, ``auto`` falls back to stepping.
@@ -32,6 +33,7 @@ import numpy as np
 import scipy.linalg as la
 import scipy.sparse as sp
 
+from .capabilities import Spectral, modal_basis, output_mass
 from .lowrank import RankTooHigh, svd_from_products
 
 #: default memory budget of a dense or SVD backend, in GB (env PDEINV_DENSE_BUDGET_GB overrides)
@@ -108,21 +110,6 @@ def _chol(M, n: int):
     return np.eye(n) if M is None else la.cholesky(M.toarray() if hasattr(M, "toarray") else M, lower=True)
 
 
-class Spectral:
-    """``P = out diag(g) Inᵀ`` from a spectral basis (the modal heat backend, :class:`SVD`):
-    forward ``((X In) g) outᵀ``, adjoint ``((R out) g) Inᵀ``, exact transposes of each other."""
-
-    @property
-    def k(self) -> int:
-        return len(self.g)
-
-    def forward(self, X):
-        return ((X @ self.In) * self.g) @ self.out.T
-
-    def adjoint(self, R):
-        return ((R @ self.out) * self.g) @ self.In.T
-
-
 class SVD(Spectral):
     """Truncated SVD of ``P`` in the norms of ``M`` (input) and ``M_out`` (output; module docstring)."""
 
@@ -160,7 +147,7 @@ class SVD(Spectral):
 
 
 
-class LazySVD:
+class LazySVD(Spectral):
     """The :class:`SVD` of a dense ``P`` in the norms ``M``, ``M_out``, computed on first use: a spectral
     basis (``g``, ``proj``, ``out``, ``synth``, ``mass_out``) for a dense backend, so that only a run
     that asks for it (SIP's spectral inverse) pays the ``O(m N min(m, N))`` factorization."""
@@ -182,15 +169,13 @@ def spectral_basis(op, M=None):
     """A spectral basis of ``op`` (``g``, ``proj``, ``out``, ``synth``, ``mass_out``): its own
     (``op.modes``: modal heat, compiled SVD), else the SVD of a compiled dense ``P`` in the norms of
     ``M`` (:class:`LazySVD`, computed once per backend and mass on first use), else ``None``."""
-    from .capabilities import modal_basis, output_mass
-
     modes = modal_basis(op)
     if modes is not None:
         return modes
     backend = getattr(op, "backend", None)
-    P = getattr(backend, "P", None)
-    if P is None:
+    if not isinstance(backend, Dense):
         return None
+    P = backend.P
     cache = backend.__dict__.setdefault("_spectral", {})  # the LazySVD keeps M alive: its id stays unique
     M_out = output_mass(op, M)
     key = (id(M), M_out is not None)
@@ -269,32 +254,39 @@ def in_cache(parts: dict, M, M_out, n_in: int, n_out: int) -> frozenset:
 
 
 def plan(step_flops: float, n_in: int, n_out: int, reversible: bool = False,
-         cached: frozenset = frozenset()) -> tuple[str, str]:
-    """``(kind, why)``: 'steps', 'dense' or 'svd' by the flops of a training run (module docstring).
+         cached: frozenset = frozenset(), modal: tuple[float, float] | None = None) -> tuple[str, str]:
+    """``(kind, why)``: 'modal', 'steps', 'dense' or 'svd' by the flops of a training run (module
+    docstring); the one backend chooser of every time-stepping operator.
 
     Per step ``b`` columns go forward and back, and a SIP step adds a local inverse: time reversal
     for a ``reversible`` operator (two stepping runs; with a compiled forward it is compiled too,
     :class:`pdeinv.inverse.CompiledInverse`: an ``N × (m + N)`` product, built by ``m + N`` pairs of
-    runs); otherwise a filter in the SVD basis (two applications) or, for stepping and dense, a
-    CG solve of about ``2·cg_iterations`` applications. Stepping costs ``step_flops`` per column,
-    dense ``2mN``, SVD ``2r(m + N)`` with ``r ≤ min(m, N)`` (BLAS flops discounted by :data:`BLAS_ADVANTAGE`);
-    the build runs ``N`` columns of stepping, plus ``~4 m N min(m, N)`` for the SVD, and costs
-    nothing for the kinds in ``cached`` (:func:`in_cache`). Steps and batch: :data:`EXPECT`,
-    set for one block by :func:`expecting`.
+    runs); otherwise a filter in a spectral basis (SVD, modal: two applications) or, for stepping
+    and dense, a CG solve of about ``2·cg_iterations`` applications. Stepping costs ``step_flops``
+    per column, dense ``2mN``, SVD ``2r(m + N)`` with ``r ≤ min(m, N)``, modal ``2k(m + N)`` with
+    ``modal = (k, build flops)`` (:func:`.modal.estimate`; None: not offered; where it is offered the
+    SVD is not, being the same basis ``|g|``, ``Φ`` built at a higher cost) (BLAS flops discounted
+    by :data:`BLAS_ADVANTAGE`); the build runs ``N`` columns of stepping, plus ``~4 m N min(m, N)``
+    for the SVD, and costs nothing for the kinds in ``cached`` (:func:`in_cache`). Steps and batch:
+    :data:`EXPECT`, set for one block by :func:`expecting`.
     """
     e, blas = EXPECT, 1.0 / BLAS_ADVANTAGE
     cols, r = e["steps"] * e["batch"], min(n_in, n_out)
     apply = {"steps": step_flops, "dense": 2 * n_in * n_out * blas, "svd": 2 * r * (n_in + n_out) * blas}
     build = {"steps": 0.0, "dense": n_in * step_flops, "svd": n_in * step_flops + 4 * n_in * n_out * r * blas}
+    if modal is not None:  # the SVD (in M-norms) of a symmetric final-field map *is* its modal form
+        apply = {"modal": 2 * modal[0] * (n_in + n_out) * blas, **{k: apply[k] for k in ("steps", "dense")}}
+        build = {"modal": modal[1], **{k: build[k] for k in ("steps", "dense")}}
     cg = 2 * e["cg_iterations"]
     if reversible:
         inverse = {k: 2 * step_flops if k == "steps" else 2 * n_in * (n_in + n_out) * blas for k in apply}
-        build = {k: v + (0 if k == "steps" else 2 * (n_in + n_out) * step_flops) for k, v in build.items()}
+        build = {k: v + (0 if k in ("steps", "modal") else 2 * (n_in + n_out) * step_flops)
+                 for k, v in build.items()}
     else:
-        inverse = {k: (2 if k == "svd" else cg) * a for k, a in apply.items()}
+        inverse = {k: (2 if k in ("svd", "modal") else cg) * a for k, a in apply.items()}
     build = {k: 0.0 if k in cached else v for k, v in build.items()}
     cost = {k: build[k] + cols * (2 * apply[k] + inverse[k]) for k in apply}
-    fits = {k: k == "steps" or KINDS[k].nbytes(n_in, n_out) / 1e9 <= budget_gb() for k in cost}
+    fits = {k: k not in KINDS or KINDS[k].nbytes(n_in, n_out) / 1e9 <= budget_gb() for k in cost}
     best = min((k for k in cost if fits[k]), key=cost.get)
     why = ", ".join(f"{k}≈{v:.2g}" + ("" if fits[k] else " (over budget)")
                     + (" (cached)" if k in cached else "") for k, v in cost.items())

@@ -28,6 +28,8 @@ import numpy as np
 import torch
 
 from .base import LinearOperator
+from .capabilities import Spectral
+from .compiled import Dense
 
 __all__ = ["Placed", "factors", "placed", "resolve"]
 
@@ -86,22 +88,20 @@ class _Spectral:
         return _Spectral(self.out, self.g, self.In)
 
 
-#: the arrays a compiled backend declares, and how torch applies them
-KINDS = {("P", "PT"): _Dense, ("In", "g", "out"): _Spectral}
-
-
 def _kind(op):
+    """The torch applier class for ``op``'s compiled backend (dense or spectral), or None (stepping)."""
     backend = getattr(op, "backend", None)
-    return next((names for names in KINDS if all(hasattr(backend, a) for a in names)), None)
+    return _Dense if isinstance(backend, Dense) else _Spectral if isinstance(backend, Spectral) else None
 
 
 def factors(op, device) -> _Dense | _Spectral | None:
     """``op``'s compiled backend as torch float64 factors on ``device``, or None (time stepping)."""
-    names = _kind(op)
-    if names is None:
+    kind = _kind(op)
+    if kind is None:
         return None
-    return KINDS[names](*(torch.as_tensor(np.ascontiguousarray(getattr(op.backend, a)), dtype=torch.float64,
-                                          device=device) for a in names))
+    names = ("P", "PT") if kind is _Dense else ("In", "g", "out")
+    return kind(*(torch.as_tensor(np.ascontiguousarray(getattr(op.backend, a)), dtype=torch.float64,
+                                  device=device) for a in names))
 
 
 class Placed(LinearOperator):

@@ -1,106 +1,88 @@
 """Heat equation ``M u' + (κ K + C) u = 0``: the θ-scheme map to the final field, ``P = (A⁻¹B)ⁿ``.
 
-θ=1 backward Euler ('be', L-stable, default), θ=½ Crank–Nicolson ('cn'); the step and
-its exact transpose are :class:`.schemes.Theta`. ``C`` is an optional convection matrix
-(advection–diffusion, not symmetric); without it every matrix is symmetric and the
-modal backend is available. Two backends give the same ``P`` (:mod:`.heat_backends`):
+θ=1 backward Euler ('be', L-stable, default), θ=½ Crank–Nicolson ('cn'); the step and its
+exact transpose are :class:`.schemes.Theta`, the loop is the one :class:`.propagator.Propagator`
+with a :class:`.propagator.FinalField`. ``C`` is an optional matrix added to ``κK``: convection
+(advection–diffusion, not symmetric) or a reaction ``C = rM`` (symmetric).
 
-* ``Stepping``: n solves with one factorization, all batch columns at once;
-* ``Modal``: with ``K Φ = M Φ Λ``, ``ΦᵀMΦ = I``, the scheme is diagonal,
-  ``P = Φ diag(r(dtκλ)ⁿ) Φᵀ M`` with ``r(z) = (1 − (1−θ)z)/(1 + θz)``; modes with
-  ``|r|ⁿ < tol·max|r|ⁿ`` are dropped, so P is exact to ``tol`` relative.
-
-``backend='auto'`` estimates both costs and takes the cheaper (see
-:func:`.heat_backends.choose`); ``Heat.choice`` says which and why.
+How ``P`` is applied is chosen by :meth:`~.propagator.Propagator.compile` (``backend``): time
+stepping, a dense matrix, a truncated SVD, or — whenever the scheme's matrices are symmetric,
+with or without ``C`` — the modal form ``P = Φ diag(r(dt μ)ⁿ) Φᵀ M`` over ``L φ = μ M φ``
+(:mod:`.modal`); ``'auto'`` by the cost of a training run (:func:`.compiled.plan`), sizing the
+modal basis by Weyl's law. ``Heat.choice`` says which and why.
 """
 
 from __future__ import annotations
 
-from functools import cached_property
+import numpy as np
 
 from .._checks import choice, count, positive
 from ..solvers import default_solver, solver_for
-from .base import LinearOperator
-from .heat_backends import BACKENDS, amplification, choose
+from .modal import weyl_count
 from .modes import largest_eigenvalue
-from .propagator import Propagator, Records
+from .propagator import FinalField, Propagator
 from .schemes import Theta
 
 SCHEMES = {"be": 1.0, "cn": 0.5}
 
 
-class Heat(LinearOperator):
+class Heat(Propagator):
     """Final field of the heat equation after ``steps`` θ-scheme steps over ``[0, T]``.
 
-    ``M``, ``K``: condensed mass and stiffness (sparse, symmetric); ``scheme``:
-    'be' or 'cn'; ``backend``: 'auto', 'steps', 'modal' or a backend object;
-    ``solver``: factory ``A -> object with solve`` (default: :func:`~pdeinv.solvers.default_solver`
-    for a ``dim``-D mesh: AMG-CG above its crossover, else Cholesky if cholespy is installed,
-    else SuperLU); ``tol``: relative amplification below which
-    modes are dropped (modal backend);
-    ``measure``: |Ω|, used by the auto cost estimate (Weyl's law);
-    ``C``: convection matrix added to ``κK`` (then stepping only).
+    ``M``, ``K``: condensed mass and stiffness (sparse, symmetric); ``scheme``: 'be' or 'cn' (or a
+    :class:`.schemes.Theta`, whose θ is taken); ``backend``: 'auto', 'steps', 'modal', 'dense',
+    'svd' or a backend object; ``solver``: factory ``A -> object with solve`` (default:
+    :func:`~pdeinv.solvers.default_solver` for a ``dim``-D mesh: AMG-CG above its crossover, else
+    Cholesky if cholespy is installed, else SuperLU); ``tol``: relative amplification below which
+    modes are dropped (modal backend); ``measure``: |Ω|, for Weyl's count of the modes;
+    ``C``: a matrix added to ``κK`` (convection: then no modal form; a reaction ``rM``: modal).
     """
 
     def __init__(self, M, K, kappa=0.01, T=1.0, steps=100, scheme="be", backend="auto",
                  solver=default_solver, tol=1e-14, measure=1.0, dim=2, C=None):
-        self.M = self.mass = M
-        self.K, self.C = K, C
+        self.M, self.K, self.C = M, K, C
         self.kappa = positive(kappa, "kappa")
         self.t_end = positive(T, "T")
-        self.steps = count(steps, "steps")
-        self.scheme = choice(scheme, "scheme", tuple(SCHEMES))
+        steps = count(steps, "steps")
+        if isinstance(scheme, Theta):  # e.g. another Heat's scheme: its θ
+            scheme = {v: k for k, v in SCHEMES.items()}.get(scheme.theta, scheme.theta)
+        self.scheme_name = choice(scheme, "scheme", tuple(SCHEMES))
         self.theta = SCHEMES[scheme]
-        self.dt = self.t_end / self.steps
         self.tol = positive(tol, "tol")
-        self.solver = solver_for(dim) if solver is default_solver else solver  # AMG above its crossover
-        self.n_in = self.n_out = M.shape[0]
         self.measure, self.dim = measure, dim
+        solver = solver_for(dim) if solver is default_solver else solver  # AMG above its crossover
+        L = self.kappa * K if C is None else self.kappa * K + C
+        super().__init__(Theta(M, L, self.t_end / steps, self.theta, solver), FinalField(M.shape[0], steps),
+                         steps, M)
         if isinstance(backend, str):
-            backend = choice(backend, "backend", ("auto", *BACKENDS))
-            if C is not None and backend == "modal":  # (dense and svd work for any operator)
-                raise ValueError("backend='modal' needs a symmetric operator and C (convection) makes it "
-                                 "non-symmetric; allowed: backend='steps' or 'auto'")
-            self.backend, self.choice = choose(self) if backend == "auto" else (
-                BACKENDS[backend](self), f"backend={backend!r} requested")
+            self.compile(backend)
         else:
-            self.backend, self.choice = backend, f"backend object {type(backend).__name__}"
+            self._use(backend, f"backend object {type(backend).__name__}")
 
-    @cached_property
-    def stepper(self) -> Theta:
-        """The θ-step (one factorization of ``A``), shared by the stepping backend and sensor runs."""
-        L = self.kappa * self.K if self.C is None else self.kappa * self.K + self.C
-        return Theta(self.M, L, self.dt, self.theta, self.solver)
+    #: the θ-step (one factorization of ``A``), shared with every sensor run of this operator
+    stepper = property(lambda self: self.scheme)
 
-    output_space = "field"  # capabilities (pdeinv.physics.capabilities): observes a field, measured by M
-    symmetric = property(lambda self: self.C is None)
-    modes = property(lambda self: self.backend if hasattr(self.backend, "synth") else None)
-
-    def sensors(self, S, record_every: int = 1) -> Propagator:
-        """Sensor time series ``S u`` every ``record_every`` steps (always time-stepping)."""
-        return Propagator(self.stepper, Records(S, self.n_in, self.steps, record_every), self.steps, self.M)
+    def count_modes(self, mu: float) -> float:
+        """Weyl's count of the Laplacian's eigenvalues below ``μ/κ`` (``μ = κλ`` plus a
+        non-negative reaction: an over-count, on the safe side)."""
+        return weyl_count(self, mu / self.kappa)
 
     def max_gain_squared(self) -> float | None:
-        """``λ_max(P*P) = max g²`` over all modes (``|r|ⁿ`` is extremal at the lowest or the
-        highest eigenvalue of ``Kφ = λMφ``); ``None`` with convection (no modal picture)."""
+        """``λ_max(P*P) = max g²`` over all modes (``|r(dt μ)|ⁿ`` is extremal at the lowest or the
+        highest eigenvalue of ``Lφ = μMφ``); ``None`` when not symmetric (no modal picture)."""
         if not self.symmetric:
             return None
         import scipy.sparse.linalg as sla
 
-        lam_lo = float(sla.eigsh(self.K.tocsc(), 1, self.M.tocsc(), sigma=0, which="LM")[0][0])
-        lam_hi = largest_eigenvalue(self.M, self.K)
-        return float(max(self.amplification(lam_lo) ** 2, self.amplification(lam_hi) ** 2))
+        sc = self.scheme
+        lo = float(sla.eigsh(sc.L.tocsc(), 1, sc.M.tocsc(), sigma=0, which="LM")[0][0])
+        hi = largest_eigenvalue(sc.M, sc.L)
+        return float(max(sc.gain(lo) ** (2 * self.steps), sc.gain(hi) ** (2 * self.steps)))
 
     def amplification(self, lam):
-        """``r(dtκλ)ⁿ``: what the whole run does to a mode of eigenvalue ``λ``."""
-        return amplification(self.dt * self.kappa * lam, self.theta) ** self.steps
-
-    def _forward(self, X):
-        return self.backend.forward(X)
-
-    def _adjoint(self, R):
-        return self.backend.adjoint(R)
+        """``r(dtκλ)ⁿ``: what the whole run does to a mode ``Kφ = λMφ`` (without ``C``)."""
+        return self.scheme.gain(self.kappa * np.asarray(lam)) ** self.steps
 
     def __repr__(self):
         return (f"Heat(N={self.n_in}, kappa={self.kappa}, T={self.t_end}, steps={self.steps}, "
-                f"scheme={self.scheme!r}, backend={self.backend.name!r})")
+                f"scheme={self.scheme_name!r}, backend={self.kind!r})")

@@ -1,4 +1,4 @@
-"""One loop for every time-stepping operator: scheme × observation (the scheme owns its solver).
+"""One loop for every time-stepping operator (Heat, Wave, Leapfrog, sensor runs): scheme × observation.
 
 With the scheme's ``s₀ = I x``, ``sⱼ = S sⱼ₋₁``, ``uⱼ = E sⱼ`` (:mod:`.schemes`) and
 records ``y_r = O u_{(r+1)k}`` after every ``k``-th of ``n`` steps (``O`` the sensor
@@ -13,6 +13,11 @@ sensor ``s`` at ``t_r = (r+1)·k·dt``; ``y.reshape(B, R, n_s)`` gives the time 
 
 The output space is declared, never guessed from shapes (:mod:`.capabilities`):
 :class:`FinalField` observes a field on the mesh, :class:`Records` plain numbers.
+
+How the map is applied is chosen once, by :meth:`Propagator.compile` (the one chooser,
+:func:`.compiled.plan`): time stepping, a dense matrix, a truncated SVD, or the modal form of a
+symmetric θ-scheme (:mod:`.modal`). An operator no one chose for is compiled by ``auto`` when it
+becomes part of a :class:`pdeinv.Problem` or gets its local inverse (:func:`chosen`).
 """
 
 from __future__ import annotations
@@ -22,6 +27,10 @@ import numpy as np
 from .._checks import choice as one_of
 from .._checks import count
 from .base import LinearOperator
+from .capabilities import Spectral
+
+#: solve flops per nonzero of ``A`` when the solver does not report its factor's fill (AMG-CG)
+FILL_FALLBACK = 10
 
 
 class Records:
@@ -70,48 +79,80 @@ class FinalField(Records):
 
 class Propagator(LinearOperator):
     """``steps`` steps of ``scheme`` from ``x``, recorded by ``observation`` (module docstring);
-    ``mass``: the mass matrix of the unknowns."""
+    ``mass``: the mass matrix of the unknowns. ``backend``: a compiled backend or None (time
+    stepping); ``choice``: why, or None while no backend was chosen (:func:`chosen`)."""
 
-    #: a compiled backend (:mod:`.compiled`), or None: time stepping
-    backend = None
-    choice = "stepping"
+    #: relative gain below which the modal form drops a mode (:mod:`.modal`)
+    tol = 1e-14
 
     def __init__(self, scheme, observation: Records, steps: int, mass=None):
         self.scheme, self.observation, self.steps, self.mass = scheme, observation, int(steps), mass
         self.n_in, self.n_out = scheme.n, observation.n_out
+        self.backend, self.choice = None, None
 
     def compile(self, kind: str = "auto", M=None) -> Propagator:
         """Apply ``P`` through a compiled backend: 'dense', 'svd' (in the norms of ``M``, default
-        ``self.mass``; Euclidean for records), 'steps' (none) or 'auto' (:func:`.compiled.plan`)."""
+        ``self.mass``; Euclidean for records), 'modal' (a symmetric θ-scheme's final field, in its own
+        mass, :mod:`.modal`), 'steps' (none) or 'auto' (:func:`.compiled.plan` by the cost of a run)."""
+        from ..errors import TooManyModes
+        from . import modal
         from .capabilities import reversible
         from .compiled import build, fingerprint, in_cache, plan
 
-        kind = one_of(kind, "backend", ("auto", "steps", "dense", "svd"))
+        kind = one_of(kind, "backend", ("auto", "steps", "modal", "dense", "svd"))
         why = f"backend={kind!r} requested"
         M = self.mass if M is None else M
         M_out, parts = (M if self.output_space == "field" else None), fingerprint(self)
         if kind == "auto":
-            kind, why = plan(self.step_flops(), self.n_in, self.n_out, reversible(self),
-                             in_cache(parts, M, M_out, self.n_in, self.n_out))
+            costs = (self.step_flops(), self.n_in, self.n_out, reversible(self),
+                     in_cache(parts, M, M_out, self.n_in, self.n_out))
+            kind, why = plan(*costs, modal=modal.estimate(self))
+            if kind == "modal":
+                try:
+                    return self._modal(why)
+                except (TooManyModes, ValueError) as err:
+                    kind, why = plan(*costs)
+                    why = f"{why}; modal refused: {err}"
+        if kind == "modal":
+            return self._modal(why)
         # an undamped (time-reversible) map with m ≥ N keeps every input direction: no low-rank try
         low_rank = not (reversible(self) and self.n_out >= self.n_in)
-        self.backend = None if kind == "steps" else build(kind, self._step_forward, self.n_in, self.n_out,
-                                                          M, M_out, parts,
-                                                          adjoint=self._step_adjoint if low_rank else None)
-        self.choice = why
+        return self._use(None if kind == "steps" else build(
+            kind, self._step_forward, self.n_in, self.n_out, M, M_out, parts,
+            adjoint=self._step_adjoint if low_rank else None), why)
+
+    def _modal(self, why: str) -> Propagator:
+        from .modal import Modal
+
+        basis = Modal(self)
+        return self._use(basis, f"{why}; {basis.k} of {self.n_in} modes kept")
+
+    def _use(self, backend, why: str) -> Propagator:
+        self.backend, self.choice = backend, why
         return self
 
     def step_flops(self) -> float:
-        """Flops of one column through the whole run: per step ``2·fill(LU)`` (or ``10·nnz(A)``) and
-        ``2·nnz`` of every matrix the step multiplies by."""
+        """Flops of one column through the whole run (the one step-cost model): per step
+        ``2·fill(LU)`` (or ``10·nnz(A)``) and ``2·nnz`` of every matrix the step multiplies by."""
         sc = self.scheme
         lu = getattr(sc, "lu", None)
-        solve = 2 * getattr(lu, "fill", 10 * sc.A.nnz) if lu is not None else 0
+        solve = 2 * getattr(lu, "fill", FILL_FALLBACK * sc.A.nnz) if lu is not None else 0
         products = sum(2 * getattr(sc, a).nnz for a in ("B", "M", "K")
                        if hasattr(getattr(sc, a, None), "nnz"))
         return self.steps * (solve + products)
 
-    modes = property(lambda self: self.backend if hasattr(self.backend, "synth") else None)
+    def count_modes(self, mu: float) -> float:
+        """About how many eigenvalues of the scheme's ``L φ = λ M φ`` lie below ``mu`` (sizes the
+        modal eigensolve); without knowledge of the domain: all ``N``. :class:`~pdeinv.Heat`: Weyl."""
+        return float(self.n_in)
+
+    def stepping(self) -> Propagator:
+        """The same run applied by time stepping (no compiled backend): ``self`` if it steps."""
+        return self if self.backend is None else Propagator(self.scheme, self.observation, self.steps,
+                                                            self.mass)._use(None, "stepping")
+
+    kind = property(lambda self: "steps" if self.backend is None else self.backend.name)
+    modes = property(lambda self: self.backend if isinstance(self.backend, Spectral) else None)
     output_space = property(lambda self: self.observation.space)
     symmetric = property(lambda self: bool(self.scheme.symmetric))
     dt = property(lambda self: self.scheme.dt)
@@ -134,13 +175,20 @@ class Propagator(LinearOperator):
     def _adjoint(self, R):
         return self._step_adjoint(R) if self.backend is None else self.backend.adjoint(R)
 
+    def _march(self, s, record=None, sign: float = 1.0):
+        """The state after all steps from ``s`` (``sign=-1``: backwards, a reversible scheme),
+        calling ``record(j, s)`` after step ``j``: the one time loop forward."""
+        step = self.scheme.step if sign == 1.0 else (lambda state: self.scheme.step(state, sign))
+        for j in range(1, self.steps + 1):
+            s = step(s)
+            if record is not None:
+                record(j, s)
+        return s
+
     def _step_forward(self, X):
         sc, obs = self.scheme, self.observation
         Y = np.empty((X.shape[0], self.n_out))
-        s = sc.start(X.T)
-        for j in range(1, self.steps + 1):
-            s = sc.step(s)
-            obs.write(Y, j, sc.field(s))
+        self._march(sc.start(X.T), lambda j, s: obs.write(Y, j, sc.field(s)))
         return Y
 
     def _step_adjoint(self, R):
@@ -164,3 +212,13 @@ def sensors(op, S, record_every: int = 1) -> Propagator:
     if not callable(getattr(op, "sensors", None)):
         raise ValueError(f"{op!r} is not a time-stepping operator; sensors need Heat, Wave or Leapfrog")
     return op.sensors(S, record_every)
+
+
+def chosen(op, M=None):
+    """``op`` with a backend chosen: compiled by ``auto`` (in the norms of ``M``) if it is a
+    time-stepping operator no one chose a backend for (``choice`` None), else as it is. Called by
+    :class:`pdeinv.Problem` and :func:`pdeinv.inverse.default_inverse`, so that an operator built
+    by hand (``Heat(...).sensors(S, k)``, ``Wave(...)``) runs at the speed the scenes do."""
+    if getattr(op, "choice", "") is None and callable(getattr(op, "compile", None)):
+        op.compile("auto", M)
+    return op

@@ -7,8 +7,9 @@ A scheme is a linear map on a *state* ``s`` (a tuple of ``(N, b)`` arrays): ``s�
 transposes use ``Bᵀ``, ``Mᵀ`` and the solver's ``solve_T`` (plain ``solve`` and no copies
 when every matrix is symmetric).
 
-* :class:`Theta`, ``M u' + L u = 0`` (``L = κK``, or ``κK + C`` with advection): state
+* :class:`Theta`, ``M u' + L u = 0`` (``L = κK``, or ``κK + C`` with advection or reaction): state
   ``(u,)``, ``A u' = B u`` with ``A = M + θ dt L``, ``B = M − (1−θ) dt L``; ``Sᵀ r = Bᵀ A⁻ᵀ r``.
+  With ``L`` and ``M`` symmetric each mode ``L φ = μ M φ`` is multiplied by ``r(dt μ)`` per step.
 * :class:`Newmark` (average acceleration, β = ¼, γ = ½), ``M u'' + c² K u = 0``: the
   trapezoidal rule on ``(u, v)`` with ``A = M + (c dt/2)² K``, ``B = M − (c dt/2)² K``,
   ``u' = A⁻¹(B u + dt M v)``, ``v' = 2 (u' − u)/dt − v``; transposed, with ``k = 2/dt``
@@ -64,7 +65,14 @@ class Theta(_Implicit):
 
     def __init__(self, M, L, dt: float, theta: float, solver):
         self.dt, self.theta, self.n = float(dt), float(theta), M.shape[0]
+        self.L = L.tocsr()  # kept for the modal form (:mod:`.modal`): the pencil L φ = μ M φ
         self._factor(M + theta * dt * L, M - (1.0 - theta) * dt * L, M, solver)
+
+    def gain(self, mu):
+        """Per-step factor ``r(dt μ) = (1 − (1−θ) dt μ) / (1 + θ dt μ)`` of a mode ``L φ = μ M φ``
+        (symmetric ``L`` and ``M``: the step is diagonal in the M-orthonormal modes)."""
+        z = self.dt * mu
+        return (1.0 - (1.0 - self.theta) * z) / (1.0 + self.theta * z)
 
     def step(self, s):
         return (self.lu.solve(self.B @ s[0]),)

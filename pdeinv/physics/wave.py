@@ -3,7 +3,8 @@
 The trapezoidal rule on ``(u, v)`` (:class:`.schemes.Newmark` has the step and its exact
 transpose): unconditionally stable, conserves ``E = ½vᵀMv + ½c²uᵀKu`` to rounding, and
 time-reversible (the step with ``−dt`` undoes it), so the full state can be run both
-ways (:meth:`Wave.final_state`, :meth:`Wave.reverse`, used by time reversal).
+ways (:meth:`Wave.final_state`, :meth:`Wave.reverse`, used by time reversal) through the
+propagator's one time loop.
 """
 
 from __future__ import annotations
@@ -38,10 +39,7 @@ class Wave(Propagator):
         V = np.zeros_like(U) if V is None else batch(V, self.n_in, names[1])[0]
         if V.shape != U.shape:
             raise ValueError(f"{names[1]} has shape {V.shape}; expected the shape of {names[0]} {U.shape}")
-        s = (U.T, V.T)
-        for _ in range(self.steps):
-            s = self.scheme.step(s, sign)
-        out = tuple(np.ascontiguousarray(a.T) for a in s)
+        out = tuple(np.ascontiguousarray(a.T) for a in self._march((U.T, V.T), sign=sign))
         return tuple(a[0] for a in out) if single else out
 
     def final_state(self, U0, V0=None) -> tuple[np.ndarray, np.ndarray]:
