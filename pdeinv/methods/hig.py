@@ -258,7 +258,7 @@ def compress(op):
     """``(C, Q)`` with ``P = Q C`` exactly and ``QᵀQ = I`` (class docstring), as ``(Matrix(C), Q)``; or
     ``(op, None)`` when ``op`` has no spectral basis or its rank is not below its row count."""
     basis = modal_basis(op)
-    if basis is None or not hasattr(basis, "In") or len(basis.g) >= op.n_out:
+    if basis is None or len(basis.g) >= op.n_out:
         return op, None
     Q, R = np.linalg.qr(basis.out)
     return Matrix((R * basis.g) @ basis.In.T), torch.from_numpy(Q)
