@@ -105,7 +105,10 @@ class Carried:
         M = self.residual(weight)
         MS = M * f.S
         Vs, A1 = f.fast
-        delta = (-eta * unit) * ((Vs @ MS.astype(Vs.dtype).T) @ A1)
+        X = MS.astype(Vs.dtype).T  # r × rank; the cheaper order of V diag(s) · X · A₁
+        (k, r), (rank, kt) = Vs.shape, A1.shape
+        delta = (Vs @ X) @ A1 if k * rank * (r + kt) <= r * kt * (rank + k) else Vs @ (X @ A1)
+        delta *= -eta * unit
         self.weight, self.M = weight.copy(), M
         self.delta = delta.astype(weight.dtype)
         self.dM = (-eta * unit) * (f.a[:, None] * MS * f.c[None, :])
