@@ -60,6 +60,8 @@ class _Alias(types.ModuleType):
     (:mod:`pdeinv.trainset`), loaded on first use; deprecated: import from those modules."""
 
     def __getattr__(self, name: str):
+        if name.startswith("__"):  # inspect.getmodule asks every module for __file__: import nothing
+            raise AttributeError(f"module 'pdeinv.train' has no attribute {name!r}")
         for module in ("trainer", "trainset"):
             value = getattr(importlib.import_module(f"{__name__}.{module}"), name, self)
             if value is not self:
