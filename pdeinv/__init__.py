@@ -4,8 +4,13 @@ The pipeline, upstream to downstream: mesh → forms → physics (operators with
 exact adjoints) → autograd bridge / inverse simulators → update rules → trainer.
 
 Names are imported on first use (PEP 562), so ``import pdeinv`` and ``pdeinv --help``
-do not pay for torch (measured: ``pdeinv --help`` 3.2 s → 0.3 s). ``pdeinv.train`` is
-the function :func:`pdeinv.train.train`, as before, also after ``import pdeinv.train``.
+do not pay for torch (measured: ``pdeinv --help`` 3.2 s → 0.3 s).
+
+``pdeinv.train`` is the function :func:`pdeinv.trainer.train`; the trainer's module is
+:mod:`pdeinv.trainer` (it was ``pdeinv/train.py``, whose name the function shadowed). The old
+module path still imports, for one release: ``sys.modules["pdeinv.train"]`` is an alias of
+:mod:`pdeinv.trainer` registered here, so ``from pdeinv.train import Trainer`` works and, the alias
+never being loaded as a submodule, never rebinds ``pdeinv.train`` (the function).
 """
 
 import importlib
@@ -30,7 +35,7 @@ _WHERE = {
     **dict.fromkeys(["Problem", "available", "load_problem"], "problem"),
     **dict.fromkeys(["AMGCG", "Cholesky", "SuperLU", "amg_cg", "default_solver", "solver_for"], "solvers"),
     "DiscrepancyStop": "stopping",
-    **dict.fromkeys(["Result", "Trainer", "train"], "train"),
+    **dict.fromkeys(["Result", "Trainer", "train"], "trainer"),
 }
 
 __all__ = sorted(_WHERE)
@@ -50,15 +55,18 @@ def __dir__():
     return sorted(set(globals()) | set(__all__))
 
 
-class _Package(types.ModuleType):
-    """Keeps ``pdeinv.train`` the function when the submodule ``pdeinv.train`` is imported (the
-    import system sets the package attribute to the module; the eager ``from .train import train``
-    used to overwrite it)."""
+class _Alias(types.ModuleType):
+    """``pdeinv.train`` as a module path: the names of :mod:`pdeinv.trainer` and its seed streams
+    (:mod:`pdeinv.trainset`), loaded on first use; deprecated: import from those modules."""
 
-    def __setattr__(self, name, value):
-        if name == "train" and isinstance(value, types.ModuleType):
-            return
-        super().__setattr__(name, value)
+    def __getattr__(self, name: str):
+        if name.startswith("__"):  # inspect.getmodule asks every module for __file__: import nothing
+            raise AttributeError(f"module 'pdeinv.train' has no attribute {name!r}")
+        for module in ("trainer", "trainset"):
+            value = getattr(importlib.import_module(f"{__name__}.{module}"), name, self)
+            if value is not self:
+                return value
+        raise AttributeError(f"module 'pdeinv.train' has no attribute {name!r}")
 
 
-sys.modules[__name__].__class__ = _Package
+sys.modules.setdefault(f"{__name__}.train", _Alias(f"{__name__}.train", _Alias.__doc__))

@@ -23,8 +23,11 @@ Guarantees:
   refuses to resume when any of them differs, naming the key and both values.
   The step count and time budget are not part of it: a run may be extended.
 
-What a checkpoint holds is decided by :class:`pdeinv.Trainer` (model, rule state,
-RNG states, step, history); this module only stores and compares it.
+A run's checkpoint (:class:`pdeinv.Trainer`) holds ``identity`` (:func:`run_identity`), ``model``
+(its state dict), ``rule_state`` (``rule.state_dict``), ``position`` (batch order and its position,
+step, wall time, what stopped the run), ``guard`` (:meth:`pdeinv.methods.guard.Guard.state_dict`:
+step-size multiplier, failures, lowest loss, last good state), ``rng`` (:func:`rng_states`) and
+``history``; :func:`load_to_resume` loads one and refuses what this run cannot continue.
 """
 
 from __future__ import annotations
@@ -42,8 +45,8 @@ from ._checks import count
 from .files import atomic_write, remove_stale_temporaries
 
 #: re-exported for one release: import them from :mod:`pdeinv.files`
-__all__ = ["Checkpoint", "atomic_write", "check_identity", "network_identity", "plain", "rng_states",
-           "set_rng_states"]
+__all__ = ["Checkpoint", "atomic_write", "check_identity", "network_identity", "load_to_resume", "plain",
+           "Position", "check_resumable", "restore", "rng_states", "save", "run_identity", "set_rng_states"]
 
 FORMAT = "pdeinv-checkpoint"
 VERSION = 2  # 2: rule state = transformation + steps; identity with hyper-parameters
@@ -177,6 +180,114 @@ def check_identity(saved: dict, current: dict, path) -> None:
     if saved["trainer"] != current["trainer"]:
         raise ValueError(f"{where} was written with trainer {saved['trainer']!r}; "
                          f"this run has {current['trainer']!r}")
+
+
+def run_identity(problem, rule, model: torch.nn.Module, trainer: dict) -> dict:
+    """What a checkpoint must share with a run to be resumed by it: the problem and its settings, the
+    network, the rule and its *configured* hyper-parameters (the guard's lowered step size is run state,
+    not identity), and the trainer's data settings ``trainer``."""
+    return {"problem": getattr(problem, "name", None), "settings": plain(getattr(problem, "settings", {})),
+            "network": network_identity(model), "rule": getattr(rule, "name", None),
+            "hyperparameters": plain(rule.hyperparameters()), "trainer": trainer}
+
+
+#: what every checkpoint a Trainer writes holds (module docstring)
+REQUIRED = ("identity", "model", "rule_state", "position", "rng", "history")
+
+
+def load_to_resume(ckpt: Checkpoint, identity: dict, steps: int | None) -> dict:
+    """The payload of ``ckpt`` for a run of ``identity`` going to ``steps`` (None: no step limit).
+
+    ``FileNotFoundError`` when there is none; ``ValueError`` when it was not written by a trainer,
+    belongs to another run (:func:`check_identity`) or has more steps done than ``steps``."""
+    if not ckpt.exists():
+        raise FileNotFoundError(f"resume: there is no checkpoint at {str(ckpt.path)!r} to resume from "
+                                "(start without resume / --resume)")
+    saved = ckpt.load()
+    missing = sorted(set(REQUIRED) - set(saved))
+    if missing:
+        raise ValueError(f"checkpoint {str(ckpt.path)!r} lacks {', '.join(missing)}: not written by "
+                         "pdeinv.Trainer; delete it to start over")
+    check_identity(saved["identity"], identity, ckpt.path)
+    done = saved["position"]["step"]
+    if steps is not None and steps < done:
+        raise ValueError(f"resume: checkpoint {str(ckpt.path)!r} has {done} steps done; "
+                         f"steps={steps} is below that (give steps >= {done} to extend the run, "
+                         "or start over)")
+    return saved
+
+
+@dataclass
+class Position:
+    """Where a run is: everything besides the model, the rule state and the guard that a resumed run
+    must restore (the checkpoint's ``position``), and the batch order it draws from."""
+
+    gen: torch.Generator  # batch order
+    order: torch.Tensor
+    pos: int = 0
+    step: int = 0  # accepted steps
+    wall: float = 0.0
+    stopped_by: str | None = None  # a stopping rule or callback that ended the run
+    y_err0: float | None = None  # the test y-error of the network training started from (pdeinv.evaluation)
+
+    def saved(self) -> dict:
+        return {"gen": self.gen.get_state(), "order": self.order, "pos": self.pos, "step": self.step,
+                "wall": self.wall, "stopped_by": self.stopped_by, "y_err0": self.y_err0}
+
+    def restore(self, p: dict) -> None:
+        self.gen.set_state(p["gen"])
+        self.order, self.pos, self.step, self.wall = p["order"], p["pos"], p["step"], p["wall"]
+        self.stopped_by, self.y_err0 = p.get("stopped_by"), p.get("y_err0")
+
+    def next_rows(self, size: int, n: int) -> torch.Tensor:
+        """The next ``size`` of ``n`` row indices: without replacement, reshuffled every epoch."""
+        if self.pos + size > n:
+            self.order, self.pos = torch.randperm(n, generator=self.gen), 0
+        rows = self.order[self.pos:self.pos + size]
+        self.pos += size
+        return rows
+
+
+def check_resumable(rule) -> None:
+    """Refuse (``ValueError``) a rule whose run cannot be checkpointed."""
+    from .methods.guard import resumable
+
+    if not resumable(rule) or not callable(getattr(rule, "hyperparameters", None)):
+        raise ValueError(f"rule {getattr(rule, 'name', rule)!r} cannot be checkpointed: it "
+                         "has no state_dict / load_state_dict / hyperparameters "
+                         "(see pdeinv.methods.base.Resumable)")
+
+
+def save(ckpt: Checkpoint, identity: dict, model: torch.nn.Module, rule, state, at: Position, guard,
+         history: list) -> None:
+    """Save a run (module docstring) atomically to ``ckpt``."""
+    ckpt.save({"identity": identity, "model": model.state_dict(), "rule_state": rule.state_dict(state),
+               "position": at.saved(), "guard": guard.state_dict(), "rng": rng_states(),
+               "history": plain(history)})
+
+
+def restore(saved: dict, model: torch.nn.Module, rule, state, at: Position, guard):
+    """Put a payload of :func:`load_to_resume` back: the model's parameters (copied into the same
+    Parameters the optimizer holds), the rule state (returned), the position, the guard, the global
+    generators."""
+    model.load_state_dict(saved["model"])
+    state = rule.load_state_dict(state, saved["rule_state"])
+    at.restore(saved["position"])
+    guard.load_state_dict(saved.get("guard") or {**saved["position"], "good": saved.get("good")})
+    set_rng_states(saved["rng"])
+    return state
+
+
+def last_good(good_step: int | None, ckpt: Checkpoint | None, saved_step: int | None) -> str:
+    """Where a stopped run left its state: the last good state the model holds (after step
+    ``good_step``), and the last checkpoint *this* run wrote (at ``saved_step``)."""
+    state = "no step was verified" if good_step is None else \
+        f"the model holds the last good state (after step {good_step})"
+    if ckpt is None:
+        return f"{state}; checkpointing is off, nothing was saved"
+    if saved_step is None:
+        return f"{state}; no checkpoint was written yet ({str(ckpt.path)!r})"
+    return f"{state}; last good checkpoint: {str(ckpt.path)!r} (step {saved_step})"
 
 
 # -- random number generators -------------------------------------------------------------------

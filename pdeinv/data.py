@@ -28,6 +28,8 @@ from __future__ import annotations
 
 import hashlib
 import os
+import warnings
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -210,3 +212,48 @@ def split(rows: int, n_test: int, n_val: int = 0) -> tuple[slice, slice, slice]:
 def fingerprint(y: np.ndarray) -> str:
     """A short hash of the observations: a checkpoint of other data is not resumed."""
     return hashlib.sha256(np.ascontiguousarray(y, dtype=np.float64).tobytes()).hexdigest()[:16]
+
+
+@dataclass
+class OwnData:
+    """``Trainer(data=...)``'s rows after :func:`own_data`: the training rows, the stopping rule's, the
+    test rows (with their ``x`` or None), the data's fingerprint, its model mismatch and the row ranges."""
+
+    y: np.ndarray
+    y_val: np.ndarray
+    y_test: np.ndarray
+    x_test: np.ndarray | None
+    fingerprint: str
+    model_mismatch: float | None
+    rows: dict
+
+    def describe(self) -> dict:
+        """``metrics["data"]``."""
+        return {"rows": self.rows, "x": self.x_test is not None, "model_mismatch": self.model_mismatch,
+                "split": "in order: first rows train, then the stopping rule's rows, "
+                         "the last n_test rows test"}
+
+
+def own_data(problem, data, data_x, n_test: int, n_val: int = 0, warn: bool = True) -> OwnData:
+    """``data`` (``(B, m)`` observations) and ``data_x`` (their fields or None) checked against ``problem``
+    and split by :func:`split`; ``warn``: say when the mismatch exceeds the noise, and what the default
+    split held out (the writer process of a data-parallel run)."""
+    y = as_observations(data, problem.operator.n_out, "data")
+    x = None if data_x is None else as_observations(data_x, problem.N, "data_x")
+    if x is not None and len(x) != len(y):
+        raise ValueError(f"data_x has {len(x)} rows but data has {len(y)}; expected one x per y")
+    mismatch = None if x is None else model_mismatch(problem.operator, x, y)
+    if mismatch is not None and not explained(mismatch, problem.noise) and warn:
+        warnings.warn(f"the data's y differ from this problem's P x by {mismatch:.3g} (mean "
+                      f"‖P x − y‖/‖y‖ over the file's rows), more than its noise level "
+                      f"{problem.noise:g} explains: another simulator, grid or column order? "
+                      "(--set noise=… declares noisy data)", RuntimeWarning, stacklevel=3)
+    train, val, test = split(len(y), n_test, n_val)
+    held = len(y) - train.stop
+    if train.stop < held and warn:  # say what the default splits took
+        stop = f" and {val.stop - val.start} for the stopping rule" if val.stop > val.start else ""
+        warnings.warn(f"the data's {len(y)} rows: the last {test.stop - test.start} are held out as the "
+                      f"test set{stop}, only {train.stop} train; hold out fewer with --n-test "
+                      "(Trainer(n_test=...))", RuntimeWarning, stacklevel=3)
+    return OwnData(y[train], y[val], y[test], None if x is None else x[test], fingerprint(y), mismatch,
+                   {"train": [0, train.stop], "stop": [val.start, val.stop], "test": [test.start, test.stop]})

@@ -39,6 +39,14 @@ from ._checks import count, positive
 from .noise import estimate_noise
 
 
+def finished(at, steps: int | None, time_budget: float | None) -> bool:
+    """Whether a run at ``at`` (its accepted ``step``, ``wall`` seconds of training, ``stopped_by``) is
+    over: a stopping rule or callback ended it, or it reached ``steps`` or ``time_budget`` (each may be
+    None: no limit); never before its first step."""
+    return at.step >= 1 and (at.stopped_by is not None or (steps is not None and at.step >= steps) or (
+        time_budget is not None and at.wall >= time_budget))
+
+
 class DiscrepancyState(NamedTuple):
     operator: object
     y_val: np.ndarray

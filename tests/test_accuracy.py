@@ -13,7 +13,7 @@ import pdeinv
 from pdeinv import references as refs
 from pdeinv.methods.presets import make_rule
 from pdeinv.stopping import DiscrepancyStop
-from pdeinv.train import TEST_DATA, seed_stream
+from pdeinv.trainset import TEST_DATA, seed_stream
 
 GRID = tuple(10.0 ** (-k / 4) for k in range(0, 65))  # α / s_max² from 1 to 1e-16
 
@@ -79,7 +79,7 @@ def test_sip_on_the_reduced_network_beats_best_alpha_tikhonov(monkeypatch):
 
 def _mmse(problem):
     """The linear MMSE fitted on the *training x* (an oracle: the trainer never sees x), on the test set."""
-    from pdeinv.train import TRAIN_DATA
+    from pdeinv.trainset import TRAIN_DATA
 
     xtr, _ = problem.sample(1024, seed_stream(0, TRAIN_DATA))
     xt, yt = problem.sample(128, seed_stream(0, TEST_DATA))

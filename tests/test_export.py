@@ -15,7 +15,7 @@ import pdeinv
 from pdeinv.cli import main
 from pdeinv.export import predict, read_fields, vertex_values, write_fields
 from pdeinv.nets import MLP
-from pdeinv.train import TEST_DATA, seed_stream
+from pdeinv.trainset import TEST_DATA, seed_stream
 
 
 @pytest.mark.parametrize("name, kw", [("heat_2d", dict(n=6)), ("heat_2d", dict(n=4, element="P2")),

@@ -133,3 +133,49 @@ def test_cli_gd_with_lr_1e6_recovers_within_the_budget(tmp_path, capsys):
     assert code == 0 and err and all("in a row of at most 5; floor 1e-12)" in w for w in err)
     m = json.loads((out / "metrics.json").read_text())
     assert m["steps"] == 120 and 3 <= m["rejected_steps"] <= 12 and 0 < m["x_err"] < 0.3
+
+
+def test_the_snapshot_copies_into_buffers_allocated_once_and_restores_bitwise():
+    """The last good state is copied into the same buffers every step (no deep copy, no allocation;
+    issue 24 item 5), independent of the live tensors, and restored exactly."""
+    from pdeinv.methods import Guard, adam
+
+    problem = pdeinv.load_problem("heat_1d", n=16, steps=10)
+    torch.manual_seed(0)
+    model = MLP(problem.operator.n_out, problem.operator.n_in, hidden=(8,))
+    rule, g = GD(adam(1e-2), normalize=False), Guard()
+    state = rule.init(problem, model)
+    y = torch.as_tensor(problem.sample(8, 0)[1], dtype=torch.float32)
+
+    def tensors(sd):
+        return [t for group in sd["transform"]["state"].values() for t in group.values()]
+
+    pointers = None
+    for _ in range(4):
+        before = [p.detach().clone() for p in model.parameters()]
+        moments = [t.clone() for t in tensors(rule.state_dict(state))]
+        state, _ = g.step(rule, state, model, y)
+        g.accept(state.steps)
+        saved = [*g.good.params, *tensors(g.good.rule_state)]
+        assert all(torch.equal(a, b) for a, b in zip(g.good.params, before, strict=True))
+        assert all(torch.equal(a, b) for a, b in zip(tensors(g.good.rule_state), moments, strict=True))
+        if pointers is not None:
+            assert [t.data_ptr() for t in saved] == pointers  # the same buffers, refilled
+        pointers = [t.data_ptr() for t in saved] if moments else None
+    live = [t.data_ptr() for t in [*model.parameters(), *tensors(rule.state_dict(state))]]
+    assert not set(live) & set(pointers)
+    state, step, _, _ = g.reject(rule, state, model, state.steps, state.steps + 1)
+    assert step == 3 and all(torch.equal(a, b) for a, b in zip(model.parameters(), before, strict=True))
+    assert all(torch.equal(a, b) for a, b in zip(tensors(rule.state_dict(state)), moments, strict=True))
+    assert not set(t.data_ptr() for t in tensors(rule.state_dict(state))) & set(pointers)  # not aliased
+
+
+@pytest.mark.parametrize("values, expected", [
+    ([1.0, 2.0], True), ([1e308, 1e308], True), ([math.nan, 1.0], False), ([math.inf, -math.inf], False),
+    ([-math.inf], False)])
+def test_finite_agrees_with_the_entrywise_test(values, expected):
+    """One sum decides unless it overflows; then the entrywise test does (finite entries, huge sum)."""
+    from pdeinv.methods.guard import finite
+
+    t = torch.tensor(values, dtype=torch.float64)
+    assert finite(t) is expected is bool(torch.isfinite(t).all())

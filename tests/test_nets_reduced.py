@@ -12,7 +12,7 @@ from pdeinv.cli import main
 from pdeinv.methods.presets import make_rule
 from pdeinv.precondition import Whitening
 from pdeinv.runs import load_run
-from pdeinv.train import Trainer
+from pdeinv.trainer import Trainer
 
 pytestmark = pytest.mark.usefixtures("one_thread")
 

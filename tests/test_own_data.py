@@ -13,7 +13,7 @@ import pdeinv
 from pdeinv.cli import main
 from pdeinv.methods import GD, adam
 from pdeinv.stopping import DiscrepancyStop
-from pdeinv.train import Trainer
+from pdeinv.trainer import Trainer
 
 pytestmark = pytest.mark.usefixtures("one_thread")  # small dense work: one torch thread
 

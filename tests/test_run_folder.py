@@ -119,9 +119,10 @@ def test_a_full_disk_during_a_checkpoint_keeps_the_previous_one(tmp_path, capsys
 def test_history_grows_with_the_checkpoints_and_a_heartbeat_speaks_off_a_terminal(tmp_path, capsys):
     """history.csv is written with every checkpoint (not only at the end), and off a terminal the CLI's
     heartbeat prints a progress line every ``every_s`` seconds of training."""
-    from pdeinv.commands.train import _Checkpoint, _Heartbeat
+    from pdeinv.commands._folder import FolderCheckpoint
+    from pdeinv.commands.train import _Heartbeat
 
-    ckpt = _Checkpoint(tmp_path / "checkpoint.pt", 1, lambda: None)
+    ckpt = FolderCheckpoint(tmp_path / "checkpoint.pt", 1, lambda: None)
     ckpt.save({"history": [{"step": 1, "wall_s": 0.1, "loss": 0.5}], "model": {}})
     assert (tmp_path / "history.csv").read_text().splitlines() == ["step,wall_s,loss", "1,0.1,0.5"]
     beat = _Heartbeat(steps=10, every_s=0.0)

@@ -10,7 +10,7 @@ from pdeinv.inverse import Discrepancy, SpectralTikhonov
 from pdeinv.methods.curvature import gauss_newton_max
 from pdeinv.physics.compiled import spectral_basis
 from pdeinv.targets import SpectralWiener
-from pdeinv.train import TEST_DATA, TRAIN_DATA, seed_stream
+from pdeinv.trainset import TEST_DATA, TRAIN_DATA, seed_stream
 
 
 def _filtered_estimate(problem, fitted, y):

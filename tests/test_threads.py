@@ -4,7 +4,7 @@ import torch
 
 from pdeinv import threads
 from pdeinv.cli import main
-from pdeinv.train import Trainer
+from pdeinv.trainer import Trainer
 
 
 def _counts():

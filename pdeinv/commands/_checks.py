@@ -46,8 +46,9 @@ def check_run(problem, args, hp: dict) -> None:
     run whose step would take longer than :data:`HIG_MAX_STEP_S` (unless ``--allow-slow``);
     warn when ``--export-samples`` is above ``--n-test``."""
     from pdeinv import memory
+    from pdeinv.trainset import N_TRAIN
 
-    n_train = args.n_train or 1024
+    n_train = args.n_train or N_TRAIN
     memory.check_training(problem, n_train, args.n_test, hp["batch_size"] or n_train,
                           hp["hidden"])
     # the default networks (no --hidden, no network of the problem's own) are linear in θ: HIG takes

@@ -64,26 +64,6 @@ def _one_line(message, category, filename, lineno, file=None, line=None) -> None
     print(f"pdeinv train: warning: {message}", file=sys.stderr)
 
 
-def _plot(history: list, path, title: str) -> None:
-    """y-loss and test errors against training wall time."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    t = [h["wall_s"] for h in history]
-    ev = [h for h in history if "x_err" in h]
-    fig, (a, b) = plt.subplots(1, 2, figsize=(9, 3.5), layout="constrained")
-    a.semilogy(t, [h["loss"] for h in history], lw=0.8)
-    a.set(xlabel="training wall time [s]", ylabel="batch y-loss ½‖P f(y*) − y*‖²", title=title)
-    b.semilogy([h["wall_s"] for h in ev], [h["x_err"] for h in ev], "o-", label="x error")
-    b.semilogy([h["wall_s"] for h in ev], [h["y_err"] for h in ev], "s-", label="y error")
-    b.set(xlabel="training wall time [s]", ylabel="relative L²(Ω) error (test set)")
-    b.legend()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-
-
 def _check_flags(args, out) -> None:
     """Refuse conflicting flags and an ``--out`` holding another run's files, before any work."""
     from pdeinv.runs import existing_outputs
@@ -110,37 +90,6 @@ def _check_flags(args, out) -> None:
     if args.data and args.n_train is not None:
         raise UsageError("--n-train does not apply with --data: the file's rows train, except the last "
                          "--n-test (and the stopping rule's) rows, which are held out")
-
-
-class _Fresh:
-    """``--overwrite``: delete the previous run's files once, just before this run writes its first
-    file, so a run refused while setting up (a bad setting, a memory estimate) leaves them intact and
-    one that trained never leaves a mix of two runs."""
-
-    def __init__(self, out, enabled: bool):
-        self.out, self.pending = out, enabled
-
-    def __call__(self) -> None:
-        if self.pending:
-            from pdeinv.runs import clear_outputs
-
-            clear_outputs(self.out)
-            self.pending = False
-
-
-def _Checkpoint(path, every: int, fresh: _Fresh):
-    """A :class:`~pdeinv.checkpoint.Checkpoint` that calls ``fresh()`` before each save."""
-    from pdeinv.checkpoint import Checkpoint
-    from pdeinv.files import write_csv
-
-    class Fresh(Checkpoint):
-        def save(self, payload: dict) -> None:
-            fresh()
-            super().save(payload)
-            if payload.get("history"):  # history.csv grows with the run, not only at its end
-                write_csv(payload["history"], self.path.parent / "history.csv")
-
-    return Fresh(path, every)
 
 
 class _Heartbeat:
@@ -243,10 +192,13 @@ def _parallel_train(args, out, ckpt, device, parallel) -> int:
     from pdeinv.data import npz_rounding_level, read_meta, read_npz, undeclared_noise
     from pdeinv.methods.presets import make_rule
     from pdeinv.runs import network
-    from pdeinv.train import Trainer
+    from pdeinv.trainer import Trainer
+    from pdeinv.trainset import N_TRAIN
+
+    from ._folder import FolderCheckpoint, Fresh
 
     hidden = _hidden(args.hidden) if args.hidden is not None else None
-    fresh = _Fresh(out, args.overwrite)
+    fresh = Fresh(out, args.overwrite)
     set_threads(args.threads)
     no_cache(args)
     overrides = parse_sets(args.set)
@@ -282,9 +234,9 @@ def _parallel_train(args, out, ckpt, device, parallel) -> int:
     net = _network_spec(problem, hp)
     trainer = Trainer(problem, rule, network(problem, net), steps=_checks.steps(args, hp),
                       time_budget=args.time_budget,
-                      n_train=args.n_train or 1024, n_test=args.n_test, batch_size=hp["batch_size"],
+                      n_train=args.n_train or N_TRAIN, n_test=args.n_test, batch_size=hp["batch_size"],
                       seed=args.seed, eval_every=args.eval_every, max_failures=args.max_failures,
-                      checkpoint=_Checkpoint(ckpt, args.checkpoint_every, fresh) if args.checkpoint_every
+                      checkpoint=FolderCheckpoint(ckpt, args.checkpoint_every, fresh) if args.checkpoint_every
                       else None,
                       resume=args.resume, stop=stop, data=y, data_x=x, device=device, parallel=parallel,
                       callbacks=[] if sys.stderr.isatty() else [_Heartbeat(_checks.steps(args, hp))])
@@ -312,6 +264,8 @@ def _run(args, out, problem, overrides, net, hp, trainer, fresh) -> int:
     from pdeinv.runlock import RunLock
     from pdeinv.runs import RUN_FILE, clear_outputs, save_run
 
+    from ._plot import training_curves
+
     ckpt = out / "checkpoint.pt"
     with RunLock(out):  # one run per --out: a second one is refused
         try:
@@ -336,7 +290,7 @@ def _run(args, out, problem, overrides, net, hp, trainer, fresh) -> int:
         text = json.dumps(metrics, indent=2, default=str).encode()
         atomic_write(out / "metrics.json", lambda fh: fh.write(text))
         write_csv(result.history, out / "history.csv")
-        _plot(result.history, out / "training.png", f"{problem.name}, {args.method}")
+        training_curves(result.history, out / "training.png", f"{problem.name}, {args.method}")
         save_run(out, args.problem, overrides, net, result.model)
         written = {"metrics.json", "history.csv", "training.png", "model.pt", RUN_FILE, "checkpoint.pt"}
         x_test, y_test = trainer.held_out()
@@ -355,6 +309,7 @@ def _run(args, out, problem, overrides, net, hp, trainer, fresh) -> int:
 
 def add_parser(sub) -> None:
     from pdeinv.methods.names import METHOD_NAMES as METHODS
+    from pdeinv.trainset import N_TRAIN
 
     t = sub.add_parser("train", help="train a network with GD, Adam, SIP or HIG; write metrics.json")
     t.add_argument("problem")
@@ -390,7 +345,7 @@ def add_parser(sub) -> None:
                         "them, the rest train; shuffle the rows first if the file is sorted. The noise "
                         "level is the problem's (--set noise=...)")
     t.add_argument("--n-train", type=int, default=None,
-                   help="training samples (default 1024; not with --data)")
+                   help=f"training samples (default {N_TRAIN}; not with --data)")
     t.add_argument("--n-test", type=int, default=128,
                    help="test samples; with --data the last N rows of the file (default 128)")
     t.add_argument("--eval-every", type=int, default=50)

@@ -1,6 +1,7 @@
 """Update rules as strategy objects that compute an update and never apply it (see :mod:`.base`):
 ``state = rule.init(problem, model)``, ``direction, info = rule.update(state, model, y)``;
-:func:`.guard.apply_if_finite` checks and applies it with ``rule.transform``.
+:func:`.guard.apply_if_finite` checks and applies it with ``rule.transform``; a run's :class:`.guard.Guard`
+owns the step size, the failure budget and the roll-back to the last good state.
 
 Names are imported on first use, so :mod:`.names` (the CLI's method names) costs no torch import.
 """
@@ -9,10 +10,10 @@ import importlib
 
 _WHERE = {**dict.fromkeys(["NonFiniteError", "Resumable", "State", "Update", "UpdateRule", "adam", "sgd"],
                           "base"),
-          "GD": "gd", "apply_if_finite": "guard", "HIG": "hig", "SIP": "sip"}
+          "GD": "gd", "Guard": "guard", "apply_if_finite": "guard", "HIG": "hig", "SIP": "sip"}
 
-__all__ = ["GD", "HIG", "SIP", "NonFiniteError", "Resumable", "State", "Update", "UpdateRule", "adam",
-           "apply_if_finite", "sgd"]
+__all__ = ["GD", "HIG", "SIP", "Guard", "NonFiniteError", "Resumable", "State", "Update", "UpdateRule",
+           "adam", "apply_if_finite", "sgd"]
 
 
 def __getattr__(name: str):

@@ -40,7 +40,7 @@ import torch
 from ..checkpoint import plain
 from ..errors import NonFiniteError  # noqa: F401  (re-exported)
 from . import guard
-from .guard import describe, trainable  # noqa: F401  (re-exported)
+from .guard import describe, finite, trainable  # noqa: F401  (re-exported)
 
 #: ``params -> torch.optim.Optimizer``, e.g. ``functools.partial(torch.optim.Adam, lr=1e-3)``
 OptimizerFactory = Callable[[Any], torch.optim.Optimizer]
@@ -136,7 +136,7 @@ def optimizer_hyperparameters(factory: OptimizerFactory) -> dict:
 
 def check_finite(name: str, value: torch.Tensor) -> None:
     """Raise :class:`NonFiniteError` if ``value`` holds NaN or Inf (a rule naming its culprit)."""
-    if not bool(torch.isfinite(value).all()):
+    if not finite(value):
         raise NonFiniteError(f"{name} is not finite ({describe(value)}); the update was not applied "
                              "(lower the learning rate / eta, or raise tau for HIG)")
 

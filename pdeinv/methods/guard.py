@@ -14,9 +14,12 @@ transformation apply it with the step-size multiplier ``scale``. It *rejects* (r
 those parameters are known to be good. A :class:`Snapshot` then copies them and the rule's state
 (optimizer moments, step count) before step k's update is applied. On a rejection the guard restores
 it, undoing the update that blew up (not only the rejected step). The copy goes into buffers allocated
-once and is deterministic, so a checkpoint holding it resumes bitwise.
+once and reused every step (``copy_``, no allocation: the update is in place, so the pre-update values
+must be copied, but never deep-copied), and is exact, so a checkpoint holding it resumes bitwise.
+Finiteness is tested with one sum per tensor (NaN and Inf propagate through it; the entrywise test
+runs only when the sum is not finite). Both measured in ``benchmarks/overhead.py``.
 
-**Policy** (:class:`Guard`; the trainer, :mod:`pdeinv.train`, only reports):
+**Policy** (:class:`Guard`; the trainer, :mod:`pdeinv.trainer`, only reports):
 
 1. every rejection rolls back to the last good state and multiplies the step size by ``step_factor``
    (½; a test-set blow-up found by the trainer's evaluation also by its overshoot);
@@ -50,6 +53,14 @@ class Diverged(NonFiniteError):
 def trainable(model: torch.nn.Module) -> list[torch.nn.Parameter]:
     """The parameters a rule updates, in ``model.parameters()`` order (its direction's order)."""
     return [p for p in model.parameters() if p.requires_grad]
+
+
+def finite(t: torch.Tensor) -> bool:
+    """Whether every entry of ``t`` is finite: one reduction, ``sum(t)``, which any NaN or Inf makes
+    non-finite; only when it is not (those, or finite entries whose sum overflows) the entrywise test
+    decides. Same answer as ``isfinite(t).all()``, without its boolean temporary."""
+    t = t.detach()
+    return math.isfinite(float(t.sum())) or bool(torch.isfinite(t).all())
 
 
 def describe(t: torch.Tensor) -> str:
@@ -96,14 +107,31 @@ def check_update(info: dict, direction, model: torch.nn.Module) -> None:
     loss = info.get("loss", math.nan)
     if direction is None or not math.isfinite(loss):
         raise NonFiniteError(f"the y-loss is not finite ({loss}); the update was not applied ({ADVICE})")
-    given = [d for d in direction if d is not None]
-    if not given or bool(torch.stack([torch.isfinite(d).all() for d in given]).all()):
+    if all(d is None or finite(d) for d in direction):
         return
     names = [n for n, p in model.named_parameters() if p.requires_grad]
     for name, d in zip(names, direction, strict=True):
-        if d is not None and not bool(torch.isfinite(d).all()):
+        if d is not None and not finite(d):
             raise NonFiniteError(f"the update of {name!r} is not finite ({describe(d)}); "
                                  f"it was not applied ({ADVICE})")
+
+
+def copied(buffer, value):
+    """A copy of ``value`` (dicts, lists and tuples of tensors and plain values), each tensor copied into
+    the tensor at the same place in ``buffer`` (a previous copy) when shape, dtype and device agree,
+    else cloned; plain values deep-copied. Exact; allocates nothing once ``buffer`` fits."""
+    if isinstance(value, torch.Tensor):
+        fits = isinstance(buffer, torch.Tensor) and buffer.shape == value.shape and \
+            buffer.dtype == value.dtype and buffer.device == value.device
+        return buffer.copy_(value) if fits else value.detach().clone()
+    if isinstance(value, dict):
+        old = buffer if isinstance(buffer, dict) else {}
+        return {k: copied(old.get(k), v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)) and not hasattr(value, "_fields"):
+        fits = isinstance(buffer, (list, tuple)) and len(buffer) == len(value)
+        old = buffer if fits else [None] * len(value)
+        return type(value)(copied(b, v) for b, v in zip(old, value, strict=True))
+    return copy.deepcopy(value)
 
 
 class Snapshot:
@@ -120,14 +148,11 @@ class Snapshot:
 
     @torch.no_grad()
     def take(self, rule, state, model: torch.nn.Module, step: int | None = None) -> None:
-        params = trainable(model)
-        if len(self.params) != len(params):
-            self.params = [p.detach().clone() for p in params]
-        else:
-            for saved, p in zip(self.params, params, strict=True):
-                saved.copy_(p)
+        """Copy the parameters and the rule's state into the snapshot's buffers (allocated on the first
+        take, or when a shape changes; :func:`copied`)."""
+        self.params = copied(self.params, [p.detach() for p in trainable(model)])
         if resumable(rule):
-            self.rule_state = copy.deepcopy(rule.state_dict(state))
+            self.rule_state = copied(self.rule_state, rule.state_dict(state))
         self.step = state.steps if step is None else step
 
     @torch.no_grad()

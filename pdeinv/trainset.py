@@ -1,0 +1,105 @@
+"""What a run trains and is tested on: seeded samples or a user's rows, the held-out sets, the targets.
+
+Without own data (:mod:`pdeinv.data`) every set is a draw from ``problem.sample`` with its own seed
+stream of the run's ``seed`` (:func:`seed_stream`): the training observations from ``TRAIN_DATA``, the
+test pairs from ``TEST_DATA``, the stopping rule's observations from ``VAL_DATA`` (their ``x``
+discarded), the batch order from ``BATCH_ORDER``; so other code can rebuild exactly the same data. With
+own data the rows come from :class:`pdeinv.data.OwnData` (its split, in order).
+
+What ``P f(y)`` must match (:func:`fit_target`) is ``y`` itself, a denoised ``y`` (:mod:`pdeinv.targets`),
+or ``y`` in float64 when the network computes in a lower precision.
+"""
+
+from __future__ import annotations
+
+import inspect
+import warnings
+
+# numpy and torch are imported where used: the CLI's help reads N_TRAIN without them
+
+#: the trainer's seed streams: training data, test data, batch order, held-out observations
+TRAIN_DATA, TEST_DATA, BATCH_ORDER, VAL_DATA = 1, 2, 3, 4
+
+#: training samples when not given (``Trainer(n_train=)``, ``pdeinv train --n-train``)
+N_TRAIN = 1024
+
+
+def seed_stream(seed: int, stream: int) -> int:
+    """Independent integer seed ``stream`` of ``seed`` (``SeedSequence([seed, stream])``).
+
+    The trainer draws its training pairs from ``seed_stream(seed, TRAIN_DATA)``, its
+    test pairs from ``seed_stream(seed, TEST_DATA)`` and its batch order from
+    ``seed_stream(seed, BATCH_ORDER)``, so other code can rebuild exactly the same data.
+    """
+    import numpy as np
+
+    return int(np.random.SeedSequence([seed, stream]).generate_state(1)[0])
+
+
+def training_rows(problem, own, n_train: int, seed: int):
+    """The training observations (numpy): own data's first rows, or ``n_train`` seeded samples."""
+    return own.y if own is not None else problem.sample(n_train, seed_stream(seed, TRAIN_DATA))[1]
+
+
+def test_rows(problem, own, n_test: int, seed: int) -> tuple:
+    """The test set ``(x or None, y)`` (numpy): own data's last rows, or the seeded samples."""
+    return (own.x_test, own.y_test) if own is not None else \
+        problem.sample(n_test, seed_stream(seed, TEST_DATA))
+
+
+def stop_rows(problem, own, n_val: int, seed: int):
+    """The stopping rule's held-out observations (their ``x`` is never drawn into the run)."""
+    return own.y_val if own is not None else problem.sample(n_val, seed_stream(seed, VAL_DATA))[1]
+
+
+def fit_inputs(problem, rule, target, model, y_np, y_train, fit_scaling: bool):
+    """What the network sees and must match: ``(goal, info)`` of :func:`fit_target`, and with
+    ``fit_scaling`` the model's input transform fitted on ``y_np`` at the problem's noise level
+    (:func:`pdeinv.nets.fit_preconditioning`; never on ``x``)."""
+    from .nets import fit_preconditioning
+
+    goal, info = fit_target(problem, rule, target, y_np, y_train, model)
+    if fit_scaling:  # a fitted target is denoised: the input keeps every direction (drop=0), each scaled
+        # at most to the noise floor σ² (clean data's rounding-level directions stay small)
+        noise = getattr(problem, "noise", None) or None
+        fit_preconditioning(model, y_np, noise, **({"drop": 0} if info else {}))
+    return goal, info
+
+
+def fit_target(problem, rule, target, y_np, y_train, model=None):
+    """``(goal, info)``: what ``P f(y)`` must match when it is not ``y_train`` itself (``goal`` None) and
+    the fitted target's description (None without one).
+
+    ``target(y)`` when the target strategy fits one (:mod:`pdeinv.targets`; ``"auto"`` is
+    :class:`~pdeinv.targets.SpectralWiener`), else the float64 ``y`` when the network's dtype is lower
+    (a float32 copy of ``y`` puts rounding 6e-8 into every residual, which SIP's local inverse amplifies
+    by up to ``1/(2√α)``). A rule whose ``update`` takes no ``target`` keeps ``y`` (precision) or is
+    refused (a fitted target). A strategy whose ``fit`` takes ``model=`` gets the network (a fixed
+    decoder changes the basis the target filters in)."""
+    import numpy as np
+    import torch
+
+    from .methods.base import takes_target
+    from .targets import SpectralWiener
+
+    strategy = SpectralWiener() if target == "auto" else target
+    noise = getattr(problem, "noise", None) or 0.0
+    if strategy is None and noise > 0:
+        warnings.warn(f"noise={noise:g} and target=None: every rule converges to the least-squares fit "
+                      "of the noise and only a stopping rule regularizes (SIP's default inverse on a "
+                      "spectral basis gets there in one step); keep target='auto'", RuntimeWarning,
+                      stacklevel=5)
+    fitted = None
+    if strategy is not None:
+        kw = {"model": model} if "model" in inspect.signature(strategy.fit).parameters else {}
+        fitted = strategy.fit(problem, y_np, noise or None, **kw)
+    if fitted is not None and not takes_target(rule):
+        if target != "auto":
+            raise ValueError(f"rule {getattr(rule, 'name', rule)!r} cannot use target="
+                             f"{target!r}: its update(state, model, y) takes no target=")
+        fitted = None  # "auto" falls back to y for a rule that cannot take one
+    info = None if fitted is None else fitted.info
+    if fitted is None and (y_train.dtype == torch.float64 or not takes_target(rule)):
+        return None, info
+    goal = np.asarray(y_np, dtype=float) if fitted is None else fitted(y_np)
+    return torch.as_tensor(goal, dtype=torch.float64, device=y_train.device), info
