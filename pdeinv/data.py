@@ -198,6 +198,21 @@ def explained(mismatch: float, noise: float) -> bool:
     return mismatch <= (MISMATCH_SLACK[0] * noise if noise else MISMATCH_SLACK[1])
 
 
+#: a figure of :func:`against` above this: the observations are not of the problem's physics at all
+#: (half the observation or more unexplained: made by another problem of the same shapes)
+FOREIGN = 0.5
+
+
+def against(problem, y: np.ndarray, x: np.ndarray | None, path=None) -> tuple[str, float]:
+    """``(what, figure)``: how far observations from elsewhere are from ``problem``'s physics — with
+    ``x``, :func:`model_mismatch`; else the noise level they show outside ``range(P)``
+    (:func:`undeclared_noise`, 0 where it cannot be read). Compare it with the level the problem
+    assumes (:func:`explained`) and with :data:`FOREIGN`."""
+    if x is not None:
+        return "model mismatch mean ‖P x − y‖/‖y‖", model_mismatch(problem.operator, x, y)
+    return "noise level outside the range of P", undeclared_noise(path, y, problem) if path else 0.0
+
+
 def split(rows: int, n_test: int, n_val: int = 0) -> tuple[slice, slice, slice]:
     """``(train, val, test)`` row slices: the last ``n_test`` rows test, the ``n_val`` before them val."""
     n_train = rows - n_test - n_val

@@ -341,3 +341,33 @@ def test_a_file_may_carry_its_points_and_noise_level(tmp_path, capsys):
     assert "noise=-1.0 is not allowed" in capsys.readouterr().err
     assert main(["classical", "heat_1d", "--set", "n=16", "--data", str(tmp_path / "ok.npz")]) == 0
     assert "the file's" in capsys.readouterr().out
+
+
+def test_cli_predict_checks_the_observations_against_the_runs_physics(tmp_path, capsys):
+    """Observations of another problem with the same shapes are refused (exit 2, one line, nothing
+    written): with x, by the model mismatch (x of other rows); without x, by the noise level the
+    observations show outside range(P) (rough fields no heat run can produce). The run's own data:
+    accepted, no warning."""
+    heat = pdeinv.load_problem("heat_1d", n=64, backend="modal")
+    x, y = heat.sample(60, seed=3)
+    np.savez(tmp_path / "train.npz", y=y, x=x)
+    tail = ["--set", "n=64", "--set", "backend=modal", "--n-test", "10", "--batch-size", "8", "--steps", "2",
+            "--export-samples", "0"]
+    assert main(["train", "heat_1d", "--data", str(tmp_path / "train.npz"), *tail,
+                 "--out", str(tmp_path / "run")]) == 0
+    rough = np.random.default_rng(0).standard_normal(y.shape)
+    files = {"own": dict(y=y, x=x), "own_y": dict(y=y), "shuffled": dict(y=y, x=x[::-1]),
+             "rough": dict(y=rough)}
+    for name, arrays in files.items():
+        np.savez(tmp_path / f"{name}.npz", **arrays)
+    capsys.readouterr()
+    for name in files:
+        out = tmp_path / f"pred_{name}.npz"
+        code = main(["predict", str(tmp_path / "run"), "--data", str(tmp_path / f"{name}.npz"),
+                     "--out", str(out)])
+        err = capsys.readouterr().err.splitlines()
+        if name.startswith("own"):
+            assert code == 0 and out.exists() and not err, (name, err)
+        else:
+            assert code == 2 and len(err) == 1 and "is not of this run's physics" in err[0], (name, err)
+            assert not out.exists()

@@ -4,7 +4,10 @@ Reads ``y`` ``(B, m)`` (and ``x`` ``(B, N)`` if present, to report the error) fr
 ``--data`` (:func:`pdeinv.data.read_npz`), rebuilds the run's problem and network
 (:func:`pdeinv.runs.load_run`) and writes ``x`` ``(B, N)`` to ``--out`` atomically;
 ``--vtu FILE`` also writes every prediction (and true field and error, when ``x`` is
-given) at the mesh vertices for ParaView (:func:`pdeinv.export.write_fields`).
+given) at the mesh vertices for ParaView (:func:`pdeinv.export.write_fields`). The observations
+are checked against the run's physics first (:func:`pdeinv.data.against`): refused (exit 2) when
+half of them or more is unexplained (another problem's data of the same shapes), a warning when
+they are off by more than the run's noise level explains.
 """
 
 from __future__ import annotations
@@ -18,10 +21,11 @@ ORDER = 2
 
 def cmd_predict(args) -> int:
     import io
+    import warnings
 
     import numpy as np
 
-    from pdeinv.data import read_meta, read_npz
+    from pdeinv.data import FOREIGN, against, explained, read_meta, read_npz
     from pdeinv.export import predict, write_fields
     from pdeinv.files import atomic_write
     from pdeinv.runs import load_run
@@ -41,6 +45,15 @@ def cmd_predict(args) -> int:
     problem, model = load_run(args.run)
     y, x = read_npz(args.data, problem.operator.n_out, problem.N)
     read_meta(args.data, problem.points)  # the file's points, if any, are the run's problem's
+    what, figure = against(problem, y, x, args.data)  # checked against the run's physics
+    if not figure <= FOREIGN:
+        raise UsageError(f"--data {args.data!r} is not of this run's physics: its {what} is {figure:.3g} "
+                         f"(run {problem.name}, trained at noise {problem.noise:g}); observations made by "
+                         "another problem of the same shapes? predict with that problem's run")
+    if not explained(figure, problem.noise):
+        warnings.warn(f"--data {args.data!r}: its {what} is {figure:.3g}, above what the run's noise level "
+                      f"{problem.noise:g} explains: the predictions are outside what it was trained for",
+                      RuntimeWarning, stacklevel=2)
     xhat = predict(model, y)
     buffer = io.BytesIO()
     np.savez(buffer, x=xhat)

@@ -316,8 +316,8 @@ def add_parser(sub) -> None:
     t.add_argument("--method", choices=sorted(METHODS), default="sip",
                    help="update rule (default: sip, the most accurate; methods/presets.py)")
     t.add_argument("--steps", type=int, default=None,
-                   help="training steps (default: the method's preset: 30 full-batch steps for sip, 100 "
-                        "for hig, 1000 otherwise; no limit when --time-budget is given)")
+                   help="training steps (default: the method's preset: 30 full-batch steps for sip, 1000 "
+                        "(hig: full-batch) otherwise; no limit when --time-budget is given)")
     t.add_argument("--time-budget", type=float, default=None, metavar="SECONDS",
                    help="also stop once training wall time exceeds this")
     t.add_argument("--seed", type=int, default=0)
