@@ -27,6 +27,7 @@ from .physics.device import placed, resolve
 from .progress import progress
 from .stopping import finished
 from .trainset import BATCH_ORDER, N_TRAIN, fit_inputs, seed_stream, stop_rows, test_rows, training_rows
+from .unseen import of_predictions
 
 __all__ = ["Callback", "Result", "Trainer", "seed_stream", "train"]
 
@@ -286,7 +287,11 @@ class Trainer:
             bar.update(1)
             bar.set_postfix(loss=f"{info['loss']:.3g}", refresh=False)
         bar.close()
-        return Result(run.model, self.history, metrics(self, run), run.state)
+        record = metrics(self, run)
+        record["unseen_energy"], warning = of_predictions(self.problem, run.model, run.test, self.seed)
+        if warning and self.parallel.is_writer:  # energy where the physics cannot see (pdeinv.unseen)
+            warnings.warn(warning, RuntimeWarning, stacklevel=2)
+        return Result(run.model, self.history, record, run.state)
 
 
 def train(problem, rule, model=None, **kw) -> Result:
