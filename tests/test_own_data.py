@@ -294,8 +294,9 @@ def test_a_small_file_says_what_the_default_splits_hold_out(tmp_path, capsys):
 
 
 def test_cli_classical_solves_a_data_file(tmp_path, capsys):
-    """``pdeinv classical``: Morozov Tikhonov and the Wiener target without x; with x also the oracle α
-    and the model mismatch; the noise level estimated when the problem declares none."""
+    """``pdeinv classical``: Morozov Tikhonov and the Wiener target without x; with x also the oracle α,
+    the MMSE fitted on the file's x (no linear solve does better on those rows) and the model mismatch;
+    the noise level estimated when the problem declares none."""
     p = pdeinv.load_problem("heat_1d", n=16, noise=0.01)
     x, y = p.sample(200, 5)
     np.savez(tmp_path / "d.npz", y=y, x=x)
@@ -309,11 +310,13 @@ def test_cli_classical_solves_a_data_file(tmp_path, capsys):
     assert 0.005 < res["model_mismatch"] < 0.011  # the noise itself
     assert 0.005 < res["wiener_target"]["residual"] < 0.02
     assert res["prior_wiener"]["x_err"] < res["wiener_target"]["x_err"]  # the prior fills unseen modes
+    assert res["mmse_oracle"]["x_err"] <= 1.02 * min(oracle, res["prior_wiener"]["x_err"])  # the best linear
     assert "heat_1d tikhonov_morozov" in capsys.readouterr().out
     np.savez(tmp_path / "y.npz", y=y)
     assert main(["classical", "heat_1d", "--data", str(tmp_path / "y.npz"), "--set", "n=16",
                  "--set", "noise=0.01"]) == 0
-    assert "tikhonov_best_alpha" not in capsys.readouterr().out
+    printed = capsys.readouterr().out
+    assert "tikhonov_best_alpha" not in printed and "mmse" not in printed
 
 
 def test_a_file_may_carry_its_points_and_noise_level(tmp_path, capsys):

@@ -12,7 +12,9 @@ reconstructs every row with what needs no training:
 * **the prior Wiener estimate** (x-free): the same filter in the basis of ``P D``, ``D`` the prior's
   principal components (:func:`pdeinv.references.prior_wiener`): what the default network converges
   to where the operator is not reversible; it assumes the problem's prior describes the data;
-* with ``x``: **best-α Tikhonov** (the oracle α, chosen with the file's x) and the data's
+* with ``x``: **best-α Tikhonov** (the oracle α, chosen with the file's x), the **linear MMSE**
+  fitted on the file's own x (:func:`pdeinv.references.mmse`, noise variance from the level above:
+  an oracle too, the best linear estimate for data distributed as the file) and the data's
   **model mismatch** ``mean ‖P x − y‖/‖y‖`` (:func:`pdeinv.data.model_mismatch`).
 
 Prints one line per solve (x-error with x, and the relative residual ``mean ‖P x̂ − y‖/‖y‖``) and
@@ -71,6 +73,10 @@ def cmd_classical(args) -> int:
     if x is not None:
         best = references.tikhonov_best(problem, y, x)
         rows["tikhonov_best_alpha"] = {"x_err": best["x_err"], "alpha_rel": best["alpha_rel"]}
+        if len(x) >= 2:  # the linear MMSE with the file's own x as the prior: an oracle like the α above
+            sigma2 = noise**2 * float(np.mean(problem.operator.forward(x) ** 2))
+            estimate, info = references.mmse(problem, x, sigma2)
+            rows["mmse_oracle"] = {**err(estimate(y)), "sigma2_rule": info["sigma2_rule"]}
         rows["model_mismatch"] = model_mismatch(problem.operator, x, y)
     for name, value in rows.items():
         print(f"{problem.name} {name}: {json.dumps(value)}")
@@ -82,8 +88,9 @@ def cmd_classical(args) -> int:
 
 
 def add_parser(sub) -> None:
-    c = sub.add_parser("classical", help="Tikhonov (Morozov α, best α with x), the Wiener target and the "
-                                         "model mismatch of a data file: what a trained run is compared with")
+    c = sub.add_parser("classical", help="Tikhonov (Morozov α, best α with x), the Wiener target, the "
+                                         "MMSE and the model mismatch of a data file: what a trained run is "
+                                         "compared with")
     c.add_argument("problem")
     c.add_argument("--data", required=True, metavar="FILE.npz", help="y (B, m), optionally x (B, N)")
     c.add_argument("--out", default=None, metavar="FILE.json", help="also write the numbers as JSON")
