@@ -374,3 +374,34 @@ def test_cli_predict_checks_the_observations_against_the_runs_physics(tmp_path, 
         else:
             assert code == 2 and len(err) == 1 and "is not of this run's physics" in err[0], (name, err)
             assert not out.exists()
+
+
+def test_cli_reads_read_only_and_unicode_paths_and_refuses_an_unwritable_out(tmp_path, pairs, capsys):
+    """Data on a read-only file in a folder with a non-ASCII name trains and predicts (exit 0, the file
+    untouched); an --out folder that cannot be written is one line and exit 2 (not as root, who can)."""
+    import os
+    import stat
+
+    x, y = pairs
+    folder = tmp_path / "données ü 数据"
+    folder.mkdir()
+    data = folder / "obs é.npz"
+    np.savez(data, y=y, x=x)
+    data.chmod(stat.S_IRUSR)
+    before = data.read_bytes()
+    run = folder / "run ü"
+    assert main(["train", "heat_1d", "--data", str(data), *SMALL, "--out", str(run)]) == 0
+    assert main(["predict", str(run), "--data", str(data), "--out", str(folder / "préd.npz")]) == 0
+    assert data.read_bytes() == before and (folder / "préd.npz").exists()
+    if os.geteuid() == 0:
+        return
+    locked = tmp_path / "locked"
+    locked.mkdir()
+    locked.chmod(stat.S_IRUSR | stat.S_IXUSR)
+    capsys.readouterr()
+    try:
+        code = main(["train", "heat_1d", "--data", str(data), *SMALL, "--out", str(locked / "run")])
+    finally:
+        locked.chmod(stat.S_IRWXU)
+    err = capsys.readouterr().err.splitlines()
+    assert code == 2 and len(err) == 1 and "locked" in err[0], err
