@@ -38,11 +38,21 @@ def _mlp(problem, hidden):
     return MLP(problem.operator.n_out, problem.operator.n_in, hidden=tuple(hidden))
 
 
+def _from_nets(name: str):
+    """A :data:`NETWORKS` entry ``pdeinv.nets.<name>(**settings)(problem)`` (torch imported when used)."""
+    def build(problem, **settings):
+        from . import nets
+
+        return getattr(nets, name)(**settings)(problem)
+    return build
+
+
 #: network kinds: ``kind -> (problem, **settings) -> nn.Module`` (untrained; the state dict fills it)
 NETWORKS = {
     "default": lambda problem, **settings: problem.model(**settings),
     "mlp": _mlp,
-    "reduced": lambda problem, **kw: __import__("pdeinv.nets", fromlist=["reduced"]).reduced(**kw)(problem),
+    "reduced": _from_nets("reduced"),
+    "whitened": _from_nets("whitened"),
 }
 
 

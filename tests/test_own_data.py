@@ -405,3 +405,28 @@ def test_cli_reads_read_only_and_unicode_paths_and_refuses_an_unwritable_out(tmp
         locked.chmod(stat.S_IRWXU)
     err = capsys.readouterr().err.splitlines()
     assert code == 2 and len(err) == 1 and "locked" in err[0], err
+
+
+@pytest.mark.parametrize("net", ["whitened", "reduced", "default"])
+def test_cli_net_chooses_the_network_and_predict_rebuilds_it(tmp_path, capsys, net):
+    """``--net``: the whitened linear map or the prior decoder instead of the problem's default;
+    run.json records it and ``predict`` rebuilds the same network (the same predictions)."""
+    out = tmp_path / "run"
+    assert main(["train", "heat_1d", "--net", net, *SMALL, "--out", str(out)]) == 0
+    record = json.loads((out / "run.json").read_text())
+    assert record["network"]["kind"] == net
+    problem, model = pdeinv.load_run(out)
+    assert (model.decoder is not None) == (net in ("reduced", "default"))  # heat: the default decodes
+    x, y = problem.sample(5, seed=9)
+    np.savez(tmp_path / "obs.npz", y=y)
+    pred = tmp_path / "p.npz"
+    assert main(["predict", str(out), "--data", str(tmp_path / "obs.npz"), "--out", str(pred)]) == 0
+    np.testing.assert_allclose(np.load(pred)["x"], pdeinv.export.predict(model, y))
+
+
+def test_cli_net_and_hidden_together_are_refused(tmp_path, capsys):
+    code = main(["train", "heat_1d", "--net", "reduced", "--hidden", "8", *SMALL,
+                 "--out", str(tmp_path / "r")])
+    err = capsys.readouterr().err.splitlines()
+    assert code == 2 and len(err) == 1 and "--net reduced and --hidden 8" in err[0], err
+    assert not (tmp_path / "r").exists()

@@ -176,14 +176,26 @@ def _lost_peer(err: RuntimeError) -> bool:
         w in text for w in ("connection", "timed out", "timeout", "gloo", "nccl", "peer"))
 
 
-def _network_spec(problem, hp: dict) -> dict:
-    """run.json's network: the MLP of ``--hidden``, else the problem's default network, with the
-    preset's ``rows_per_component`` cap (first-order rules) where the problem has no model_factory."""
+#: ``--net``: the network kinds a user chooses by name (run.json's ``network.kind``, pdeinv.runs.NETWORKS)
+NETS = ("default", "whitened", "reduced")
+
+
+def _network_spec(problem, hp: dict, net: str = "default") -> dict:
+    """run.json's network: the MLP of ``--hidden``, else ``--net`` (the problem's default network, the
+    whitened linear map or the prior decoder, :mod:`pdeinv.nets`), with the preset's
+    ``rows_per_component`` cap (first-order rules) where the problem has no model_factory."""
     if hp["hidden"] is not None:
+        if net != "default":
+            widths = ",".join(map(str, hp["hidden"]))
+            raise UsageError(f"--net {net} and --hidden {widths} choose two networks (--hidden is the "
+                             "MLP's widths): drop one of them")
         return {"kind": "mlp", "hidden": list(hp["hidden"])}
     cap = hp.get("rows_per_component")
     own = getattr(problem, "model_factory", None) is not None
-    return {"kind": "default", **({"rows_per_component": cap} if cap and not own else {})}
+    if own and net != "default":
+        raise UsageError(f"--net {net}: problem {problem.name!r} builds its own network (model_factory); "
+                         "only --net default applies")
+    return {"kind": net, **({"rows_per_component": cap} if cap and not own else {})}
 
 
 def _parallel_train(args, out, ckpt, device, parallel) -> int:
@@ -231,7 +243,7 @@ def _parallel_train(args, out, ckpt, device, parallel) -> int:
     _checks.check_run(problem, args, hp)  # memory, HIG step time, --export-samples (before allocating)
     stop = STOPS[args.stop](problem)
     torch.manual_seed(args.seed)
-    net = _network_spec(problem, hp)
+    net = _network_spec(problem, hp, args.net)
     trainer = Trainer(problem, rule, network(problem, net), steps=_checks.steps(args, hp),
                       time_budget=args.time_budget,
                       n_train=args.n_train or N_TRAIN, n_test=args.n_test, batch_size=hp["batch_size"],
@@ -337,6 +349,9 @@ def add_parser(sub) -> None:
                         "128 held-out observations reaches 1.1x the noise level (the problem's, or an "
                         "estimate when it has none); 'auto' (default) uses it on noisy problems the "
                         "denoised target (pdeinv.targets) cannot filter (no spectral basis)")
+    t.add_argument("--net", choices=NETS, default="default",
+                   help="network (default: the problem's: the prior decoder where the operator is not "
+                        "reversible, else the whitened linear map; pdeinv.nets.default_model)")
     t.add_argument("--hidden", default=None, metavar="W,W", help="MLP hidden widths, e.g. 64,64")
     t.add_argument("--data", default=None, metavar="FILE.npz",
                    help="train on your own observations: an .npz with y (B, m), optionally x (B, N) "
