@@ -30,11 +30,10 @@ import torch
 from .. import references as refs
 from ..autograd import apply
 from ..methods import GD, HIG, SIP, adam, sgd
-from ..physics import Heat
+from ..nets import MLP
 from ..problem import load_problem
 from ..train import Trainer
 from .forward import applies, exact_factor
-from .methods import network
 from .stress import Case
 
 FULL = {"kappaT": (1e-3, 1e-2, 1e-1, 1.0), "noise": (0.0, 0.01, 0.03, 0.1),
@@ -52,7 +51,7 @@ def mode_error(problem) -> dict:
     y = problem.operator.forward(x0)
     out = {"growth": float(disc.norm(y)[0] / disc.norm(x0)[0])}
     if applies(problem) is None:
-        target = exact_factor(problem.operator, disc.dim) * x0
+        target = exact_factor(problem) * x0
         out["forward_err"] = float(disc.relative_error(y, target)[0])
     return out
 
@@ -76,7 +75,8 @@ def train(problem, rule, steps, hidden=(256, 256), batch=8, dtype=None) -> dict:
     ‖θ_end‖ / ‖θ_0‖ (a tanh network's output stays bounded while its first layer blows
     up, so the x-error alone can hide an exploding update).
     """
-    model = network(problem, hidden, 0)
+    torch.manual_seed(0)
+    model = MLP(problem.operator.n_out, problem.operator.n_in, hidden=tuple(hidden))
     if dtype is not None:
         model = model.to(dtype)
     norm = lambda: float(torch.cat([p.detach().double().flatten() for p in model.parameters()]).norm())  # noqa: E731
@@ -105,7 +105,7 @@ def cases(name: str, overrides: dict, quick: bool = False) -> list[Case]:
     v = QUICK if quick else FULL
     load = partial(load_problem, name, **overrides)
     base = load()
-    heat = isinstance(base.operator, Heat)
+    heat = "kappa" in base.settings  # a sweep applies where the scene has its setting
     has_n = "n" in base.settings and not base.settings.get("mesh")
     small = partial(load, n=8) if has_n else load
     n_tr, n_te = (32, 8) if quick else (256, 32)
@@ -115,7 +115,7 @@ def cases(name: str, overrides: dict, quick: bool = False) -> list[Case]:
         p = load(kappa=kt / base.settings["T"])
         x = np.prod(np.sin(np.pi * p.disc.points), axis=0)[None]
         back = p.inverse(p.operator.forward(x), x)
-        return {**mode_error(p), "dot_err": dot_err(p.operator), "backend": p.operator.backend.name,
+        return {**mode_error(p), "dot_err": dot_err(p.operator), "backend": p.operator.kind,
                 "roundtrip_err": float(p.relative_error(back, x)[0])}
 
     if heat:

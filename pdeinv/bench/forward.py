@@ -1,107 +1,94 @@
-"""Forward accuracy against cost: every backend over a ladder of meshes and step counts.
+"""Forward accuracy against cost: the scene itself over a ladder of meshes, step counts and schemes.
 
 The initial field is the first Laplace eigenfunction ``u₀ = Π sin(π x_d)`` on the unit
-square (interval), ``λ = dim · π²``, whose exact solutions are
+interval, square or cube (``λ = dim · π²``), whose exact solutions are
 
-    heat:  u(T) = exp(−κ λ T) u₀,        wave (v₀ = 0):  u(T) = cos(c √λ T) u₀,
+    heat (reaction r ≥ 0):  u(T) = exp(−(κλ + r) T) u₀,      wave (v₀ = 0):  u(T) = cos(c √λ T) u₀,
 
-and the error is the relative L²(Ω) error of the computed final field against the
-nodal interpolant of ``u(T)`` (space and time discretization together). The time is
-the minimum over ``repeats`` forward runs on a batch of ``batch`` columns, and
-``setup_s`` the one-off build (factorization, eigenvectors). A backend that refuses a
-setting (e.g. the modal backend needing too many modes) is recorded as refused.
+and the error is the relative L²(Ω) error of the computed final field against the nodal
+interpolant of ``u(T)`` (space and time discretization together). Each rung is the scene
+rebuilt by name with the overrides ``n``, ``steps`` and the rung's scheme and backend
+(:data:`LADDERS`), so a 3-D scene refines in 3-D; ``setup_s`` is that build (mesh, matrices,
+factorization, eigenvectors, local inverse) and ``time_s`` the minimum over ``repeats`` forward
+runs on a batch of ``batch`` columns. A rung the scene refuses (the modal form needing too many
+modes, a leapfrog step above its stability limit) is recorded as refused with its message.
+
+The ladder applies to a scene whose settings are all those of a built-in heat or wave scene on
+the unit box (:data:`LADDERS`): sensors, advection, a mesh file or another domain have no exact
+mode here, and their settings say so.
 """
 
 from __future__ import annotations
 
 import time
-from types import SimpleNamespace
 
 import numpy as np
 
-from .. import mesh as meshes
-from ..forms import discretize
-from ..physics import Heat, Leapfrog, Wave
-from ..physics.heat_backends import weyl_count
-from ..physics.modes import TooManyModes
+from ..errors import TooManyModes
+from ..problem import load_problem
 from .timing import best
 
-
-def modal(d, c, k):
-    """BE modal backend, refused up front when Weyl's law predicts more than N/2 live modes.
-
-    (Building it would compute thousands of eigenpairs only to refuse; the same
-    estimate as :func:`pdeinv.physics.heat_backends.choose`.)
-    """
-    dt, tol = c["T"] / k, 1e-14
-    rho = tol ** (1.0 / k)
-    k_est = weyl_count(SimpleNamespace(dim=d.dim, measure=d.measure), (1.0 - rho) / rho / (dt * c["kappa"]))
-    if k_est > d.N / 2:
-        raise ValueError(f"modal: Weyl's law predicts ~{k_est:.0f} of {d.N} modes above tol (> N/2)")
-    return Heat(d.M, d.K, c["kappa"], c["T"], k, "be", "modal")
-
-
-#: backend name -> (discretization, settings, steps) -> operator; per physics type
-HEAT_BACKENDS = {
-    "BE steps": lambda d, c, k: Heat(d.M, d.K, c["kappa"], c["T"], k, "be", "steps"),
-    "CN steps": lambda d, c, k: Heat(d.M, d.K, c["kappa"], c["T"], k, "cn", "steps"),
-    "BE modal": modal,
+_COMMON = {"element", "T", "steps", "noise", "n", "mesh", "scheme", "backend"}
+#: physics (named by its defining setting) -> (the settings it may have, {rung: overrides}, u(T)/u₀)
+LADDERS = {
+    "kappa": (_COMMON | {"kappa", "reaction"},
+              {"BE steps": {"scheme": "be", "backend": "steps"},
+               "CN steps": {"scheme": "cn", "backend": "steps"},
+               "BE modal": {"scheme": "be", "backend": "modal"}},
+              lambda c, lam: np.exp(-(c["kappa"] * lam + c.get("reaction", 0.0)) * c["T"])),
+    "c": (_COMMON | {"c"},
+          {"Newmark": {"scheme": "newmark", "backend": "steps"},
+           "leapfrog": {"scheme": "leapfrog", "backend": "steps"}},
+          lambda c, lam: np.cos(c["c"] * np.sqrt(lam) * c["T"])),
 }
-def leapfrog(d, c, k):
-    """Explicit leapfrog with the lumped P1 mass; below its CFL step count the point is 'refused'."""
-    if c["element"] != "P1":
-        raise ValueError(f"leapfrog needs a lumped mass, offered for P1 only (element={c['element']!r})")
-    return Leapfrog(discretize(d.basis.mesh, "P1", lumped=True).M, d.K, c["c"], c["T"], k)
 
 
-WAVE_BACKENDS = {"Newmark": lambda d, c, k: Wave(d.M, d.K, c["c"], c["T"], k), "leapfrog": leapfrog}
-
-
-def exact_factor(op, dim: int) -> float:
-    """``u(T)/u₀`` for the first eigenfunction (continuous problem)."""
-    lam = dim * np.pi**2
-    if isinstance(op, Heat):
-        return float(np.exp(-op.kappa * lam * op.t_end))
-    return float(np.cos(op.c * np.sqrt(lam) * op.t_end))
+def _ladder(problem):
+    """``(settings, rungs, factor)`` of the ladder that applies to ``problem``, or a string: why none."""
+    cfg = problem.settings
+    for key, (allowed, rungs, factor) in LADDERS.items():
+        if key in cfg and set(cfg) <= allowed and cfg.get("mesh") is None and "n" in cfg:
+            return cfg, rungs, factor
+    return (f"no exact mode for {problem.name!r}: its settings ({', '.join(sorted(problem.settings))}) "
+            "are not those of a heat or wave scene on the unit interval, square or cube")
 
 
 def applies(problem) -> str | None:
     """``None`` if the analytic ladder applies to ``problem``, else why not."""
-    cfg = problem.settings
-    if type(problem.operator) not in (Heat, Wave, Leapfrog):
-        return f"no analytic solution for a {type(problem.operator).__name__} operator"
-    if "n" not in cfg or cfg.get("mesh"):
-        return "the analytic mode needs the built-in interval / unit square / unit cube mesh (setting n)"
-    return None
+    got = _ladder(problem)
+    return got if isinstance(got, str) else None
+
+
+def exact_factor(problem) -> float:
+    """``u(T)/u₀`` of the first eigenfunction (continuous problem) for a scene the ladder applies to."""
+    cfg, _, factor = _ladder(problem)
+    return float(factor(cfg, problem.disc.dim * np.pi**2))
 
 
 def ladder(problem, ns, steps, repeats: int = 3, batch: int = 16) -> dict:
-    """``{"points": [...], "reason": ...}``; each point: backend, n, steps, N, error, time_s, setup_s."""
-    why = applies(problem)
-    if why:
-        return {"points": [], "skipped": why}
-    cfg, dim = problem.settings, problem.disc.dim
-    backends = HEAT_BACKENDS if isinstance(problem.operator, Heat) else WAVE_BACKENDS
+    """``{"points": [...]}`` (or ``"skipped"``); a point: backend, n, steps, N, error, time_s, setup_s"""
+    got = _ladder(problem)
+    if isinstance(got, str):
+        return {"points": [], "skipped": got}
+    cfg, rungs, _ = got
+    keep = {k: v for k, v in cfg.items() if k not in ("n", "steps", "scheme", "backend", "mesh")}
     points = []
     for n in ns:
-        m = {1: meshes.interval, 2: meshes.unit_square, 3: meshes.unit_cube}[dim](n)  # the scene's dimension
-        disc = discretize(m, cfg["element"])
-        x0 = np.prod(np.sin(np.pi * disc.points), axis=0)
-        X = np.tile(x0, (batch, 1))
-        for name, build in backends.items():
+        for name, overrides in rungs.items():
             for k in steps:
-                row = {"backend": name, "n": n, "steps": k, "N": disc.N}
+                row = {"backend": name, "n": n, "steps": k}
                 try:
                     t = time.perf_counter()
-                    op = build(disc, cfg, k)
-                    row["setup_s"] = time.perf_counter() - t
+                    p = load_problem(problem.name, **keep, **overrides, n=n, steps=k)
+                    row.update(N=p.N, setup_s=time.perf_counter() - t)
                 except (TooManyModes, ValueError) as err:
                     points.append({**row, "outcome": "refused", "message": str(err)})
                     continue
-                target = exact_factor(op, dim) * x0
-                y = op.forward(x0[None])
-                row["error"] = float(disc.relative_error(y, target[None])[0])
-                row["time_s"] = best(lambda op=op: op.forward(X), repeats)
+                x0 = np.prod(np.sin(np.pi * p.disc.points), axis=0)
+                y = p.operator.forward(x0[None])
+                row["error"] = float(p.disc.relative_error(y, exact_factor(p) * x0[None])[0])
+                X = np.tile(x0, (batch, 1))
+                row["time_s"] = best(lambda op=p.operator: op.forward(X), repeats)
                 points.append({**row, "outcome": "ok"})
     return {"points": points, "batch": batch}
 

@@ -10,73 +10,65 @@ from __future__ import annotations
 import numpy as np
 import scipy.sparse.linalg as sla
 
-from .timing import interleaved
+from ..errors import TooManyModes
+from ..physics.capabilities import modal_basis
+from .timing import compiled, interleaved, stepping
 
 
 def operator_ratios(problem, batch: int = 64, repeats: int = 5, seed: int = 0) -> dict:
-    """Forward/adjoint costs of a problem's operator against bare scipy baselines.
+    """Forward/adjoint costs of a problem's operator applied by time stepping (``op.stepping()``).
 
-    * ``forward_vs_splu``: our batched time-stepping forward (default solver) / a
-      bare loop ``U ← lu.solve(B @ U)`` with ``scipy.sparse.linalg.splu`` (default
-      options) on the same matrices and batch (wave: the same Newmark update,
-      ``U' = lu.solve(B U + dt M V)``, ``V' = 2(U' − U)/dt − V``);
-    * ``overhead_vs_bare``: the same with *our* stepping forced onto the bare
-      loop's own SuperLU object: the pure overhead of the operator layer;
-    * ``adjoint_vs_forward``: adjoint / forward time of the same operator;
-    * ``modal_speedup`` (heat only): time-stepping forward / modal forward, with
-      ``modal_agreement`` the relative difference of their results.
+    * ``forward_vs_splu`` (implicit schemes): our forward / a bare scipy loop of as many steps, each
+      one product with the scheme's ``B`` and one ``splu`` solve with its ``A`` (default options,
+      same batch): the whole θ-step; Newmark's step adds a product with ``M`` and the velocity update;
+    * ``overhead_vs_bare``: our forward / the scheme's own ``start``, ``step`` and ``field`` in a plain
+      loop (the same solver object): the cost of the operator layer;
+    * ``adjoint_vs_forward``: adjoint / forward time;
+    * ``modal_speedup`` where the modal form is offered (a symmetric θ-scheme, final field): time
+      stepping / modal forward, with ``modal_agreement`` their relative difference; else
+      ``modal_refused``, why not.
     """
-    from ..physics import Heat
-    from ..physics.capabilities import modal_basis
-    from ..physics.schemes import Newmark, Theta
-    from .timing import stepping
-
     op = problem.operator
     rng = np.random.default_rng(seed)
     X = rng.standard_normal((batch, op.n_in))
     R = rng.standard_normal((batch, op.n_out))
     out = {"batch": batch, "N": op.n_in}
-    steps = stepping(op)
-    if steps is None or not isinstance(steps.scheme, (Theta, Newmark)):
+    run = stepping(op)
+    if run is None:
         t = interleaved({"fwd": lambda: op.forward(X), "adj": lambda: op.adjoint(R)}, repeats)
         return {**out, "forward_s": t["fwd"], "adjoint_vs_forward": t["adj"] / t["fwd"]}
-    sc = steps.scheme
-    lu = sla.splu(sc.A.tocsc())
+    sc = run.scheme
 
-    def bare_theta():
-        U = X.T.copy()
-        for _ in range(steps.steps):
-            U = lu.solve(sc.B @ U)
-        return U
+    def own():  # the scheme's step in a plain loop
+        s = sc.start(X.T)
+        for _ in range(run.steps):
+            s = sc.step(s)
+        return sc.field(s)
 
-    def bare_newmark():  # the same Newmark step as schemes.Newmark.step, written with scipy only
-        U, V, dt = X.T.copy(), np.zeros_like(X.T), sc.dt
-        for _ in range(steps.steps):
-            U1 = lu.solve(sc.B @ U + dt * (sc.M @ V))
-            U, V = U1, (2.0 / dt) * (U1 - U) - V
-        return U
+    fns = {"fwd": lambda: run.forward(X), "adj": lambda: run.adjoint(R), "own": own}
+    lu = getattr(sc, "lu", None)  # an implicit scheme: a factorized A
+    if lu is not None:
+        bare_lu = sla.splu(sc.A.tocsc())
 
-    fns = {"bare": bare_newmark if isinstance(sc, Newmark) else bare_theta,
-           "fwd": lambda: steps.forward(X), "adj": lambda: steps.adjoint(R)}
-    if isinstance(sc, Theta):  # our loop on the bare loop's own SuperLU object: the layer's overhead
-        same = Heat(op.M, op.K, op.kappa, op.t_end, op.steps, op.scheme, backend="steps",
-                    solver=lambda _: lu, C=op.C)
-        fns["same"] = lambda: same.forward(X)
-    modal = modal_basis(op)
-    if modal is None and isinstance(sc, Theta) and op.symmetric:
-        try:
-            modal = Heat(op.M, op.K, op.kappa, op.t_end, op.steps, op.scheme, backend="modal").modes
-        except ValueError:
-            modal = None
-    if modal is not None:
+        def bare():
+            U = X.T.copy()
+            for _ in range(run.steps):
+                U = bare_lu.solve(sc.B @ U)
+            return U
+
+        fns["bare"] = bare
+    try:
+        modal = modal_basis(op) or modal_basis(compiled(op, "modal"))
         fns["modal"] = lambda: modal.forward(X)
+    except (TooManyModes, ValueError) as err:
+        out["modal_refused"] = str(err)
     t = interleaved(fns, repeats)
-    out.update(forward_s=t["fwd"], forward_vs_splu=t["fwd"] / t["bare"],
-               adjoint_vs_forward=t["adj"] / t["fwd"], solver=type(sc.lu).__name__)
-    if "same" in t:
-        out["overhead_vs_bare"] = t["same"] / t["bare"]
+    out.update(forward_s=t["fwd"], adjoint_vs_forward=t["adj"] / t["fwd"],
+               overhead_vs_bare=t["fwd"] / t["own"])
+    if lu is not None:
+        out.update(forward_vs_splu=t["fwd"] / t["bare"], solver=type(lu).__name__)
     if "modal" in t:
-        ys = steps.forward(X)
+        ys = run.forward(X)
         out.update(modal_speedup=t["fwd"] / t["modal"], modal_modes=modal.k,
                    modal_agreement=float(np.linalg.norm(modal.forward(X) - ys) / np.linalg.norm(ys)))
     return out

@@ -21,7 +21,6 @@ import torch
 
 from .. import references as refs
 from ..files import atomic_write
-from ..physics import Heat
 from ..train import TEST_DATA, TRAIN_DATA, seed_stream
 from . import amortize, backends, forward, methods, plots, skips
 from .ratios import operator_ratios
@@ -88,14 +87,13 @@ def _bench(problem, out, quick, budget_s, seed, log) -> dict:
 
     log(f"[bench] operator ratios ({problem.operator!r})")
     op_r = operator_ratios(problem, batch=batch, repeats=repeats, seed=seed)
-    if not isinstance(problem.operator, Heat):
-        op_r.setdefault("forward_vs_splu", None)
-        op_r["modal_speedup"] = None
-        notes.append("modal_speedup: null, the modal backend exists for the heat operator only "
-                     "(the undamped wave keeps all its modes: nothing to truncate)")
-    hig_net = methods.network(problem, methods.HIG_NET, seed)
-    st = step_ratios(problem, methods.network(problem, None, seed), hig_net,
-                     batch=min(32, n_train), hig_batch=methods.HIG_BATCH, repeats=repeats, seed=seed)
+    for key in ("forward_vs_splu", "modal_speedup"):
+        if key not in op_r:
+            op_r[key] = None
+            why = op_r.get("modal_refused") if key == "modal_speedup" else "no implicit time stepping"
+            notes.append(f"{key}: null, {why}")
+    torch.manual_seed(seed)
+    st = step_ratios(problem, problem.model(), batch=min(32, n_train), repeats=repeats, seed=seed)
     res["ratios"] = {**op_r, **st}
 
     log("[bench] backends: build, apply, memory, agreement")
@@ -118,9 +116,6 @@ def _bench(problem, out, quick, budget_s, seed, log) -> dict:
     torch.manual_seed(seed)
     res["methods"] = methods.compare(problem, budget_s, seed=seed, n_train=n_train, n_test=n_test,
                                      sweep=sweep, eval_every=10 if not quick else 2)
-    notes.append(f"the swept HIG and Gauss-Newton rows train MLP{methods.HIG_NET} with batch "
-                 f"{methods.HIG_BATCH} (the dense Jacobian routes); hig_cli_default is HIG's exact "
-                 "Kronecker route on the default network (see pdeinv/bench/methods.py)")
     plots.methods(res["methods"], res["reference"], out / "methods.png",
                   f"{problem.name}: {budget_s:g} s per method")
     models = {name: m.pop("model", None) for name, m in res["methods"].items()}

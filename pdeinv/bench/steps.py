@@ -1,10 +1,10 @@
-"""Cost of one update step per rule, measured interleaved on the same network and batch.
+"""Cost of one update step per rule: the presets on the default network, interleaved on the same batch.
 
-``sip_vs_gd_step`` = SIP step / GD (Adam) step: SIP adds one forward and one local
-inverse to the network's forward/backward, GD one forward and one adjoint.
-``hig_step_s``: one HIG step (per-sample Jacobians ``∂y/∂θ`` of network + physics,
-their Gram matrix or SVD, the half-inverse update), with the Jacobian's shape and
-float64 size, the part of HIG's cost that GD and SIP never pay.
+``sip_vs_gd_step`` = SIP step / GD (Adam) step: SIP adds one forward and one local inverse to the
+network's forward/backward, GD one forward and one adjoint. ``hig_step_s``: one step of ``--method
+hig`` (the half-inverse update on the route the network and operator declare: the Kronecker route on
+the whitened linear default), with the shape and float64 size of the stacked Jacobian ``∂y/∂θ`` that
+a dense route would build, the part of HIG's cost that GD and SIP never pay.
 """
 
 from __future__ import annotations
@@ -13,11 +13,12 @@ import copy
 
 import torch
 
-from ..methods import GD, HIG, SIP, adam
-from .timing import best, interleaved
+from ..methods.presets import make_rule
+from .timing import interleaved
 
 
-def _stepper(rule, problem, model, y):
+def _stepper(method, problem, model, y):
+    rule = make_rule(method, problem, problem.noise)[0]
     model = copy.deepcopy(model)
     state = [rule.init(problem, model)]
 
@@ -27,22 +28,12 @@ def _stepper(rule, problem, model, y):
     return step
 
 
-def step_ratios(problem, model, hig_model, batch: int = 32, hig_batch: int = 1,
-                repeats: int = 5, seed: int = 0) -> dict:
+def step_ratios(problem, model, batch: int = 32, repeats: int = 5, seed: int = 0) -> dict:
     """Interleaved step timings (minimum over ``repeats``); ``model`` is copied, not trained."""
-    _, y = problem.sample(max(batch, hig_batch), seed)
-    y = torch.as_tensor(y, dtype=torch.float32)
-    gd = _stepper(GD(optimizer=adam(1e-4)), problem, model, y[:batch])
-    sip = _stepper(SIP(optimizer=adam(1e-4)), problem, model, y[:batch])
-    t = interleaved({"gd": gd, "sip": sip}, repeats)
-    t_gd, t_sip = t["gd"], t["sip"]
-    hig = _stepper(HIG(eta=1e-3, tau=1e-5), problem, hig_model, y[:hig_batch])
-    gd_small = _stepper(GD(optimizer=adam(1e-4)), problem, hig_model, y[:hig_batch])
-    gd_small()
-    t_gd_small = best(gd_small, repeats)
-    t_hig = best(hig, max(1, repeats // 2))
-    rows = hig_batch * problem.operator.n_out
-    n_params = sum(p.numel() for p in hig_model.parameters() if p.requires_grad)
-    return {"gd_step_s": t_gd, "sip_step_s": t_sip, "sip_vs_gd_step": t_sip / t_gd,
-            "hig_step_s": t_hig, "gd_step_s_hig_net": t_gd_small, "hig_jacobian": [rows, n_params],
-            "hig_jacobian_mb": rows * n_params * 8 / 2**20, "step_batch": batch, "hig_batch": hig_batch}
+    y = torch.as_tensor(problem.sample(batch, seed)[1], dtype=torch.float32)
+    t = interleaved({m: _stepper(m, problem, model, y) for m in ("adam", "sip", "hig")}, repeats)
+    rows = batch * problem.operator.n_out
+    n_params = sum(p.numel() for p in model.parameters() if p.requires_grad)
+    return {"gd_step_s": t["adam"], "sip_step_s": t["sip"], "sip_vs_gd_step": t["sip"] / t["adam"],
+            "hig_step_s": t["hig"], "gd_step_s_hig_net": t["adam"], "hig_jacobian": [rows, n_params],
+            "hig_jacobian_mb": rows * n_params * 8 / 2**20, "step_batch": batch, "hig_batch": batch}
