@@ -1,21 +1,14 @@
 """Forward accuracy against cost: the scene itself over a ladder of meshes, step counts and schemes.
 
-The initial field is the first Laplace eigenfunction ``u₀ = Π sin(π x_d)`` on the unit
-interval, square or cube (``λ = dim · π²``), whose exact solutions are
-
-    heat (reaction r ≥ 0):  u(T) = exp(−(κλ + r) T) u₀,      wave (v₀ = 0):  u(T) = cos(c √λ T) u₀,
-
-and the error is the relative L²(Ω) error of the computed final field against the nodal
-interpolant of ``u(T)`` (space and time discretization together). Each rung is the scene
-rebuilt by name with the overrides ``n``, ``steps`` and the rung's scheme and backend
-(:data:`LADDERS`), so a 3-D scene refines in 3-D; ``setup_s`` is that build (mesh, matrices,
-factorization, eigenvectors, local inverse) and ``time_s`` the minimum over ``repeats`` forward
-runs on a batch of ``batch`` columns. A rung the scene refuses (the modal form needing too many
-modes, a leapfrog step above its stability limit) is recorded as refused with its message.
-
-The ladder applies to a scene whose settings are all those of a built-in heat or wave scene on
-the unit box (:data:`LADDERS`): sensors, advection, a mesh file or another domain have no exact
-mode here, and their settings say so.
+From the first Laplace eigenfunction ``u₀ = Π sin(π x_d)`` on the unit interval, square or cube
+(``λ = dim · π²``): heat (reaction r ≥ 0) ``u(T) = exp(−(κλ + r) T) u₀``, wave (v₀ = 0)
+``u(T) = cos(c √λ T) u₀``; the error is the relative L²(Ω) error of the final field against the
+nodal interpolant of ``u(T)`` (space and time together). Each rung is the scene rebuilt by name
+with ``n``, ``steps`` and the rung's scheme and backend (:data:`LADDERS`), so a 3-D scene refines
+in 3-D; ``setup_s`` is that build, ``time_s`` the best forward of ``batch`` columns. A rung the
+scene refuses (too many modes, leapfrog above its stability limit) is recorded with its message.
+The ladder applies where every setting is one of a heat or wave scene on the unit box: sensors,
+advection, a mesh file or another domain have no exact mode here, and their settings say so.
 """
 
 from __future__ import annotations
@@ -53,16 +46,10 @@ def _ladder(problem):
             "are not those of a heat or wave scene on the unit interval, square or cube")
 
 
-def applies(problem) -> str | None:
-    """``None`` if the analytic ladder applies to ``problem``, else why not."""
+def exact_factor(problem) -> float | None:
+    """``u(T)/u₀`` of the first eigenfunction (continuous problem), or None: no exact mode."""
     got = _ladder(problem)
-    return got if isinstance(got, str) else None
-
-
-def exact_factor(problem) -> float:
-    """``u(T)/u₀`` of the first eigenfunction (continuous problem) for a scene the ladder applies to."""
-    cfg, _, factor = _ladder(problem)
-    return float(factor(cfg, problem.disc.dim * np.pi**2))
+    return None if isinstance(got, str) else float(got[2](got[0], problem.disc.dim * np.pi**2))
 
 
 def ladder(problem, ns, steps, repeats: int = 3, batch: int = 16) -> dict:

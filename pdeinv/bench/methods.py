@@ -1,20 +1,15 @@
 """Update rules compared at equal wall-clock time: same data, same seeds, same time budget.
 
-Every candidate is a preset of ``pdeinv train --method NAME`` (:func:`pdeinv.methods.presets.make_rule`:
-its rule, batch and network, with ``--stop auto``), one of its hyper-parameters swept, never a
-branch on a method name and no rule built here. The value is chosen independently per rule, as in
-the SIP and HIG papers ("best learning rate selected independently for each optimizer"): every
-grid value (multiples of the preset's value) trains for ``sweep_s`` seconds with seed ``seed + 1000``
-(other training data, and a *validation* set in place of the test set), the lowest validation
-x-error wins, and only the winner trains again, for ``budget_s`` seconds with ``seed`` on the
-reported test set.
-
-Rows: ``sip_cli_default`` and ``hig_cli_default`` are the presets as shipped (never swept);
-``adam`` (lr ×0.3…10), ``sgd`` (the ``gd`` preset: SGD on the curvature-normalized gradient, lr
-×0.3…3), ``sip`` (SIP with Adam, lr 1e-4…3e-3), ``hig`` (η ×0.3, 1: the default network, every
-training row per step, the exact Kronecker route) and ``gauss_newton`` (the HIG preset with
-exponent −1). The default network's alternatives (:data:`NETWORKS`) train with SIP and Adam,
-lr 3e-4…3e-3. The JSON records each row's preset, value, network and batch.
+Every candidate is a preset of ``pdeinv train --method NAME`` (:func:`~pdeinv.methods.presets.make_rule`:
+rule, batch, network, ``--stop auto``) with one hyper-parameter swept; no rule is built here. As in
+the SIP and HIG papers ("best learning rate selected independently for each optimizer") every grid
+value (× the preset's) trains ``sweep_s`` seconds with seed ``seed + 1000`` (other training data, a
+*validation* set), the lowest validation x-error wins, and the winner trains ``budget_s`` seconds
+with ``seed`` on the reported test set. Rows: ``sip_cli_default``, ``hig_cli_default`` (the presets
+as shipped, never swept), ``adam``, ``sgd`` (the ``gd`` preset: SGD on the curvature-normalized
+gradient), ``sip`` (with Adam), ``hig`` (the default network, every training row per step, the
+Kronecker route), ``gauss_newton`` (the HIG preset with exponent −1) and the default network's
+alternatives (:data:`NETWORKS`, SIP with Adam). The JSON has each row's preset, value, network, batch.
 """
 
 from __future__ import annotations
@@ -35,9 +30,8 @@ from ..train import Trainer
 
 @dataclass(frozen=True)
 class Candidate:
-    """The preset ``method`` with ``fixed`` overrides; ``knob`` swept over ``grid`` × the preset's value
-    (no grid: never swept); ``rule``: a change to the preset's rule (a dataclass field, e.g. HIG's
-    exponent); ``net``: a :data:`NETWORKS` name instead of the preset's network."""
+    """The preset ``method`` with ``fixed`` overrides, ``knob`` swept over ``grid`` × its value, ``rule``
+    fields changed (e.g. HIG's exponent), ``net``: a :data:`NETWORKS` name for the preset's network."""
 
     method: str
     knob: str = "lr"
@@ -67,13 +61,6 @@ CANDIDATES = {
 }
 
 
-def _cli_stop(problem):
-    """The stopping rule of ``--stop auto``."""
-    from ..commands.train import STOPS
-
-    return STOPS["auto"](problem)
-
-
 def setup(problem, cand: Candidate, scale: float = 1.0, seed: int = 0):
     """``(rule, hyper-parameters, network)`` of ``cand`` with its knob at ``scale`` × the preset's."""
     value = hyperparameters(cand.method, problem, problem.noise, **cand.fixed)[cand.knob] * scale
@@ -88,12 +75,14 @@ def setup(problem, cand: Candidate, scale: float = 1.0, seed: int = 0):
 
 def train_once(problem, cand: Candidate, scale: float, seed: int, budget_s: float,
                n_train: int, n_test: int, eval_every: int) -> dict:
-    """One run; a NaN/Inf is an outcome (``x_err = inf``), not a crash."""
+    """One run (with ``--stop auto``); a NaN/Inf is an outcome (``x_err = inf``), not a crash."""
+    from ..commands.train import STOPS
+
     rule, hp, model = setup(problem, cand, scale, seed)
     batch = None if hp["batch_size"] is None else min(hp["batch_size"], n_train)
     trainer = Trainer(problem, rule, model, steps=None, time_budget=budget_s, n_train=n_train,
                       n_test=n_test, batch_size=batch, seed=seed, eval_every=eval_every, progress=False,
-                      stop=_cli_stop(problem))
+                      stop=STOPS["auto"](problem))
     try:
         with warnings.catch_warnings():  # rejected steps are counted in the result, not printed
             warnings.simplefilter("ignore", RuntimeWarning)

@@ -1,16 +1,21 @@
 """Cost ratios measured in one run (the machine is shared and noisy: ratios, not absolute times).
 
-Each timing is the minimum over ``repeats`` rounds, the functions compared run one
-after the other within each round (interleaved), so a burst of load from other
-processes hits all of them alike; the minimum filters interference better than the mean.
+Each timing is the minimum over ``repeats`` rounds, the functions compared run one after the
+other within each round (interleaved), so a burst of load from other processes hits all of them
+alike; the minimum filters interference better than the mean. :func:`operator_ratios`: the
+physics; :func:`step_ratios`: one update step per rule.
 """
 
 from __future__ import annotations
 
+import copy
+
 import numpy as np
 import scipy.sparse.linalg as sla
+import torch
 
 from ..errors import TooManyModes
+from ..methods.presets import make_rule
 from ..physics.capabilities import modal_basis
 from .timing import compiled, interleaved, stepping
 
@@ -32,12 +37,10 @@ def operator_ratios(problem, batch: int = 64, repeats: int = 5, seed: int = 0) -
     rng = np.random.default_rng(seed)
     X = rng.standard_normal((batch, op.n_in))
     R = rng.standard_normal((batch, op.n_out))
-    out = {"batch": batch, "N": op.n_in}
     run = stepping(op)
-    if run is None:
-        t = interleaved({"fwd": lambda: op.forward(X), "adj": lambda: op.adjoint(R)}, repeats)
-        return {**out, "forward_s": t["fwd"], "adjoint_vs_forward": t["adj"] / t["fwd"]}
-    sc = run.scheme
+    out, run = {"batch": batch, "N": op.n_in}, op if run is None else run
+    fns = {"fwd": lambda: run.forward(X), "adj": lambda: run.adjoint(R)}
+    sc = getattr(run, "scheme", None)  # None: no time stepping, forward and adjoint only
 
     def own():  # the scheme's step in a plain loop
         s = sc.start(X.T)
@@ -45,7 +48,8 @@ def operator_ratios(problem, batch: int = 64, repeats: int = 5, seed: int = 0) -
             s = sc.step(s)
         return sc.field(s)
 
-    fns = {"fwd": lambda: run.forward(X), "adj": lambda: run.adjoint(R), "own": own}
+    if sc is not None:
+        fns["own"] = own
     lu = getattr(sc, "lu", None)  # an implicit scheme: a factorized A
     if lu is not None:
         bare_lu = sla.splu(sc.A.tocsc())
@@ -63,8 +67,9 @@ def operator_ratios(problem, batch: int = 64, repeats: int = 5, seed: int = 0) -
     except (TooManyModes, ValueError) as err:
         out["modal_refused"] = str(err)
     t = interleaved(fns, repeats)
-    out.update(forward_s=t["fwd"], adjoint_vs_forward=t["adj"] / t["fwd"],
-               overhead_vs_bare=t["fwd"] / t["own"])
+    out.update(forward_s=t["fwd"], adjoint_vs_forward=t["adj"] / t["fwd"])
+    if "own" in t:
+        out["overhead_vs_bare"] = t["fwd"] / t["own"]
     if lu is not None:
         out.update(forward_vs_splu=t["fwd"] / t["bare"], solver=type(lu).__name__)
     if "modal" in t:
@@ -72,3 +77,30 @@ def operator_ratios(problem, batch: int = 64, repeats: int = 5, seed: int = 0) -
         out.update(modal_speedup=t["fwd"] / t["modal"], modal_modes=modal.k,
                    modal_agreement=float(np.linalg.norm(modal.forward(X) - ys) / np.linalg.norm(ys)))
     return out
+
+
+def _stepper(method, problem, model, y):
+    rule, model = make_rule(method, problem, problem.noise)[0], copy.deepcopy(model)
+    state = [rule.init(problem, model)]
+
+    def step():
+        state[0], _ = rule.step(state[0], model, y)
+
+    return step
+
+
+def step_ratios(problem, model, batch: int = 32, repeats: int = 5, seed: int = 0) -> dict:
+    """One step of the presets ``adam``, ``sip`` and ``hig`` on copies of ``model`` and one batch.
+
+    ``sip_vs_gd_step`` = SIP step / GD (Adam) step: SIP adds one forward and one local inverse to
+    the network's forward/backward, GD one forward and one adjoint. ``hig_step_s``: one step of
+    ``--method hig`` (on the route the network and operator declare: the Kronecker route on the
+    whitened linear default), with the shape and float64 size of the stacked Jacobian ``∂y/∂θ`` a
+    dense route would build, the part of HIG's cost that GD and SIP never pay."""
+    y = torch.as_tensor(problem.sample(batch, seed)[1], dtype=torch.float32)
+    t = interleaved({m: _stepper(m, problem, model, y) for m in ("adam", "sip", "hig")}, repeats)
+    rows = batch * problem.operator.n_out
+    n_params = sum(p.numel() for p in model.parameters() if p.requires_grad)
+    return {"gd_step_s": t["adam"], "sip_step_s": t["sip"], "sip_vs_gd_step": t["sip"] / t["adam"],
+            "hig_step_s": t["hig"], "hig_jacobian": [rows, n_params],
+            "hig_jacobian_mb": rows * n_params * 8 / 2**20, "step_batch": batch}

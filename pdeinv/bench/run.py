@@ -23,15 +23,13 @@ from .. import references as refs
 from ..files import atomic_write
 from ..train import TEST_DATA, TRAIN_DATA, seed_stream
 from . import amortize, backends, forward, methods, plots, skips
-from .ratios import operator_ratios
-from .steps import step_ratios
+from .ratios import operator_ratios, step_ratios
 from .timing import machine
 
 #: run sizes: (n_train, n_test, repeats, ratio batch, sweep the hyper-parameters)
 SIZES = {False: (1024, 128, 5, 64, True), True: (64, 16, 1, 8, False)}
-#: training seconds per method when ``budget_s`` is not given: (full, quick). Quick was 20 s per
-#: method too, which made ``bench --quick heat_2d`` take 124 s; with 1 s it takes
-#: 27 s (idle machine, one thread; HIG and Gauss–Newton make one 2-s step each).
+#: training seconds per method when ``budget_s`` is not given: (full, quick); 20 s per method made
+#: ``bench --quick heat_2d`` take 124 s, 1 s 27 s (idle machine, one thread)
 BUDGET_S = {False: 20.0, True: 1.0}
 
 
@@ -51,12 +49,9 @@ def bench(problem, out, quick: bool = False, budget_s: float | None = None, seed
     """Run all sections on ``problem`` (a :class:`pdeinv.Problem`); return and write the results.
 
     ``budget_s``: training seconds per method (default :data:`BUDGET_S`: 20, 1 when ``quick``).
-
-    ``threads``: torch threads during the run (restored after; None leaves them). One
-    thread by default: on a shared 2-core machine a second process on one core stalls
-    torch's 2-thread kernels at every barrier (measured: Adam steps on heat_2d varied
-    from 0.03 s to 1 s within one run), which would make equal-wall-clock comparisons
-    a lottery.
+    ``threads``: torch and BLAS threads during the run (restored after; None leaves them). One by
+    default: on a shared 2-core machine a second process stalls torch's 2-thread kernels at every
+    barrier (Adam steps on heat_2d varied from 0.03 s to 1 s within one run).
     """
     from .. import threads as pools
 
@@ -106,8 +101,7 @@ def _bench(problem, out, quick, budget_s, seed, log) -> dict:
     if lad["points"]:
         plots.forward_pareto(lad["points"], front, out / "forward.png", f"{problem.name}: forward accuracy")
 
-    log("[bench] references (linear MMSE, best-α Tikhonov)")
-    # the trainer's own training and test data
+    log("[bench] references (linear MMSE, best-α Tikhonov) on the trainer's own data")
     x_tr, y_tr = problem.sample(n_train, seed_stream(seed, TRAIN_DATA))
     x_te, y_te = problem.sample(n_test, seed_stream(seed, TEST_DATA))
     res["reference"] = refs.references(problem, x_tr, x_te, y_te, Y_train=y_tr)
@@ -121,10 +115,9 @@ def _bench(problem, out, quick, budget_s, seed, log) -> dict:
     models = {name: m.pop("model", None) for name, m in res["methods"].items()}
 
     log("[bench] amortization (trained network vs classical solves, per sample)")
-    default = res["methods"]["sip_cli_default"]
-    res["amortization"] = (amortize.amortization(problem, models["sip_cli_default"], default["wall_s"],
-                                                 x_te, y_te, repeats=repeats)
-                           if models.get("sip_cli_default") is not None else None)
+    net, wall_s = models.get("sip_cli_default"), res["methods"]["sip_cli_default"]["wall_s"]
+    res["amortization"] = (None if net is None else  # None: the preset's run ended in NaN
+                           amortize.amortization(problem, net, wall_s, x_te, y_te, repeats=repeats))
 
     log("[bench] skips")
     res["skips"] = skips.measure(problem, st, repeats=repeats, seed=seed, modal_info=op_r)

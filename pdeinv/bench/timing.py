@@ -16,13 +16,8 @@ import numpy as np
 
 
 def best(fn, repeats: int = 3) -> float:
-    """Minimum wall time of ``fn()`` over ``repeats`` runs, in seconds."""
-    out = np.inf
-    for _ in range(max(1, repeats)):
-        t = time.perf_counter()
-        fn()
-        out = min(out, time.perf_counter() - t)
-    return out
+    """Minimum wall time of ``fn()`` over ``repeats`` runs after one warm-up, in seconds."""
+    return interleaved({"fn": fn}, repeats)["fn"]
 
 
 def interleaved(fns: dict, repeats: int = 3) -> dict:
