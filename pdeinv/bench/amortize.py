@@ -31,11 +31,8 @@ def classical_solvers(problem) -> dict:
     """``{name: (Y -> X̂)}`` for the classical solves the scene's operator supports (module docstring)."""
     op = problem.operator
     alpha = (lambda: Discrepancy(problem.noise)) if problem.noise else (lambda: default_alpha(0.0))
-    makers = {
-        "tikhonov_modal": lambda: ModalTikhonov(op, alpha()),
-        "tikhonov_cg": lambda: TikhonovCG(op, problem.disc.M, alpha()),
-        "time_reversal": lambda: TimeReversal(op),
-    }
+    makers = {"tikhonov_modal": lambda: ModalTikhonov(op, alpha()), "time_reversal": lambda: TimeReversal(op),
+              "tikhonov_cg": lambda: TikhonovCG(op, problem.disc.M, alpha())}
     out = {}
     for name, make in makers.items():
         try:

@@ -1,10 +1,9 @@
 """One line per backend of a scene's operator: build time, apply time, memory, agreement.
 
-Every backend applies the same discrete map (:mod:`pdeinv.physics.compiled`): time stepping
-(``op.stepping()``), a dense matrix, a truncated SVD, and the scene's own kind (e.g. modal). Each
-line holds the one-off ``build_s``, ``apply_s`` (best forward time on a batch), ``memory_mb`` (the
-arrays the backend keeps), ``agreement`` (relative difference from stepping on random fields) and,
-for spectral bases, the ``rank`` kept; a backend over its memory budget is ``refused``.
+Every kind applies the same discrete map: time stepping, a dense matrix, a truncated SVD and the
+scene's own kind (e.g. modal). A line: the one-off ``build_s``, ``apply_s`` (best forward of a
+batch), ``memory_mb`` (the backend's arrays), ``agreement`` (relative difference from stepping on
+random fields) and, for spectral bases, the ``rank``; a kind over its memory budget is ``refused``.
 """
 
 from __future__ import annotations

@@ -33,8 +33,8 @@ from ..train import Trainer
 from .forward import exact_factor
 from .stress import Case
 
-FULL = {"kappaT": (1e-3, 1e-2, 1e-1, 1.0), "noise": (0.0, 0.01, 0.03, 0.1),
-        "steps": (1, 10, 100, 1000, 10000), "n": (4, 8, 16, 32, 64), "precision": ("float32", "float64"),
+FULL = {"kappaT": (1e-3, 1e-2, 1e-1, 1.0), "noise": (0.0, 0.01, 0.03, 0.1), "n": (4, 8, 16, 32, 64),
+        "steps": (1, 10, 100, 1000, 10000), "precision": ("float32", "float64"),
         "tau": (0.0, 1e-8, 1e-6, 1e-4, 1e-2), "eta": (0.1, 0.5, 1.0, 2.0, 5.0),
         "alpha": (1e-2, 1e-4, 1e-6, 1e-8, 1e-10, 1e-12)}
 QUICK = {"kappaT": (1e-2, 1.0), "noise": (0.0, 0.1), "steps": (1, 10, 100), "n": (4, 8),
@@ -69,10 +69,9 @@ def _norm(model) -> float:
 
 
 def train(problem, rule, steps, hidden=(256, 256), batch=8, dtype=None) -> dict:
-    """A short run of a standardized tanh MLP of ``hidden`` widths (nonzero initial parameters:
-    ``param_growth = ‖θ_end‖ / ‖θ_0‖``, as a tanh network's output stays bounded while its first
-    layer blows up), or with ``hidden=None`` of the problem's default network (zero-initialized:
-    ``param_norm = ‖θ_end‖``); ``loss_growth`` = mean of the last 3 batch losses / the first 3."""
+    """A short run of a standardized tanh MLP of ``hidden`` widths (``param_growth = ‖θ_end‖ / ‖θ_0‖``:
+    its output stays bounded while its first layer blows up), or with ``hidden=None`` of the problem's
+    default network (zero at start: ``param_norm``); ``loss_growth``: last 3 batch losses / first 3."""
     torch.manual_seed(0)
     model = problem.model() if hidden is None else MLP(problem.operator.n_out, problem.operator.n_in,
                                                        hidden=tuple(hidden))
@@ -110,15 +109,13 @@ def cases(name: str, overrides: dict, quick: bool = False) -> list[Case]:
 
     def noise(level):
         p = load(noise=level)
-        x, _ = p.sample(n_tr, 1)
-        xt, yt = p.sample(n_te, 2)
+        (x, _), (xt, yt) = p.sample(n_tr, 1), p.sample(n_te, 2)
         r = refs.references(p, x, xt, yt)
         return {"mmse_x_err": r["mmse_x_err"], "tikhonov_best_x_err": r["tikhonov_best_x_err"]}
 
     out += [Case("noise", lv, partial(noise, lv)) for lv in v["noise"]]
 
-    schemes = ("be", "cn") if heat else (None,)
-    for scheme in schemes:
+    for scheme in ("be", "cn") if heat else (None,):
         extra = {"scheme": scheme, "backend": "steps"} if heat else {}
         label = f"dt_{scheme}" if heat else "dt_newmark"
         out += [Case(label, k, lambda k=k, e=extra: {**mode_error(load(steps=k, **e)),

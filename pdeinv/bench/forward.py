@@ -22,16 +22,12 @@ from ..problem import load_problem
 from .timing import best
 
 _COMMON = {"element", "T", "steps", "noise", "n", "mesh", "scheme", "backend"}
-#: physics (named by its defining setting) -> (the settings it may have, {rung: overrides}, u(T)/u₀)
+#: physics (named by its defining setting) -> (the settings it may have, {rung: (scheme, backend)}, u(T)/u₀)
 LADDERS = {
     "kappa": (_COMMON | {"kappa", "reaction"},
-              {"BE steps": {"scheme": "be", "backend": "steps"},
-               "CN steps": {"scheme": "cn", "backend": "steps"},
-               "BE modal": {"scheme": "be", "backend": "modal"}},
+              {"BE steps": ("be", "steps"), "CN steps": ("cn", "steps"), "BE modal": ("be", "modal")},
               lambda c, lam: np.exp(-(c["kappa"] * lam + c.get("reaction", 0.0)) * c["T"])),
-    "c": (_COMMON | {"c"},
-          {"Newmark": {"scheme": "newmark", "backend": "steps"},
-           "leapfrog": {"scheme": "leapfrog", "backend": "steps"}},
+    "c": (_COMMON | {"c"}, {"Newmark": ("newmark", "steps"), "leapfrog": ("leapfrog", "steps")},
           lambda c, lam: np.cos(c["c"] * np.sqrt(lam) * c["T"])),
 }
 
@@ -61,12 +57,12 @@ def ladder(problem, ns, steps, repeats: int = 3, batch: int = 16) -> dict:
     keep = {k: v for k, v in cfg.items() if k not in ("n", "steps", "scheme", "backend", "mesh")}
     points = []
     for n in ns:
-        for name, overrides in rungs.items():
+        for name, (scheme, backend) in rungs.items():
             for k in steps:
                 row = {"backend": name, "n": n, "steps": k}
                 try:
                     t = time.perf_counter()
-                    p = load_problem(problem.name, **keep, **overrides, n=n, steps=k)
+                    p = load_problem(problem.name, **keep, scheme=scheme, backend=backend, n=n, steps=k)
                     row.update(N=p.N, setup_s=time.perf_counter() - t)
                 except (TooManyModes, ValueError) as err:
                     points.append({**row, "outcome": "refused", "message": str(err)})
@@ -81,11 +77,8 @@ def ladder(problem, ns, steps, repeats: int = 3, batch: int = 16) -> dict:
 
 
 def default_ladder(problem, quick: bool) -> tuple[list[int], list[int]]:
-    """Meshes ``n/4, n/2, n`` and steps ``steps/10 … 3·steps`` (quick: ``n/2, n`` and ``steps/2, steps``).
-
-    No mesh finer than the scene's own: at 2n (3969 unknowns for heat_2d) the modal
-    setup alone (a few hundred eigenpairs by shift-invert Lanczos) took minutes here.
-    """
+    """Meshes ``n/4, n/2, n`` and steps ``steps/10 … 3·steps`` (quick: ``n/2, n`` and ``steps/2, steps``);
+    none finer than the scene's own (at 2n, heat_2d's modal setup alone took minutes)."""
     n, k = int(problem.settings.get("n", 8)), int(problem.settings.get("steps", 10))
     if quick:
         return sorted({max(2, n // 2), n}), sorted({max(1, k // 2), k})

@@ -108,9 +108,8 @@ def compare(problem, budget_s: float, seed: int = 0, sweep_s: float | None = Non
     for name, cand in (candidates or CANDIDATES).items():
         if cand.net and network_identity(NETWORKS[cand.net](problem)) == default_net:
             continue  # the default network: already benched as "sip"
-        grid = cand.grid if sweep else ()
         tried = {s: train_once(problem, cand, s, seed + 1000, sweep_s, n_train, n_test, eval_every)["x_err"]
-                 for s in (grid if len(grid) > 1 else ())}
+                 for s in (cand.grid if sweep and len(cand.grid) > 1 else ())}
         scale = min(tried, key=lambda s: tried[s]) if tried else 1.0
         res = train_once(problem, cand, scale, seed, budget_s, n_train, n_test, eval_every)
         out[name] = {**res, "preset": cand.method, **cand.fixed, **cand.rule,

@@ -1,10 +1,7 @@
-"""Cost ratios measured in one run (the machine is shared and noisy: ratios, not absolute times).
+"""Cost ratios measured in one run: :func:`operator_ratios` of the physics, :func:`step_ratios` of a step.
 
-Each timing is the minimum over ``repeats`` rounds, the functions compared run one after the
-other within each round (interleaved), so a burst of load from other processes hits all of them
-alike; the minimum filters interference better than the mean. :func:`operator_ratios`: the
-physics; :func:`step_ratios`: one update step per rule.
-"""
+The functions compared run one after the other in each of ``repeats`` rounds (interleaved), so a
+burst of load from other processes hits all of them alike; each time is the minimum over rounds."""
 
 from __future__ import annotations
 
@@ -23,20 +20,15 @@ from .timing import compiled, interleaved, stepping
 def operator_ratios(problem, batch: int = 64, repeats: int = 5, seed: int = 0) -> dict:
     """Forward/adjoint costs of a problem's operator applied by time stepping (``op.stepping()``).
 
-    * ``forward_vs_splu`` (implicit schemes): our forward / a bare scipy loop of as many steps, each
-      one product with the scheme's ``B`` and one ``splu`` solve with its ``A`` (default options,
-      same batch): the whole θ-step; Newmark's step adds a product with ``M`` and the velocity update;
-    * ``overhead_vs_bare``: our forward / the scheme's own ``start``, ``step`` and ``field`` in a plain
-      loop (the same solver object): the cost of the operator layer;
-    * ``adjoint_vs_forward``: adjoint / forward time;
-    * ``modal_speedup`` where the modal form is offered (a symmetric θ-scheme, final field): time
-      stepping / modal forward, with ``modal_agreement`` their relative difference; else
-      ``modal_refused``, why not.
+    * ``forward_vs_splu`` (implicit schemes): our forward / a bare scipy loop of as many steps of
+      one product with the scheme's ``B`` and one ``splu`` solve with its ``A`` (the whole θ-step;
+      Newmark's adds a product with ``M`` and the velocity update);
+    * ``overhead_vs_bare``: our forward / the scheme's ``start``, ``step``, ``field`` in a plain loop;
+    * ``adjoint_vs_forward``; ``modal_speedup`` where the modal form is offered: stepping / modal
+      forward, ``modal_agreement`` their relative difference (else ``modal_refused``: why not).
     """
-    op = problem.operator
-    rng = np.random.default_rng(seed)
-    X = rng.standard_normal((batch, op.n_in))
-    R = rng.standard_normal((batch, op.n_out))
+    op, rng = problem.operator, np.random.default_rng(seed)
+    X, R = rng.standard_normal((batch, op.n_in)), rng.standard_normal((batch, op.n_out))
     run = stepping(op)
     out, run = {"batch": batch, "N": op.n_in}, op if run is None else run
     fns = {"fwd": lambda: run.forward(X), "adj": lambda: run.adjoint(R)}
@@ -90,13 +82,10 @@ def _stepper(method, problem, model, y):
 
 
 def step_ratios(problem, model, batch: int = 32, repeats: int = 5, seed: int = 0) -> dict:
-    """One step of the presets ``adam``, ``sip`` and ``hig`` on copies of ``model`` and one batch.
-
-    ``sip_vs_gd_step`` = SIP step / GD (Adam) step: SIP adds one forward and one local inverse to
-    the network's forward/backward, GD one forward and one adjoint. ``hig_step_s``: one step of
-    ``--method hig`` (on the route the network and operator declare: the Kronecker route on the
-    whitened linear default), with the shape and float64 size of the stacked Jacobian ``∂y/∂θ`` a
-    dense route would build, the part of HIG's cost that GD and SIP never pay."""
+    """One step of the presets ``adam``, ``sip`` and ``hig`` on copies of ``model``, one batch:
+    ``sip_vs_gd_step`` (SIP adds a forward and a local inverse, GD a forward and an adjoint),
+    ``hig_step_s`` (the route the network declares: Kronecker on the default), and the float64
+    size of the stacked Jacobian ``∂y/∂θ`` a dense route would build (GD and SIP never do)."""
     y = torch.as_tensor(problem.sample(batch, seed)[1], dtype=torch.float32)
     t = interleaved({m: _stepper(m, problem, model, y) for m in ("adam", "sip", "hig")}, repeats)
     rows = batch * problem.operator.n_out

@@ -1,12 +1,11 @@
 """``bench(problem, out)``: every benchmark section in one run, written to ``out/bench.json`` + PNGs.
 
-JSON (**contract** keys marked *): ``machine``*, ``settings``, ``amortization`` (per-sample cost of
-the CLI-default network against each classical solve, see :mod:`.amortize`), ``ratios``
-(``forward_vs_splu``*, ``adjoint_vs_forward``*, ``modal_speedup``*, ``sip_vs_gd_step``*,
-``hig_step_s``*, …), ``forward`` (the accuracy/cost ladder), ``methods.<name>``
-(``x_err``*, ``y_err``*, ``wall_s``*, …), ``reference`` (``mmse_x_err``*,
-``tikhonov_best_x_err``*, ``filter_best_x_err``), ``skips.<name>``, ``notes``. A ratio that does not apply
-is ``null`` with a note saying why.
+JSON (**contract** keys marked *): ``machine``*, ``settings``, ``amortization`` (per-sample cost of the
+CLI-default network against each classical solve, :mod:`.amortize`), ``ratios`` (``forward_vs_splu``*,
+``adjoint_vs_forward``*, ``modal_speedup``*, ``sip_vs_gd_step``*, ``hig_step_s``*, …), ``backends``,
+``forward`` (the accuracy/cost ladder), ``methods.<name>`` (``x_err``*, ``y_err``*, ``wall_s``*, …),
+``reference`` (``mmse_x_err``*, ``tikhonov_best_x_err``*, ``filter_best_x_err``), ``skips.<name>``,
+``notes``. A ratio that does not apply is ``null`` with a note saying why.
 """
 
 from __future__ import annotations
@@ -132,12 +131,10 @@ def summary(res: dict) -> str:
     """A few lines for the terminal."""
     r, ref = res["ratios"], res["reference"]
     fmt = lambda v: "null" if v is None else f"{v:.3g}"  # noqa: E731
-    lines = [f"{res['problem']}: forward_vs_splu {fmt(r.get('forward_vs_splu'))}, adjoint_vs_forward "
-             f"{fmt(r['adjoint_vs_forward'])}, modal_speedup {fmt(r.get('modal_speedup'))}, sip_vs_gd_step "
-             f"{fmt(r['sip_vs_gd_step'])}, hig_step_s {fmt(r['hig_step_s'])}",
-             f"reference: MMSE x_err {ref['mmse_x_err']:.4f}, "
-             f"best-α Tikhonov x_err {ref['tikhonov_best_x_err']:.4f}, "
-             f"best spectral filter x_err {ref['filter_best_x_err']:.4f}"]
+    keys = ("forward_vs_splu", "adjoint_vs_forward", "modal_speedup", "sip_vs_gd_step", "hig_step_s")
+    lines = [f"{res['problem']}: " + ", ".join(f"{k} {fmt(r.get(k))}" for k in keys),
+             f"reference: MMSE x_err {ref['mmse_x_err']:.4f}, best-α Tikhonov x_err "
+             f"{ref['tikhonov_best_x_err']:.4f}, best spectral filter x_err {ref['filter_best_x_err']:.4f}"]
     for name, b in (res.get("backends") or {}).get("lines", {}).items():
         ok = b["outcome"] == "ok"
         text = (f"build {fmt(b['build_s'])} s  apply {b['apply_s'] * 1e3:.2f} ms  {b['memory_mb']:.1f} MB  "

@@ -1,16 +1,14 @@
 """"Skip what a scene doesn't need", each skip measured against the work it avoids.
 
 * ``modal``: the truncated modal form instead of time stepping (dead modes skipped);
-* ``no_trajectory``: the adjoint of a linear scheme needs no stored trajectory; the
-  baseline stores every step's state, as a generic (nonlinear) adjoint must;
+* ``no_trajectory``: the adjoint of a linear scheme needs no stored trajectory (the baseline
+  stores every step's state, as a generic nonlinear adjoint must);
 * ``no_adjoint_under_no_grad``: ``pdeinv.apply`` under ``torch.no_grad`` runs no adjoint;
-  the baseline is forward + backward;
-* ``factorization_reuse``: one factorization for all steps and batch columns; the
-  baseline refactorizes ``A`` every step (the stepping forward plus ``steps`` factorizations);
+* ``factorization_reuse``: one factorization for all steps and batch columns (the baseline
+  refactorizes ``A`` every step);
 * ``hig_jacobian_only_for_hig``: GD and SIP never build ``∂y/∂θ``; its size is what they save.
 
-Each entry holds the measured cost with and without the skip and ``saved``, the
-factor the skip gains (time or traced memory), all from one run.
+Each entry: the cost with and without the skip and ``saved``, the factor gained, from one run.
 """
 
 from __future__ import annotations
@@ -38,7 +36,7 @@ class Counting(LinearOperator):
 
 
 def trajectory(op, X, R) -> dict:
-    """Peak traced memory of our adjoint vs a forward that stores every step's state (time stepping)."""
+    """Peak traced memory of our adjoint vs a forward that stores every step's state."""
     run = stepping(op)
     if run is None:
         return {"skipped": "no time-stepping operator"}
@@ -76,8 +74,7 @@ def no_grad(op, X, repeats) -> dict:
 
 
 def factorization(op, X, repeats) -> dict:
-    """One factorization of ``A`` for all steps vs one per step: the stepping forward, and it plus
-    ``steps`` factorizations by the scheme's solver type (the solves are the same)."""
+    """The stepping forward vs it plus ``steps`` factorizations of ``A`` by the same solver type."""
     run = stepping(op)
     lu = getattr(run.scheme, "lu", None) if run is not None else None
     if lu is None:
@@ -92,17 +89,14 @@ def factorization(op, X, repeats) -> dict:
 def measure(problem, steps_info: dict | None = None, batch: int = 16, repeats: int = 3, seed: int = 0,
             modal_info: dict | None = None) -> dict:
     """All skip measurements for ``problem``; ``steps_info``/``modal_info`` come from the ratio probes."""
-    rng = np.random.default_rng(seed)
-    op = problem.operator
-    X = rng.standard_normal((batch, op.n_in))
-    R = rng.standard_normal((batch, op.n_out))
+    op, rng = problem.operator, np.random.default_rng(seed)
+    X, R = rng.standard_normal((batch, op.n_in)), rng.standard_normal((batch, op.n_out))
     out = {"no_trajectory": trajectory(op, X, R), "no_adjoint_under_no_grad": no_grad(op, X, repeats),
            "factorization_reuse": factorization(op, X, repeats)}
-    if modal_info and modal_info.get("modal_speedup") is not None:
-        out["modal"] = {"modes_kept": modal_info.get("modal_modes"), "N": op.n_in,
-                        "saved": modal_info["modal_speedup"], "agreement": modal_info.get("modal_agreement")}
-    else:
-        out["modal"] = {"skipped": (modal_info or {}).get("modal_refused", "no modal form measured")}
+    m = modal_info or {}
+    out["modal"] = ({"modes_kept": m.get("modal_modes"), "N": op.n_in, "saved": m["modal_speedup"],
+                     "agreement": m.get("modal_agreement")} if m.get("modal_speedup") is not None
+                    else {"skipped": m.get("modal_refused", "no modal form measured")})
     if steps_info:
         rows, params = steps_info["hig_jacobian"]
         out["hig_jacobian_only_for_hig"] = {

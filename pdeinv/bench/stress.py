@@ -7,9 +7,8 @@ A case is a value: ``Case(sweep, value, run)`` where ``run() -> dict`` of number
 * ``nan`` — a NaN/Inf in the returned numbers, or :class:`pdeinv.NonFiniteError` raised
   by an update rule (the guard caught it before it spread);
 * ``diverged`` — finite numbers but a watched value (keys ending in ``growth`` or ``x_err``)
-  above ``bound`` (forward errors against exact solutions are accuracy, reported, not watched:
-  at κT = 1 the exact field is 3e-9 of u₀, and a coarse BE step is off by orders of magnitude
-  relative to it without any instability);
+  above ``bound`` (forward errors are accuracy, not watched: at κT = 1 the exact field is 3e-9
+  of u₀, and a coarse BE step is off by orders of magnitude from it without any instability);
 * ``failed`` — any other numerical failure on valid input (:func:`pdeinv.errors.numerical_types`:
   no convergence, too many modes, ``LinAlgError``, ``ArpackNoConvergence``), with its type and
   message; checked before ``refused`` because ``LinAlgError`` is a ``ValueError``;

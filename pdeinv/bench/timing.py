@@ -1,8 +1,7 @@
-"""Timing, memory and machine facts shared by the benchmarks (the machine is shared and noisy).
+"""Timing, memory and machine facts shared by the benchmarks, and the operator accessors they use.
 
-``best`` takes the minimum over repeats: interference from other processes only ever
-adds time, so the minimum estimates the undisturbed cost better than the mean.
-"""
+Times are minima over repeats: interference from other processes on a shared machine only ever
+adds time, so the minimum estimates the undisturbed cost better than the mean."""
 
 from __future__ import annotations
 
@@ -65,10 +64,9 @@ def stepping(op):
 
 
 def compiled(op, kind: str, M=None):
-    """A copy of the time-stepping ``op`` applied by ``kind`` ('steps', 'modal', 'dense', 'svd'): the scene's
-    operator keeps its own backend, the copy shares its scheme (and factorization). A ``ValueError``
-    (or :class:`~pdeinv.errors.TooManyModes`) where ``kind`` is refused. (``Propagator`` has no public
-    "compiled copy"; :meth:`~pdeinv.physics.Propagator.compile` changes the operator it is called on.)"""
+    """A copy of the time-stepping ``op`` applied by ``kind`` (``ValueError`` or ``TooManyModes`` where
+    refused), sharing its scheme and factorization: :meth:`~pdeinv.physics.Propagator.compile` changes
+    the operator it is called on, and the scene's operator keeps its backend."""
     if stepping(op) is None:
         raise ValueError(f"{op!r} does not step through time: it has no backends")
     return copy.copy(op).compile(kind, M)
