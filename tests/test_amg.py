@@ -5,13 +5,27 @@ import pytest
 import scipy.sparse as sp
 from exact import dot_test
 
-from pdeinv import solvers
-from pdeinv.bench.crossover import matrix
+from pdeinv import mesh, solvers
 from pdeinv.errors import ConvergenceError
 from pdeinv.physics import Heat, Wave
 from pdeinv.solvers import AMG_CROSSOVER, AMGCG, Cholesky, SuperLU, amg_cg, default_solver, uses_amg
 
 CASES = [(2, 24, "heat"), (2, 24, "wave"), (3, 8, "heat"), (3, 8, "wave")]
+
+
+def discretization(dim: int, n: int):
+    """P1 on the unit square / cube, ``n`` subdivisions per side, Dirichlet boundary (as
+    ``benchmarks/scaling.py``)."""
+    from pdeinv.forms import discretize
+
+    return discretize(mesh.unit_square(n) if dim == 2 else mesh.unit_cube(n))
+
+
+def matrix(dim: int, n: int, scene: str = "heat"):
+    """The scenes' default system matrix on that mesh (as ``benchmarks/crossover.py``): heat
+    backward Euler ``M + dt κ K`` (κ 0.01, T 1, 100 steps), Newmark ``M + (c dt/2)² K`` (c 1, T 0.5, 50)."""
+    d = discretization(dim, n)
+    return (d.M + (0.01 / 100 if scene == "heat" else (0.5 / 50 / 2) ** 2) * d.K).tocsr()
 
 
 @pytest.mark.parametrize("dim,n,scene", CASES)
@@ -55,8 +69,6 @@ def test_the_block_solve_and_the_column_loop_reach_the_same_residual():
 @pytest.mark.parametrize("dim", [2, 3])
 def test_heat_adjoint_identity_with_amg_holds_to_about_rtol(dim):
     n = 16 if dim == 2 else 6
-    from pdeinv.bench.scaling import discretization
-
     d = discretization(dim, n)
     exact = Heat(d.M, d.K, steps=20, backend="steps", dim=dim)
     rtol = 1e-10
@@ -74,8 +86,6 @@ def test_the_hierarchy_is_built_once_for_all_steps_columns_and_the_adjoint(monke
     real = pyamg.smoothed_aggregation_solver
     monkeypatch.setattr(pyamg, "smoothed_aggregation_solver",
                         lambda *a, **k: calls.append(1) or real(*a, **k))
-    from pdeinv.bench.scaling import discretization
-
     d = discretization(2, 12)
     op = Heat(d.M, d.K, steps=15, backend="steps", solver=AMGCG)
     X = np.random.default_rng(0).standard_normal((4, op.n_in))
@@ -136,8 +146,6 @@ def test_default_solver_follows_the_rule_on_real_matrices(monkeypatch):
 
 
 def test_heat_passes_its_dimension_to_the_default_solver(monkeypatch):
-    from pdeinv.bench.scaling import discretization
-
     d = discretization(3, 6)
     monkeypatch.setitem(solvers.AMG_CROSSOVER, 3, d.N - 1)
     assert isinstance(Heat(d.M, d.K, steps=5, backend="steps", dim=3).stepper.lu, AMGCG)

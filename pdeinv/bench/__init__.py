@@ -1,11 +1,10 @@
 """Benchmarks: run time against error, ratios, skips (``pdeinv bench``); stress sweeps (``pdeinv stress``).
 
-One idea per module: :mod:`.timing` (minimum-of-repeats timer, peak memory, machine),
-:mod:`.ratios` (operator costs against bare scipy), :mod:`.steps` (update-rule step
-costs), :mod:`.forward` (accuracy/cost ladder against exact solutions),
-:mod:`.methods` (rules at equal wall-clock time), :mod:`.skips` (what each skip
-saves), :mod:`.plots`, :mod:`.run` (all of it into ``bench.json``), and
-:mod:`.stress` with :mod:`.cases` (sweeps that try to break things).
+One idea per module, all on the public API: :mod:`.timing`, :mod:`.ratios` (operator and step
+costs), :mod:`.backends`, :mod:`.forward` (accuracy/cost ladder against exact solutions),
+:mod:`.methods` (the presets at equal wall-clock time), :mod:`.amortize`, :mod:`.skips`,
+:mod:`.plots`, :mod:`.run` (all of it into ``bench.json``), :mod:`.stress` with :mod:`.cases`.
+Developer benchmarks that ``pdeinv bench`` does not run are scripts in the top-level ``benchmarks/``.
 """
 
 from .ratios import operator_ratios

@@ -1,24 +1,16 @@
 """Amortization: what one reconstruction costs with the trained network and with each classical solve.
 
-A network is worth training when it is at least as accurate as the classical
-solve and cheaper per sample, so that the training time is paid back. For every
-classical solve that applies to the scene (chosen by what the operator offers,
-never by its class: a constructor that refuses the operator drops the row)
-
-* ``tikhonov_modal`` — :class:`~pdeinv.ModalTikhonov` from ``x₀ = 0``;
-* ``tikhonov_cg`` — :class:`~pdeinv.TikhonovCG` (block PCG on the normal equations) from ``x₀ = 0``;
-* ``time_reversal`` — :class:`~pdeinv.TimeReversal` from ``(y, v = 0)``,
-
-with α by Morozov's discrepancy principle (:class:`~pdeinv.Discrepancy`) at the
-problem's noise level, or the default noise-free α (:func:`~pdeinv.inverse.default_alpha`)
-without noise, we time a batch and report the time per sample, the batch's mean
-x-error, and the **break-even count**
-
-    n* = t_train / (t_classical − t_network)      (per-sample times)
-
-the number of reconstructions after which training has paid for itself (``null``
-when the network is not cheaper). Times are interleaved minima over ``repeats``
-rounds on one thread; a solve slower than ``SLOW_S`` per batch is timed once.
+A network is worth training when it is at least as accurate as the classical solve and cheaper
+per sample, so that the training time is paid back. For every classical solve the operator
+supports (a constructor that refuses the operator drops the row): ``tikhonov_modal``
+(:class:`~pdeinv.ModalTikhonov`) and ``tikhonov_cg`` (:class:`~pdeinv.TikhonovCG`, block PCG on
+the normal equations) from ``x₀ = 0``, ``time_reversal`` (:class:`~pdeinv.TimeReversal`) from
+``(y, v = 0)``, with α by Morozov's discrepancy principle at the problem's noise level (else the
+default noise-free α), we time a batch and report the time per sample, the batch's mean x-error,
+and the **break-even count** ``n* = t_train / (t_classical − t_network)`` (per-sample times): the
+reconstructions after which training has paid for itself (``null`` when the network is not
+cheaper). Times are interleaved minima over ``repeats`` rounds; a solve slower than ``SLOW_S`` per
+batch is timed once.
 """
 
 from __future__ import annotations
@@ -39,11 +31,8 @@ def classical_solvers(problem) -> dict:
     """``{name: (Y -> X̂)}`` for the classical solves the scene's operator supports (module docstring)."""
     op = problem.operator
     alpha = (lambda: Discrepancy(problem.noise)) if problem.noise else (lambda: default_alpha(0.0))
-    makers = {
-        "tikhonov_modal": lambda: ModalTikhonov(op, alpha()),
-        "tikhonov_cg": lambda: TikhonovCG(op, problem.disc.M, alpha()),
-        "time_reversal": lambda: TimeReversal(op),
-    }
+    makers = {"tikhonov_modal": lambda: ModalTikhonov(op, alpha()), "time_reversal": lambda: TimeReversal(op),
+              "tikhonov_cg": lambda: TikhonovCG(op, problem.disc.M, alpha())}
     out = {}
     for name, make in makers.items():
         try:

@@ -1,23 +1,19 @@
 """The stress cases for one problem: sweeps over physics, numerics and update-rule settings.
 
-Sweeps (values in quick mode are a subset): ``kappaT`` over four decades (heat);
-``noise`` 0–10 % (linear-MMSE and best-α Tikhonov x-errors); ``dt_<scheme>`` from
-one step to 10⁴ steps against the exact mode solution (BE/CN/Newmark are
-unconditionally stable, so the field must stay bounded: ``growth = ‖u_T‖_M/‖u₀‖_M``);
-``explicit`` (heat: no explicit scheme, asking for one is refused; wave: leapfrog
-with lumped mass at 0.9× and 1.1× its CFL limit, the latter refused); ``mesh_n``
-refinement with the dot-product test; ``precision`` float32 vs float64 through the
-torch bridge and for training; ``hig_tau`` 0…1e-2 and ``sip_eta``; ``alpha``
-Tikhonov regularization down to 1e-12 (relative to s_max²) without and with 1 % noise.
+Sweeps (quick mode: a subset of the values; a sweep applies where the scene has its setting):
+``kappaT`` over four decades; ``noise`` 0–10 % (linear-MMSE and best-α Tikhonov x-errors);
+``dt_<scheme>`` from one step to 10⁴ against the exact mode (BE/CN/Newmark are unconditionally
+stable: ``growth = ‖u_T‖_M/‖u₀‖_M`` must stay bounded); ``explicit`` (heat: refused; wave:
+leapfrog at 0.9× and 1.1× its CFL limit, the latter refused); ``mesh_n`` refinement with the
+dot-product test; ``precision`` float32 vs float64 (torch bridge and training); ``hig_tau``,
+``hig_tau_default`` and ``sip_eta``; ``alpha``: Tikhonov down to 1e-12 s_max², with 0 and 1 % noise.
 
-Training cases run on a coarse copy of the scene (``n = 8``: 49 unknowns on the unit
-square) so the Jacobian-based rules finish in seconds. ``hig_tau`` trains HIG with
-η = 1 on an MLP (4,) with batch 16: 784 Jacobian rows against 445 parameters, so J has
-(near-)zero singular values, the regime where the HIG paper shows that the full
-inversion τ = 0 explodes; ``hig_tau_default`` sweeps the same τ for ``--method hig`` as
-shipped: the default (whitened linear) network, every training row per step, the exact
-Kronecker route. ``sip_eta`` uses SIP with plain SGD (lr 0.1): with Adam the proxy gradient's
-scale, hence η, cancels out (Adam is scale-invariant).
+Training cases run on a coarse copy of the scene (``n = 8``) so they finish in seconds.
+``hig_tau`` trains HIG (η = 1) on an MLP (4,) with batch 16: 784 Jacobian rows against 445
+parameters, so J has (near-)zero singular values, where the HIG paper shows the full inversion
+τ = 0 explode; ``hig_tau_default`` sweeps τ for ``--method hig`` as shipped (the preset: the
+default network, every training row per step, the Kronecker route). ``sip_eta``: SIP with plain
+SGD (lr 0.1), since Adam is scale-invariant (η would cancel out).
 """
 
 from __future__ import annotations
@@ -30,15 +26,15 @@ import torch
 from .. import references as refs
 from ..autograd import apply
 from ..methods import GD, HIG, SIP, adam, sgd
-from ..physics import Heat
+from ..methods.presets import make_rule
+from ..nets import MLP
 from ..problem import load_problem
 from ..train import Trainer
-from .forward import applies, exact_factor
-from .methods import network
+from .forward import exact_factor
 from .stress import Case
 
-FULL = {"kappaT": (1e-3, 1e-2, 1e-1, 1.0), "noise": (0.0, 0.01, 0.03, 0.1),
-        "steps": (1, 10, 100, 1000, 10000), "n": (4, 8, 16, 32, 64), "precision": ("float32", "float64"),
+FULL = {"kappaT": (1e-3, 1e-2, 1e-1, 1.0), "noise": (0.0, 0.01, 0.03, 0.1), "n": (4, 8, 16, 32, 64),
+        "steps": (1, 10, 100, 1000, 10000), "precision": ("float32", "float64"),
         "tau": (0.0, 1e-8, 1e-6, 1e-4, 1e-2), "eta": (0.1, 0.5, 1.0, 2.0, 5.0),
         "alpha": (1e-2, 1e-4, 1e-6, 1e-8, 1e-10, 1e-12)}
 QUICK = {"kappaT": (1e-2, 1.0), "noise": (0.0, 0.1), "steps": (1, 10, 100), "n": (4, 8),
@@ -51,9 +47,9 @@ def mode_error(problem) -> dict:
     x0 = np.prod(np.sin(np.pi * disc.points), axis=0)[None]
     y = problem.operator.forward(x0)
     out = {"growth": float(disc.norm(y)[0] / disc.norm(x0)[0])}
-    if applies(problem) is None:
-        target = exact_factor(problem.operator, disc.dim) * x0
-        out["forward_err"] = float(disc.relative_error(y, target)[0])
+    factor = exact_factor(problem)
+    if factor is not None:
+        out["forward_err"] = float(disc.relative_error(y, factor * x0)[0])
     return out
 
 
@@ -68,36 +64,26 @@ def dot_err(op, seed: int = 0, dtype=torch.float64) -> float:
         return float(abs((y * r).sum() - (x * g).sum()) / (y.norm() * r.norm()))
 
 
-def train(problem, rule, steps, hidden=(256, 256), batch=8, dtype=None) -> dict:
-    """A short training run of a standardized tanh MLP (``hidden`` widths: nonzero initial
-    parameters, so their growth is defined; the zero-initialized whitened linear default has ‖θ₀‖ = 0).
+def _norm(model) -> float:
+    return float(torch.cat([p.detach().double().flatten() for p in model.parameters()]).norm())
 
-    ``loss_growth`` = mean of the last 3 batch losses / the first 3; ``param_growth`` =
-    ‖θ_end‖ / ‖θ_0‖ (a tanh network's output stays bounded while its first layer blows
-    up, so the x-error alone can hide an exploding update).
-    """
-    model = network(problem, hidden, 0)
-    if dtype is not None:
-        model = model.to(dtype)
-    norm = lambda: float(torch.cat([p.detach().double().flatten() for p in model.parameters()]).norm())  # noqa: E731
-    theta0 = norm()
+
+def train(problem, rule, steps, hidden=(256, 256), batch=8, dtype=None) -> dict:
+    """A short run of a standardized tanh MLP of ``hidden`` widths (``param_growth = ‖θ_end‖ / ‖θ_0‖``:
+    its output stays bounded while its first layer blows up), or with ``hidden=None`` of the problem's
+    default network (zero at start: ``param_norm``); ``loss_growth``: last 3 batch losses / first 3."""
+    torch.manual_seed(0)
+    model = problem.model() if hidden is None else MLP(problem.operator.n_out, problem.operator.n_in,
+                                                       hidden=tuple(hidden))
+    model = model if dtype is None else model.to(dtype)
+    theta0 = _norm(model)
     res = Trainer(problem, rule, model, steps=steps, n_train=64, n_test=16, batch_size=batch,
                   eval_every=steps, progress=False, dtype=dtype).fit()
     losses = [h["loss"] for h in res.history]
-    return {"x_err": res.metrics["x_err"], "y_err": res.metrics["y_err"],
-            "loss_growth": float(np.mean(losses[-3:]) / np.mean(losses[:3])), "param_growth": norm() / theta0}
-
-
-def train_default(problem, rule, steps) -> dict:
-    """A short full-batch run of the problem's default network (zero-initialized, so ``‖θ‖`` itself is
-    reported, not its growth): what ``--method hig`` trains (Kronecker route)."""
-    model = problem.model()
-    res = Trainer(problem, rule, model, steps=steps, n_train=64, n_test=16, batch_size=None,
-                  eval_every=steps, progress=False).fit()
-    losses = [h["loss"] for h in res.history]
-    theta = float(torch.cat([p.detach().double().flatten() for p in model.parameters()]).norm())
-    return {"x_err": res.metrics["x_err"], "y_err": res.metrics["y_err"],
-            "loss_growth": float(np.mean(losses[-3:]) / np.mean(losses[:3])), "param_norm": theta}
+    out = {"x_err": res.metrics["x_err"], "y_err": res.metrics["y_err"],
+           "loss_growth": float(np.mean(losses[-3:]) / np.mean(losses[:3]))}
+    grown = {"param_norm": _norm(model)} if hidden is None else {"param_growth": _norm(model) / theta0}
+    return {**out, **grown}
 
 
 def cases(name: str, overrides: dict, quick: bool = False) -> list[Case]:
@@ -105,7 +91,7 @@ def cases(name: str, overrides: dict, quick: bool = False) -> list[Case]:
     v = QUICK if quick else FULL
     load = partial(load_problem, name, **overrides)
     base = load()
-    heat = isinstance(base.operator, Heat)
+    heat = "kappa" in base.settings  # a sweep applies where the scene has its setting
     has_n = "n" in base.settings and not base.settings.get("mesh")
     small = partial(load, n=8) if has_n else load
     n_tr, n_te = (32, 8) if quick else (256, 32)
@@ -115,7 +101,7 @@ def cases(name: str, overrides: dict, quick: bool = False) -> list[Case]:
         p = load(kappa=kt / base.settings["T"])
         x = np.prod(np.sin(np.pi * p.disc.points), axis=0)[None]
         back = p.inverse(p.operator.forward(x), x)
-        return {**mode_error(p), "dot_err": dot_err(p.operator), "backend": p.operator.backend.name,
+        return {**mode_error(p), "dot_err": dot_err(p.operator), "backend": p.operator.kind,
                 "roundtrip_err": float(p.relative_error(back, x)[0])}
 
     if heat:
@@ -123,15 +109,13 @@ def cases(name: str, overrides: dict, quick: bool = False) -> list[Case]:
 
     def noise(level):
         p = load(noise=level)
-        x, _ = p.sample(n_tr, 1)
-        xt, yt = p.sample(n_te, 2)
+        (x, _), (xt, yt) = p.sample(n_tr, 1), p.sample(n_te, 2)
         r = refs.references(p, x, xt, yt)
         return {"mmse_x_err": r["mmse_x_err"], "tikhonov_best_x_err": r["tikhonov_best_x_err"]}
 
     out += [Case("noise", lv, partial(noise, lv)) for lv in v["noise"]]
 
-    schemes = ("be", "cn") if heat else (None,)
-    for scheme in schemes:
+    for scheme in ("be", "cn") if heat else (None,):
         extra = {"scheme": scheme, "backend": "steps"} if heat else {}
         label = f"dt_{scheme}" if heat else "dt_newmark"
         out += [Case(label, k, lambda k=k, e=extra: {**mode_error(load(steps=k, **e)),
@@ -169,7 +153,8 @@ def cases(name: str, overrides: dict, quick: bool = False) -> list[Case]:
     hig_steps = 2 if quick else 10  # τ = 0: ‖θ‖ grows ~7e7× within 2 steps (measured)
     out += [Case("hig_tau", t, lambda t=t: train(small(), HIG(eta=1.0, tau=t), hig_steps, (4,), 16))
             for t in v["tau"]]
-    out += [Case("hig_tau_default", t, lambda t=t: train_default(small(), HIG(eta=1.0, tau=t), hig_steps * 3))
+    hig = lambda t: make_rule("hig", base, tau=t)[0]  # noqa: E731 - the --method hig preset at τ
+    out += [Case("hig_tau_default", t, lambda t=t: train(small(), hig(t), hig_steps * 3, None, None))
             for t in v["tau"]]
     out += [Case("sip_eta", e, lambda e=e: train(small(), SIP(eta=e, optimizer=sgd(0.1)), steps))
             for e in v["eta"]]

@@ -1,117 +1,84 @@
-"""Forward accuracy against cost: every backend over a ladder of meshes and step counts.
+"""Forward accuracy against cost: the scene itself over a ladder of meshes, step counts and schemes.
 
-The initial field is the first Laplace eigenfunction ``u₀ = Π sin(π x_d)`` on the unit
-square (interval), ``λ = dim · π²``, whose exact solutions are
-
-    heat:  u(T) = exp(−κ λ T) u₀,        wave (v₀ = 0):  u(T) = cos(c √λ T) u₀,
-
-and the error is the relative L²(Ω) error of the computed final field against the
-nodal interpolant of ``u(T)`` (space and time discretization together). The time is
-the minimum over ``repeats`` forward runs on a batch of ``batch`` columns, and
-``setup_s`` the one-off build (factorization, eigenvectors). A backend that refuses a
-setting (e.g. the modal backend needing too many modes) is recorded as refused.
+From the first Laplace eigenfunction ``u₀ = Π sin(π x_d)`` on the unit interval, square or cube
+(``λ = dim · π²``): heat (reaction r ≥ 0) ``u(T) = exp(−(κλ + r) T) u₀``, wave (v₀ = 0)
+``u(T) = cos(c √λ T) u₀``; the error is the relative L²(Ω) error of the final field against the
+nodal interpolant of ``u(T)`` (space and time together). Each rung is the scene rebuilt by name
+with ``n``, ``steps`` and the rung's scheme and backend (:data:`LADDERS`), so a 3-D scene refines
+in 3-D; ``setup_s`` is that build, ``time_s`` the best forward of ``batch`` columns. A rung the
+scene refuses (too many modes, leapfrog above its stability limit) is recorded with its message.
+The ladder applies where every setting is one of a heat or wave scene on the unit box: sensors,
+advection, a mesh file or another domain have no exact mode here, and their settings say so.
 """
 
 from __future__ import annotations
 
 import time
-from types import SimpleNamespace
 
 import numpy as np
 
-from .. import mesh as meshes
-from ..forms import discretize
-from ..physics import Heat, Leapfrog, Wave
-from ..physics.heat_backends import weyl_count
-from ..physics.modes import TooManyModes
+from ..errors import TooManyModes
+from ..problem import load_problem
 from .timing import best
 
-
-def modal(d, c, k):
-    """BE modal backend, refused up front when Weyl's law predicts more than N/2 live modes.
-
-    (Building it would compute thousands of eigenpairs only to refuse; the same
-    estimate as :func:`pdeinv.physics.heat_backends.choose`.)
-    """
-    dt, tol = c["T"] / k, 1e-14
-    rho = tol ** (1.0 / k)
-    k_est = weyl_count(SimpleNamespace(dim=d.dim, measure=d.measure), (1.0 - rho) / rho / (dt * c["kappa"]))
-    if k_est > d.N / 2:
-        raise ValueError(f"modal: Weyl's law predicts ~{k_est:.0f} of {d.N} modes above tol (> N/2)")
-    return Heat(d.M, d.K, c["kappa"], c["T"], k, "be", "modal")
-
-
-#: backend name -> (discretization, settings, steps) -> operator; per physics type
-HEAT_BACKENDS = {
-    "BE steps": lambda d, c, k: Heat(d.M, d.K, c["kappa"], c["T"], k, "be", "steps"),
-    "CN steps": lambda d, c, k: Heat(d.M, d.K, c["kappa"], c["T"], k, "cn", "steps"),
-    "BE modal": modal,
+_COMMON = {"element", "T", "steps", "noise", "n", "mesh", "scheme", "backend"}
+#: physics (named by its defining setting) -> (the settings it may have, {rung: (scheme, backend)}, u(T)/u₀)
+LADDERS = {
+    "kappa": (_COMMON | {"kappa", "reaction"},
+              {"BE steps": ("be", "steps"), "CN steps": ("cn", "steps"), "BE modal": ("be", "modal")},
+              lambda c, lam: np.exp(-(c["kappa"] * lam + c.get("reaction", 0.0)) * c["T"])),
+    "c": (_COMMON | {"c"}, {"Newmark": ("newmark", "steps"), "leapfrog": ("leapfrog", "steps")},
+          lambda c, lam: np.cos(c["c"] * np.sqrt(lam) * c["T"])),
 }
-def leapfrog(d, c, k):
-    """Explicit leapfrog with the lumped P1 mass; below its CFL step count the point is 'refused'."""
-    if c["element"] != "P1":
-        raise ValueError(f"leapfrog needs a lumped mass, offered for P1 only (element={c['element']!r})")
-    return Leapfrog(discretize(d.basis.mesh, "P1", lumped=True).M, d.K, c["c"], c["T"], k)
 
 
-WAVE_BACKENDS = {"Newmark": lambda d, c, k: Wave(d.M, d.K, c["c"], c["T"], k), "leapfrog": leapfrog}
-
-
-def exact_factor(op, dim: int) -> float:
-    """``u(T)/u₀`` for the first eigenfunction (continuous problem)."""
-    lam = dim * np.pi**2
-    if isinstance(op, Heat):
-        return float(np.exp(-op.kappa * lam * op.t_end))
-    return float(np.cos(op.c * np.sqrt(lam) * op.t_end))
-
-
-def applies(problem) -> str | None:
-    """``None`` if the analytic ladder applies to ``problem``, else why not."""
+def _ladder(problem):
+    """``(settings, rungs, factor)`` of the ladder that applies to ``problem``, or a string: why none."""
     cfg = problem.settings
-    if type(problem.operator) not in (Heat, Wave, Leapfrog):
-        return f"no analytic solution for a {type(problem.operator).__name__} operator"
-    if "n" not in cfg or cfg.get("mesh"):
-        return "the analytic mode needs the built-in interval / unit square / unit cube mesh (setting n)"
-    return None
+    for key, (allowed, rungs, factor) in LADDERS.items():
+        if key in cfg and set(cfg) <= allowed and cfg.get("mesh") is None and "n" in cfg:
+            return cfg, rungs, factor
+    return (f"no exact mode for {problem.name!r}: its settings ({', '.join(sorted(problem.settings))}) "
+            "are not those of a heat or wave scene on the unit interval, square or cube")
+
+
+def exact_factor(problem) -> float | None:
+    """``u(T)/u₀`` of the first eigenfunction (continuous problem), or None: no exact mode."""
+    got = _ladder(problem)
+    return None if isinstance(got, str) else float(got[2](got[0], problem.disc.dim * np.pi**2))
 
 
 def ladder(problem, ns, steps, repeats: int = 3, batch: int = 16) -> dict:
-    """``{"points": [...], "reason": ...}``; each point: backend, n, steps, N, error, time_s, setup_s."""
-    why = applies(problem)
-    if why:
-        return {"points": [], "skipped": why}
-    cfg, dim = problem.settings, problem.disc.dim
-    backends = HEAT_BACKENDS if isinstance(problem.operator, Heat) else WAVE_BACKENDS
+    """``{"points": [...]}`` (or ``"skipped"``); a point: backend, n, steps, N, error, time_s, setup_s"""
+    got = _ladder(problem)
+    if isinstance(got, str):
+        return {"points": [], "skipped": got}
+    cfg, rungs, _ = got
+    keep = {k: v for k, v in cfg.items() if k not in ("n", "steps", "scheme", "backend", "mesh")}
     points = []
     for n in ns:
-        m = {1: meshes.interval, 2: meshes.unit_square, 3: meshes.unit_cube}[dim](n)  # the scene's dimension
-        disc = discretize(m, cfg["element"])
-        x0 = np.prod(np.sin(np.pi * disc.points), axis=0)
-        X = np.tile(x0, (batch, 1))
-        for name, build in backends.items():
+        for name, (scheme, backend) in rungs.items():
             for k in steps:
-                row = {"backend": name, "n": n, "steps": k, "N": disc.N}
+                row = {"backend": name, "n": n, "steps": k}
                 try:
                     t = time.perf_counter()
-                    op = build(disc, cfg, k)
-                    row["setup_s"] = time.perf_counter() - t
+                    p = load_problem(problem.name, **keep, scheme=scheme, backend=backend, n=n, steps=k)
+                    row.update(N=p.N, setup_s=time.perf_counter() - t)
                 except (TooManyModes, ValueError) as err:
                     points.append({**row, "outcome": "refused", "message": str(err)})
                     continue
-                target = exact_factor(op, dim) * x0
-                y = op.forward(x0[None])
-                row["error"] = float(disc.relative_error(y, target[None])[0])
-                row["time_s"] = best(lambda op=op: op.forward(X), repeats)
+                x0 = np.prod(np.sin(np.pi * p.disc.points), axis=0)
+                y = p.operator.forward(x0[None])
+                row["error"] = float(p.disc.relative_error(y, exact_factor(p) * x0[None])[0])
+                X = np.tile(x0, (batch, 1))
+                row["time_s"] = best(lambda op=p.operator: op.forward(X), repeats)
                 points.append({**row, "outcome": "ok"})
     return {"points": points, "batch": batch}
 
 
 def default_ladder(problem, quick: bool) -> tuple[list[int], list[int]]:
-    """Meshes ``n/4, n/2, n`` and steps ``steps/10 … 3·steps`` (quick: ``n/2, n`` and ``steps/2, steps``).
-
-    No mesh finer than the scene's own: at 2n (3969 unknowns for heat_2d) the modal
-    setup alone (a few hundred eigenpairs by shift-invert Lanczos) took minutes here.
-    """
+    """Meshes ``n/4, n/2, n`` and steps ``steps/10 … 3·steps`` (quick: ``n/2, n`` and ``steps/2, steps``);
+    none finer than the scene's own (at 2n, heat_2d's modal setup alone took minutes)."""
     n, k = int(problem.settings.get("n", 8)), int(problem.settings.get("steps", 10))
     if quick:
         return sorted({max(2, n // 2), n}), sorted({max(1, k // 2), k})

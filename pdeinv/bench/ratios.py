@@ -1,82 +1,95 @@
-"""Cost ratios measured in one run (the machine is shared and noisy: ratios, not absolute times).
+"""Cost ratios measured in one run: :func:`operator_ratios` of the physics, :func:`step_ratios` of a step.
 
-Each timing is the minimum over ``repeats`` rounds, the functions compared run one
-after the other within each round (interleaved), so a burst of load from other
-processes hits all of them alike; the minimum filters interference better than the mean.
-"""
+The functions compared run one after the other in each of ``repeats`` rounds (interleaved), so a
+burst of load from other processes hits all of them alike; each time is the minimum over rounds."""
 
 from __future__ import annotations
 
+import copy
+
 import numpy as np
 import scipy.sparse.linalg as sla
+import torch
 
-from .timing import interleaved
+from ..errors import TooManyModes
+from ..methods.presets import make_rule
+from ..physics.capabilities import modal_basis
+from .timing import compiled, interleaved, stepping
 
 
 def operator_ratios(problem, batch: int = 64, repeats: int = 5, seed: int = 0) -> dict:
-    """Forward/adjoint costs of a problem's operator against bare scipy baselines.
+    """Forward/adjoint costs of a problem's operator applied by time stepping (``op.stepping()``).
 
-    * ``forward_vs_splu``: our batched time-stepping forward (default solver) / a
-      bare loop ``U ← lu.solve(B @ U)`` with ``scipy.sparse.linalg.splu`` (default
-      options) on the same matrices and batch (wave: the same Newmark update,
-      ``U' = lu.solve(B U + dt M V)``, ``V' = 2(U' − U)/dt − V``);
-    * ``overhead_vs_bare``: the same with *our* stepping forced onto the bare
-      loop's own SuperLU object: the pure overhead of the operator layer;
-    * ``adjoint_vs_forward``: adjoint / forward time of the same operator;
-    * ``modal_speedup`` (heat only): time-stepping forward / modal forward, with
-      ``modal_agreement`` the relative difference of their results.
+    * ``forward_vs_splu`` (implicit schemes): our forward / a bare scipy loop of as many steps of
+      one product with the scheme's ``B`` and one ``splu`` solve with its ``A`` (the whole θ-step;
+      Newmark's adds a product with ``M`` and the velocity update);
+    * ``overhead_vs_bare``: our forward / the scheme's ``start``, ``step``, ``field`` in a plain loop;
+    * ``adjoint_vs_forward``; ``modal_speedup`` where the modal form is offered: stepping / modal
+      forward, ``modal_agreement`` their relative difference (else ``modal_refused``: why not).
     """
-    from ..physics import Heat
-    from ..physics.capabilities import modal_basis
-    from ..physics.schemes import Newmark, Theta
-    from .timing import stepping
+    op, rng = problem.operator, np.random.default_rng(seed)
+    X, R = rng.standard_normal((batch, op.n_in)), rng.standard_normal((batch, op.n_out))
+    run = stepping(op)
+    out, run = {"batch": batch, "N": op.n_in}, op if run is None else run
+    fns = {"fwd": lambda: run.forward(X), "adj": lambda: run.adjoint(R)}
+    sc = getattr(run, "scheme", None)  # None: no time stepping, forward and adjoint only
 
-    op = problem.operator
-    rng = np.random.default_rng(seed)
-    X = rng.standard_normal((batch, op.n_in))
-    R = rng.standard_normal((batch, op.n_out))
-    out = {"batch": batch, "N": op.n_in}
-    steps = stepping(op)
-    if steps is None or not isinstance(steps.scheme, (Theta, Newmark)):
-        t = interleaved({"fwd": lambda: op.forward(X), "adj": lambda: op.adjoint(R)}, repeats)
-        return {**out, "forward_s": t["fwd"], "adjoint_vs_forward": t["adj"] / t["fwd"]}
-    sc = steps.scheme
-    lu = sla.splu(sc.A.tocsc())
+    def own():  # the scheme's step in a plain loop
+        s = sc.start(X.T)
+        for _ in range(run.steps):
+            s = sc.step(s)
+        return sc.field(s)
 
-    def bare_theta():
-        U = X.T.copy()
-        for _ in range(steps.steps):
-            U = lu.solve(sc.B @ U)
-        return U
+    if sc is not None:
+        fns["own"] = own
+    lu = getattr(sc, "lu", None)  # an implicit scheme: a factorized A
+    if lu is not None:
+        bare_lu = sla.splu(sc.A.tocsc())
 
-    def bare_newmark():  # the same Newmark step as schemes.Newmark.step, written with scipy only
-        U, V, dt = X.T.copy(), np.zeros_like(X.T), sc.dt
-        for _ in range(steps.steps):
-            U1 = lu.solve(sc.B @ U + dt * (sc.M @ V))
-            U, V = U1, (2.0 / dt) * (U1 - U) - V
-        return U
+        def bare():
+            U = X.T.copy()
+            for _ in range(run.steps):
+                U = bare_lu.solve(sc.B @ U)
+            return U
 
-    fns = {"bare": bare_newmark if isinstance(sc, Newmark) else bare_theta,
-           "fwd": lambda: steps.forward(X), "adj": lambda: steps.adjoint(R)}
-    if isinstance(sc, Theta):  # our loop on the bare loop's own SuperLU object: the layer's overhead
-        same = Heat(op.M, op.K, op.kappa, op.t_end, op.steps, op.scheme, backend="steps",
-                    solver=lambda _: lu, C=op.C)
-        fns["same"] = lambda: same.forward(X)
-    modal = modal_basis(op)
-    if modal is None and isinstance(sc, Theta) and op.symmetric:
-        try:
-            modal = Heat(op.M, op.K, op.kappa, op.t_end, op.steps, op.scheme, backend="modal").modes
-        except ValueError:
-            modal = None
-    if modal is not None:
+        fns["bare"] = bare
+    try:
+        modal = modal_basis(op) or modal_basis(compiled(op, "modal"))
         fns["modal"] = lambda: modal.forward(X)
+    except (TooManyModes, ValueError) as err:
+        out["modal_refused"] = str(err)
     t = interleaved(fns, repeats)
-    out.update(forward_s=t["fwd"], forward_vs_splu=t["fwd"] / t["bare"],
-               adjoint_vs_forward=t["adj"] / t["fwd"], solver=type(sc.lu).__name__)
-    if "same" in t:
-        out["overhead_vs_bare"] = t["same"] / t["bare"]
+    out.update(forward_s=t["fwd"], adjoint_vs_forward=t["adj"] / t["fwd"])
+    if "own" in t:
+        out["overhead_vs_bare"] = t["fwd"] / t["own"]
+    if lu is not None:
+        out.update(forward_vs_splu=t["fwd"] / t["bare"], solver=type(lu).__name__)
     if "modal" in t:
-        ys = steps.forward(X)
+        ys = run.forward(X)
         out.update(modal_speedup=t["fwd"] / t["modal"], modal_modes=modal.k,
                    modal_agreement=float(np.linalg.norm(modal.forward(X) - ys) / np.linalg.norm(ys)))
     return out
+
+
+def _stepper(method, problem, model, y):
+    rule, model = make_rule(method, problem, problem.noise)[0], copy.deepcopy(model)
+    state = [rule.init(problem, model)]
+
+    def step():
+        state[0], _ = rule.step(state[0], model, y)
+
+    return step
+
+
+def step_ratios(problem, model, batch: int = 32, repeats: int = 5, seed: int = 0) -> dict:
+    """One step of the presets ``adam``, ``sip`` and ``hig`` on copies of ``model``, one batch:
+    ``sip_vs_gd_step`` (SIP adds a forward and a local inverse, GD a forward and an adjoint),
+    ``hig_step_s`` (the route the network declares: Kronecker on the default), and the float64
+    size of the stacked Jacobian ``∂y/∂θ`` a dense route would build (GD and SIP never do)."""
+    y = torch.as_tensor(problem.sample(batch, seed)[1], dtype=torch.float32)
+    t = interleaved({m: _stepper(m, problem, model, y) for m in ("adam", "sip", "hig")}, repeats)
+    rows = batch * problem.operator.n_out
+    n_params = sum(p.numel() for p in model.parameters() if p.requires_grad)
+    return {"gd_step_s": t["adam"], "sip_step_s": t["sip"], "sip_vs_gd_step": t["sip"] / t["adam"],
+            "hig_step_s": t["hig"], "hig_jacobian": [rows, n_params],
+            "hig_jacobian_mb": rows * n_params * 8 / 2**20, "step_batch": batch}

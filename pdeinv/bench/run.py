@@ -1,12 +1,11 @@
 """``bench(problem, out)``: every benchmark section in one run, written to ``out/bench.json`` + PNGs.
 
-JSON (**contract** keys marked *): ``machine``*, ``settings``, ``amortization`` (per-sample cost of
-the CLI-default network against each classical solve, see :mod:`.amortize`), ``ratios``
-(``forward_vs_splu``*, ``adjoint_vs_forward``*, ``modal_speedup``*, ``sip_vs_gd_step``*,
-``hig_step_s``*, …), ``forward`` (the accuracy/cost ladder), ``methods.<name>``
-(``x_err``*, ``y_err``*, ``wall_s``*, …), ``reference`` (``mmse_x_err``*,
-``tikhonov_best_x_err``*, ``filter_best_x_err``), ``skips.<name>``, ``notes``. A ratio that does not apply
-is ``null`` with a note saying why.
+JSON (**contract** keys marked *): ``machine``*, ``settings``, ``amortization`` (per-sample cost of the
+CLI-default network against each classical solve, :mod:`.amortize`), ``ratios`` (``forward_vs_splu``*,
+``adjoint_vs_forward``*, ``modal_speedup``*, ``sip_vs_gd_step``*, ``hig_step_s``*, …), ``backends``,
+``forward`` (the accuracy/cost ladder), ``methods.<name>`` (``x_err``*, ``y_err``*, ``wall_s``*, …),
+``reference`` (``mmse_x_err``*, ``tikhonov_best_x_err``*, ``filter_best_x_err``), ``skips.<name>``,
+``notes``. A ratio that does not apply is ``null`` with a note saying why.
 """
 
 from __future__ import annotations
@@ -21,18 +20,15 @@ import torch
 
 from .. import references as refs
 from ..files import atomic_write
-from ..physics import Heat
 from ..train import TEST_DATA, TRAIN_DATA, seed_stream
 from . import amortize, backends, forward, methods, plots, skips
-from .ratios import operator_ratios
-from .steps import step_ratios
+from .ratios import operator_ratios, step_ratios
 from .timing import machine
 
 #: run sizes: (n_train, n_test, repeats, ratio batch, sweep the hyper-parameters)
 SIZES = {False: (1024, 128, 5, 64, True), True: (64, 16, 1, 8, False)}
-#: training seconds per method when ``budget_s`` is not given: (full, quick). Quick was 20 s per
-#: method too, which made ``bench --quick heat_2d`` take 124 s; with 1 s it takes
-#: 27 s (idle machine, one thread; HIG and Gauss–Newton make one 2-s step each).
+#: training seconds per method when ``budget_s`` is not given: (full, quick); 20 s per method made
+#: ``bench --quick heat_2d`` take 124 s, 1 s 27 s (idle machine, one thread)
 BUDGET_S = {False: 20.0, True: 1.0}
 
 
@@ -52,12 +48,9 @@ def bench(problem, out, quick: bool = False, budget_s: float | None = None, seed
     """Run all sections on ``problem`` (a :class:`pdeinv.Problem`); return and write the results.
 
     ``budget_s``: training seconds per method (default :data:`BUDGET_S`: 20, 1 when ``quick``).
-
-    ``threads``: torch threads during the run (restored after; None leaves them). One
-    thread by default: on a shared 2-core machine a second process on one core stalls
-    torch's 2-thread kernels at every barrier (measured: Adam steps on heat_2d varied
-    from 0.03 s to 1 s within one run), which would make equal-wall-clock comparisons
-    a lottery.
+    ``threads``: torch and BLAS threads during the run (restored after; None leaves them). One by
+    default: on a shared 2-core machine a second process stalls torch's 2-thread kernels at every
+    barrier (Adam steps on heat_2d varied from 0.03 s to 1 s within one run).
     """
     from .. import threads as pools
 
@@ -88,14 +81,13 @@ def _bench(problem, out, quick, budget_s, seed, log) -> dict:
 
     log(f"[bench] operator ratios ({problem.operator!r})")
     op_r = operator_ratios(problem, batch=batch, repeats=repeats, seed=seed)
-    if not isinstance(problem.operator, Heat):
-        op_r.setdefault("forward_vs_splu", None)
-        op_r["modal_speedup"] = None
-        notes.append("modal_speedup: null, the modal backend exists for the heat operator only "
-                     "(the undamped wave keeps all its modes: nothing to truncate)")
-    hig_net = methods.network(problem, methods.HIG_NET, seed)
-    st = step_ratios(problem, methods.network(problem, None, seed), hig_net,
-                     batch=min(32, n_train), hig_batch=methods.HIG_BATCH, repeats=repeats, seed=seed)
+    for key in ("forward_vs_splu", "modal_speedup"):
+        if key not in op_r:
+            op_r[key] = None
+            why = op_r.get("modal_refused") if key == "modal_speedup" else "no implicit time stepping"
+            notes.append(f"{key}: null, {why}")
+    torch.manual_seed(seed)
+    st = step_ratios(problem, problem.model(), batch=min(32, n_train), repeats=repeats, seed=seed)
     res["ratios"] = {**op_r, **st}
 
     log("[bench] backends: build, apply, memory, agreement")
@@ -108,8 +100,7 @@ def _bench(problem, out, quick, budget_s, seed, log) -> dict:
     if lad["points"]:
         plots.forward_pareto(lad["points"], front, out / "forward.png", f"{problem.name}: forward accuracy")
 
-    log("[bench] references (linear MMSE, best-α Tikhonov)")
-    # the trainer's own training and test data
+    log("[bench] references (linear MMSE, best-α Tikhonov) on the trainer's own data")
     x_tr, y_tr = problem.sample(n_train, seed_stream(seed, TRAIN_DATA))
     x_te, y_te = problem.sample(n_test, seed_stream(seed, TEST_DATA))
     res["reference"] = refs.references(problem, x_tr, x_te, y_te, Y_train=y_tr)
@@ -118,18 +109,14 @@ def _bench(problem, out, quick, budget_s, seed, log) -> dict:
     torch.manual_seed(seed)
     res["methods"] = methods.compare(problem, budget_s, seed=seed, n_train=n_train, n_test=n_test,
                                      sweep=sweep, eval_every=10 if not quick else 2)
-    notes.append(f"the swept HIG and Gauss-Newton rows train MLP{methods.HIG_NET} with batch "
-                 f"{methods.HIG_BATCH} (the dense Jacobian routes); hig_cli_default is HIG's exact "
-                 "Kronecker route on the default network (see pdeinv/bench/methods.py)")
     plots.methods(res["methods"], res["reference"], out / "methods.png",
                   f"{problem.name}: {budget_s:g} s per method")
     models = {name: m.pop("model", None) for name, m in res["methods"].items()}
 
     log("[bench] amortization (trained network vs classical solves, per sample)")
-    default = res["methods"]["sip_cli_default"]
-    res["amortization"] = (amortize.amortization(problem, models["sip_cli_default"], default["wall_s"],
-                                                 x_te, y_te, repeats=repeats)
-                           if models.get("sip_cli_default") is not None else None)
+    net, wall_s = models.get("sip_cli_default"), res["methods"]["sip_cli_default"]["wall_s"]
+    res["amortization"] = (None if net is None else  # None: the preset's run ended in NaN
+                           amortize.amortization(problem, net, wall_s, x_te, y_te, repeats=repeats))
 
     log("[bench] skips")
     res["skips"] = skips.measure(problem, st, repeats=repeats, seed=seed, modal_info=op_r)
@@ -144,12 +131,10 @@ def summary(res: dict) -> str:
     """A few lines for the terminal."""
     r, ref = res["ratios"], res["reference"]
     fmt = lambda v: "null" if v is None else f"{v:.3g}"  # noqa: E731
-    lines = [f"{res['problem']}: forward_vs_splu {fmt(r.get('forward_vs_splu'))}, adjoint_vs_forward "
-             f"{fmt(r['adjoint_vs_forward'])}, modal_speedup {fmt(r.get('modal_speedup'))}, sip_vs_gd_step "
-             f"{fmt(r['sip_vs_gd_step'])}, hig_step_s {fmt(r['hig_step_s'])}",
-             f"reference: MMSE x_err {ref['mmse_x_err']:.4f}, "
-             f"best-α Tikhonov x_err {ref['tikhonov_best_x_err']:.4f}, "
-             f"best spectral filter x_err {ref['filter_best_x_err']:.4f}"]
+    keys = ("forward_vs_splu", "adjoint_vs_forward", "modal_speedup", "sip_vs_gd_step", "hig_step_s")
+    lines = [f"{res['problem']}: " + ", ".join(f"{k} {fmt(r.get(k))}" for k in keys),
+             f"reference: MMSE x_err {ref['mmse_x_err']:.4f}, best-α Tikhonov x_err "
+             f"{ref['tikhonov_best_x_err']:.4f}, best spectral filter x_err {ref['filter_best_x_err']:.4f}"]
     for name, b in (res.get("backends") or {}).get("lines", {}).items():
         ok = b["outcome"] == "ok"
         text = (f"build {fmt(b['build_s'])} s  apply {b['apply_s'] * 1e3:.2f} ms  {b['memory_mb']:.1f} MB  "

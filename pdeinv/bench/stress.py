@@ -6,19 +6,15 @@ A case is a value: ``Case(sweep, value, run)`` where ``run() -> dict`` of number
 * ``ok`` — finished, every number finite and every watched error ≤ ``bound``;
 * ``nan`` — a NaN/Inf in the returned numbers, or :class:`pdeinv.NonFiniteError` raised
   by an update rule (the guard caught it before it spread);
-* ``diverged`` — finished with finite numbers but a watched value (keys ending in
-  ``growth`` or ``x_err``) above ``bound`` (forward errors against exact solutions are
-  accuracy, reported but not watched: at κT = 1 the exact field is 3e-9 of u₀ and a
-  coarse BE step is off by orders of magnitude relative to it without any instability);
+* ``diverged`` — finite numbers but a watched value (keys ending in ``growth`` or ``x_err``)
+  above ``bound`` (forward errors are accuracy, not watched: at κT = 1 the exact field is 3e-9
+  of u₀, and a coarse BE step is off by orders of magnitude from it without any instability);
 * ``failed`` — any other numerical failure on valid input (:func:`pdeinv.errors.numerical_types`:
-  :class:`~pdeinv.errors.NumericalError` such as no convergence or too many modes, numpy's
-  ``LinAlgError``, ARPACK's ``ArpackNoConvergence``), with its type and message; checked
-  before ``refused`` because ``LinAlgError`` is a ``ValueError``;
+  no convergence, too many modes, ``LinAlgError``, ``ArpackNoConvergence``), with its type and
+  message; checked before ``refused`` because ``LinAlgError`` is a ``ValueError``;
 * ``refused`` — any other ``ValueError`` (bad or unsupported setting) with its message;
-* ``error`` — any other exception (``MemoryError`` included), with its type and message (a
-  bug or a limit to look at). ``KeyboardInterrupt`` is no outcome: it stops the sweep.
-
-So no NaN or Inf goes unreported: each case has exactly one outcome.
+* ``error`` — any other exception (``MemoryError`` too), with its type and message (a bug or a
+  limit to look at). ``KeyboardInterrupt`` stops the sweep. Every case has exactly one outcome.
 """
 
 from __future__ import annotations
@@ -44,11 +40,7 @@ class Case:
 
 
 def _numbers(d: dict):
-    for k, v in d.items():
-        if isinstance(v, bool) or v is None:
-            continue
-        if isinstance(v, (int, float)):
-            yield k, float(v)
+    return ((k, float(v)) for k, v in d.items() if isinstance(v, (int, float)) and not isinstance(v, bool))
 
 
 def _watched(key: str) -> bool:
@@ -93,16 +85,14 @@ def run(cases, log=None) -> list[dict]:
     """Classify every case in order; ``log(line)`` after each if given."""
     rows = []
     for case in cases:
-        row = classify(case)
-        rows.append(row)
+        rows.append(classify(case))
         if log:
-            log(line(row))
+            log(line(rows[-1]))
     return rows
 
 
 def line(row: dict) -> str:
-    nums = ", ".join(f"{k} {v:.3g}" for k, v in _numbers(row)
-                     if k not in ("time_s",) and k != "value")
+    nums = ", ".join(f"{k} {v:.3g}" for k, v in _numbers(row) if k not in ("time_s", "value"))
     msg = "  " + row["message"][:90] if row.get("message") else ""
     return f"{row['sweep']:>10} = {row['value']!s:<8} {row['outcome']:8s} {nums}{msg}"
 

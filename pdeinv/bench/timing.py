@@ -1,11 +1,11 @@
-"""Timing, memory and machine facts shared by the benchmarks (the machine is shared and noisy).
+"""Timing, memory and machine facts shared by the benchmarks, and the operator accessors they use.
 
-``best`` takes the minimum over repeats: interference from other processes only ever
-adds time, so the minimum estimates the undisturbed cost better than the mean.
-"""
+Times are minima over repeats: interference from other processes on a shared machine only ever
+adds time, so the minimum estimates the undisturbed cost better than the mean."""
 
 from __future__ import annotations
 
+import copy
 import os
 import platform
 import time
@@ -15,13 +15,8 @@ import numpy as np
 
 
 def best(fn, repeats: int = 3) -> float:
-    """Minimum wall time of ``fn()`` over ``repeats`` runs, in seconds."""
-    out = np.inf
-    for _ in range(max(1, repeats)):
-        t = time.perf_counter()
-        fn()
-        out = min(out, time.perf_counter() - t)
-    return out
+    """Minimum wall time of ``fn()`` over ``repeats`` runs after one warm-up, in seconds."""
+    return interleaved({"fn": fn}, repeats)["fn"]
 
 
 def interleaved(fns: dict, repeats: int = 3) -> dict:
@@ -63,15 +58,15 @@ def machine() -> dict:
 
 
 def stepping(op):
-    """``op`` as a time-stepping :class:`~pdeinv.physics.Propagator` (``scheme`` public), or ``None``:
-    a stepping propagator as is, a compiled one (its ``backend`` a dense or SVD map) rebuilt without
-    the backend — the bench once timed the dense map as "steps" and compared it with itself — and an
-    operator with a ``stepper`` (:attr:`pdeinv.Heat.stepper`) its final-field run."""
-    from ..physics import FinalField, Propagator
+    """``op`` applied by time stepping (:meth:`pdeinv.physics.Propagator.stepping`), or ``None`` for an
+    operator that does not step through time (a :class:`~pdeinv.physics.Matrix`, a user's own)."""
+    return op.stepping() if callable(getattr(op, "stepping", None)) else None
 
-    if isinstance(op, Propagator):  # a compiled one (dense, SVD) rebuilt uncompiled: its time stepping
-        return op if getattr(op, "backend", None) is None else \
-            Propagator(op.scheme, op.observation, op.steps, op.mass)
-    if getattr(op, "stepper", None) is None:
-        return None
-    return Propagator(op.stepper, FinalField(op.n_in, op.steps), op.steps, getattr(op, "mass", None))
+
+def compiled(op, kind: str, M=None):
+    """A copy of the time-stepping ``op`` applied by ``kind`` (``ValueError`` or ``TooManyModes`` where
+    refused), sharing its scheme and factorization: :meth:`~pdeinv.physics.Propagator.compile` changes
+    the operator it is called on, and the scene's operator keeps its backend."""
+    if stepping(op) is None:
+        raise ValueError(f"{op!r} does not step through time: it has no backends")
+    return copy.copy(op).compile(kind, M)

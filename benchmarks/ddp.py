@@ -1,4 +1,8 @@
-"""Data-parallel speed-up measured in one run: ``python -m pdeinv.bench.ddp [--steps K] [...]``.
+"""Data-parallel speed-up measured in one run.
+
+    python benchmarks/ddp.py [--procs 2] [--steps 6] [--batch-size 16] [--repeats 1]
+
+(smallest setting: ``--steps 2 --batch-size 4 --scene 'wave_1d --set n=16'``)
 
 Trains the same physics-bound scene twice, one after the other, each process with one
 thread (``OMP_NUM_THREADS=1``, ``--threads 1``):
@@ -32,7 +36,7 @@ def _train(launcher: list, argv: list, out: Path) -> dict:
     done = subprocess.run([*launcher, "-m", "pdeinv", "train", *argv, "--out", str(out), "--overwrite"],
                           env=env, capture_output=True, text=True)
     if done.returncode:
-        raise SystemExit(f"pdeinv.bench.ddp: {' '.join(launcher)} failed ({done.returncode}): "
+        raise SystemExit(f"benchmarks/ddp.py: {' '.join(launcher)} failed ({done.returncode}): "
                          f"{done.stderr.strip()[-500:]}")
     return json.loads((out / "metrics.json").read_text())
 
@@ -60,13 +64,15 @@ def measure(procs: int = 2, steps: int = 6, batch: int = 16, repeats: int = 1, s
 
 
 def main(argv=None) -> int:
-    p = argparse.ArgumentParser(prog="python -m pdeinv.bench.ddp", description=__doc__.splitlines()[0])
+    p = argparse.ArgumentParser(prog="python benchmarks/ddp.py", description=__doc__.splitlines()[0])
     p.add_argument("--procs", type=int, default=2)
     p.add_argument("--steps", type=int, default=6)
     p.add_argument("--batch-size", type=int, default=16)
     p.add_argument("--repeats", type=int, default=1)
+    p.add_argument("--scene", default=" ".join(SCENE), metavar="'SCENE [--set K=V ...]'",
+                   help=f"the scene and its --set flags, one string (default: {' '.join(SCENE)!r})")
     a = p.parse_args(argv)
-    r = measure(a.procs, a.steps, a.batch_size, a.repeats)
+    r = measure(a.procs, a.steps, a.batch_size, a.repeats, a.scene.split())
     print(json.dumps(r, indent=2))
     many = r[f"step_s_{r['processes']}"]
     print(f"{r['processes']} processes vs 1 on {r['scene']} (batch {r['batch']}): {r['step_s_1']:.3f} -> "

@@ -1,6 +1,8 @@
 """Where AMG-CG overtakes a direct factorization, measured per mesh dimension.
 
-``python -m pdeinv.bench.crossover [--dims 2 3] [--steps 100] [--rhs 32] [--budget 60]``
+    OMP_NUM_THREADS=1 python benchmarks/crossover.py [--dims 2 3] [--steps 100] [--rhs 32] [--budget 60]
+
+(smallest setting: ``--dims 2 --scenes heat --sizes2 16 --repeats 1``, a few seconds)
 
 For each unit-square (``MeshTri.init_tensor``, ``n × n × 2`` P1 triangles) or unit-cube
 (``MeshTet.init_tensor``, ``n³ × 6`` P1 tetrahedra) mesh it assembles, on the interior
@@ -36,7 +38,8 @@ import time
 
 import numpy as np
 
-from ..forms import discretize
+from pdeinv import mesh as meshes
+from pdeinv.forms import discretize
 
 #: (heat dt κ, Newmark (c dt / 2)²) at the scenes' defaults
 SCENES = {"heat": lambda M, K: M + (1.0 / 100) * 0.01 * K,
@@ -48,10 +51,7 @@ SIZES = {2: (64, 128, 256, 512, 768), 3: (8, 12, 16, 24, 32, 40)}
 
 def mesh(dim: int, n: int):
     """The unit square (``dim=2``) or unit cube (``dim=3``) with ``n`` subdivisions per side."""
-    import skfem
-
-    x = np.linspace(0.0, 1.0, n + 1)
-    return skfem.MeshTri.init_tensor(x, x) if dim == 2 else skfem.MeshTet.init_tensor(x, x, x)
+    return meshes.unit_square(n) if dim == 2 else meshes.unit_cube(n)
 
 
 def matrix(dim: int, n: int, scene: str = "heat"):
@@ -73,7 +73,7 @@ def rss() -> int:
 
 def solvers(include_loop: bool = True) -> dict:
     """``name -> factory A -> solver`` for the comparison."""
-    from ..solvers import AMGCG, Cholesky, SuperLU
+    from pdeinv.solvers import AMGCG, Cholesky, SuperLU
 
     out = {"cholesky": Cholesky, "splu": SuperLU, "amg": AMGCG}
     if include_loop:
@@ -160,7 +160,7 @@ def crossover(rows: list[dict], direct: str = "cholesky") -> dict:
 
 
 def main(argv=None) -> int:
-    ap = argparse.ArgumentParser(prog="python -m pdeinv.bench.crossover", description=__doc__.split("\n")[0])
+    ap = argparse.ArgumentParser(prog="python benchmarks/crossover.py", description=__doc__.split("\n")[0])
     ap.add_argument("--dims", type=int, nargs="+", default=[2, 3], choices=[2, 3])
     ap.add_argument("--scenes", nargs="+", default=list(SCENES), choices=list(SCENES))
     ap.add_argument("--steps", type=int, default=100, help="solves per run (time steps)")

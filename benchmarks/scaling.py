@@ -1,7 +1,7 @@
 """Scaling against the mesh: build time, step time and peak memory per backend, 2-D and 3-D.
 
-``python -m pdeinv.bench.scaling [--quick] [--sizes2 32 64 128 256] [--sizes3 8 16 24 32]
-[--budget 120] [--out docs/scaling.md]``
+    OMP_NUM_THREADS=1 python benchmarks/scaling.py [--quick] [--sizes2 32 64 128 256]
+        [--sizes3 8 16 24 32] [--budget 120] [--out docs/scaling.md]
 
 For the unit square (``n × n × 2`` P1 triangles) and the unit cube (``n³ × 6`` P1
 tetrahedra), Dirichlet boundary, it builds (``pdeinv.forms.discretize`` and the
@@ -50,16 +50,16 @@ QUICK = {2: (6, 8), 3: (3, 4)}
 
 def discretization(dim: int, n: int):
     """P1 on the unit square / cube with ``n`` subdivisions per side, Dirichlet boundary."""
-    from ..bench.crossover import mesh
-    from ..forms import discretize
+    from pdeinv import mesh
+    from pdeinv.forms import discretize
 
-    return discretize(mesh(dim, n))
+    return discretize(mesh.unit_square(n) if dim == 2 else mesh.unit_cube(n))
 
 
 def operator(disc, physics: str, backend: str):
     """The operator of one case (see the module docstring)."""
-    from ..physics import Heat, Wave
-    from ..solvers import AMGCG
+    from pdeinv.physics import Heat, Wave
+    from pdeinv.solvers import AMGCG
 
     amg = backend == "steps+amg"
     kind = "steps" if amg else backend
@@ -77,8 +77,7 @@ def _peak_rss() -> int:
 
 def _solver_note(op) -> str:
     """The stepping solver of ``op`` (its tolerance and hierarchy size for AMG-CG), or ''."""
-    scheme = getattr(op, "scheme", None) if "stepper" not in getattr(op, "__dict__", {}) else op.stepper
-    lu = getattr(scheme, "lu", None)
+    lu = getattr(op.stepping().scheme, "lu", None)
     return "" if lu is None else repr(lu) if hasattr(lu, "rtol") else type(lu).__name__
 
 
@@ -96,8 +95,7 @@ def _case(disc, physics, backend, repeats, queue):
             t = time.perf_counter()
             op.adjoint(op.forward(X))
             step = min(step, time.perf_counter() - t)
-        kind = getattr(getattr(op, "backend", None), "name", backend)
-        note = _solver_note(op) if backend.startswith("steps") else kind
+        note = _solver_note(op) if backend.startswith("steps") else op.kind
         queue.put((build, step, _peak_rss() - base, note))
     except Exception as err:  # noqa: BLE001 (a refusal is a result of the benchmark)
         queue.put((None, None, _peak_rss() - base, f"refused: {str(err).splitlines()[0][:90]}"))
@@ -150,7 +148,7 @@ def markdown_row(row: dict) -> str:
 
 
 def main(argv=None) -> int:
-    ap = argparse.ArgumentParser(prog="python -m pdeinv.bench.scaling", description=__doc__.split("\n")[0])
+    ap = argparse.ArgumentParser(prog="python benchmarks/scaling.py", description=__doc__.split("\n")[0])
     ap.add_argument("--quick", action="store_true", help="tiny meshes, under 30 s (a smoke test)")
     ap.add_argument("--sizes2", type=int, nargs="*", default=list(SIZES[2]))
     ap.add_argument("--sizes3", type=int, nargs="*", default=list(SIZES[3]))
@@ -160,7 +158,7 @@ def main(argv=None) -> int:
     args = ap.parse_args(argv)
     os.environ["PDEINV_NO_CACHE"] = "1"
     sizes = dict(QUICK) if args.quick else {2: args.sizes2, 3: args.sizes3}
-    command = " ".join(["python -m pdeinv.bench.scaling", *(sys.argv[1:] if argv is None else argv)])
+    command = " ".join(["python benchmarks/scaling.py", *(sys.argv[1:] if argv is None else argv)])
     lines = [f"Made by `{command}`"
              + f" on {datetime.datetime.now(datetime.timezone.utc):%Y-%m-%d %H:%M} UTC, "
              f"{os.cpu_count()} cores, OMP_NUM_THREADS={os.environ.get('OMP_NUM_THREADS', 'unset')}.", "",
