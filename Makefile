@@ -22,5 +22,5 @@ demo: install
 	$(BIN)/pdeinv train heat_2d --seed 0 --out runs/demo --overwrite
 
 test: install
-	$(BIN)/ruff check pdeinv problems tests
+	$(BIN)/ruff check pdeinv problems tests benchmarks
 	$(BIN)/python -m pytest -q

@@ -18,7 +18,7 @@ Without any of these (other systems) nothing is refused.
   factorization and the modal basis. Measured on ``heat_2d`` (P1, modal backend):
   n = 128 (16 129 unknowns) raised the peak RSS by 300 MB, ~19 kB per node; 1-D and 3-D
   are scaled by the factorization fill. P2 has ~4× the nodes of P1 on the same mesh.
-  The factorization part, measured by :mod:`pdeinv.bench.crossover` (SuperLU's exact
+  The factorization part, measured by ``benchmarks/crossover.py`` (SuperLU's exact
   ``nnz(L + U)``; cholespy needs about half): 2-D 0.8–1.9 kB per node up to 10⁶ nodes,
   3-D 6 kB at 12 167 nodes, 10 kB at 29 791, 14 kB at 59 319 (fill grows like N^{1/3} per
   node), so the per-node constants stay upper bounds up to ~10⁵ 3-D nodes; above

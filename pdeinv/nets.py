@@ -441,7 +441,7 @@ def reduced(k_in: int = REDUCED_K_IN, k_out: int = REDUCED_K, body: str = "linea
     whatever ``N``; buffers ``(m + N)·k`` grow linearly. Everything outside the span of
     ``Φ`` is out of reach: the error floor is the prior's uncaptured part.
 
-    **Measured** with ``python -m pdeinv.bench.netsize`` (heat_2d, noise-free, the CLI's
+    **Measured** with ``python benchmarks/netsize.py`` (heat_2d, noise-free, the CLI's
     defaults: SIP (Adam 1e-3), 1000 steps, 1024 training and 128 test pairs, seed 0, one
     thread; 2 shared cores at load 4–6, so compare within a row pair; x-error: mean relative
     L²(Ω) on the test set; RSS: peak of the process):

@@ -115,7 +115,7 @@ class Cholesky:
 
 
 #: Unknowns above which :func:`default_solver` takes AMG-CG instead of a direct factorization, by
-#: mesh dimension (``None``: never). Measured with ``python -m pdeinv.bench.crossover --repeats 1``
+#: mesh dimension (``None``: never). Measured with ``python benchmarks/crossover.py --repeats 1``
 #: (2026-11-23, 2 shared cores at load 4–6, one BLAS thread; P1, unit square / cube, interior
 #: unknowns): seconds for one setup (factorization or hierarchy) + one solve of 32 right-hand
 #: sides, and a run = setup + 100 solves; AMG = block CG, rtol 1e-12 (it = CG iterations); MB =
@@ -221,7 +221,7 @@ class AMGCG:
     V-cycle is symmetric and a valid CG preconditioner) acts on all columns at once.
     ``block=False`` loops over the columns with ``scipy``'s CG and pyamg's own
     V-cycle (symmetric Gauss–Seidel): ~k times the Python and matrix traffic
-    (see :mod:`pdeinv.bench.crossover` for the measured ratio).
+    (see ``benchmarks/crossover.py`` for the measured ratio).
 
     Reports: ``rtol``, ``operator_complexity`` (Σ nnz(A_l) / nnz(A)), ``nbytes``
     (the hierarchy: every ``A_l``, ``P_l``, ``R_l``), ``levels``, ``iterations``

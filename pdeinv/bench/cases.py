@@ -29,7 +29,7 @@ from ..methods import GD, HIG, SIP, adam, sgd
 from ..methods.presets import make_rule
 from ..nets import MLP
 from ..problem import load_problem
-from ..train import Trainer
+from ..trainer import Trainer
 from .forward import exact_factor
 from .stress import Case
 

@@ -25,7 +25,7 @@ from ..checkpoint import network_identity
 from ..methods import NonFiniteError
 from ..methods.presets import hyperparameters, make_rule
 from ..nets import MLP, whitened
-from ..train import Trainer
+from ..trainer import Trainer
 
 
 @dataclass(frozen=True)

@@ -20,7 +20,7 @@ import torch
 
 from .. import references as refs
 from ..files import atomic_write
-from ..train import TEST_DATA, TRAIN_DATA, seed_stream
+from ..trainset import TEST_DATA, TRAIN_DATA, seed_stream
 from . import amortize, backends, forward, methods, plots, skips
 from .ratios import operator_ratios, step_ratios
 from .timing import machine
