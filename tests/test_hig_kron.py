@@ -28,15 +28,7 @@ CASES = {  # name -> (scene, settings, model factory)
 
 
 def directions(case, tau, batch=8):
-    scene, settings, factory = CASES[case]
-    p = pdeinv.load_problem(scene, **settings)
-    model = factory(p)
-    _, y_train = p.sample(64, seed=1)
-    nets.fit_preconditioning(model, y_train)
-    torch.manual_seed(0)
-    with torch.no_grad():  # a nonzero W: the residual then has every part
-        for q in model.parameters():
-            q.normal_(0, 0.1)
+    p, model, _ = full_batch(case)
     _, y = p.sample(batch, seed=2)
     Y = torch.as_tensor(y, dtype=torch.float64)
     out = {}
@@ -200,6 +192,8 @@ def test_the_carried_residual_follows_the_weights(moved, float32, monkeypatch):
 
 
 def full_batch(case):
+    """``(problem, model, its 64 training rows)``: the model whitened on them, with a nonzero random W
+    (the residual then has every part)."""
     scene, settings, factory = CASES[case]
     p = pdeinv.load_problem(scene, **settings)
     model = factory(p)
