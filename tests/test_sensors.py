@@ -17,7 +17,7 @@ from exact import dot_test, load
 
 import pdeinv
 from pdeinv import observe
-from pdeinv.physics import Heat, HeatSensors, Wave, WaveSensors
+from pdeinv.physics import Heat, Wave, sensors
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -94,7 +94,7 @@ def test_layout_is_record_major():
     d = pdeinv.discretize(pdeinv.mesh.unit_square(6))
     S = observe.sensor_matrix(d, observe.interior_points(d.basis.mesh, 3))
     x = np.random.default_rng(0).standard_normal((2, d.N))
-    for Op, Sens, kw in ((Heat, HeatSensors, dict(kappa=0.05, backend="steps")), (Wave, WaveSensors, {})):
+    for Op, Sens, kw in ((Heat, sensors, dict(kappa=0.05, backend="steps")), (Wave, sensors, {})):
         op = Sens(Op(d.M, d.K, T=1.2, steps=12, **kw), S, record_every=4)
         Y = op.forward(x).reshape(2, op.n_records, op.n_sensors)
         for r in range(op.n_records):
@@ -118,10 +118,10 @@ def test_all_nodes_final_step_only_is_the_plain_operator(kind):
     S = observe.sensor_matrix(d, d.points.T)
     if kind == "heat":
         plain = Heat(d.M, d.K, kappa=0.05, steps=8, backend="steps")
-        op = HeatSensors(plain, S, record_every=8)
+        op = sensors(plain, S, record_every=8)
     else:
         plain = Wave(d.M, d.K, steps=8)
-        op = WaveSensors(plain, S, record_every=8)
+        op = sensors(plain, S, record_every=8)
     assert op.n_out == op.n_in == d.N
     x = np.random.default_rng(0).standard_normal((3, d.N))
     for mine, ref in ((op.forward, plain.forward), (op.adjoint, plain.adjoint)):
@@ -134,10 +134,10 @@ def test_heat_sensors_reuse_a_stepping_backend():
     S = observe.sensor_matrix(d, [[0.5, 0.5]])
     stepping = Heat(d.M, d.K, backend="steps")
     # one θ-step (one factorization) shared by the final-field backend and the sensor run
-    assert HeatSensors(stepping, S).scheme is stepping.stepper is stepping.scheme
+    assert sensors(stepping, S).scheme is stepping.stepper is stepping.scheme
     modal = Heat(d.M, d.K, kappa=0.05, steps=10, backend="modal")
     stepped = Heat(d.M, d.K, kappa=0.05, steps=10, backend="steps")
-    op, ref = HeatSensors(modal, S, 10), HeatSensors(stepped, S, 10)
+    op, ref = sensors(modal, S, 10), sensors(stepped, S, 10)
     x = np.random.default_rng(0).standard_normal((2, d.N))
     np.testing.assert_allclose(op.forward(x), ref.forward(x), rtol=1e-12)
 

@@ -8,7 +8,6 @@ from .propagator import FinalField, Propagator, Records, sensors
 from .wave import Wave
 
 #: the names the sensor scenes used before the one propagator (same call; public in ``pdeinv``)
-HeatSensors = WaveSensors = sensors
 
 
 def Stepping(op) -> Propagator:  # noqa: N802 - the name of the former stepping backend class
@@ -17,4 +16,4 @@ def Stepping(op) -> Propagator:  # noqa: N802 - the name of the former stepping 
 
 
 __all__ = ["LinearOperator", "Matrix", "Transposed", "Heat", "Leapfrog", "Modal", "Stepping", "Wave",
-           "FinalField", "Propagator", "Records", "HeatSensors", "WaveSensors", "sensors"]
+           "FinalField", "Propagator", "Records", "sensors"]

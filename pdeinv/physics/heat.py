@@ -29,9 +29,9 @@ SCHEMES = {"be": 1.0, "cn": 0.5}
 class Heat(Propagator):
     """Final field of the heat equation after ``steps`` θ-scheme steps over ``[0, T]``.
 
-    ``M``, ``K``: condensed mass and stiffness (sparse, symmetric); ``scheme``: 'be' or 'cn' (or a
-    :class:`.schemes.Theta`, whose θ is taken); ``backend``: 'auto', 'steps', 'modal', 'dense',
-    'svd' or a backend object; ``solver``: factory ``A -> object with solve`` (default:
+    ``M``, ``K``: condensed mass and stiffness (sparse, symmetric); ``scheme``: 'be' or 'cn';
+    ``backend``: 'auto', 'steps', 'modal', 'dense', 'svd' or a backend object; ``solver``: factory
+    ``A -> object with solve`` (default:
     :func:`~pdeinv.solvers.default_solver` for a ``dim``-D mesh: AMG-CG above its crossover, else
     Cholesky if cholespy is installed, else SuperLU); ``tol``: relative amplification below which
     modes are dropped (modal backend); ``measure``: |Ω|, for Weyl's count of the modes;
@@ -44,8 +44,6 @@ class Heat(Propagator):
         self.kappa = positive(kappa, "kappa")
         self.t_end = positive(T, "T")
         steps = count(steps, "steps")
-        if isinstance(scheme, Theta):  # e.g. another Heat's scheme: its θ
-            scheme = {v: k for k, v in SCHEMES.items()}.get(scheme.theta, scheme.theta)
         self.scheme_name = choice(scheme, "scheme", tuple(SCHEMES))
         self.theta = SCHEMES[scheme]
         self.tol = positive(tol, "tol")
