@@ -90,11 +90,11 @@ class Trainer:
     rejections in a row, or one at the floor ``min_scale``, raise :class:`NonFiniteError`.
 
     **Checkpoints.** ``checkpoint=Checkpoint(path, every=k)`` saves the run atomically every ``k``
-    accepted steps and after the last (:mod:`pdeinv.checkpoint`: what it holds, when a resumed run
-    repeats the uninterrupted one bitwise). ``resume=True`` continues from it (``FileNotFoundError`` if
-    there is none; ``ValueError`` if it belongs to another problem, network, rule, configured
-    hyper-parameter or data setting, or ``steps`` is below its step); ``steps`` and ``time_budget`` may
-    grow on resume. Wall time spent after the last save is not counted.
+    accepted steps and after the last (:mod:`pdeinv.checkpoint`: what it holds; a resumed run repeats
+    the uninterrupted one bitwise, HIG's kept-rows route to rounding). ``resume=True`` continues from
+    it (``FileNotFoundError`` if there is none; ``ValueError`` if it belongs to another problem,
+    network, rule, configured hyper-parameter or data setting, or ``steps`` is below its step);
+    ``steps`` and ``time_budget`` may grow on resume. Wall time spent after the last save is not counted.
 
     ``device`` (default ``"cpu"``): the model and the training data are moved there, and a dense,
     modal or SVD physics backend is applied there by torch (:mod:`pdeinv.physics.device`; time

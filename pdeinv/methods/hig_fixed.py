@@ -25,6 +25,9 @@ so :class:`Carried` updates ``M`` elementwise and recomputes it exactly (two flo
 residual. ``M`` itself is always computed in float64 (it is a small difference of large terms).
 
 Equal to the route that forms the features and runs the physics (``tests/test_hig_kron.py``).
+The carried ``M`` lives in the rule's context, not in a checkpoint (the guard would copy it every
+step): a resumed run recomputes it, and so agrees with the uninterrupted one to rounding, not bitwise
+— the one exception to :mod:`pdeinv.checkpoint`'s bitwise resume (``tests/test_checkpoint.py``).
 """
 
 from __future__ import annotations
