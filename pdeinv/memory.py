@@ -36,6 +36,9 @@ import math
 import os
 
 GB = 1e9
+#: HIG's default budget for a dense stacked Jacobian, in GiB (``HIG.max_jacobian_gb``; above it HIG refuses
+#: the route itself, so ``pdeinv train``'s step-time check leaves it to HIG)
+HIG_JACOBIAN_GB = 4.0
 
 #: bytes per mesh node (P1) for the mesh, matrices, factorization and modal basis, by dimension
 BYTES_PER_NODE = {1: 2_000, 2: 20_000, 3: 60_000}

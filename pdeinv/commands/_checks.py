@@ -13,8 +13,6 @@ from . import UsageError
 #: Calibrated with one torch thread on the 2-core machine of the README (see
 #: :data:`HIG_CALIBRATION`); an estimate to a factor of ~3, enough to tell 1 s from 1 min.
 HIG_FLOPS_PER_S = 1.5e10
-#: HIG's default ``max_jacobian_gb``: a larger dense Jacobian is HIG's own refusal (in GB)
-HIG_DENSE_GB = 4.0
 #: refuse HIG runs whose estimated step exceeds this many seconds, unless --allow-slow
 HIG_MAX_STEP_S = 10.0
 #: what the rate rests on (one torch thread, 2-core machine shared with other jobs, so noisy)
@@ -63,7 +61,7 @@ def check_run(problem, args, hp: dict) -> None:
         batch = hp["batch_size"] or n_train
         rows, cols = batch * per_sample, n_parameters(problem, hp["hidden"])
         est = hig_step_seconds(per_sample, cols, batch)
-        dense_fits = 4 * rows * cols <= HIG_DENSE_GB * 2**30  # else HIG refuses it itself, naming GB
+        dense_fits = 4 * rows * cols <= memory.HIG_JACOBIAN_GB * 2**30  # else HIG refuses it itself
         if est > HIG_MAX_STEP_S and dense_fits:
             raise UsageError(
                 f"HIG on {problem.name} would take about {est:.3g} s per step (Jacobian "

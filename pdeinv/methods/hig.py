@@ -13,6 +13,7 @@ from .._checks import choice, count, nonnegative, positive
 from ..autograd import apply
 from ..errors import NonFiniteError
 from ..inverse.decoder import decoded_svd
+from ..memory import HIG_JACOBIAN_GB
 from ..physics.base import Matrix
 from ..physics.capabilities import modal_basis
 from . import hig_fixed, hig_kron
@@ -101,7 +102,7 @@ class HIG(Rule):
     exponent: float = -0.5
     route: str = "auto"
     jacobian: str = "auto"
-    max_jacobian_gb: float = 4.0
+    max_jacobian_gb: float = HIG_JACOBIAN_GB
     gram_cond_max: float = 1e6
     probes: int = 128
     power_iters: int = 1
