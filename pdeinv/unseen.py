@@ -10,8 +10,10 @@ everything else is *unseen*. With ``U = I − QQᵀ`` (Euclidean coefficients),
 No estimator learns ``U x`` from ``y`` beyond what the prior ties to the seen part, and the best one,
 the conditional mean, shrinks it: ``E‖E[Ux | y]‖² ≤ E‖Ux‖²``. A network whose predictions carry more
 than :data:`FACTOR` times the prior's unseen energy (plus :data:`SLACK` of the prior's total) there
-puts in what neither the data nor the prior support — e.g. weights the training never moved from
-their random start — and :func:`unseen_energy` says so. Nothing is computed for an operator without a
+puts in what neither the data nor the prior support — weights the training never moved from a
+random start, or Adam's per-parameter scaling, whose steps leave the span of ``Pᵀ`` (measured, CLI
+defaults, noise-free: Adam 13× the prior's on heat_1d, 5.3× on heat_2d; SIP 0.98 and 1.00, HIG
+0.09–1.0) — and :func:`unseen_energy` says so. Nothing is computed for an operator without a
 spectral basis (a time-stepping or reversible one: the wave scenes see every direction).
 """
 
@@ -53,9 +55,9 @@ def unseen_energy(problem, xhat: np.ndarray, xref: np.ndarray) -> tuple[dict | N
         return record, None
     ratio, unseen = pred / max(prior, np.finfo(float).tiny), problem.N - int(keep.sum())
     return record, (f"the predictions carry {ratio:.3g}× the prior's energy in the {unseen} directions the "
-                    f"physics cannot see (gain below {max(problem.noise, FLOOR):g} of the largest): no data "
-                    "supports it there; train longer, or use the default network (its prior decoder fills "
-                    "those directions from the prior)")
+                    f"physics cannot see (gain below {max(problem.noise, FLOOR):g} of the largest): the data "
+                    "cannot have put it there and the prior holds less, so it adds to x_err (Adam's "
+                    "per-parameter scaling, for one, moves those directions)")
 
 
 @torch.no_grad()
