@@ -20,8 +20,9 @@ import subprocess
 import sys
 from pathlib import Path
 
-SCENES = ["heat_1d", "heat_2d", "heat_plate", "advection_diffusion_2d", "heat_sensors_2d", "wave_1d",
-          "wave_2d", "wave_sensors_2d", "heat_3d", "heat_cavity_3d", "heat_sensors_3d", "wave_3d"]
+SCENES = ["heat_1d", "heat_2d", "heat_plate", "advection_diffusion_2d", "reaction_diffusion_2d",
+          "heat_sensors_2d", "wave_1d", "wave_2d", "wave_sensors_2d", "heat_3d", "heat_cavity_3d",
+          "heat_sensors_3d", "wave_3d"]
 GRID = tuple(10.0 ** (-k / 4) for k in range(0, 65))
 
 
