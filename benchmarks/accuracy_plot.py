@@ -1,10 +1,13 @@
 """Draw the accuracy table: x-error of each method per scene against best-α Tikhonov, noise-free and at 1 %.
 
     python benchmarks/accuracy_plot.py OUT/accuracy.json [MORE.json ...] --png docs/bench/accuracy.png
+        [--merged ALL.json] [--table]
 
 Reads the rows ``benchmarks/accuracy.py`` writes (later files override earlier ones cell by cell, so
 partial re-runs merge), and draws one panel per noise level: a dot per method and scene, Tikhonov with
-the oracle α as a bar. Log scale: noise-free wave scenes reach rounding.
+the oracle α as a bar. Log scale: noise-free wave scenes reach rounding. ``--table`` also prints the
+markdown table of ``docs/results.md``: x-errors (the best trained method in bold), ratios, and each
+method's mean step time (``metrics["step_s"]``: compare within a row, runs of one invocation only).
 """
 
 from __future__ import annotations
@@ -30,6 +33,33 @@ def merged(paths) -> dict:
     return rows
 
 
+def _fmt(v) -> str:
+    return "–" if v is None else f"{v:.3g}"
+
+
+def table(rows: dict, scenes: list) -> str:
+    """The markdown table of :func:`merged` rows (module docstring)."""
+    head = ("| scene | noise | " + " | ".join(m.upper() if m != "adam" else "Adam" for m in METHODS) +
+            " | best-α Tikhonov | SIP / Tik. | HIG / Tik. | SIP / Adam | step ms SIP / HIG / Adam |")
+    lines = [head, "|" + "---|" * (head.count("|") - 1)]
+    for scene in scenes:
+        for noise in sorted(n for s, n in rows if s == scene):
+            r = rows[(scene, noise)]
+            err = {m: (r.get(m) or {}).get("x_err") for m in METHODS}
+            best = min((v for v in err.values() if v is not None), default=None)
+            cells = [f"**{_fmt(v)}**" if v is not None and v == best else _fmt(v) for v in err.values()]
+            tik = r.get("tikhonov")
+
+            def ratio(a, b):
+                return _fmt(a / b) if a is not None and b else "–"
+
+            ms = " / ".join(_fmt(1e3 * (r.get(m) or {}).get("step_s")) if (r.get(m) or {}).get("step_s")
+                            else "–" for m in ("sip", "hig", "adam"))
+            ratios = [ratio(err["sip"], tik), ratio(err["hig"], tik), ratio(err["sip"], err["adam"])]
+            lines.append(f"| {scene} | {noise:g} | " + " | ".join([*cells, _fmt(tik), *ratios, ms]) + " |")
+    return "\n".join(lines)
+
+
 def main(argv=None) -> int:
     import matplotlib
 
@@ -40,6 +70,7 @@ def main(argv=None) -> int:
     ap.add_argument("json", nargs="+")
     ap.add_argument("--png", required=True)
     ap.add_argument("--merged", default=None, help="also write the merged rows to this JSON file")
+    ap.add_argument("--table", action="store_true", help="also print the markdown table")
     args = ap.parse_args(argv)
     rows = merged(args.json)
     if args.merged:
@@ -47,6 +78,8 @@ def main(argv=None) -> int:
                                                 indent=1))
     scenes = sorted(dict.fromkeys(s for s, _ in rows), key=lambda s: SCENES.index(s) if s in SCENES else 99)
     noises = sorted({n for _, n in rows})
+    if args.table:
+        print(table(rows, scenes))
     fig, axes = plt.subplots(1, len(noises), figsize=(6 * len(noises), 4.2), squeeze=False)
     for ax, noise in zip(axes[0], noises, strict=True):
         xs = range(len(scenes))
