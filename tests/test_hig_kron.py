@@ -227,3 +227,14 @@ def test_hig_on_cuda_matches_the_cpu(scene):
                          dtype=torch.float64, device=d, seed=0) for d in ("cpu", "cuda")]
     assert runs[1].metrics["device"].startswith("cuda")
     assert runs[1].metrics["x_err"] == pytest.approx(runs[0].metrics["x_err"], rel=1e-8)
+
+
+def test_the_hig_preset_batch_is_every_row_on_the_default_networks_and_32_on_an_mlp():
+    """The Kronecker route sums the rows once, so the full batch costs one step; an MLP's dense stacked
+    Jacobian grows with the batch (presets.HIG_MLP_BATCH); a batch the user gives is kept."""
+    from pdeinv.methods.presets import HIG_MLP_BATCH, hyperparameters
+
+    assert hyperparameters("hig", "heat_2d")["batch_size"] is None
+    assert hyperparameters("hig", "heat_2d", hidden=(16,))["batch_size"] == HIG_MLP_BATCH == 32
+    assert hyperparameters("hig", "heat_2d", hidden=(16,), batch_size=4)["batch_size"] == 4
+    assert hyperparameters("sip", "heat_2d", hidden=(16,))["batch_size"] is None  # HIG's rule only

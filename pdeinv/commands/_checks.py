@@ -27,9 +27,29 @@ default heat_2d run (1736 x 63 553 rows x params, 1.9e11 by this model) took 22 
 under load (8.7e9 flop/s); (16,) batch 1 idle 2.1 s for 2.9e10 (1.4e10 flop/s): 1.5e10."""
 
 
+#: HIG's matrix-free route (taken when the dense Jacobian exceeds its budget): ``probes · (2 + 2 ·
+#: power_iters)`` Jacobian products, each ``batch · (2 · n_params + 2 · r · N)`` flops (network and
+#: rank-r physics), at this rate. Calibrated: heat_2d, MLP (64, 64), the full batch (1024 × 217 rows ×
+#: 128 193 parameters, 5.2e11 flops by this model) took 97 s per step under load, not refused before.
+HIG_MATRIX_FREE_FLOPS_PER_S = 5e9
+
+
+def hig_matrix_free_seconds(per_sample: int, n_in: int, n_params: int, batch: int, probes: int,
+                            power_iters: int) -> float:
+    passes = probes * (2 + 2 * power_iters)
+    return passes * batch * (2 * n_params + 2 * per_sample * n_in) / HIG_MATRIX_FREE_FLOPS_PER_S
+
+
+#: the SVD route (more rows than parameters: HIG's ``auto`` takes it, not the Gram) costs about this
+#: many times the Gram's ``rows · cols²``: heat_1d, MLP (16,), the full batch (18 432 × 2 095) took
+#: 64 s per step under load, and 17 s with 256 rows (4 608 × 2 095), not refused before
+HIG_SVD_FACTOR = 14.0
+
+
 def hig_step_seconds(n_out: int, n_params: int, batch: int) -> float:
     rows = batch * n_out
-    return rows * n_params * min(rows, n_params) / HIG_FLOPS_PER_S
+    svd = HIG_SVD_FACTOR if rows > n_params else 1.0
+    return svd * rows * n_params * min(rows, n_params) / HIG_FLOPS_PER_S
 
 
 def n_parameters(problem, hidden) -> int:
@@ -60,14 +80,20 @@ def check_run(problem, args, hp: dict) -> None:
         per_sample = min(m, len(basis.g)) if basis is not None else m
         batch = hp["batch_size"] or n_train
         rows, cols = batch * per_sample, n_parameters(problem, hp["hidden"])
-        est = hig_step_seconds(per_sample, cols, batch)
-        dense_fits = 4 * rows * cols <= memory.HIG_JACOBIAN_GB * 2**30  # else HIG refuses it itself
-        if est > HIG_MAX_STEP_S and dense_fits:
+        if 4 * rows * cols <= memory.HIG_JACOBIAN_GB * 2**30:  # the dense routes
+            est, route = hig_step_seconds(per_sample, cols, batch), f"Jacobian {rows} x {cols}"
+        else:  # above the budget HIG goes matrix-free (pdeinv.methods.hig_randomized)
+            from pdeinv.methods.hig import HIG
+
+            est = hig_matrix_free_seconds(per_sample, problem.operator.n_in, cols, batch, HIG.probes,
+                                          HIG.power_iters)
+            route = f"matrix-free: {HIG.probes} probes through a Jacobian {rows} x {cols}"
+        if est > HIG_MAX_STEP_S:
             raise UsageError(
-                f"HIG on {problem.name} would take about {est:.3g} s per step (Jacobian "
-                f"{rows} x {cols}, "
+                f"HIG on {problem.name} would take about {est:.3g} s per step ({route}, "
                 f"--hidden {','.join(map(str, hp['hidden'] or ()))} --batch-size {batch}); "
-                f"limit {HIG_MAX_STEP_S:g} s: use e.g. --hidden 16 --batch-size 1, or pass --allow-slow")
+                f"limit {HIG_MAX_STEP_S:g} s: use e.g. --hidden 16 --batch-size 1, the default network "
+                "(no --hidden: HIG's exact Kronecker route), or pass --allow-slow")
     if args.export_samples > args.n_test:
         print(f"pdeinv train: warning: --export-samples {args.export_samples} is more than the "
               f"{args.n_test} test samples (--n-test); exporting {args.n_test}", file=sys.stderr)
