@@ -109,8 +109,8 @@ class Carried:
         MS = M * f.S
         Vs, A1 = f.fast
         X = MS.astype(Vs.dtype).T  # r × rank; the cheaper order of V diag(s) · X · A₁
-        (k, r), (rank, kt) = Vs.shape, A1.shape
-        delta = (Vs @ X) @ A1 if k * rank * (r + kt) <= r * kt * (rank + k) else Vs @ (X @ A1)
+        (k, r), (kept, kt) = Vs.shape, A1.shape
+        delta = (Vs @ X) @ A1 if k * kept * (r + kt) <= r * kt * (kept + k) else Vs @ (X @ A1)
         delta *= -eta * unit
         self.weight, self.M = weight.copy(), M
         self.delta = delta.astype(weight.dtype)
