@@ -80,14 +80,18 @@ def check_run(problem, args, hp: dict) -> None:
         per_sample = min(m, len(basis.g)) if basis is not None else m
         batch = hp["batch_size"] or n_train
         rows, cols = batch * per_sample, n_parameters(problem, hp["hidden"])
-        if 4 * rows * cols <= memory.HIG_JACOBIAN_GB * 2**30:  # the dense routes
-            est, route = hig_step_seconds(per_sample, cols, batch), f"Jacobian {rows} x {cols}"
-        else:  # above the budget HIG goes matrix-free (pdeinv.methods.hig_randomized)
-            from pdeinv.methods.hig import HIG
+        from pdeinv.methods.hig import HIG
+        from pdeinv.methods.hig_randomized import memory_bytes
 
+        budget = memory.HIG_JACOBIAN_GB * 2**30
+        if 4 * rows * cols <= budget:  # the dense routes
+            est, route = hig_step_seconds(per_sample, cols, batch), f"Jacobian {rows} x {cols}"
+        elif memory_bytes(cols, HIG.probes, rows) <= budget:  # HIG goes matrix-free (hig_randomized)
             est = hig_matrix_free_seconds(per_sample, problem.operator.n_in, cols, batch, HIG.probes,
                                           HIG.power_iters)
             route = f"matrix-free: {HIG.probes} probes through a Jacobian {rows} x {cols}"
+        else:  # no route fits: HIG refuses it itself, naming the GB
+            est, route = 0.0, ""
         if est > HIG_MAX_STEP_S:
             raise UsageError(
                 f"HIG on {problem.name} would take about {est:.3g} s per step ({route}, "
