@@ -33,6 +33,10 @@ def merged(paths) -> dict:
     return rows
 
 
+#: x-errors below this are rounding (noise-free wave scenes): their ratio is not reported
+ROUNDING = 1e-8
+
+
 def _fmt(v) -> str:
     return "–" if v is None else f"{v:.3g}"
 
@@ -50,8 +54,10 @@ def table(rows: dict, scenes: list) -> str:
             cells = [f"**{_fmt(v)}**" if v is not None and v == best else _fmt(v) for v in err.values()]
             tik = r.get("tikhonov")
 
-            def ratio(a, b):
-                return _fmt(a / b) if a is not None and b else "–"
+            def ratio(a, b):  # two errors at rounding (noise-free wave) have no meaningful ratio
+                if a is None or not b:
+                    return "–"
+                return "both rounding" if max(a, b) < ROUNDING else _fmt(a / b)
 
             ms = " / ".join(_fmt(1e3 * (r.get(m) or {}).get("step_s")) if (r.get(m) or {}).get("step_s")
                             else "–" for m in ("sip", "hig", "adam"))
