@@ -92,11 +92,11 @@ class Carried:
     def residual(self, weight: np.ndarray) -> np.ndarray:
         """``M`` at ``weight``: carried when ``weight − last = c·step`` (to 64 ulps), else computed."""
         if self.M is not None and self.age < REFRESH and weight.shape == self.weight.shape:
-            D = weight - self.weight
-            dd = float(np.vdot(self.delta, self.delta))
-            c = float(np.vdot(D, self.delta)) / dd if dd > 0 else 0.0
+            D = np.subtract(weight, self.weight, out=self.weight)  # the last weights are not needed again
+            c = float(np.vdot(D, self.delta)) / self.dd if self.dd > 0 else 0.0
+            D -= c * self.delta
             ulp = 64 * np.finfo(weight.dtype).eps
-            if np.linalg.norm(D - c * self.delta) <= ulp * (np.linalg.norm(weight) + abs(c) * dd**0.5):
+            if np.linalg.norm(D) <= ulp * (self.norm + abs(c) * self.dd**0.5):
                 self.age += 1
                 return self.M + c * self.dM
         self.age = 0
@@ -112,7 +112,8 @@ class Carried:
         (k, r), (kept, kt) = Vs.shape, A1.shape
         delta = (Vs @ X) @ A1 if k * kept * (r + kt) <= r * kt * (kept + k) else Vs @ (X @ A1)
         delta *= -eta * unit
-        self.weight, self.M = weight.copy(), M
+        self.weight, self.M, self.norm = weight.copy(), M, float(np.linalg.norm(weight))
         self.delta = delta.astype(weight.dtype)
+        self.dd = float(np.vdot(self.delta, self.delta))
         self.dM = (-eta * unit) * (f.a[:, None] * MS * f.c[None, :])
         return self.delta, f.loss(M)
