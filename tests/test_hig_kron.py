@@ -1,5 +1,7 @@
 """HIG's Kronecker route (pdeinv.methods.hig_kron) equals the dense SVD route, without forming J."""
 
+import math
+
 import pytest
 import torch
 from torch import nn
@@ -238,3 +240,18 @@ def test_the_hig_preset_batch_is_every_row_on_the_default_networks_and_32_on_an_
     assert hyperparameters("hig", "heat_2d", hidden=(16,))["batch_size"] == HIG_MLP_BATCH == 32
     assert hyperparameters("hig", "heat_2d", hidden=(16,), batch_size=4)["batch_size"] == 4
     assert hyperparameters("sip", "heat_2d", hidden=(16,))["batch_size"] is None  # HIG's rule only
+
+
+def test_rows_keys_are_equal_for_the_same_rows_in_any_order_and_differ_by_one_ulp():
+    from pdeinv.methods import hig_kron
+
+    y = torch.randn(50, 13, dtype=torch.float64)
+    goal = torch.randn(50, 13, dtype=torch.float64)
+    perm = torch.randperm(50)
+    assert hig_kron.rows_key(y) == hig_kron.rows_key(y[perm])
+    assert hig_kron.rows_key(y, goal) == hig_kron.rows_key(y[perm], goal[perm])
+    assert hig_kron.rows_key(y, goal) != hig_kron.rows_key(y, goal[perm])  # rows paired with other targets
+    nudged = y.clone()
+    nudged[7, 3] = torch.nextafter(nudged[7, 3], torch.tensor(math.inf, dtype=torch.float64))
+    assert hig_kron.rows_key(nudged) != hig_kron.rows_key(y)
+    assert hig_kron.rows_key(y[:, :12]) != hig_kron.rows_key(y)  # another width
