@@ -104,11 +104,15 @@ def undeclared_noise(path, y, problem=None) -> float:
     singular-value estimate (:func:`pdeinv.noise.estimate_noise`) read 2.4e-4 on clean heat_1d files
     of 15 observations, and a level that is wrong either way misleads the Wiener target."""
     from .noise import estimate_noise_outside
+    from .physics.capabilities import reversible
     from .physics.compiled import spectral_basis
 
     level = npz_rounding_level(path)
+    op = None if problem is None else problem.operator
+    if op is None or (reversible(op) and op.n_out <= op.n_in):  # it keeps every direction: none outside
+        return level
     disc = getattr(problem, "disc", None)
-    basis = None if problem is None else spectral_basis(problem.operator, None if disc is None else disc.M)
+    basis = spectral_basis(op, None if disc is None else disc.M)  # no SVD for a reversible map (above)
     est = None if basis is None else estimate_noise_outside(y, basis.out[:, basis.g > 1e-12 * basis.g.max()])
     return max(level, est if est is not None and est > NOISE_FLOOR else 0.0)
 
