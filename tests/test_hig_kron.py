@@ -26,6 +26,8 @@ CASES = {  # name -> (scene, settings, model factory)
     "advection": ("advection_diffusion_2d", dict(n=6), nets.whitened("linear")),
     "wave": ("wave_1d", dict(n=16), nets.whitened("linear")),
     "reduced": ("heat_2d", dict(n=8), nets.reduced(k_in=12, k_out=9)),
+    # one whitened direction per 8 rows: the trailing feature columns are zero on every row ("dead")
+    "dead": ("wave_1d", dict(n=16), nets.whitened("linear", rows_per_component=8)),
 }
 
 
@@ -240,6 +242,51 @@ def test_the_hig_preset_batch_is_every_row_on_the_default_networks_and_32_on_an_
     assert hyperparameters("hig", "heat_2d", hidden=(16,))["batch_size"] == HIG_MLP_BATCH == 32
     assert hyperparameters("hig", "heat_2d", hidden=(16,), batch_size=4)["batch_size"] == 4
     assert hyperparameters("sip", "heat_2d", hidden=(16,))["batch_size"] is None  # HIG's rule only
+
+
+def test_dead_feature_columns_get_no_step_and_a_smaller_product():
+    """Feature columns zero on every row (directions the whitening dropped) have zero Jacobian columns:
+    the kept-rows step leaves their weights alone exactly and decomposes the live columns only."""
+    p, model, Y = full_batch("dead")
+    rule = HIG(eta=0.7, tau=1e-7, route="kronecker")
+    state = rule.init(p, model)
+    rule.update(state, model, Y)
+    step = rule.update(state, model, Y)
+    fixed = state.context[-1][-1]["carried"].fixed
+    lin = model.linear_in_parameters()
+    dead = torch.as_tensor(lin.features(Y).abs().amax(0) == 0)
+    assert 0 < int(dead.sum()) and len(fixed.live) == lin.layer.in_features + 1 - int(dead.sum())
+    assert fixed.A1.shape[1] == len(fixed.live)
+    weight = step.direction[0]
+    assert bool((weight[:, dead] == 0).all()) and float(weight[:, ~dead].abs().max()) > 0
+
+
+def test_a_step_below_the_weights_resolution_is_not_computed():
+    """Once ‖ΔW̃‖ ≤ ε‖W̃‖ (nothing float64 weights can resolve) the kept-rows step returns no direction and
+    keeps M; the step a fresh rule computes at those weights (features, physics, residual: its own
+    rounding) is at the rounding floor too, and the loss is at its floor."""
+    p, model, Y = full_batch("wave")
+    rule = HIG(route="kronecker")
+    state = rule.init(p, model)
+    params = list(model.parameters())
+    losses = []
+    for _ in range(400):
+        u = rule.update(state, model, Y)
+        losses.append(u.info["loss"])
+        if all(d is None for d in u.direction):
+            break
+        with torch.no_grad():
+            for q, d in zip(params, u.direction, strict=True):
+                q.add_(d)
+    else:
+        pytest.fail("the step never fell below the weights' resolution")
+    assert len(losses) > 3 and losses[-1] < 1e-20 * losses[0]
+    assert rule.update(state, model, Y).info["loss"] == losses[-1]  # M kept
+    exact = HIG(route="kronecker")
+    fresh = exact.update(exact.init(p, model), model, Y)
+    size = math.sqrt(sum(float(d.norm()) ** 2 for d in fresh.direction))
+    weights = math.sqrt(sum(float(q.norm()) ** 2 for q in params))
+    assert size <= 64 * torch.finfo(torch.float64).eps * weights
 
 
 def test_rows_keys_are_equal_for_the_same_rows_in_any_order_and_differ_by_one_ulp():

@@ -227,13 +227,15 @@ class HIG(Rule):
                                            self.tau, self.exponent)
             seen.update(key=key, carried=hig_fixed.Carried(fixed))
         carried, layer = seen["carried"], lin.layer
-        weight = layer.weight.detach() if layer.bias is None else \
-            torch.cat([layer.weight.detach(), layer.bias.detach()[:, None]], 1)
+        weight = layer.weight.detach().clone() if layer.bias is None else \
+            torch.cat([layer.weight.detach(), layer.bias.detach()[:, None]], 1)  # a fresh copy it keeps
         info = carried.fixed.info
         delta, loss = carried.step(weight.cpu().numpy(), self.eta, self._unit(info))
         if not math.isfinite(loss):
             return Update(None, {"loss": loss})
-        return Update(hig_kron.split(lin, delta, layer.weight), {**info, "loss": loss})
+        if delta is None:  # below the weights' resolution: nothing to apply (hig_fixed)
+            return Update((None,) * len(list(layer.parameters())), {**info, "loss": loss})
+        return Update(hig_kron.split(lin, delta, layer.weight, contiguous=False), {**info, "loss": loss})
 
     def _unit(self, info: dict) -> float:
         """``σ_max^-(1+e)`` with ``normalize`` (class docstring), else 1."""

@@ -155,8 +155,10 @@ def rank(a: np.ndarray, W: np.ndarray, shape: tuple) -> tuple[np.ndarray, np.nda
     return a[keep], W[:, keep]
 
 
-def split(lin, delta: np.ndarray, like: torch.Tensor) -> tuple[torch.Tensor, ...]:
-    """``ΔW̃`` as one tensor per parameter of ``lin.layer`` (weight, then the bias column)."""
+def split(lin, delta: np.ndarray, like: torch.Tensor, contiguous: bool = True) -> tuple[torch.Tensor, ...]:
+    """``ΔW̃`` as one tensor per parameter of ``lin.layer`` (weight, then the bias column); with
+    ``contiguous=False`` views of ``delta`` where it is on ``like``'s device and dtype (no copy)."""
     t = torch.as_tensor(delta, dtype=like.dtype, device=like.device)
     parts = {"weight": t[:, : lin.layer.in_features], "bias": t[:, -1]}
-    return tuple(parts[name].contiguous() for name, _ in lin.layer.named_parameters())
+    return tuple(parts[name].contiguous() if contiguous else parts[name]
+                 for name, _ in lin.layer.named_parameters())
