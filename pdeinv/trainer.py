@@ -85,9 +85,10 @@ class Trainer:
     **Guard** (:class:`~pdeinv.methods.guard.Guard`: its policy, budget and messages). A step whose loss,
     prediction or update holds NaN/Inf, whose loss exceeds ``max_loss_growth`` (1e3; None: off) times the
     lowest accepted one, or whose test predictions blow up is *rejected* (a ``history`` row with ``loss``
-    NaN and the message under ``rejected``, and a warning): the last good state is put back, the step
-    size cut by ``step_factor`` (½; back toward 1 after ``recover_after`` clean steps). ``max_failures``
-    rejections in a row, or one at the floor ``min_scale``, raise :class:`NonFiniteError`.
+    NaN and the message under ``rejected``, and a warning): the last good state (copied every
+    ``snapshot_every`` steps; 1: the step before) is put back, the step size cut by ``step_factor`` (½;
+    back toward 1 after ``recover_after`` clean steps). ``max_failures`` rejections in a row, or one at
+    the floor ``min_scale``, raise :class:`NonFiniteError`.
 
     **Checkpoints.** ``checkpoint=Checkpoint(path, every=k)`` saves the run atomically every ``k``
     accepted steps and after the last (:mod:`pdeinv.checkpoint`: what it holds; a resumed run repeats
@@ -130,6 +131,7 @@ class Trainer:
     max_loss_growth: float | None = 1e3
     min_scale: float = 1e-12
     recover_after: int | None = 50
+    snapshot_every: int = 10
     device: str | torch.device = "cpu"
     data: object = None  # own observations (B, m): array, tensor or torch Dataset
     data_x: object = None  # their true fields (B, N), for errors only
@@ -139,7 +141,6 @@ class Trainer:
     _own: OwnData | None = field(default=None, init=False, repr=False)
     _saved_step: int | None = field(default=None, init=False, repr=False)
     _rule: object = field(default=None, init=False, repr=False)
-
 
     def __post_init__(self):
         if self.steps is None and self.time_budget is None:
@@ -187,7 +188,7 @@ class Trainer:
 
     def _guard(self) -> Guard:
         return Guard(self.max_failures, self.step_factor, self.max_loss_growth, self.min_scale,
-                     self.recover_after)
+                     self.recover_after, self.snapshot_every)
 
     def _start(self) -> _Run:
         """Model on ``device``, data, preconditioning, rule and stopping states, batch order; resumed."""

@@ -103,7 +103,7 @@ def test_the_guard_state_round_trips():
     problem = pdeinv.load_problem("heat_1d", n=16, steps=10)
     t = trainer(problem, GD(sgd(0.05)))
     rule, model = t.rule, t.model
-    g = Guard(max_failures=4, recover_after=7)
+    g = Guard(max_failures=4, recover_after=7, snapshot_every=1)
     state = rule.init(problem, model)
     y = torch.as_tensor(problem.sample(8, 0)[1], dtype=torch.float32)
     state = rule.calibrate(state, model, y)
@@ -143,7 +143,7 @@ def test_the_snapshot_copies_into_buffers_allocated_once_and_restores_bitwise():
     problem = pdeinv.load_problem("heat_1d", n=16, steps=10)
     torch.manual_seed(0)
     model = MLP(problem.operator.n_out, problem.operator.n_in, hidden=(8,))
-    rule, g = GD(adam(1e-2), normalize=False), Guard()
+    rule, g = GD(adam(1e-2), normalize=False), Guard(snapshot_every=1)
     state = rule.init(problem, model)
     y = torch.as_tensor(problem.sample(8, 0)[1], dtype=torch.float32)
 
@@ -168,6 +168,40 @@ def test_the_snapshot_copies_into_buffers_allocated_once_and_restores_bitwise():
     assert step == 3 and all(torch.equal(a, b) for a, b in zip(model.parameters(), before, strict=True))
     assert all(torch.equal(a, b) for a, b in zip(tensors(rule.state_dict(state)), moments, strict=True))
     assert not set(t.data_ptr() for t in tensors(rule.state_dict(state))) & set(pointers)  # not aliased
+
+
+def test_the_default_guard_copies_every_tenth_step_and_rolls_back_to_that_copy():
+    """issue 24 item 5: the copy of the last good state is the trainer's overhead, so the default guard
+    takes it every ``snapshot_every`` (10) steps; a rejection restores that copy bitwise, up to 9 good
+    steps back (they are redone); ``snapshot_every`` is validated."""
+    from pdeinv.methods import Guard, adam
+
+    problem = pdeinv.load_problem("heat_1d", n=16, steps=10)
+    torch.manual_seed(0)
+    model = MLP(problem.operator.n_out, problem.operator.n_in, hidden=(8,))
+    rule, g = GD(adam(1e-2), normalize=False), Guard()
+    assert g.snapshot_every == 10
+    state = rule.init(problem, model)
+    y = torch.as_tensor(problem.sample(8, 0)[1], dtype=torch.float32)
+    taken, at = [], {}
+    for _ in range(24):
+        at[state.steps] = ([p.detach().clone() for p in model.parameters()],
+                           [t.clone() for group in rule.state_dict(state)["transform"]["state"].values()
+                            for t in group.values()])
+        state, _ = g.step(rule, state, model, y)
+        g.accept(state.steps)
+        taken.append(g.good.step)
+    assert taken == [0] * 10 + [10] * 10 + [20] * 4
+    state, step, note, stop = g.reject(rule, state, model, state.steps, state.steps + 1)
+    assert step == 20 and state.steps == 20 and "rolled back to the state after step 20" in note and not stop
+    params, moments = at[20]
+    assert all(torch.equal(a, b) for a, b in zip(model.parameters(), params, strict=True))
+    restored = [t for group in rule.state_dict(state)["transform"]["state"].values() for t in group.values()]
+    assert all(torch.equal(a, b) for a, b in zip(restored, moments, strict=True))
+    with pytest.raises(ValueError, match="snapshot_every"):
+        Guard(snapshot_every=0)
+    with pytest.raises(ValueError, match="snapshot_every"):
+        trainer(problem, GD(), snapshot_every=0)
 
 
 @pytest.mark.parametrize("values, expected", [

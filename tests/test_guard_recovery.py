@@ -37,7 +37,10 @@ class Kick(GD):
 def trainer(problem, rule, steps=12, **kw):
     torch.manual_seed(0)
     model = MLP(problem.operator.n_out, problem.operator.n_in, hidden=(16,))
-    kw = {"n_train": 24, "n_test": 16, "batch_size": 8, "eval_every": 4, "progress": False, **kw}
+    # snapshot_every=1: the exact one-step roll-back these tests trace (the default copies the last good
+    # state every 10th step: tests/test_guard.py)
+    kw = {"n_train": 24, "n_test": 16, "batch_size": 8, "eval_every": 4, "progress": False,
+          "snapshot_every": 1, **kw}
     return Trainer(problem, rule, model, steps=steps, **kw)
 
 

@@ -29,6 +29,7 @@ def trainer(rule, poison="", steps=6, **kw):
     problem = pdeinv.load_problem(FAULTS, poison=poison, n=16, steps=10)
     torch.manual_seed(0)
     model = MLP(problem.operator.n_out, problem.operator.n_in, hidden=(16,))
+    kw.setdefault("snapshot_every", 1)  # the exact one-step roll-back these tests trace (tests/test_guard.py)
     return Trainer(problem, rule, model, steps=steps, n_train=32, n_test=16, batch_size=8, eval_every=100,
                    progress=False, **kw)
 
@@ -108,10 +109,11 @@ def test_cli_gives_up_with_one_line_and_keeps_the_checkpoint(tmp_path, capsys):
             "--checkpoint-every", "1", "--out", str(out), "--threads", "1"]
     code = main([*argv, "--set", "poison=4,5,6", "--max-failures", "3"])
     *warned, err = capsys.readouterr().err.splitlines()
-    assert code == 1 and err.startswith("pdeinv train: numerical failure: step 3 (adam)")
-    assert "last good checkpoint" in err and "checkpoint.pt" in err
+    # the default guard copies its last good state every 10th step: step 4 rolls back to step 0's
+    assert code == 1 and err.startswith("pdeinv train: numerical failure: step 1 (adam)")
+    assert "last good checkpoint" in err and "checkpoint.pt" in err and "(after step 0)" in err
     assert [w[:40] for w in warned] == ["pdeinv train: warning: step 4 (adam): th",  # one line each
-                                        "pdeinv train: warning: step 3 (adam): th"]
+                                        "pdeinv train: warning: step 1 (adam): th"]
     assert Checkpoint(out / "checkpoint.pt").load()["position"]["step"] == 3
     assert not (out / "metrics.json").exists()
     assert "rejected" in (out / "history.csv").read_text()
@@ -119,8 +121,9 @@ def test_cli_gives_up_with_one_line_and_keeps_the_checkpoint(tmp_path, capsys):
     # settings differ (poison) -- and with the same settings it resumes and finishes
     assert main([*argv, "--set", "poison=", "--resume"]) == 2
     assert "poison='4,5,6' (checkpoint) vs '' (this run)" in capsys.readouterr().err
-    # max_failures=5 lets this run through the three bad calls (step 7, then step 6 twice)
+    # max_failures=5 lets this run through the three bad calls (step 7, then, back at the checkpoint's
+    # last good state after step 0, step 1 twice)
     assert main([*argv, "--set", "poison=4,5,6", "--resume"]) == 0
     err = capsys.readouterr().err
-    assert err.count("warning: step 7 (adam)") == 1 and err.count("warning: step 6 (adam)") == 2
+    assert err.count("warning: step 7 (adam)") == 1 and err.count("warning: step 1 (adam)") == 2
     assert json.loads((out / "metrics.json").read_text())["steps"] == 8
