@@ -15,6 +15,7 @@ ROOT = Path(__file__).resolve().parents[1] / "benchmarks"
     ("crossover.py", ["--dims", "2", "--scenes", "heat", "--sizes2", "8", "--repeats", "1"],
      "crossover 2-D heat"),
     ("netsize.py", ["--sizes", "4", "--steps", "2", "--nets", "whitened"], "| 4 | 9 | whitened | sip |"),
+    ("hig_step.py", ["--scenes", "heat_1d", "--steps", "4", "--repeats", "1"], "heat_1d: 4 steps x 1"),
 ])
 def test_developer_benchmark_runs_on_its_smallest_setting(script, args, expect):
     run = subprocess.run([sys.executable, str(ROOT / script), *args], capture_output=True, text=True,
@@ -23,7 +24,8 @@ def test_developer_benchmark_runs_on_its_smallest_setting(script, args, expect):
     assert expect in run.stdout
 
 
-@pytest.mark.parametrize("script", ["crossover.py", "scaling.py", "netsize.py", "ddp.py"])
+@pytest.mark.parametrize("script", ["crossover.py", "scaling.py", "netsize.py", "ddp.py", "hig_step.py",
+                                    "overhead.py"])
 def test_developer_benchmark_says_how_to_run_it(script):
     doc = (ROOT / script).read_text().split('"""')[1]
     assert f"python benchmarks/{script}" in doc and "pdeinv.bench" not in (ROOT / script).read_text()
