@@ -35,8 +35,9 @@ No per-scene table: every step size follows from the maths.
 * **hig**: the exact Kronecker route on the default network (:mod:`.hig_kron`), every training row
   in each step, η 1 on the normalized step (the leading direction solved per step, :class:`~.hig.HIG`),
   τ 1e-6 of σ_max (the HIG reference code's range), 1000 steps. The rows are the same in every step,
-  so after the first a step costs no feature map and no physics (:mod:`.hig_fixed`): heat_2d 0.018
-  s/step against Adam's 0.049, wave_2d 0.21 against 0.081 (one shared thread, interleaved). The
+  so after the first a step costs no feature map and no physics (:mod:`.hig_fixed`): heat_2d 0.011
+  s/step against Adam's 0.045, wave_2d 0.050 against 0.050 (``benchmarks/hig_step.py``, one thread,
+  interleaved; wave_2d's steps stop computing once below the weights' resolution, ~step 380). The
   half-inverse moves a direction of relative singular value ρ by ``ρ^½`` of the way per step, so the
   weak modes of the smoothing scenes keep converging long after the strong ones: noise-free x-error
   at 100 / 300 / 1000 steps, heat_1d 0.053 / 0.040 / 0.035, heat_2d 0.043 / 0.027 / 0.021, heat_3d
