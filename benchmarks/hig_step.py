@@ -1,7 +1,7 @@
 """HIG's step against Adam's at the CLI defaults (issue 23: at most 2×), one thread, interleaved.
 
     OMP_NUM_THREADS=1 python benchmarks/hig_step.py [--scenes heat_2d,wave_2d] [--steps 40] [--repeats 3]
-                                                     [--full]
+                                                     [--noise 0.01] [--full]
 
 Each side trains what ``pdeinv train SCENE --method M`` trains (the preset's network, batch and data)
 for ``--steps`` steps; a step's time is the median interval between consecutive steps in the second
@@ -27,7 +27,7 @@ import time
 os.environ.setdefault("OMP_NUM_THREADS", "1")
 
 
-def step_s(problem, method: str, steps: int | None) -> float:
+def step_s(problem, method: str, steps: int | None, noise: float = 0.0) -> float:
     """Median step of the second half of ``steps`` steps, or (``steps=None``) the preset run's ``step_s``."""
     import torch
 
@@ -35,7 +35,7 @@ def step_s(problem, method: str, steps: int | None) -> float:
     from pdeinv.methods.presets import make_rule
     from pdeinv.runs import network
 
-    rule, hp = make_rule(method, problem)
+    rule, hp = make_rule(method, problem, noise)
     spec = {"kind": "default", **({"rows_per_component": hp["rows_per_component"]}
                                   if hp.get("rows_per_component") else {})}
     torch.manual_seed(0)
@@ -54,6 +54,7 @@ def main(argv=None) -> None:
     ap.add_argument("--scenes", default="heat_2d,wave_2d")
     ap.add_argument("--steps", type=int, default=40)
     ap.add_argument("--repeats", type=int, default=3)
+    ap.add_argument("--noise", type=float, default=0.0, help="relative observation noise (--set noise=)")
     ap.add_argument("--full", action="store_true")
     args = ap.parse_args(argv)
     import torch
@@ -62,16 +63,16 @@ def main(argv=None) -> None:
 
     torch.set_num_threads(1)
     for scene in args.scenes.split(","):
-        problem = pdeinv.load_problem(scene)
+        problem = pdeinv.load_problem(scene, **({"noise": args.noise} if args.noise else {}))
         times = {"adam": [], "hig": []}
         for _ in range(args.repeats):
             for method in times:
-                times[method].append(step_s(problem, method, args.steps))
+                times[method].append(step_s(problem, method, args.steps, args.noise))
         a, h = statistics.median(times["adam"]), statistics.median(times["hig"])
         print(f"{scene}: {args.steps} steps x {args.repeats} (median): adam {1e3 * a:.1f} ms, "
               f"hig {1e3 * h:.1f} ms; hig / adam {h / a:.2f}", flush=True)
         if args.full:
-            a, h = step_s(problem, "adam", None), step_s(problem, "hig", None)
+            a, h = step_s(problem, "adam", None, args.noise), step_s(problem, "hig", None, args.noise)
             print(f"{scene}: preset runs, step_s: adam {1e3 * a:.1f} ms, hig {1e3 * h:.1f} ms; "
                   f"hig / adam {h / a:.2f}", flush=True)
 

@@ -255,16 +255,58 @@ def test_dead_feature_columns_get_no_step_and_a_smaller_product():
     fixed = state.context[-1][-1]["carried"].fixed
     lin = model.linear_in_parameters()
     dead = torch.as_tensor(lin.features(Y).abs().amax(0) == 0)
-    assert 0 < int(dead.sum()) and len(fixed.live) == lin.layer.in_features + 1 - int(dead.sum())
-    assert fixed.A1.shape[1] == len(fixed.live)
+    live = set(torch.nonzero(~dead).ravel().tolist()) | {lin.layer.in_features}  # and the bias
+    assert 0 < int(dead.sum()) and set(fixed.cols.tolist()) <= live and fixed.A1.shape[-1] == len(fixed.cols)
     weight = step.direction[0]
     assert bool((weight[:, dead] == 0).all()) and float(weight[:, ~dead].abs().max()) > 0
 
 
-def test_a_step_below_the_weights_resolution_is_not_computed():
+@pytest.mark.parametrize("dead", [0, 3])
+def test_uncorrelated_features_take_a_diagonal_gram_and_the_same_step(dead, monkeypatch):
+    """Features uncorrelated to rounding (a whitening with a noise floor, fitted on these rows): W = I, the
+    second product a column scaling; the step, the loss and the carried residual equal the eigenbasis
+    route's, with dead columns and τ dropping directions."""
+    import numpy as np
+
+    from pdeinv.inverse.decoder import DecodedSVD
+    from pdeinv.methods import hig_fixed
+
+    rng = np.random.default_rng(5)
+    rows, k, m, r, out = 40, 9, 8, 6, 7
+    centred = rng.standard_normal((rows, k))
+    centred -= centred.mean(0)  # orthogonal to the bias column
+    Z = np.hstack([np.linalg.qr(centred)[0] * np.logspace(0, -4, k), np.ones((rows, 1))])
+    Z[:, k - dead:k] = 0.0
+    fac = DecodedSVD(np.linalg.qr(rng.standard_normal((m, r)))[0], np.logspace(0, -3, r),
+                     np.linalg.qr(rng.standard_normal((out, r)))[0])
+    goal = rng.standard_normal((rows, m))
+    weight = rng.standard_normal((out, k + 1))
+    G = Z.T @ Z
+    steps = {}
+    for diagonal in (True, False):
+        monkeypatch.setattr(hig_fixed, "UNCORRELATED", 1e-10 if diagonal else -1.0)
+        fixed = hig_fixed.FixedRows.of(fac, Z, goal, *np.linalg.eigh(G), 1e-3, -0.5)
+        assert (fixed.A1.ndim == 1) == diagonal and len(fixed.cols) == k + 1 - dead
+        carried = hig_fixed.Carried(fixed)
+        first, loss = carried.step(weight.copy(), 0.7, 1.0)
+        nxt = weight + 0.5 * first
+        second, loss2 = carried.step(nxt.copy(), 0.7, 1.0)  # carried: M + 0.5·ΔM
+        assert carried.age == 1
+        steps[diagonal] = (first.copy(), loss, second.copy(), loss2)
+    for a, b in zip(steps[True], steps[False], strict=True):
+        assert np.abs(np.asarray(a) - np.asarray(b)).max() <= 1e-10 * max(1.0, np.abs(np.asarray(b)).max())
+    assert not steps[True][0][:, k - dead:k].any()
+
+
+@pytest.mark.parametrize("diagonal", [False, True])
+def test_a_step_below_the_weights_resolution_is_not_computed(diagonal, monkeypatch):
     """Once ‖ΔW̃‖ ≤ ε‖W̃‖ (nothing float64 weights can resolve) the kept-rows step returns no direction and
     keeps M; the step a fresh rule computes at those weights (features, physics, residual: its own
-    rounding) is at the rounding floor too, and the loss is at its floor."""
+    rounding) is at the rounding floor too — plus the features' correlations, at most UNCORRELATED,
+    when their Gram was taken as diagonal — and the loss is at its floor."""
+    from pdeinv.methods import hig_fixed
+
+    monkeypatch.setattr(hig_fixed, "UNCORRELATED", 1e-10 if diagonal else -1.0)
     p, model, Y = full_batch("wave")
     rule = HIG(route="kronecker")
     state = rule.init(p, model)
@@ -286,7 +328,9 @@ def test_a_step_below_the_weights_resolution_is_not_computed():
     fresh = exact.update(exact.init(p, model), model, Y)
     size = math.sqrt(sum(float(d.norm()) ** 2 for d in fresh.direction))
     weights = math.sqrt(sum(float(q.norm()) ** 2 for q in params))
-    assert size <= 64 * torch.finfo(torch.float64).eps * weights
+    assert (state.context[-1][-1]["carried"].fixed.A1.ndim == 1) == diagonal
+    floor = 64 * torch.finfo(torch.float64).eps + (hig_fixed.UNCORRELATED if diagonal else 0.0)
+    assert size <= floor * weights
 
 
 def test_rows_keys_are_equal_for_the_same_rows_in_any_order_and_differ_by_one_ulp():
