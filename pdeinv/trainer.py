@@ -59,9 +59,9 @@ class _Run:
     guard: Guard  # step size, failures, lowest loss, last good state (methods.guard)
 
     def batch(self, size: int, n: int) -> tuple[torch.Tensor, torch.Tensor | None]:
-        """The next ``size`` training rows (network dtype) and their float64 targets (``None``: the rows)."""
-        rows = self.at.next_rows(size, n)
-        return self.y_train[rows], None if self.t_train is None else self.t_train[rows]
+        """The next ``size`` training rows and their float64 targets (``None``: the rows); all: themselves."""
+        rows, y, t = self.at.next_rows(size, n), self.y_train, self.t_train
+        return (y, t) if size == n else (y[rows], None if t is None else t[rows])
 
 
 @dataclass
@@ -72,7 +72,8 @@ class Trainer:
     ``problem.sample``, or the user's rows ``data`` (numpy ``(B, m)``, tensor or torch ``Dataset``;
     ``data_x`` ``(B, N)``, optional, only for ``x_err``): the last ``n_test`` rows test, the stopping
     rule's ``stop.n_val`` before them, the rest train (:func:`pdeinv.data.own_data`). Batches are drawn
-    without replacement, reshuffled every epoch (``batch_size=None``: every training row, each step).
+    without replacement, reshuffled every epoch (``batch_size=None``: every training row in order, each
+    step).
     ``model=None`` takes ``problem.model()`` after ``torch.manual_seed(seed)``; ``fit_scaling`` fits its
     input transform on the training observations at the problem's noise level (never on ``x``).
 
@@ -97,9 +98,9 @@ class Trainer:
     network, rule, configured hyper-parameter or data setting, or ``steps`` is below its step);
     ``steps`` and ``time_budget`` may grow on resume. Wall time spent after the last save is not counted.
 
-    ``device`` (default ``"cpu"``): the model and the training data are moved there, and a dense,
-    modal or SVD physics backend is applied there by torch (:mod:`pdeinv.physics.device`; time
-    stepping stays on the CPU). An unknown device, or CUDA where there is none, is a ``ValueError``.
+    ``device`` (default ``"cpu"``): the model and the training data are moved there, and a dense, modal
+    or SVD physics backend is applied there by torch (:mod:`pdeinv.physics.device`; time stepping stays
+    on the CPU). An unknown device, or CUDA where there is none, is a ``ValueError``.
 
     **Data parallel.** ``parallel`` (:class:`~pdeinv.distributed.Single`, or
     :class:`~pdeinv.distributed.DataParallel` from torchrun's environment by
@@ -195,8 +196,7 @@ class Trainer:
         if self.model is None:
             torch.manual_seed(self.seed)
             self.model = self.problem.model()
-        if self.dtype is None:
-            self.dtype = getattr(next(iter(self.model.parameters()), None), "dtype", torch.float32)
+        self.dtype = self.dtype or getattr(next(iter(self.model.parameters()), None), "dtype", torch.float32)
         model = self.model.to(device=self.device, dtype=self.dtype)
         if self.checkpoint is not None:
             ckpts.check_resumable(self.rule)

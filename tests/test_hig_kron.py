@@ -346,3 +346,21 @@ def test_rows_keys_are_equal_for_the_same_rows_in_any_order_and_differ_by_one_ul
     nudged[7, 3] = torch.nextafter(nudged[7, 3], torch.tensor(math.inf, dtype=torch.float64))
     assert hig_kron.rows_key(nudged) != hig_kron.rows_key(y)
     assert hig_kron.rows_key(y[:, :12]) != hig_kron.rows_key(y)  # another width
+
+
+def test_the_rows_key_of_the_same_tensors_is_kept_until_they_change_in_place(monkeypatch):
+    """A full-batch run passes the training tensors themselves: their key is hashed once; an in-place
+    change (a new ``_version``) or other tensors are hashed again."""
+    from pdeinv.methods import hig_kron
+
+    calls = []
+    real = hig_kron.rows_key
+    monkeypatch.setattr(hig_kron, "rows_key", lambda *a: calls.append(1) or real(*a))
+    gram = hig_kron.InputGram()
+    y, goal = torch.randn(30, 5, dtype=torch.float64), torch.randn(30, 5, dtype=torch.float64)
+    first = gram.key_of(y, goal)
+    assert gram.key_of(y, goal) is first and len(calls) == 1
+    assert gram.key_of(y.clone(), goal) == first and len(calls) == 2  # equal rows, other tensor
+    y[3, 2] += 1.0
+    assert gram.key_of(y, goal) != first and len(calls) == 3
+    assert gram.key_of(y, None) != gram.key_of(y, goal)

@@ -186,8 +186,7 @@ class HIG(Rule):
         (``sum_over``): every rank joins the one sum of the moments, NaN where its shard failed, so all
         ranks take or refuse the same step."""
         lin, fac, gram, seen = kron
-        key = None if self.sum_over is not None else \
-            hig_kron.rows_key(y_target, None if goal is y_target else goal)
+        key = None if self.sum_over is not None else gram.key_of(y_target, None if goal is y_target else goal)
         if key is not None and key == gram.seen:  # the same rows again (the full batch): hig_fixed
             return self._fixed(lin, fac, gram, seen, key, y_target, goal)
         gram.seen = key

@@ -91,10 +91,9 @@ class FixedRows(NamedTuple):
         Z = Z[:, live] if len(live) < Z.shape[1] else Z
         G = Z.T @ Z
         if uncorrelated(G):  # W = I: A₁ = a^½ is diagonal and ΔW̃ needs one product
-            order = np.argsort(np.diag(G))
-            a = np.diag(G)[order]
-            keep = a > a[-1] * max(Z.shape) * np.finfo(float).eps  # Z̃'s numerical rank (hig_kron.rank)
-            a, cols = a[keep], order[keep]
+            a = np.diag(G).copy()
+            cols = np.flatnonzero(a > a.max() * max(Z.shape) * np.finfo(float).eps)  # hig_kron.rank
+            a = a[cols]
             root = np.sqrt(a)
             QA, A1 = Z[:, cols] / root, root
         else:
@@ -112,9 +111,17 @@ class FixedRows(NamedTuple):
         return cls(a, A1, live[cols], M_goal, rest, len(Z), Vs, S, a[:, None] * (fac.s**2)[None, :], info,
                    (Vs.astype(dtype), A1.astype(dtype)))
 
+    @property
+    def runs(self) -> list[tuple[int, int, int]]:
+        """``cols`` as runs of consecutive columns ``(start, stop, offset in cols)`` (``cols`` ascends)."""
+        breaks = np.flatnonzero(np.diff(self.cols) != 1) + 1
+        return [(int(self.cols[i]), int(self.cols[j - 1]) + 1, int(i))
+                for i, j in zip([0, *breaks], [*breaks, len(self.cols)], strict=True)]
+
     def residual(self, weight: np.ndarray) -> np.ndarray:
         """``M = A₁ W̃ᵀ V diag(s) − M*`` at ``weight`` (``W̃``: ``k_out × k̃``, the bias as last column)."""
-        WV = weight[:, self.cols].T @ self.Vs
+        W = np.concatenate([weight[:, start:stop] for start, stop, _ in self.runs], axis=1)
+        WV = W.T @ self.Vs
         return (self.A1[:, None] * WV if self.A1.ndim == 1 else self.A1 @ WV) - self.M_goal
 
     def loss(self, M: np.ndarray) -> float:
@@ -193,7 +200,8 @@ class Carried:
             prod = (Vs @ X) @ A1 if k * kept * (r + kt) <= r * kt * (kept + k) else Vs @ (X @ A1)
         if self.delta is None or self.delta.shape != weight.shape or self.delta.dtype != weight.dtype:
             self.delta = np.zeros(weight.shape, weight.dtype)  # the dead columns stay zero
-        self.delta[:, f.cols] = prod
+        for start, stop, at in f.runs:  # slices: a fancy-indexed column write costs 20× more
+            self.delta[:, start:stop] = prod[:, at:at + stop - start]
         self.dd, self.dM = float(np.vdot(self.delta, self.delta)), dM
         return self.delta, f.loss(M)
 

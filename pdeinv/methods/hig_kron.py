@@ -33,6 +33,8 @@ sums over the rows: over ``P`` shards, ``G = Σ_r G_r`` and ``N = Σ_r N_r``, so
 
 from __future__ import annotations
 
+import operator
+
 import numpy as np
 import torch
 
@@ -60,6 +62,19 @@ class InputGram:
     def __init__(self):
         self.G = self.a = self.W = self.key = None
         self.seen = None  # the rows of the last step (HIG: the same rows again take this Gram)
+        self._last = None  # (tensors, versions, key) of the last key_of
+
+    def key_of(self, y: torch.Tensor, goal: torch.Tensor | None = None) -> frozenset:
+        """:func:`rows_key` of the batch, not recomputed when it is the same tensors as the last call,
+        unmodified in place (``_version``): a full-batch run passes the training tensors themselves."""
+        tensors = (y, goal)
+        versions = tuple(None if t is None else t._version for t in tensors)
+        last = self._last
+        if last is not None and last[1] == versions and all(map(operator.is_, last[0], tensors)):
+            return last[2]
+        key = rows_key(y, goal)
+        self._last = (tensors, versions, key)
+        return key
 
     def kept(self, key: frozenset | None) -> np.ndarray | None:
         """The kept ``G`` if it is of the rows ``key``, else ``None``."""
