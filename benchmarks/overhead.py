@@ -27,8 +27,7 @@ so absolute times drift between runs; each ratio is from interleaved runs of one
 * after (copies into buffers allocated once, finiteness by one sum per tensor): ratio 1.13 and 1.19
   (150 × 4, median step; trainer 61.6 / 46.3 ms, plain 54.7 / 39.0 ms). Of the ~7 ms left, the
   snapshot is 4.6 ms (one copy of θ and of Adam's two moments, 3 × 7.4 MB, which an exact roll-back of
-  an in-place update needs) and the finiteness tests 0.8 ms.
-
+  an in-place update needs) and the finiteness tests 0.8 ms;
 * the last good state copied every 10th step, not every step (the guard's ``snapshot_every``: a
   rejection rolls back to that copy, up to 9 good steps, which are redone): ratio 1.002 (150 × 3,
   median step; trainer 43.2 ms, plain 43.2 ms), within the issue's target (≤ 5 %).
