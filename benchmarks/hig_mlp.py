@@ -1,4 +1,4 @@
-"""HIG on an MLP (``pdeinv train SCENE --method hig --hidden W,W``): today's route against the layers route.
+"""HIG on an MLP (``pdeinv train SCENE --method hig --hidden W,W``): today's route and the last-layer route.
 
     OMP_NUM_THREADS=1 python benchmarks/hig_mlp.py [--scenes heat_1d heat_2d wave_2d] [--hidden 64,64]
         [--steps 100] [--batch 32] [--equal-time]
@@ -9,8 +9,9 @@ route, the routes interleaved in one process on one thread:
 
 * ``auto``: today's choice for a network not linear in θ (the dense Jacobian with the Gram or SVD,
   or matrix-free when the dense Jacobian exceeds ``max_jacobian_gb``);
-* ``layers``: the layer-wise Kronecker route (:mod:`pdeinv.methods.hig_layers`);
-* with ``--equal-time``: ``layers`` again with ``auto``'s wall time as its time budget.
+* ``last_layer``: the last layer's exact step, hidden layers fixed (:mod:`pdeinv.methods.hig_layers`);
+* with ``--equal-time``: ``last_layer`` again with ``auto``'s wall time as its time budget (row
+  ``last=t``).
 
 A step's time is the median interval between consecutive steps 2 … steps−1 (the first step builds
 the operator's SVD); the x-error is the trainer's final test x-error (mean relative L²(Ω), 128 test
@@ -63,7 +64,7 @@ def main(argv=None) -> None:
     parser.add_argument("--hidden", default="64,64")
     parser.add_argument("--steps", type=int, default=100)
     parser.add_argument("--batch", type=int, default=32)
-    parser.add_argument("--routes", nargs="+", default=["auto", "layers"])
+    parser.add_argument("--routes", nargs="+", default=["auto", "last_layer"])
     parser.add_argument("--equal-time", action="store_true")
     args = parser.parse_args(argv)
 
@@ -73,7 +74,7 @@ def main(argv=None) -> None:
     import pdeinv
 
     hidden = tuple(int(w) for w in args.hidden.split(","))
-    print(f"{'scene':<10} {'hidden':<9} {'batch':>5} {'route':<8} {'taken':<12} {'steps':>5} "
+    print(f"{'scene':<10} {'hidden':<9} {'batch':>5} {'route':<10} {'taken':<12} {'steps':>5} "
           f"{'ms/step':>9} {'wall s':>8} {'x-error':>9}", flush=True)
     for scene in args.scenes:
         problem = pdeinv.load_problem(scene)
@@ -83,12 +84,12 @@ def main(argv=None) -> None:
             walls[route] = row["wall"]
             show(scene, hidden, args.batch, row)
         if args.equal_time and "auto" in walls:
-            row = run(problem, hidden, "layers", None, args.batch, budget=walls["auto"])
-            show(scene, hidden, args.batch, {**row, "route": "layers="})
+            row = run(problem, hidden, "last_layer", None, args.batch, budget=walls["auto"])
+            show(scene, hidden, args.batch, {**row, "route": "last=t"})
 
 
 def show(scene, hidden, batch, row) -> None:
-    print(f"{scene:<10} {','.join(map(str, hidden)):<9} {batch:>5} {row['route']:<8} {row['taken']:<12} "
+    print(f"{scene:<10} {','.join(map(str, hidden)):<9} {batch:>5} {row['route']:<10} {row['taken']:<12} "
           f"{row['steps']:>5} {row['ms']:>9.1f} {row['wall']:>8.1f} {row['x_err']:>9.4f}", flush=True)
 
 

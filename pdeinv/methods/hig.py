@@ -62,6 +62,11 @@ class HIG(Rule):
       iterations (:mod:`pdeinv.methods.hig_randomized`); exact when
       ``rank(J) ≤ probes``, else the step lives in the top-``probes`` singular
       subspace (``info["rank_limited"]`` says when the cap, not τ, cut the spectrum);
+    * ``"last_layer"``: for a dense network (:class:`pdeinv.MLP`, :func:`pdeinv.nets.dense`, a
+      :class:`~pdeinv.nets.Net` with such a body; others are refused): the exact step of its last
+      ``nn.Linear`` on the hidden features (``J_LᵀJ_L = (P̂ᵀP̂) ⊗ (H̃ᵀH̃)``, :mod:`.hig_kron`'s algebra),
+      ``J`` never formed; **the hidden layers take no step** (:mod:`pdeinv.methods.hig_layers`: a
+      Kronecker-factored step for them was measured to diverge); τ and ``σ_max`` are the last layer's;
     * ``"auto"``: ``gram`` when rows ≤ parameters and the kept part's condition
       number ``σ_max/σ_min,kept`` is at most ``gram_cond_max`` (1e6: relative error
       ≲ 2e-4 in the smallest kept direction), else ``svd`` (recorded as

@@ -8,8 +8,8 @@ A *route* turns one batch into the HIG direction ``−η V Λ^e Uᵀ g`` (see :c
   physics call on ``B·n_params`` network Jacobian columns) — and decomposes it
   with :class:`SVD`, :class:`Gram` or :class:`GramOrSVD`;
 * :class:`MatrixFree` never forms ``J`` (:mod:`.hig_randomized`);
-* :class:`LayerKronecker` never forms ``J`` either: per layer of a dense network, a Kronecker-factored
-  block (exact for the last layer; :mod:`.hig_layers` says what is approximated).
+* :class:`LastLayer` never forms ``J`` either: a dense network's last layer takes the exact step on its
+  hidden features, the hidden layers none (:mod:`.hig_layers` says what is approximated).
 
 :data:`ROUTES` maps a route name to the candidates tried in order; the first
 whose memory fits ``max_jacobian_gb`` is taken (so ``"auto"`` goes matrix-free
@@ -232,29 +232,33 @@ class MatrixFree:
 
 
 @dataclass(frozen=True)
-class LayerKronecker:
-    """Per layer ``Ḡ_ℓ ⊗ A_ℓ`` (:mod:`.hig_layers`): the last layer exact, the hidden ones K-FAC, the
-    layers' cross terms dropped; ``net``: the network's :class:`~.hig_layers.Layers`."""
+class LastLayer:
+    """The exact HIG step of a dense network's last layer on its hidden features; the hidden layers take
+    no step (:mod:`.hig_layers` says why). ``lin``, ``names``: :func:`.hig_layers.last_layer`."""
 
-    net: hig_layers.Layers
-    name = "layers"
+    lin: object
+    names: tuple
+    name = "last_layer"
 
-    def memory(self, b: Batch) -> int:  # per-sample n × n factors of the widest layer, inputs, outputs
-        B, widths = b.y.shape[0], [m.out_features for m in self.net.linears]
-        widest = max(widths[:-1], default=0)
-        return 8 * (2 * B * widest**2 + 2 * B * sum(m.in_features + 1 for m in self.net.linears)
-                    + B * (b.op.n_out + widths[-1]) + widths[-1] * min(b.op.n_out, widths[-1]))
+    def memory(self, b: Batch) -> int:  # the features, residuals and a B × B or k̃ × k̃ Gram, float64
+        B, k = b.y.shape[0], self.lin.layer.in_features + 1
+        return 8 * (B * k + B * b.op.n_out + min(B, k) ** 2 + k * self.lin.layer.out_features)
 
     def describe(self, b: Batch) -> str:
-        return f"layers route: {self.memory(b) / 2**30:.1f} GB"
+        return f"last-layer route: {self.memory(b) / 2**30:.1f} GB"
 
     def direction(self, b: Batch, r: torch.Tensor, rule, step: int):
-        fac = decoded_svd(b.op, self.net.decoder)
-        steps, info = hig_layers.direction(self.net, fac, b.y, r.reshape(b.y.shape[0], -1).numpy(), b.params,
-                                           rule.eta, rule.tau, rule.exponent)
+        fac = decoded_svd(b.op, self.lin.decoder)
+        R = r.reshape(b.y.shape[0], -1).numpy()
+        steps, info = hig_layers.direction(self.lin, self.names, fac, b.y, R, rule.eta, rule.tau,
+                                           rule.exponent)
         parts = [steps[n].reshape(-1) if n in steps else torch.zeros(p.numel(), dtype=torch.float64)
                  for n, p in b.params.items()]
         return torch.cat(parts), {**info, "jacobian": "none"}
+
+
+def _last_layer(b: Batch) -> LastLayer:
+    return LastLayer(*hig_layers.last_layer(b.model))
 
 
 #: decomposition name -> (rule, rows, n_params) -> decomposition of a dense J
@@ -279,5 +283,5 @@ ROUTES = {
     "svd": lambda rule, b: [_dense(rule, b)],
     "gram": lambda rule, b: [_dense(rule, b)],
     "randomized": lambda rule, b: [_matrix_free(rule)],
-    "layers": lambda rule, b: [LayerKronecker(hig_layers.layers(b.model))],
+    "last_layer": lambda rule, b: [_last_layer(b)],
 }
