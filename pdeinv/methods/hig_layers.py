@@ -54,45 +54,60 @@ SUPPORTED = ("pdeinv.MLP, pdeinv.nets.dense (an nn.Sequential of nn.Linear layer
              "pdeinv.nets.Net with such a body")
 
 
+def body(model: nn.Module, route: str = "last_layer") -> tuple:
+    """``(before, mods, decoder)``: the fixed input map (``None``: the identity), the body's modules
+    (``nn.Linear`` and :data:`ELEMENTWISE` activations, ending in an ``nn.Linear``) and the decoder rows
+    ``Dᵀ`` (``None``: the identity) of a supported network; ``ValueError`` naming what ``route``
+    supports for any other."""
+    from ..nets import MLP, Net
+
+    decoder = None
+    if isinstance(model, MLP):
+        net, before = model.body, lambda y: (y - model.shift) / model.scale  # noqa: E731
+    elif isinstance(model, Net):
+        if not isinstance(model.post, nn.Identity) and model.decoder is None:
+            _refuse(model, route, f"its output map {type(model.post).__name__} is not a fixed decoder")
+        net, before, decoder = model.body, model.pre, model.decoder
+    elif isinstance(model, nn.Sequential):
+        net, before = model, None
+    else:
+        _refuse(model, route, "it is none of them")
+    if not isinstance(net, nn.Sequential | nn.Linear):
+        _refuse(model, route, f"its body is a {type(net).__name__}")
+    mods = list(net) if isinstance(net, nn.Sequential) else [net]
+    if not mods or type(mods[-1]) is not nn.Linear:
+        _refuse(model, route, "its body does not end in an nn.Linear")
+    odd = [type(m).__name__ for m in mods if type(m) is not nn.Linear and not isinstance(m, ELEMENTWISE)]
+    if odd:
+        _refuse(model, route, f"its body holds {', '.join(odd)}")
+    return before, mods, decoder
+
+
+def names(model: nn.Module, layer: nn.Linear) -> tuple:
+    """The model's names of ``layer``'s (weight, bias)."""
+    names_of = {id(p): n for n, p in model.named_parameters()}
+    return tuple(names_of[id(p)] for p in (layer.weight, layer.bias) if p is not None)
+
+
 def last_layer(model: nn.Module):
     """``(lin, names)``: ``model`` as linear in its last layer after the fixed map of the others
     (:class:`pdeinv.nets.LinearInParameters`: features, decoder rows ``Dᵀ`` or ``None``, the last
     ``nn.Linear``) and the model's names of that layer's (weight, bias); ``ValueError`` naming what is
-    supported for any other network, or when the last layer is frozen."""
-    from ..nets import MLP, LinearInParameters, Net
+    supported for any other network (:func:`body`), or when the last layer is frozen."""
+    from ..nets import LinearInParameters
 
-    decoder = None
-    if isinstance(model, MLP):
-        body, before = model.body, lambda y: (y - model.shift) / model.scale  # noqa: E731
-    elif isinstance(model, Net):
-        if not isinstance(model.post, nn.Identity) and model.decoder is None:
-            _refuse(model, f"its output map {type(model.post).__name__} is not a fixed decoder")
-        body, before, decoder = model.body, model.pre, model.decoder
-    elif isinstance(model, nn.Sequential):
-        body, before = model, None
-    else:
-        _refuse(model, "it is none of them")
-    if not isinstance(body, nn.Sequential | nn.Linear):
-        _refuse(model, f"its body is a {type(body).__name__}")
-    mods = list(body) if isinstance(body, nn.Sequential) else [body]
-    if not mods or type(mods[-1]) is not nn.Linear:
-        _refuse(model, "its body does not end in an nn.Linear")
-    odd = [type(m).__name__ for m in mods if type(m) is not nn.Linear and not isinstance(m, ELEMENTWISE)]
-    if odd:
-        _refuse(model, f"its body holds {', '.join(odd)}")
+    before, mods, decoder = body(model)
     layer = mods[-1]
     if not all(p.requires_grad for p in layer.parameters()):
         raise ValueError("HIG(route='last_layer') steps the last nn.Linear layer only; it is (partly) frozen "
                          "here: unfreeze its weight and bias, or use route='svd'")
     hidden = nn.Sequential(*mods[:-1])
     features = hidden if before is None else (lambda y: hidden(before(y)))  # noqa: E731
-    names_of = {id(p): n for n, p in model.named_parameters()}
-    names = tuple(names_of[id(p)] for p in (layer.weight, layer.bias) if p is not None)
-    return LinearInParameters(features, decoder, layer), names
+    return LinearInParameters(features, decoder, layer), names(model, layer)
 
 
-def _refuse(model, why: str):
-    raise ValueError(f"HIG(route='last_layer') supports {SUPPORTED}; {type(model).__name__} is not "
+def _refuse(model, route: str, why: str):
+    raise ValueError(f"HIG(route={route!r}) supports {SUPPORTED}; {type(model).__name__} is not "
                      f"supported: {why}")
 
 
