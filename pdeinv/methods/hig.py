@@ -50,6 +50,12 @@ class HIG(Rule):
       has fewer parameters than observations) — identical results, the physics cost
       differs by the factor ``n_params / n_out``.
 
+    On a dense network (:class:`pdeinv.MLP`, :func:`pdeinv.nets.dense`, a :class:`~pdeinv.nets.Net` with
+    such a body) ``J`` and ``J Jᵀ`` are built from its layer structure instead
+    (:mod:`pdeinv.methods.hig_structured`, ``info["jacobian"] == "structured"``): the same ``J``,
+    no ``torch.func``, and ``J Jᵀ`` at ``(B·r)²`` per hidden width instead of per parameter
+    (heat_1d, MLP (64, 64), batch 32: 0.16 s per step against 1.2 s).
+
     Decomposition (``route=``; recorded in ``info["route"]``):
 
     * ``"svd"``: float64 thin SVD of ``J``;

@@ -6,7 +6,8 @@ A *route* turns one batch into the HIG direction ``−η V Λ^e Uᵀ g`` (see :c
   trainable parameters) with a Jacobian strategy — :class:`Reverse` (one adjoint
   physics call on ``B·n_out`` unit cotangents) or :class:`Forward` (one forward
   physics call on ``B·n_params`` network Jacobian columns) — and decomposes it
-  with :class:`SVD`, :class:`Gram` or :class:`GramOrSVD`;
+  with :class:`SVD`, :class:`Gram` or :class:`GramOrSVD`; on a dense network :class:`Structured`
+  builds the same ``J`` (or only ``J Jᵀ``) from its layers instead (:mod:`.hig_structured`);
 * :class:`MatrixFree` never forms ``J`` (:mod:`.hig_randomized`);
 * :class:`LastLayer` never forms ``J`` either: a dense network's last layer takes the exact step on its
   hidden features, the hidden layers none (:mod:`.hig_layers` says what is approximated).
