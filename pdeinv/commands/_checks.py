@@ -86,6 +86,8 @@ def check_run(problem, args, hp: dict) -> None:
         budget = memory.HIG_JACOBIAN_GB * 2**30
         if 4 * rows * cols <= budget:  # the dense routes
             est, route = hig_step_seconds(per_sample, cols, batch), f"Jacobian {rows} x {cols}"
+        elif hp["hidden"]:  # the MLP takes its last layer's exact step (pdeinv.methods.hig_layers): ms
+            est, route = 0.0, "the last layer's exact step"
         elif memory_bytes(cols, HIG.probes, rows) <= budget:  # HIG goes matrix-free (hig_randomized)
             est = hig_matrix_free_seconds(per_sample, problem.operator.n_in, cols, batch, HIG.probes,
                                           HIG.power_iters)
