@@ -136,8 +136,8 @@ def test_other_networks_are_refused_naming_what_is_supported():
                                                      ("wave_1d", dict(n=32), 2.5)])
 def test_the_route_is_about_as_accurate_as_the_dense_route_at_a_tenth_of_its_steps(scene, settings, factor):
     """The CLI's HIG preset on an MLP (16, 16), batch 32, the same data and seed: the last-layer route
-    after 100 steps (~0.3 s) against today's default route (the dense Jacobian's Gram) after 10
-    (~5–15 s, one shared thread). Measured x-errors: heat_1d 0.206 against 0.254 (better), wave_1d
+    after 100 steps (~0.3 s) against the default route (the exact step: the dense Jacobian's Gram) after 10
+    (a few seconds, one shared thread). Measured x-errors: heat_1d 0.206 against 0.254 (better), wave_1d
     0.209 against 0.105 (2.0× worse: a narrow MLP's fixed random features limit the route where
     the hidden layers matter); the factors leave ~20 % margin, and the test fails if either route's
     accuracy moves past them."""
