@@ -171,9 +171,6 @@ CLI = [
     ("sensor-outside", ["heat_sensors_2d", "--set", "sensors=[[0.5, 0.5], [1.5, 0.5]]", "--set",
                         "record_every=1"], r"outside the mesh.*sensor 1 at \[1\.5, 0\.5\]"),
     ("batch-above-data", ["heat_1d", "--batch-size", "64"], r"batch_size=64 is larger than n_train=16"),
-    ("hig-over-budget", ["heat_1d", "--method", "hig", "--hidden", "2048,2048", "--batch-size", "64",
-                         "--n-train", "64"],
-     r"HIG Jacobian .* GB .*max_jacobian_gb"),
     ("lr-nan", ["heat_1d", "--lr", "nan"], r"lr=nan is not allowed; expected a finite number > 0"),
     ("lr-negative", ["heat_1d", "--method", "sip", "--lr=-1e-3"], r"lr=-0\.001 is not allowed"),
     ("max-failures-zero", ["heat_1d", "--max-failures", "0"], r"max_failures=0 is not allowed"),
@@ -287,8 +284,7 @@ def test_a_failing_run_keeps_what_was_written(files, tmp_path, capsys):
     shutil.copytree(files / "run", run)
     before = {p.name: p.read_bytes() for p in run.iterdir()}
     for extra in (["--overwrite", "--set", "kappa=-1"], ["--resume", "--hidden", "4"],
-                  ["--overwrite", "--method", "hig", "--set", "n=4000", "--batch-size", "16",
-                   "--hidden", "256,256"]):
+                  ["--overwrite", "--method", "hig", "--eta=-1"]):
         assert main(["train", "heat_1d", *SMALL, "--out", str(run), *extra]) == 2
     capsys.readouterr()
     assert {p.name: p.read_bytes() for p in run.iterdir()} == before

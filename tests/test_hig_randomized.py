@@ -18,10 +18,12 @@ def scene():
     return p, model, torch.tensor(y)
 
 
-def _delta(p, model, y, **kw):
-    """The parameter change of one HIG step from ``model`` (left unchanged) and the step's info."""
+def _delta(p, model, y, wrap=False, **kw):
+    """The parameter change of one HIG step from ``model`` (left unchanged) and the step's info;
+    ``wrap``: inside an ``nn.Sequential``, which HIG's last-layer route does not take."""
     m = MLP(p.operator.n_out, p.N, hidden=(8,)).double()
     m.load_state_dict(model.state_dict())
+    m = torch.nn.Sequential(m) if wrap else m
     rule = HIG(**{"normalize": False, **kw})  # the raw step: each route would scale by its own σ_max
     _, info = rule.step(rule.init(p, m), m, y)
     flat = lambda net: torch.cat([q.detach().flatten() for q in net.parameters()])  # noqa: E731
@@ -73,14 +75,17 @@ def test_capped_sketch_with_power_iterations_finds_the_top_subspace(scene):
 
 def test_auto_goes_matrix_free_only_when_the_dense_jacobian_does_not_fit(scene):
     p, model, y = scene
-    # dense (gram route, 45 × 263 float32 + float64) ≈ 142 kB; the 10-probe sketch ≈ 70 kB
+    # dense (gram route, 45 × 263 float32 + float64) ≈ 142 kB; the 10-probe sketch ≈ 70 kB; the MLP's
+    # last-layer step (pdeinv.methods.hig_layers) ≈ 2 kB: a dense network takes that instead
     _, info = _delta(p, model, y, route="auto", probes=10, max_jacobian_gb=100e3 / 2**30)
+    assert info["route"] == "last_layer"
+    _, info = _delta(p, model, y, wrap=True, route="auto", probes=10, max_jacobian_gb=100e3 / 2**30)
     assert info["route"] == "randomized" and info["jacobian"] == "matrix-free"
-    _, info = _delta(p, model, y, route="auto", probes=10)
+    _, info = _delta(p, model, y, wrap=True, route="auto", probes=10)
     assert info["route"] in ("gram", "svd")
     with pytest.raises(ValueError, match=r"needs about .* GB with route 'gram' \(the matrix-free route: "
                                          r".* GB with probes=10\).*batch_size"):
-        _delta(p, model, y, route="auto", probes=10, max_jacobian_gb=10e3 / 2**30)
+        _delta(p, model, y, wrap=True, route="auto", probes=10, max_jacobian_gb=10e3 / 2**30)
     with pytest.raises(ValueError, match=r"with route 'randomized', above max_jacobian_gb"):
         _delta(p, model, y, route="randomized", probes=10, max_jacobian_gb=10e3 / 2**30)
 

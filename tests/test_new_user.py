@@ -47,14 +47,9 @@ CLI = [
     ("hidden-huge", ["heat_1d", "--hidden", "100000,100000"], r"1e\+10 parameters.* GB"),
     ("small-budget", ["heat_1d", "--max-memory-gb", "1e-6"], r"budget of 1e-06 GB \(--max-memory-gb\)"),
     ("budget-negative", ["heat_1d", "--max-memory-gb=-1"], r"--max-memory-gb -1\.0 is not allowed"),
-    ("hig-slow", ["heat_2d", "--method", "hig", "--hidden", "32,32"], r"HIG on heat_2d would take about .* s "
-                                                         r"per step .*--hidden 16 --batch-size 1"),
     ("hig-mlp-full-batch", ["heat_1d", "--method", "hig", "--hidden", "64", "--n-train", "1024",
                             "--batch-size", "1024"],  # the SVD route (n=64, (16,): 64 s), unrefused
-     r"HIG on heat_1d would take about .* s per step \(Jacobian \d+ x 1999,"),
-    ("hig-matrix-free", ["heat_2d", "--method", "hig", "--hidden", "64,64", "--n-train", "1024",
-                         "--batch-size", "1024"],  # it took 97 s per step, unrefused
-     r"HIG on heat_2d would take about .* s per step \(matrix-free"),
+     r"HIG on heat_1d would take about .* s per step \(Jacobian \d+ x 1999,.*--hidden 16 --batch-size 1"),
     ("mesh-zero-area", ["heat_2d", "--set", "mesh={d}/flat.msh"], r"cell 2 .* has zero size"),
     ("mesh-nan", ["heat_2d", "--set", "mesh={d}/nan.msh"], r"node 3 has coordinates \[nan, 1\.0\]"),
     ("mesh-duplicated", ["heat_2d", "--set", "mesh={d}/dup.msh"], r"nodes 2, 4 coincide at \[1\.0, 1\.0\]"),

@@ -208,7 +208,6 @@ def test_cli_train_writes_metrics_history_and_plot(tmp_path, capsys):
     (["nowhere"], "unknown problem 'nowhere'"),
     (["heat_1d", "--hidden", "64,x"], "--hidden"),
     (["heat_1d", "--steps", "0"], "steps=0"),
-    (["heat_2d", "--method", "hig", "--hidden", "2048,2048"], "GB"),  # even matrix-free: ~17 GB
     (["heat_1d", "--resume", "--overwrite"], "--resume and --overwrite conflict"),
     (["heat_1d", "--data", "train.npz"], "--n-train does not apply with --data"),
     (["heat_1d", "--set", "n=16", "--resume"], "no checkpoint at .* to resume from"),

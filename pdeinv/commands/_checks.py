@@ -82,10 +82,13 @@ def check_run(problem, args, hp: dict) -> None:
         rows, cols = batch * per_sample, n_parameters(problem, hp["hidden"])
         from pdeinv.methods.hig import HIG
         from pdeinv.methods.hig_randomized import memory_bytes
+        from pdeinv.methods.hig_routes import SVD
 
         budget = memory.HIG_JACOBIAN_GB * 2**30
-        if 4 * rows * cols <= budget:  # the dense routes
+        if SVD.bytes_per_entry * rows * cols <= budget:  # the dense routes (as HIG budgets them)
             est, route = hig_step_seconds(per_sample, cols, batch), f"Jacobian {rows} x {cols}"
+        elif hp["hidden"]:  # the MLP takes its last layer's exact step (pdeinv.methods.hig_layers): ms
+            est, route = 0.0, "the last layer's exact step"
         elif memory_bytes(cols, HIG.probes, rows) <= budget:  # HIG goes matrix-free (hig_randomized)
             est = hig_matrix_free_seconds(per_sample, problem.operator.n_in, cols, batch, HIG.probes,
                                           HIG.power_iters)

@@ -6,12 +6,16 @@ A *route* turns one batch into the HIG direction ``−η V Λ^e Uᵀ g`` (see :c
   trainable parameters) with a Jacobian strategy — :class:`Reverse` (one adjoint
   physics call on ``B·n_out`` unit cotangents) or :class:`Forward` (one forward
   physics call on ``B·n_params`` network Jacobian columns) — and decomposes it
-  with :class:`SVD`, :class:`Gram` or :class:`GramOrSVD`;
-* :class:`MatrixFree` never forms ``J`` (:mod:`.hig_randomized`).
+  with :class:`SVD`, :class:`Gram` or :class:`GramOrSVD`; on a dense network :class:`Structured`
+  builds the same ``J`` (or only ``J Jᵀ``) from its layers instead (:mod:`.hig_structured`);
+* :class:`MatrixFree` never forms ``J`` (:mod:`.hig_randomized`);
+* :class:`LastLayer` never forms ``J`` either: a dense network's last layer takes the exact step on its
+  hidden features, the hidden layers none (:mod:`.hig_layers` says what is approximated).
 
 :data:`ROUTES` maps a route name to the candidates tried in order; the first
-whose memory fits ``max_jacobian_gb`` is taken (so ``"auto"`` goes matrix-free
-only when the dense Jacobian does not fit). :data:`JACOBIANS` maps a Jacobian
+whose memory fits ``max_jacobian_gb`` is taken (so ``"auto"`` leaves the dense Jacobian
+only when it does not fit: then a dense network takes :class:`LastLayer`, any other the
+matrix-free route). :data:`JACOBIANS` maps a Jacobian
 name to its strategy; ``"auto"`` takes the one with fewer physics columns.
 """
 
@@ -22,9 +26,12 @@ from typing import NamedTuple
 
 import numpy as np
 import torch
+from torch import nn
 from torch.func import functional_call, jacrev, vmap
 
 from ..autograd import apply
+from ..inverse.decoder import decoded_svd
+from . import hig_layers, hig_structured
 from .base import check_finite
 from .hig_randomized import memory_bytes, randomized_direction
 
@@ -227,6 +234,121 @@ class MatrixFree:
         return delta, {**info, "jacobian": "matrix-free"}
 
 
+@dataclass(frozen=True)
+class LastLayer:
+    """The exact HIG step of a dense network's last layer on its hidden features; the hidden layers take
+    no step (:mod:`.hig_layers` says why). ``lin``, ``names``: :func:`.hig_layers.last_layer`."""
+
+    lin: object
+    names: tuple
+    name = "last_layer"
+
+    def memory(self, b: Batch) -> int:  # the features, residuals and a B × B or k̃ × k̃ Gram, float64
+        B, k = b.y.shape[0], self.lin.layer.in_features + 1
+        return 8 * (B * k + B * b.op.n_out + min(B, k) ** 2 + k * self.lin.layer.out_features)
+
+    def describe(self, b: Batch) -> str:
+        return f"last-layer route: {self.memory(b) / 2**30:.1f} GB"
+
+    def direction(self, b: Batch, r: torch.Tensor, rule, step: int):
+        fac = decoded_svd(b.op, self.lin.decoder)
+        R = r.reshape(b.y.shape[0], -1).numpy()
+        steps, info = hig_layers.direction(self.lin, self.names, fac, b.y, R, rule.eta, rule.tau,
+                                           rule.exponent)
+        parts = [steps[n].reshape(-1) if n in steps else torch.zeros(p.numel(), dtype=torch.float64)
+                 for n, p in b.params.items()]
+        return torch.cat(parts), {**info, "jacobian": "none"}
+
+
+def _last_layer(b: Batch) -> LastLayer:
+    return LastLayer(*hig_layers.last_layer(b.model))
+
+
+def _last_layer_if_dense(b: Batch) -> list:
+    """``[LastLayer]`` for a dense network whose last layer is trainable, else ``[]``."""
+    try:
+        return [_last_layer(b)]
+    except ValueError:
+        return []
+
+
+@dataclass(frozen=True)
+class Structured:
+    """The dense routes' exact step with ``J`` (or only ``J Jᵀ``) built from a dense network's layer
+    structure (:mod:`.hig_structured`) instead of ``torch.func``; ``decomposition``: :class:`SVD`,
+    :class:`Gram` or :class:`GramOrSVD`, whose ``info`` it gives."""
+
+    decoder: object
+    decomposition: object
+
+    @property
+    def name(self) -> str:
+        return self.decomposition.name
+
+    def memory(self, b: Batch) -> int:  # as the dense route: its SVD forms J
+        return b.rows * b.n_params * self.decomposition.bytes_per_entry
+
+    def describe(self, b: Batch) -> str:
+        return f"structured route: {self.memory(b) / 2**30:.1f} GB"
+
+    def direction(self, b: Batch, r: torch.Tensor, rule, step: int):
+        fac = decoded_svd(b.op, self.decoder)
+        ids = {id(p) for n, p in b.model.named_parameters() if n in b.params}
+        rows = hig_structured.Rows(b.model, fac, b.y, r.reshape(b.y.shape[0], -1).numpy(), ids)
+        for _, E, H in rows.layers:  # LAPACK on NaN fails or hangs
+            check_finite("the HIG Jacobian factors", E)
+            check_finite("the HIG Jacobian factors", H)
+        info = {}
+        if not isinstance(self.decomposition, SVD):  # Gram's cond_max is infinite: never refused
+            delta, info = self._gram(b, rows, rule)
+            if delta is not None:
+                return delta, {**info, "jacobian": "structured"}
+        J = rows.jacobian()
+        J = torch.cat([_columns(b, J, n) for n in b.params], 1)
+        delta, more = SVD().direction(J, rows.g, rule)
+        return delta, {**info, **more, "jacobian": "structured"}
+
+    def _gram(self, b: Batch, rows, rule):
+        """:class:`Gram`'s step from the factors' ``J Jᵀ``, ``Jᵀ c``; ``(None, info)`` past ``cond_max``."""
+        lam2, U = np.linalg.eigh(rows.gram().numpy())
+        s = np.sqrt(lam2.clip(min=0))
+        keep = _kept(s, rule.tau)
+        cond = float(s.max() / s[keep].min())
+        if cond > getattr(self.decomposition, "cond_max", float("inf")):
+            return None, {"gram_rejected": cond}
+        Uk, sk = U[:, keep], s[keep]
+        c = torch.from_numpy(Uk @ (sk ** (rule.exponent - 1) * (Uk.T @ rows.g.numpy())))
+        parts = rows.transpose_times(-rule.eta * c)
+        blocks = {m: t[None] for m, t in parts.items()}
+        delta = torch.cat([_columns(b, blocks, n).reshape(-1) for n in b.params])
+        return delta, dict(route="gram", rank=int(keep.sum()), cond=cond, sigma_max=float(s.max()))
+
+
+def _columns(b: Batch, per_layer: dict, name: str) -> torch.Tensor:
+    """Parameter ``name``'s columns of ``rows × n_out × (n_in[+1])`` per-layer blocks, flattened."""
+    for m, t in per_layer.items():
+        if m.weight is b.model.get_parameter(name):
+            return t[:, :, : m.in_features].reshape(len(t), -1)
+        if m.bias is not None and m.bias is b.model.get_parameter(name):
+            return t[:, :, -1]
+    raise KeyError(name)
+
+
+def _structured(rule, b: Batch):
+    """:class:`Structured` when ``b.model`` is a dense network whose trainable parameters are whole
+    ``nn.Linear`` layers (:func:`.hig_layers.body`), else ``None``."""
+    try:
+        _, mods, decoder = hig_layers.body(b.model, "auto")
+    except ValueError:
+        return None
+    linears = [m for m in mods if isinstance(m, nn.Linear)]
+    inside = {id(p) for m in linears for p in m.parameters()}
+    if any(id(p) not in inside for n, p in b.model.named_parameters() if n in b.params) or \
+            any(len({p.requires_grad for p in m.parameters()}) > 1 for m in linears):
+        return None
+    return Structured(decoder, DECOMPOSITIONS[rule.route](rule, b.rows, b.n_params))
+
+
 #: decomposition name -> (rule, rows, n_params) -> decomposition of a dense J
 DECOMPOSITIONS = {
     "auto": lambda rule, rows, n_params: auto_decomposition(rows, n_params, rule.gram_cond_max),
@@ -235,7 +357,12 @@ DECOMPOSITIONS = {
 }
 
 
-def _dense(rule, b: Batch) -> Dense:
+def _dense(rule, b: Batch):
+    """The dense route: :class:`Structured` for a dense network, else :class:`Dense` (``torch.func``)."""
+    return _structured(rule, b) or _jacobian(rule, b)
+
+
+def _jacobian(rule, b: Batch) -> Dense:
     return Dense(JACOBIANS[rule.jacobian].choose(b), DECOMPOSITIONS[rule.route](rule, b.rows, b.n_params))
 
 
@@ -245,8 +372,11 @@ def _matrix_free(rule) -> MatrixFree:
 
 #: route name -> (rule, batch) -> candidate routes, in order of preference
 ROUTES = {
-    "auto": lambda rule, b: [_dense(rule, b), _matrix_free(rule)],
+    # a dense network whose J does not fit: the last layer's exact step beat the matrix-free route at
+    # equal steps and at equal wall time (heat_2d, wave_2d, MLP (64, 64); pdeinv.methods.hig_layers)
+    "auto": lambda rule, b: [_dense(rule, b), *_last_layer_if_dense(b), _matrix_free(rule)],
     "svd": lambda rule, b: [_dense(rule, b)],
     "gram": lambda rule, b: [_dense(rule, b)],
     "randomized": lambda rule, b: [_matrix_free(rule)],
+    "last_layer": lambda rule, b: [_last_layer(b)],
 }
