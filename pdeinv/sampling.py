@@ -1,14 +1,26 @@
-"""Random initial fields for training and testing.
+"""Random initial fields for training and testing: the priors the built-in scenes draw from.
 
-``gaussian_bumps`` draws ``x(p) = Σ_{j<m} a_j exp(−|p − c_j|² / (2 s_j²))`` at the
-given points with, per sample and bump independently,
+Every sampler is ``sampler(points, n, rng) -> (n, N)``: fields evaluated at ``points``
+(``(dim, N)``), any dimension, any mesh. Lengths are relative to the bounding box of the points
+(``lo``, ``span = hi − lo``, ``diam = ‖span‖``); with homogeneous Dirichlet conditions the values
+at the boundary are dropped (condensation). :data:`PRIORS` maps the ``prior`` setting of the
+scenes to them.
 
-    m = bumps (default 3),  a_j ~ U(−1, 1),
-    c_j ~ U(box shrunk by 10% on each side),  s_j ~ U(0.05, 0.15) · diam(box),
-
-where ``box`` is the bounding box of the points. With homogeneous Dirichlet
-conditions the values at the boundary are dropped (condensation), which leaves
-a small jump for bumps near the boundary; the physics smooths it at once.
+* :func:`gaussian_bumps` (``bumps``, the default): ``x(p) = Σ_{j<m} a_j exp(−|p − c_j|²/(2 s_j²))``,
+  ``m = 3``, ``a_j ~ U(−1, 1)``, ``c_j ~ U(lo + 0.1 span, hi − 0.1 span)``,
+  ``s_j ~ U(0.05, 0.15)·diam``. Smooth and nearly Gaussian in the leading modes: a linear estimator
+  is close to optimal for it.
+* :func:`boxes` (``boxes``; the SIP paper's heat prior, Holl et al. 2022):
+  ``x(p) = Σ_{j<m} a_j 1[|p_d − c_jd| ≤ h_jd ∀d]``, ``m ~ U{4, …, 10}``, ``a_j ~ U(0, 1)``,
+  ``c_j ~ U(lo + 0.1 span, hi − 0.1 span)``, half-sides ``h_jd ~ U(1/64, 10/64)·span_d`` (the paper:
+  up to 10 cells of 64). Piecewise constant with jumps: far from Gaussian; the conditional mean of
+  its fine scales given its coarse ones is nonlinear, which is what a network can learn and a
+  linear filter cannot.
+* :func:`gaussian_random_field` (``grf``): a stationary Gaussian field with the squared-exponential
+  covariance ``exp(−|p − q|²/(2ℓ²))``, ``ℓ = 0.1·diam``, drawn by random Fourier features
+  (Rahimi & Recht 2007): ``x(p) = √(2/K) Σ_{k<K} ξ_k cos(ω_k·p + φ_k)``, ``ω_k ~ N(0, ℓ⁻² I)``,
+  ``φ_k ~ U(0, 2π)``, ``ξ_k ~ N(0, 1)``, ``K = 512``: exactly Gaussian (given the features), the
+  prior for which the linear MMSE *is* the optimal estimator.
 """
 
 from __future__ import annotations
@@ -16,11 +28,15 @@ from __future__ import annotations
 import numpy as np
 
 
+def _box(points: np.ndarray):
+    lo, hi = points.min(axis=1), points.max(axis=1)
+    return lo, hi - lo
+
+
 def gaussian_bumps(points: np.ndarray, n: int, rng: np.random.Generator, bumps: int = 3,
                    width=(0.05, 0.15)) -> np.ndarray:
-    """``(n, N)`` fields at ``points`` (shape ``(dim, N)``), distribution as above."""
-    lo, hi = points.min(axis=1), points.max(axis=1)
-    span = hi - lo
+    """``(n, N)`` fields at ``points`` (shape ``(dim, N)``): the ``bumps`` prior (module docstring)."""
+    lo, span = _box(points)
     diam = float(np.linalg.norm(span))
     dim = points.shape[0]
     a = rng.uniform(-1.0, 1.0, size=(n, bumps))
@@ -28,6 +44,43 @@ def gaussian_bumps(points: np.ndarray, n: int, rng: np.random.Generator, bumps: 
     s = diam * rng.uniform(*width, size=(n, bumps))
     d2 = ((points.T[None, None, :, :] - c[:, :, None, :]) ** 2).sum(-1)  # (n, bumps, N)
     return np.einsum("nb,nbp->np", a, np.exp(-d2 / (2 * s[:, :, None] ** 2)))
+
+
+def boxes(points: np.ndarray, n: int, rng: np.random.Generator, count=(4, 10),
+          half=(1 / 64, 10 / 64)) -> np.ndarray:
+    """``(n, N)`` fields at ``points``: the ``boxes`` prior (module docstring); ``count`` bounds the
+    number of boxes (inclusive), ``half`` their half-sides relative to the bounding box."""
+    lo, span = _box(points)
+    dim, m = points.shape[0], count[1]
+    k = rng.integers(count[0], count[1] + 1, size=n)
+    a = rng.uniform(0.0, 1.0, size=(n, m)) * (np.arange(m)[None, :] < k[:, None])  # unused boxes: 0
+    c = lo + span * rng.uniform(0.1, 0.9, size=(n, m, dim))
+    h = span * rng.uniform(*half, size=(n, m, dim))
+    x = np.empty((n, points.shape[1]))
+    for i in range(n):  # (m, N) per sample: memory stays O(m·N) whatever n
+        inside = (np.abs(points.T[None, :, :] - c[i, :, None, :]) <= h[i, :, None, :]).all(-1)
+        x[i] = a[i] @ inside
+    return x
+
+
+def gaussian_random_field(points: np.ndarray, n: int, rng: np.random.Generator, length: float = 0.1,
+                          features: int = 512) -> np.ndarray:
+    """``(n, N)`` fields at ``points``: the ``grf`` prior (module docstring); ``length`` is ``ℓ``
+    relative to the bounding box's diameter, ``features`` is ``K``."""
+    _, span = _box(points)
+    ell = length * float(np.linalg.norm(span))
+    dim = points.shape[0]
+    out = np.empty((n, points.shape[1]))
+    for i in range(n):
+        w = rng.standard_normal((features, dim)) / ell
+        phase = rng.uniform(0.0, 2 * np.pi, size=(features, 1))
+        xi = rng.standard_normal(features)
+        out[i] = np.sqrt(2.0 / features) * xi @ np.cos(w @ points + phase)
+    return out
+
+
+#: the ``prior`` setting of the scenes: name -> sampler(points, n, rng)
+PRIORS = {"bumps": gaussian_bumps, "boxes": boxes, "grf": gaussian_random_field}
 
 
 def add_noise(Y: np.ndarray, level: float, rng: np.random.Generator) -> np.ndarray:

@@ -18,7 +18,7 @@ from .forms import discretize
 from .inverse import default_inverse
 from .physics import Heat, Leapfrog, Wave
 from .problem import Problem
-from .sampling import gaussian_bumps
+from .sampling import PRIORS
 
 #: settings every scene has
 COMMON = {
@@ -26,7 +26,14 @@ COMMON = {
     "T": (1.0, s.positive),
     "steps": (100, s.positive_int),
     "noise": (0.0, s.nonnegative),
+    "prior": ("bumps", s.one_of(*PRIORS)),  # what x is drawn from (pdeinv.sampling)
 }
+
+
+def prior(points, cfg: dict):
+    """The scene's sampler ``(n, rng) -> (n, N)`` at ``points``: ``cfg['prior']`` (default ``bumps``)
+    from :data:`pdeinv.sampling.PRIORS`."""
+    return partial(PRIORS[cfg.get("prior", "bumps")], points)
 
 HEAT = {**COMMON, "kappa": (0.01, s.positive), "scheme": ("be", s.one_of("be", "cn")),
         "backend": ("auto", s.one_of("auto", "steps", "modal", "dense", "svd"))}
@@ -63,7 +70,7 @@ def heat(name: str, mesh, cfg: dict) -> Problem:
     C = cfg["reaction"] * disc.M if cfg.get("reaction") else None
     op = Heat(disc.M, disc.K, kappa=cfg["kappa"], T=cfg["T"], steps=cfg["steps"],
               scheme=cfg["scheme"], backend=cfg["backend"], measure=disc.measure, dim=disc.dim, C=C)
-    return Problem(name, disc, op, partial(gaussian_bumps, disc.points), settings=cfg,
+    return Problem(name, disc, op, prior(disc.points, cfg), settings=cfg,
                    noise=cfg["noise"],
                    inverse_simulator=default_inverse(op, disc, noise=cfg["noise"]))
 
@@ -79,7 +86,7 @@ def heat_sensors(name: str, mesh, cfg: dict) -> Problem:
                    scheme=cfg["scheme"], backend="steps", measure=disc.measure, dim=disc.dim)
     op = heat_op.sensors(observe.sensor_matrix(disc, points), cfg["record_every"]).compile(cfg["backend"],
                                                                                          disc.M)
-    return Problem(name, disc, op, partial(gaussian_bumps, disc.points),
+    return Problem(name, disc, op, prior(disc.points, cfg),
                    settings={**cfg, "sensor_points": points}, noise=cfg["noise"],
                    inverse_simulator=default_inverse(op, disc, noise=cfg["noise"]))
 
@@ -90,7 +97,7 @@ def advection_diffusion(name: str, mesh, cfg: dict) -> Problem:
     C = convection(disc, cellular_flow(cfg["speed"]), cfg["kappa"])
     op = Heat(disc.M, disc.K, kappa=cfg["kappa"], T=cfg["T"], steps=cfg["steps"], scheme=cfg["scheme"],
               backend=cfg["backend"], measure=disc.measure, dim=disc.dim, C=C)
-    return Problem(name, disc, op, partial(gaussian_bumps, disc.points), settings=cfg, noise=cfg["noise"],
+    return Problem(name, disc, op, prior(disc.points, cfg), settings=cfg, noise=cfg["noise"],
                    inverse_simulator=default_inverse(op, disc, noise=cfg["noise"]))
 
 
@@ -103,6 +110,6 @@ def wave(name: str, mesh, cfg: dict) -> Problem:
     """
     disc = discretize(mesh, cfg["element"])
     op = WAVE_SCHEMES[cfg.get("scheme", "newmark")](mesh, disc, cfg).compile(cfg["backend"], disc.M)
-    return Problem(name, disc, op, partial(gaussian_bumps, disc.points), settings=cfg,
+    return Problem(name, disc, op, prior(disc.points, cfg), settings=cfg,
                    noise=cfg["noise"],
                    inverse_simulator=default_inverse(op, disc, noise=cfg["noise"]))

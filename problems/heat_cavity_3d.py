@@ -22,7 +22,6 @@ whitened linear map). Inverse simulator:
 :func:`pdeinv.inverse.default_inverse`.
 """
 
-from functools import partial
 from pathlib import Path
 
 from pdeinv.problems.heat_plate import names
@@ -33,7 +32,6 @@ from pdeinv.forms import discretize
 from pdeinv.inverse import default_inverse
 from pdeinv.physics import Heat
 from pdeinv.problem import Problem
-from pdeinv.sampling import gaussian_bumps
 
 CAVITY = Path(__file__).resolve().parent / "meshes" / "cavity.msh"
 
@@ -47,5 +45,5 @@ def make(**overrides):
     disc = discretize(m, cfg["element"], dirichlet=cfg["dirichlet"].split(","))
     op = Heat(disc.M, disc.K, kappa=cfg["kappa"], T=cfg["T"], steps=cfg["steps"],
               scheme=cfg["scheme"], backend=cfg["backend"], measure=disc.measure, dim=disc.dim)
-    return Problem("heat_cavity_3d", disc, op, partial(gaussian_bumps, disc.points), settings=cfg,
+    return Problem("heat_cavity_3d", disc, op, scenes.prior(disc.points, cfg), settings=cfg,
                    noise=cfg["noise"], inverse_simulator=default_inverse(op, disc, noise=cfg["noise"]))

@@ -16,7 +16,6 @@ nodes, about 2560 unknowns); ``refine=0`` for tests. Inverse simulator:
 is chosen, else block CG).
 """
 
-from functools import partial
 from pathlib import Path
 
 import numpy as np
@@ -28,7 +27,6 @@ from pdeinv.inverse import default_inverse
 from pdeinv.observe import boundary_loops
 from pdeinv.physics import Heat
 from pdeinv.problem import Problem
-from pdeinv.sampling import gaussian_bumps
 
 PLATE = Path(__file__).resolve().parent / "meshes" / "plate.msh"
 
@@ -67,5 +65,5 @@ def make(**overrides):
     disc = discretize(m, cfg["element"], dirichlet=fixed)
     op = Heat(disc.M, disc.K, kappa=cfg["kappa"], T=cfg["T"], steps=cfg["steps"],
               scheme=cfg["scheme"], backend=cfg["backend"], measure=disc.measure, dim=disc.dim)
-    return Problem("heat_plate", disc, op, partial(gaussian_bumps, disc.points), settings=cfg,
+    return Problem("heat_plate", disc, op, scenes.prior(disc.points, cfg), settings=cfg,
                    noise=cfg["noise"], inverse_simulator=default_inverse(op, disc, noise=cfg["noise"]))

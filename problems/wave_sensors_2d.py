@@ -25,7 +25,6 @@ the library's α (1e-20 relative to the largest ``g²``, :data:`pdeinv.inverse.N
 noisy data go to a denoised target, :mod:`pdeinv.targets`); ``alpha`` sets another relative α.
 """
 
-from functools import partial
 
 import numpy as np
 
@@ -34,7 +33,6 @@ from pdeinv import settings as s
 from pdeinv.forms import discretize
 from pdeinv.inverse import RelativeAlpha, default_inverse
 from pdeinv.problem import Problem
-from pdeinv.sampling import gaussian_bumps
 
 SETTINGS = {**scenes.WAVE, "n": (32, s.positive_int), "T": (1.5, s.positive),
             "steps": (96, s.positive_int), "mesh": (None, s.optional_path),
@@ -56,6 +54,6 @@ def make(**overrides):
     op = wave.sensors(observe.sensor_matrix(disc, points), cfg["record_every"])
     op = op.compile(cfg["backend"], disc.M)  # stepping, dense or SVD by the cost of a run
     alpha = None if cfg["alpha"] is None else RelativeAlpha(cfg["alpha"])
-    return Problem("wave_sensors_2d", disc, op, partial(gaussian_bumps, disc.points),
+    return Problem("wave_sensors_2d", disc, op, scenes.prior(disc.points, cfg),
                    settings={**cfg, "sensor_points": points}, noise=cfg["noise"],
                    inverse_simulator=default_inverse(op, disc, noise=cfg["noise"], alpha=alpha))
