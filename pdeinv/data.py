@@ -245,6 +245,7 @@ class OwnData:
     fingerprint: str
     model_mismatch: float | None
     rows: dict
+    x: np.ndarray | None = None  # the training rows' fields, when the file has them (the prior's draws)
 
     def describe(self) -> dict:
         """``metrics["data"]``."""
@@ -275,4 +276,5 @@ def own_data(problem, data, data_x, n_test: int, n_val: int = 0, warn: bool = Tr
                       f"test set{stop}, only {train.stop} train; hold out fewer with --n-test "
                       "(Trainer(n_test=...))", RuntimeWarning, stacklevel=3)
     return OwnData(y[train], y[val], y[test], None if x is None else x[test], fingerprint(y), mismatch,
-                   {"train": [0, train.stop], "stop": [val.start, val.stop], "test": [test.start, test.stop]})
+                   {"train": [0, train.stop], "stop": [val.start, val.stop], "test": [test.start, test.stop]},
+                   None if x is None else x[train])

@@ -242,12 +242,20 @@ REDUCED_UNCAPTURED = 1e-10
 #: (noise-free 5e-5 → 4e-5), heat_plate noise-free 0.049 → 0.050.
 REDUCED_K_IN = 1024
 
+#: the largest fraction of the prior's energy a decoder may leave out before :func:`linear_default`
+#: takes the whitened map instead (an error floor of 0.1 %)
+DECODER_MAX_UNCAPTURED = 1e-6
+
+#: unknowns (or observations) up to which :func:`linear_default` falls back to the whitened map
+#: (``N²`` parameters: 126 MB in float64 at 3 969)
+WHITENED_MAX = 8_192
+
 #: unknowns above which :func:`default_model` builds :func:`reduced` even for a reversible operator
 #: (measured on heat_2d; the table is in :func:`reduced`)
 REDUCED_ABOVE = 2_000
 
 
-def default_model(problem, rows_per_component: float | None = None) -> nn.Module:
+def default_model(problem, rows_per_component: float | None = None, refine: bool = True) -> nn.Module:
     """The problem's default network, chosen by what the operator is
     (:func:`pdeinv.physics.capabilities.reversible`):
 
@@ -274,10 +282,40 @@ def default_model(problem, rows_per_component: float | None = None) -> nn.Module
     :data:`REDUCED_ABOVE` on every scene: they stop far from the fit in the decoder's span that makes
     the prior extrapolate. Measured (Adam, CLI defaults, 1000 steps): heat_cavity_3d 0.315 with the
     decoder against 0.171, heat_sensors_2d 0.314 against 0.262 (heat_2d 0.263 against 0.286)."""
+    base = linear_default(problem, rows_per_component)
+    return refined(problem, base) if refine else base
+
+
+def linear_default(problem, rows_per_component: float | None = None) -> nn.Module:
+    """The linear part of :func:`default_model` (the default before :mod:`pdeinv.refine`; ``--net
+    linear``): :func:`reduced` or :func:`whitened` as described there. A decoder that leaves more than
+    :data:`DECODER_MAX_UNCAPTURED` of the prior's energy out has an error floor of its square root
+    (the SIP paper's boxes at 64×64: 512 components leave 1.3 %, SIP 1.07 against 0.14 for the whitened
+    map, its rounding-level solve amplifying the missing part): up to :data:`WHITENED_MAX` unknowns the
+    whitened linear map is taken instead."""
     big = max(problem.operator.n_in, problem.operator.n_out) > REDUCED_ABOVE
     kw = {"rows_per_component": rows_per_component}
-    return (reduced(**kw) if big or _prior_decoded(problem, rows_per_component) else
-            whitened("linear", **kw))(problem)
+    if not (big or _prior_decoded(problem, rows_per_component)):
+        return whitened("linear", **kw)(problem)
+    net = reduced(**kw)(problem)
+    info = getattr(net, "decoder_info", {})
+    if 1 - info.get("captured", 1.0) > DECODER_MAX_UNCAPTURED and \
+            max(problem.operator.n_in, problem.operator.n_out) <= WHITENED_MAX:
+        return whitened("linear", **kw)(problem)
+    return net
+
+
+def refined(problem, base: nn.Module) -> nn.Module:
+    """``base`` plus a nonlinear correction on a grid fitted on prior draws (:class:`pdeinv.refine.Refined`),
+    for a problem whose unknowns are nodal values on a mesh of dimension 1–3; ``base`` otherwise."""
+    from .grid import GridMap, spacing
+    from .refine import Refined
+
+    disc = getattr(problem, "disc", None)
+    mesh = getattr(getattr(disc, "basis", None), "mesh", None)
+    if mesh is None or not 1 <= problem.points.shape[0] <= 3:
+        return base
+    return Refined(base, GridMap(problem.points, spacing(mesh)))
 
 
 def _prior_decoded(problem, rows_per_component) -> bool:

@@ -50,6 +50,7 @@ def _from_nets(name: str):
 #: network kinds: ``kind -> (problem, **settings) -> nn.Module`` (untrained; the state dict fills it)
 NETWORKS = {
     "default": lambda problem, **settings: problem.model(**settings),
+    "linear": lambda problem, **settings: __import__("pdeinv.nets").nets.linear_default(problem, **settings),
     "mlp": _mlp,
     "reduced": _from_nets("reduced"),
     "whitened": _from_nets("whitened"),

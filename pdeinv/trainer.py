@@ -25,8 +25,18 @@ from .methods.base import NonFiniteError, UpdateRule
 from .methods.guard import Guard
 from .physics.device import placed, resolve
 from .progress import progress
+from .refine import PriorFit, PriorFitted
 from .stopping import finished
-from .trainset import BATCH_ORDER, N_TRAIN, fit_inputs, seed_stream, stop_rows, test_rows, training_rows
+from .trainset import (
+    BATCH_ORDER,
+    N_TRAIN,
+    fit_inputs,
+    prior_rows,
+    seed_stream,
+    stop_rows,
+    test_rows,
+    training_rows,
+)
 from .unseen import of_predictions
 
 __all__ = ["Callback", "Result", "Trainer", "seed_stream", "train"]
@@ -137,6 +147,8 @@ class Trainer:
     data: object = None  # own observations (B, m): array, tensor or torch Dataset
     data_x: object = None  # their true fields (B, N), for errors only
     parallel: object = field(default_factory=Single)  # pdeinv.distributed: Single or DataParallel
+    prior_fit: PriorFit | None = None  # a PriorFitted network's last stage (pdeinv.refine); CLI: on
+    prior_draws: int = 4096  # prior draws for it on a scene (own data: the file's training rows with x)
     history: list[dict] = field(default_factory=list, init=False)
     _target_info: dict | None = field(default=None, init=False, repr=False)
     _own: OwnData | None = field(default=None, init=False, repr=False)
@@ -288,11 +300,35 @@ class Trainer:
             bar.update(1)
             bar.set_postfix(loss=f"{info['loss']:.3g}", refresh=False)
         bar.close()
+        prior = self._fit_prior(run)
         record = metrics(self, run)
+        if prior is not None:
+            record["prior_fit"] = prior
         record["unseen_energy"], warning = of_predictions(self.problem, run.model, run.test, self.seed)
         if warning and self.parallel.is_writer:  # energy where the physics cannot see (pdeinv.unseen)
             warnings.warn(warning, RuntimeWarning, stacklevel=2)
         return Result(run.model, self.history, record, run.state)
+
+
+    def _fit_prior(self, run: _Run) -> dict | None:
+        """The network's part fitted on prior draws after the rule (:mod:`pdeinv.refine`), if it has one;
+        its time counts as training time. What was done, and where the prior came from, or ``None``."""
+        if self.prior_fit is None or not isinstance(run.model, PriorFitted):
+            return None
+        draws, source = prior_rows(self.problem, self._own, self.prior_draws, self.seed)
+        if draws is None:
+            if self.parallel.is_writer:
+                warnings.warn(f"the network's nonlinear correction was not fitted: prior {source}; it stays "
+                              "the rule's estimate (give x in the file to learn the prior from it)",
+                              RuntimeWarning, stacklevel=3)
+            return {"kept": False, "prior": source}
+        t0 = time.perf_counter()
+        info = run.model.fit_prior(*draws, self.problem.relative_error, self.prior_fit)
+        run.at.wall += time.perf_counter() - t0
+        if info.get("kept"):  # the run's last record: the refined network's test errors
+            last = {**self.history[-1], **self.evaluate(run.model, run.test), "wall_s": run.at.wall}
+            self.history[-1] = last
+        return {**info, "prior": source}
 
 
 def train(problem, rule, model=None, **kw) -> Result:

@@ -17,8 +17,8 @@ import warnings
 
 # numpy and torch are imported where used: the CLI's help reads N_TRAIN without them
 
-#: the trainer's seed streams: training data, test data, batch order, held-out observations
-TRAIN_DATA, TEST_DATA, BATCH_ORDER, VAL_DATA = 1, 2, 3, 4
+#: the trainer's seed streams: training data, test data, batch order, held-out observations, prior draws
+TRAIN_DATA, TEST_DATA, BATCH_ORDER, VAL_DATA, PRIOR_DATA = 1, 2, 3, 4, 5
 
 #: training samples when not given (``Trainer(n_train=)``, ``pdeinv train --n-train``)
 N_TRAIN = 1024
@@ -50,6 +50,19 @@ def test_rows(problem, own, n_test: int, seed: int) -> tuple:
 def stop_rows(problem, own, n_val: int, seed: int):
     """The stopping rule's held-out observations (their ``x`` is never drawn into the run)."""
     return own.y_val if own is not None else problem.sample(n_val, seed_stream(seed, VAL_DATA))[1]
+
+
+def prior_rows(problem, own, n: int, seed: int) -> tuple[tuple | None, str]:
+    """``((x, y) or None, source)``: draws of the prior for a network part fitted on it
+    (:mod:`pdeinv.refine`). Own data: its *training* rows when the file has ``x`` (never the test or
+    stopping rows), ``None`` without ``x`` (the prior is then unknown: never the scene's sampler in its
+    place); a scene: ``n`` fresh draws of ``problem.sample`` (stream ``PRIOR_DATA``)."""
+    if own is not None:
+        if own.x is None:
+            return None, "none: the data file has no x"
+        return (own.x, own.y), f"the data file's x ({len(own.x)} training rows)"
+    prior = getattr(problem, "settings", {}).get("prior", "the scene's sampler")
+    return problem.sample(n, seed_stream(seed, PRIOR_DATA)), f"{n} draws of the scene's prior ({prior})"
 
 
 def fit_inputs(problem, rule, target, model, y_np, y_train, fit_scaling: bool):

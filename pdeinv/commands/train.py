@@ -177,7 +177,7 @@ def _lost_peer(err: RuntimeError) -> bool:
 
 
 #: ``--net``: the network kinds a user chooses by name (run.json's ``network.kind``, pdeinv.runs.NETWORKS)
-NETS = ("default", "whitened", "reduced")
+NETS = ("default", "linear", "whitened", "reduced")
 
 
 def _network_spec(problem, hp: dict, net: str = "default") -> dict:
@@ -196,6 +196,29 @@ def _network_spec(problem, hp: dict, net: str = "default") -> dict:
         raise UsageError(f"--net {net}: problem {problem.name!r} builds its own network (model_factory); "
                          "only --net default applies")
     return {"kind": net, **({"rows_per_component": cap} if cap and not own else {})}
+
+
+def _prior_fit(args):
+    """``--prior-fit S``: the prior fit of a network's nonlinear correction (:mod:`pdeinv.refine`) for at
+    most S seconds; 0: none."""
+    import os
+
+    from pdeinv.refine import PriorFit
+
+    seconds, where = args.prior_fit, "--prior-fit"
+    if seconds is None:  # the default, which PDEINV_PRIOR_FIT may change (e.g. 0 in a test suite)
+        seconds, where = os.environ.get("PDEINV_PRIOR_FIT", str(PRIOR_FIT_S)), "PDEINV_PRIOR_FIT="
+        try:
+            seconds = float(seconds)
+        except ValueError:
+            raise UsageError(f"{where}{seconds!r}: expected seconds >= 0 (0: no prior fit)") from None
+    if not seconds >= 0:
+        raise UsageError(f"{where}{seconds:g}: expected seconds >= 0 (0: no prior fit)")
+    return PriorFit(time_budget=seconds, seed=args.seed) if seconds > 0 else None
+
+
+#: ``--prior-fit``'s default: seconds for the prior fit of the default network's correction
+PRIOR_FIT_S = 300.0
 
 
 def _parallel_train(args, out, ckpt, device, parallel) -> int:
@@ -251,6 +274,7 @@ def _parallel_train(args, out, ckpt, device, parallel) -> int:
                       checkpoint=FolderCheckpoint(ckpt, args.checkpoint_every, fresh) if args.checkpoint_every
                       else None,
                       resume=args.resume, stop=stop, data=y, data_x=x, device=device, parallel=parallel,
+                      prior_fit=_prior_fit(args),
                       callbacks=[] if sys.stderr.isatty() else [_Heartbeat(_checks.steps(args, hp))])
     if not parallel.is_writer:  # trains its shard; rank 0 writes everything
         trainer.fit()
@@ -350,8 +374,15 @@ def add_parser(sub) -> None:
                         "estimate when it has none); 'auto' (default) uses it on noisy problems the "
                         "denoised target (pdeinv.targets) cannot filter (no spectral basis)")
     t.add_argument("--net", choices=NETS, default="default",
-                   help="network (default: the problem's: the prior decoder where the operator is not "
-                        "reversible, else the whitened linear map; pdeinv.nets.default_model)")
+                   help="network (default: the problem's: a linear estimate (the prior decoder where the "
+                        "operator is not reversible, else the whitened linear map) trained by the rule, "
+                        "plus a nonlinear correction fitted on the prior (--prior-fit); linear: the "
+                        "linear estimate alone; pdeinv.nets.default_model)")
+    t.add_argument("--prior-fit", type=float, default=None, metavar="S",
+                   help="after the rule, fit the default network's nonlinear correction on draws of the "
+                        "prior (the scene's sampler, or the rows of --data that carry x) for at most S "
+                        "seconds (default 300, or $PDEINV_PRIOR_FIT; 0: off, the network stays the rule's "
+                        "linear estimate)")
     t.add_argument("--hidden", default=None, metavar="W,W", help="MLP hidden widths, e.g. 64,64")
     t.add_argument("--data", default=None, metavar="FILE.npz",
                    help="train on your own observations: an .npz with y (B, m), optionally x (B, N) "
