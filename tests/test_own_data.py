@@ -319,6 +319,29 @@ def test_cli_classical_solves_a_data_file(tmp_path, capsys):
     assert "tikhonov_best_alpha" not in printed and "mmse" not in printed
 
 
+def test_cli_classical_reads_a_clean_file_as_noise_free(tmp_path):
+    """A noise-free float64 file whose noise is estimated (2.5e-16, rounding) is noise-free: the level 0,
+    no Morozov or Wiener-target row (no noise to fit them to), Tikhonov at the noise-free α, and the
+    prior Wiener estimate in its noise-free form, which is what the default network trains to on that
+    file (``pdeinv train`` reads it as clean): once the rounding estimate was passed on as a level."""
+    from pdeinv import references as refs
+    from pdeinv.inverse import NOISE_FREE_REL_ALPHA, default_inverse
+
+    p = pdeinv.load_problem("heat_1d", kappa=0.05)
+    x, y = pdeinv.load_problem("heat_1d", kappa=0.05, prior="boxes").sample(300, 5)
+    np.savez(tmp_path / "clean.npz", y=y, x=x)
+    assert main(["classical", "heat_1d", "--set", "kappa=0.05", "--data", str(tmp_path / "clean.npz"),
+                 "--out", str(tmp_path / "c.json")]) == 0
+    res = json.loads((tmp_path / "c.json").read_text())
+    assert res["noise"]["level"] == 0.0 and "noise-free" in res["noise"]["source"]
+    assert "tikhonov_morozov" not in res and "wiener_target" not in res
+    expected, _ = refs.prior_wiener(p, y, 0.0)
+    assert res["prior_wiener"]["x_err"] == pytest.approx(float(np.mean(p.relative_error(expected(y), x))))
+    tik = default_inverse(p.operator, p.disc, 0.0)(y, np.zeros_like(x))
+    assert res["tikhonov_noise_free"]["alpha_rel"] == NOISE_FREE_REL_ALPHA
+    assert res["tikhonov_noise_free"]["x_err"] == pytest.approx(float(np.mean(p.relative_error(tik, x))))
+
+
 def test_a_file_may_carry_its_points_and_noise_level(tmp_path, capsys):
     """Optional keys: ``points`` must be the problem's (refused, exit 2, naming the largest difference,
     when not); ``noise`` trains at the file's level (in run.json), and a different --set noise is refused."""
