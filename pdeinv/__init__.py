@@ -20,7 +20,8 @@ import types
 #: public name -> the submodule that defines it (submodules themselves map to None)
 _WHERE = {
     "export": None, "mesh": None, "observe": None, "plots": None, "nets": None, "runs": None,
-    "references": None, "targets": None, "threads": None, "settings": None, "scenes": None,
+    "references": None, "targets": None, "threads": None, "settings": None, "scenes": None, "verdict": None,
+    "FailedRun": "verdict",
     "load_run": "runs", "save_run": "runs",
     "apply": "autograd", "Checkpoint": "checkpoint", "Discretization": "forms", "discretize": "forms",
     **dict.fromkeys(["Discrepancy", "FixedAlpha", "ModalTikhonov", "RelativeAlpha", "StateReversal",

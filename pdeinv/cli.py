@@ -3,7 +3,9 @@
 Errors a user can fix (bad settings, missing files, an ``--out`` folder another run
 holds) end with exit code 2 and a one-line message on stderr, never a traceback; a
 numerical failure on valid input (:mod:`pdeinv.errors`) or running out of memory ends
-with exit code 1 and one line that says what to change; Ctrl-C ends with 130 and one
+with exit code 1 and one line that says what to change; a training run that failed its
+final check (:mod:`pdeinv.verdict`: worse than predicting zero) ends with exit code 3 and one
+line after writing its files, unless ``--accept-bad``; Ctrl-C ends with 130 and one
 line. Any other exception is a bug and keeps its traceback.
 """
 

@@ -13,6 +13,7 @@ time series; no ``x_err`` when the test set has no ``x``).
 from __future__ import annotations
 
 import math
+import warnings
 
 import numpy as np
 import torch
@@ -20,6 +21,8 @@ import torch
 from .errors import NonFiniteError
 from .methods.guard import ADVICE
 from .physics.capabilities import observes_field
+from .unseen import of_predictions
+from .verdict import FailedRun, failure
 
 
 @torch.no_grad()
@@ -56,7 +59,9 @@ def check_evaluation(y_err: float, start: float, max_loss_growth: float | None) 
 
 def metrics(trainer, run) -> dict:
     """``metrics.json`` of a finished run of ``trainer`` (:class:`pdeinv.Trainer`): where it stopped and
-    why, its last errors and loss, its settings, and what its data, stopping rule and target used."""
+    why, its last errors and loss, its settings, what its data, stopping rule and target used, and its
+    verdict ``failed`` (why it failed, or ``None``: :mod:`pdeinv.verdict`; warned as
+    :class:`~pdeinv.verdict.FailedRun`)."""
     last, at = trainer.history[-1], run.at
     metrics = {
         "problem": getattr(trainer.problem, "name", None), "method": getattr(trainer.rule, "name", None),
@@ -75,6 +80,13 @@ def metrics(trainer, run) -> dict:
         metrics["stop_rule"] = {"name": trainer.stop.name, **trainer.stop.describe(run.stop_state)}
     if trainer._target_info is not None:
         metrics["target"] = trainer._target_info
+    # the verdict (pdeinv.verdict); without x it rests on the unseen-energy test, which the trainer
+    # also records under "unseen_energy" (computed twice then: cheap beside training)
+    scored = last.get("x_err") is not None
+    unseen = None if scored else of_predictions(trainer.problem, run.model, run.test, trainer.seed)[0]
+    metrics["failed"] = failure(metrics["x_err"], unseen, trainer.problem.N)
+    if metrics["failed"] and trainer.parallel.is_writer:
+        warnings.warn(f"the run failed: {metrics['failed']} (metrics['failed'])", FailedRun, stacklevel=3)
     return metrics
 
 

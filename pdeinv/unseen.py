@@ -33,7 +33,8 @@ SLACK = 0.01
 
 
 def unseen_energy(problem, xhat: np.ndarray, xref: np.ndarray) -> tuple[dict | None, str | None]:
-    """``({"prediction": e(x̂), "prior": e(x_ref), "seen": k}, warning or None)`` (module docstring);
+    """``({"prediction": e(x̂), "prior": e(x_ref), "seen": k, "bound": the tolerated e}, warning or None)``
+    (module docstring);
     ``(None, None)`` when the operator has no spectral basis or sees every direction."""
     basis = modal_basis(problem.operator)
     if basis is None:
@@ -50,8 +51,9 @@ def unseen_energy(problem, xhat: np.ndarray, xref: np.ndarray) -> tuple[dict | N
 
     pred, prior = energy(xhat), energy(xref)
     total = float(np.mean(np.sum(np.asarray(xref, dtype=float) ** 2, axis=1)))
-    record = {"prediction": pred, "prior": prior, "seen": int(keep.sum())}
-    if pred <= FACTOR * prior + SLACK * total:
+    bound = FACTOR * prior + SLACK * total
+    record = {"prediction": pred, "prior": prior, "seen": int(keep.sum()), "bound": bound}
+    if pred <= bound:
         return record, None
     ratio, unseen = pred / max(prior, np.finfo(float).tiny), problem.N - int(keep.sum())
     return record, (f"the predictions carry {ratio:.3g}× the prior's energy in the {unseen} directions the "

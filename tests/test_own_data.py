@@ -214,7 +214,9 @@ def test_cli_predict_never_writes_over_an_input(tmp_path, pairs, capsys, out, vt
 
 def test_data_from_another_discretization_is_measured_and_warned_about(heat, tmp_path, capsys):
     """The same scene with 10 instead of 100 backward-Euler steps: a model mismatch well above rounding,
-    recorded in metrics.json and said on stderr with both numbers; our own data: rounding, no warning."""
+    recorded in metrics.json and said on stderr with both numbers, and a run fitting it exactly (noise
+    level 0) ends worse than predicting zero: exit 3 (pdeinv.verdict); our own data: rounding, no
+    warning, exit 0."""
     from pdeinv.data import model_mismatch
 
     other = pdeinv.load_problem("heat_1d", n=16, steps=10)
@@ -229,7 +231,7 @@ def test_data_from_another_discretization_is_measured_and_warned_about(heat, tmp
     tail = ["--set", "n=16", "--set", "backend=steps", "--n-test", "10", "--batch-size", "8", "--steps", "2",
             "--export-samples", "0"]
     assert main(["train", "heat_1d", "--data", str(tmp_path / "other.npz"), *tail,
-                 "--out", str(tmp_path / "a")]) == 0
+                 "--out", str(tmp_path / "a")]) == 3
     err = capsys.readouterr().err
     assert f"differ from this problem's P x by {mismatch:.3g}" in err and "noise level 0 explains" in err
     assert json.loads((tmp_path / "a" / "metrics.json").read_text())["data"]["model_mismatch"] == \
@@ -261,7 +263,8 @@ def test_noisy_data_without_a_declared_level_trains_at_the_level_it_shows(tmp_pa
     """1 % noise, no --set noise: the level is read off the directions outside range(P) (0.0100; the
     Gavish–Donoho estimate says 0.0079 on heat_2d, and a Wiener target 20 % low keeps pure-noise modes:
     x-error 6.6e4 measured), said in one line, recorded in run.json, and the run reaches the oracle-α
-    Tikhonov of the same test rows; --set noise=0 is obeyed."""
+    Tikhonov of the same test rows; --set noise=0 is obeyed (and fitting the noise exactly ends
+    worse than predicting zero: exit 3, pdeinv.verdict)."""
     from pdeinv import references
 
     p = pdeinv.load_problem("heat_2d", n=16, noise=0.01)
@@ -274,7 +277,7 @@ def test_noisy_data_without_a_declared_level_trains_at_the_level_it_shows(tmp_pa
     oracle = references.tikhonov_best(p, y[-100:], x[-100:])["x_err"]
     assert json.loads((tmp_path / "run" / "metrics.json").read_text())["x_err"] < oracle
     assert main(["train", "heat_2d", *data, "--set", "noise=0", "--steps", "1",
-                 "--out", str(tmp_path / "r0")]) == 0
+                 "--out", str(tmp_path / "r0")]) == 3
     assert "observations show noise" not in capsys.readouterr().err
 
 
@@ -317,6 +320,29 @@ def test_cli_classical_solves_a_data_file(tmp_path, capsys):
                  "--set", "noise=0.01"]) == 0
     printed = capsys.readouterr().out
     assert "tikhonov_best_alpha" not in printed and "mmse" not in printed
+
+
+def test_cli_classical_reads_a_clean_file_as_noise_free(tmp_path):
+    """A noise-free float64 file whose noise is estimated (2.5e-16, rounding) is noise-free: the level 0,
+    no Morozov or Wiener-target row (no noise to fit them to), Tikhonov at the noise-free α, and the
+    prior Wiener estimate in its noise-free form, which is what the default network trains to on that
+    file (``pdeinv train`` reads it as clean): once the rounding estimate was passed on as a level."""
+    from pdeinv import references as refs
+    from pdeinv.inverse import NOISE_FREE_REL_ALPHA, default_inverse
+
+    p = pdeinv.load_problem("heat_1d", kappa=0.05)
+    x, y = pdeinv.load_problem("heat_1d", kappa=0.05, prior="boxes").sample(300, 5)
+    np.savez(tmp_path / "clean.npz", y=y, x=x)
+    assert main(["classical", "heat_1d", "--set", "kappa=0.05", "--data", str(tmp_path / "clean.npz"),
+                 "--out", str(tmp_path / "c.json")]) == 0
+    res = json.loads((tmp_path / "c.json").read_text())
+    assert res["noise"]["level"] == 0.0 and "noise-free" in res["noise"]["source"]
+    assert "tikhonov_morozov" not in res and "wiener_target" not in res
+    expected, _ = refs.prior_wiener(p, y, 0.0)
+    assert res["prior_wiener"]["x_err"] == pytest.approx(float(np.mean(p.relative_error(expected(y), x))))
+    tik = default_inverse(p.operator, p.disc, 0.0)(y, np.zeros_like(x))
+    assert res["tikhonov_noise_free"]["alpha_rel"] == NOISE_FREE_REL_ALPHA
+    assert res["tikhonov_noise_free"]["x_err"] == pytest.approx(float(np.mean(p.relative_error(tik, x))))
 
 
 def test_a_file_may_carry_its_points_and_noise_level(tmp_path, capsys):
@@ -390,7 +416,8 @@ def test_cli_reads_read_only_and_unicode_paths_and_refuses_an_unwritable_out(tmp
     data.chmod(stat.S_IRUSR)
     before = data.read_bytes()
     run = folder / "run ü"
-    assert main(["train", "heat_1d", "--data", str(data), *SMALL, "--out", str(run)]) == 0
+    # 3 steps on 50 rows: x_err 1.04, kept (--accept-bad): the paths are the point here
+    assert main(["train", "heat_1d", "--data", str(data), *SMALL, "--accept-bad", "--out", str(run)]) == 0
     assert main(["predict", str(run), "--data", str(data), "--out", str(folder / "préd.npz")]) == 0
     assert data.read_bytes() == before and (folder / "préd.npz").exists()
     if os.geteuid() == 0:

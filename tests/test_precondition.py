@@ -178,6 +178,23 @@ def test_noise_estimate_recovers_the_level_of_low_rank_data(n, m):
         assert abs(estimate_noise(y) / delta - 1) < 0.1
 
 
+def test_a_rounding_level_estimate_is_no_noise():
+    """Clean float64 observations of heat_1d read 2.5e-16 (rounding): that is no noise level, and
+    :func:`estimate_noise` says 0 (noise-free) below ROUNDING_LEVEL; a level just above it, 1e-12, is
+    still estimated."""
+    import pdeinv
+    from pdeinv.noise import ROUNDING_LEVEL
+
+    _, y = pdeinv.load_problem("heat_1d").sample(300, 5)
+    assert estimate_noise(y) == 0.0
+    rng = np.random.default_rng(0)
+    signal = rng.standard_normal((300, 8)) @ rng.standard_normal((8, 100))
+    rms = np.sqrt((signal**2).mean(1, keepdims=True))
+    for delta in (1e-12, 1e-6):
+        assert delta > ROUNDING_LEVEL
+        assert abs(estimate_noise(signal + delta * rms * rng.standard_normal(signal.shape)) / delta - 1) < 0.1
+
+
 def test_noise_estimate_refuses_bad_input():
     with pytest.raises(ValueError, match="NaN"):
         estimate_noise(np.full((10, 10), np.nan))

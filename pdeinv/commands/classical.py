@@ -3,12 +3,13 @@
 Reads ``y`` (and ``x`` if present) like ``pdeinv train --data`` (:func:`pdeinv.data.read_npz`) and
 reconstructs every row with what needs no training:
 
-* **Tikhonov with Morozov's α** (x-free; with the noise estimated, a noise-free file gets a
-  rounding-level α): the problem's inverse (:func:`pdeinv.inverse.default_inverse`)
+* **Tikhonov with Morozov's α** (x-free): the problem's inverse (:func:`pdeinv.inverse.default_inverse`)
   with :class:`~pdeinv.inverse.Discrepancy` at the noise level — the problem's (``--set noise=``), else
-  estimated from the file (:func:`pdeinv.estimate_noise`);
-* **the y-only Wiener target** (x-free, where the operator has a spectral basis): what ``pdeinv train``
-  fits the physics to (:mod:`pdeinv.targets`), solved in closed form;
+  the file's, else estimated from the file (:func:`pdeinv.estimate_noise`; a rounding-level estimate
+  is 0). A noise-free file gets the noise-free α instead (``tikhonov_noise_free``,
+  :data:`pdeinv.inverse.NOISE_FREE_REL_ALPHA` of the largest ``g²``);
+* **the y-only Wiener target** (x-free, noisy files, where the operator has a spectral basis): what
+  ``pdeinv train`` fits the physics to (:mod:`pdeinv.targets`), solved in closed form;
 * **the prior Wiener estimate** (x-free): the same filter in the basis of ``P D``, ``D`` the prior's
   principal components (:func:`pdeinv.references.prior_wiener`): what the default network converges
   to where the operator is not reversible; it assumes the problem's prior describes the data;
@@ -38,7 +39,7 @@ def cmd_classical(args) -> int:
     from pdeinv import references
     from pdeinv.data import model_mismatch, read_meta, read_npz
     from pdeinv.files import atomic_write
-    from pdeinv.inverse import Discrepancy, default_inverse
+    from pdeinv.inverse import NOISE_FREE_REL_ALPHA, Discrepancy, default_alpha, default_inverse
     from pdeinv.noise import estimate_noise
     from pdeinv.targets import SpectralWiener
 
@@ -51,6 +52,8 @@ def cmd_classical(args) -> int:
     declared = read_meta(args.data, problem.points).get("noise")
     noise = problem.noise or declared or (estimate_noise(y) if min(y.shape) >= 4 else 0.0)
     source = "the problem's" if problem.noise else "the file's" if declared else "estimated from the file"
+    if not noise:  # rounding is no noise level (pdeinv.noise.ROUNDING_LEVEL): the noise-free branch
+        source += " (noise-free)"
 
     def err(xh) -> dict:
         """x-error (with x) and the relative residual ``mean ‖P x̂ − y‖/‖y‖`` (always)."""
@@ -67,6 +70,9 @@ def cmd_classical(args) -> int:
         if fitted is not None:
             rows["wiener_target"] = {**err(problem.inverse(fitted(y), zeros)), "kept": fitted.info["kept"],
                                      "modes": fitted.info["modes"]}
+    else:
+        inv = default_inverse(problem.operator, getattr(problem, "disc", None), 0.0, default_alpha(0.0))
+        rows["tikhonov_noise_free"] = {**err(inv(y, zeros)), "alpha_rel": NOISE_FREE_REL_ALPHA}
     if getattr(problem, "sampler", None) is not None:
         estimate, info = references.prior_wiener(problem, y, noise)
         rows["prior_wiener"] = {**err(estimate(y)), **info}

@@ -22,6 +22,8 @@ from . import (
 )
 
 ORDER = 1
+#: exit code of a run that failed its verdict (pdeinv.verdict) without --accept-bad
+FAILED = 3
 
 
 def _discrepancy(problem):
@@ -137,6 +139,7 @@ def cmd_train(args) -> int:
 def _train(args) -> int:
     from pdeinv.distributed import from_env
     from pdeinv.physics.device import resolve
+    from pdeinv.verdict import FailedRun
 
     out = out_path(args.out)
     ckpt = out / "checkpoint.pt"
@@ -152,6 +155,7 @@ def _train(args) -> int:
             warnings.simplefilter("always", RuntimeWarning)
             # numpy's and scipy's overflow notes are internals: our checks report what they lead to
             warnings.filterwarnings("ignore", category=RuntimeWarning, module=r"(numpy|scipy)(\.|$)")
+            warnings.filterwarnings("ignore", category=FailedRun)  # _run says it, as an error or not
             warnings.showwarning = _one_line
             return _parallel_train(args, out, ckpt, device, parallel)
     except RuntimeError as err:
@@ -277,8 +281,8 @@ def _parallel_train(args, out, ckpt, device, parallel) -> int:
                       prior_fit=_prior_fit(args),
                       callbacks=[] if sys.stderr.isatty() else [_Heartbeat(_checks.steps(args, hp))])
     if not parallel.is_writer:  # trains its shard; rank 0 writes everything
-        trainer.fit()
-        return 0
+        failed = trainer.fit().metrics["failed"]
+        return FAILED if failed and not args.accept_bad else 0
     prepare_out(out)
     try:
         return _run(args, out, problem, overrides, net, hp, trainer, fresh)
@@ -322,6 +326,7 @@ def _run(args, out, problem, overrides, net, hp, trainer, fresh) -> int:
                    "route": result.history[-1].get("route"), "torch_threads": torch.get_num_threads()}
         if args.data:
             metrics["data"] = {"file": str(args.data), **metrics["data"]}
+        metrics["accept_bad"] = bool(args.accept_bad)  # beside the verdict "failed" (pdeinv.verdict)
         # atomic: a kill while writing never leaves a truncated metrics.json or model.pt
         text = json.dumps(metrics, indent=2, default=str).encode()
         atomic_write(out / "metrics.json", lambda fh: fh.write(text))
@@ -340,7 +345,20 @@ def _run(args, out, problem, overrides, net, hp, trainer, fresh) -> int:
         x_err = "n/a (no x in the data)" if metrics["x_err"] is None else f"{metrics['x_err']:.4f}"
         print(f"{problem.name} {args.method}: {metrics['steps']} steps ({metrics['stopped_by']}) in "
               f"{metrics['wall_s']:.2f} s, x_err {x_err}, y_err {metrics['y_err']:.4f} -> {out}")
+        return _verdict(metrics["failed"], args.accept_bad, out)
+
+
+def _verdict(failed: str | None, accept: bool, out: Path) -> int:
+    """Exit code 0, or :data:`FAILED` with one line on stderr when the run failed (:mod:`pdeinv.verdict`)
+    and ``--accept-bad`` was not given; its files are written either way."""
+    if not failed:
         return 0
+    if accept:
+        print(f"pdeinv train: warning: the run failed: {failed}; kept (--accept-bad)", file=sys.stderr)
+        return 0
+    print(f"pdeinv train: error: the run failed: {failed}; its files are in {out} (metrics.json: "
+          "\"failed\"); --accept-bad ends such a run with exit code 0", file=sys.stderr)
+    return FAILED
 
 
 def add_parser(sub) -> None:
@@ -420,5 +438,10 @@ def add_parser(sub) -> None:
                         "streak); each rejection restores the last good state and halves the learning "
                         "rate / eta, never below 1e-12 of it (the run stops there), and it doubles back "
                         "after 50 accepted steps")
+    t.add_argument("--accept-bad", action="store_true",
+                   help="exit 0 even when the run fails its final check (else exit code 3; the files are "
+                        "written either way, the reason in metrics.json's 'failed'): a held-out x_err >= 1, "
+                        "no better than predicting zero; without x in the data, predictions with over 2x the "
+                        "prior's energy where the physics cannot see (pdeinv.unseen)")
     _checks.add_arguments(t)  # --allow-slow, --max-memory-gb
     t.set_defaults(func=cmd_train)
