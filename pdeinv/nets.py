@@ -333,12 +333,27 @@ def default_size(problem) -> tuple[int, int]:
     with its own ``model_factory`` gets the dense bound ``m² + m n + n`` (an upper bound for
     the scenes' MLP)."""
     m, n = problem.operator.n_out, problem.operator.n_in
-    if getattr(problem, "model_factory", None) is None and (max(m, n) > REDUCED_ABOVE or
-                                                            _prior_decoded(problem, None)):
-        k_in, k_out = min(REDUCED_K_IN, m), min(REDUCED_K, n)
-        return k_in * k_out + k_out + m * k_in + n * k_out + m + k_in, max(m, n)
     k = min(m, n)  # the whitening's components (:func:`whitened`)
-    return m * k + k * n + n, max(m, n)
+    dense = m * k + k * n + n
+    if getattr(problem, "model_factory", None) is not None:
+        return dense, max(m, n)
+    if max(m, n) > REDUCED_ABOVE or _prior_decoded(problem, None):
+        k_in, k_out = min(REDUCED_K_IN, m), min(REDUCED_K, n)
+        size = k_in * k_out + k_out + m * k_in + n * k_out + m + k_in
+        # a decoder that misses the prior falls back to the whitened map (linear_default)
+        dense = max(size, dense if max(m, n) <= WHITENED_MAX else 0)
+    return dense + refined_size(problem), max(m, n)
+
+
+def refined_size(problem) -> int:
+    """An upper bound on what :func:`refined` adds: the U-Net's parameters and the grid maps' buffers
+    (``2·N·2^dim`` weights and indices, at most ``4N`` grid points); 0 where it adds nothing."""
+    from .refine import UNet
+
+    dim = problem.points.shape[0] if getattr(problem, "disc", None) is not None else 0
+    if not 1 <= dim <= 3:
+        return 0
+    return sum(q.numel() for q in UNet(dim).parameters()) + 2 * problem.N * 2**dim + 4 * problem.N
 
 
 def fit_preconditioning(model: nn.Module, y, noise: float | None = None, **settings) -> nn.Module:

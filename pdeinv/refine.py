@@ -93,6 +93,14 @@ class PriorFit:
     min_gain: float = 0.005
     seed: int = 0
 
+    def applies(self, model) -> bool:
+        """Whether ``model`` has a part fitted on prior draws (:class:`PriorFitted`)."""
+        return isinstance(model, PriorFitted)
+
+    def fit(self, model, x, y, relative_error, log=None) -> dict:
+        """``model.fit_prior`` with these settings (:meth:`Refined.fit_prior`)."""
+        return model.fit_prior(x, y, relative_error, self, log)
+
 
 @runtime_checkable
 class PriorFitted(Protocol):

@@ -25,7 +25,7 @@ from .methods.base import NonFiniteError, UpdateRule
 from .methods.guard import Guard
 from .physics.device import placed, resolve
 from .progress import progress
-from .refine import PriorFit, PriorFitted
+from .refine import PriorFit
 from .stopping import finished
 from .trainset import (
     BATCH_ORDER,
@@ -313,7 +313,7 @@ class Trainer:
     def _fit_prior(self, run: _Run) -> dict | None:
         """The network's part fitted on prior draws after the rule (:mod:`pdeinv.refine`), if it has one;
         its time counts as training time. What was done, and where the prior came from, or ``None``."""
-        if self.prior_fit is None or not isinstance(run.model, PriorFitted):
+        if self.prior_fit is None or not self.prior_fit.applies(run.model):
             return None
         draws, source = prior_rows(self.problem, self._own, self.prior_draws, self.seed)
         if draws is None:
@@ -323,7 +323,7 @@ class Trainer:
                               RuntimeWarning, stacklevel=3)
             return {"kept": False, "prior": source}
         t0 = time.perf_counter()
-        info = run.model.fit_prior(*draws, self.problem.relative_error, self.prior_fit)
+        info = self.prior_fit.fit(run.model, *draws, self.problem.relative_error)
         run.at.wall += time.perf_counter() - t0
         if info.get("kept"):  # the run's last record: the refined network's test errors
             last = {**self.history[-1], **self.evaluate(run.model, run.test), "wall_s": run.at.wall}
