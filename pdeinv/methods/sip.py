@@ -13,6 +13,7 @@ import torch
 from .._checks import positive
 from ..inverse.protocol import ReusesForward
 from ..physics.base import LinearOperator
+from ..problem import Problem
 from .base import OptimizerFactory, Rule, State, Update, check_finite, gradient, prediction, sgd, y_loss
 from .curvature import checked, gauss_newton_max
 from .transforms import OptimizerStep
@@ -116,9 +117,12 @@ class SIP(Rule):
 
     def context(self, problem, model) -> SIPContext:
         inverse = self.inverse if self.inverse is not None else decoder_inverse(problem, model)
-        if inverse is None:
-            inverse = problem.inverse if problem.inverse_simulator is None else problem.inverse_simulator
-        local = inverse.local if isinstance(inverse, ReusesForward) else None
+        if inverse is None:  # the problem's own; a pdeinv.Problem's calls its inverse_simulator
+            inverse = problem.inverse
+            simulator = problem.inverse_simulator if isinstance(problem, Problem) else None
+        else:
+            simulator = inverse
+        local = simulator.local if isinstance(simulator, ReusesForward) else None
         return SIPContext(problem.operator, inverse, local=local)
 
     def calibrate(self, state: State, model: torch.nn.Module, y: torch.Tensor) -> State:
