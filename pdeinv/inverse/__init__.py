@@ -1,11 +1,18 @@
 """Local inverse simulators ``P⁻¹_(x₀, y₀)(y)`` for SIP (Holl, Koltun, Thuerey 2022).
 
 Each is a callable object ``inverse(y, x0)`` (numpy ``(B, n_out)``, ``(B, n_in)`` →
-``(B, n_in)``) returning ``x0`` exactly when ``y = P x0``:
+``(B, n_in)``) returning ``x0`` exactly when ``y = P x0`` (the local-inverse contract,
+:mod:`.protocol`; ``tests/test_local_contract.py`` checks it for every one shipped):
 
 * :class:`ModalTikhonov` — heat, modal backend: filter ``g/(g²+α)`` per mode;
 * :class:`TikhonovCG` — any linear operator: block PCG on ``(PᵀMP + αM)Δx = PᵀM(y − y₀)``;
-* :class:`TimeReversal` / :class:`StateReversal` — wave: Newmark run backwards.
+* :class:`TimeReversal` / :class:`StateReversal` — wave: Newmark run backwards;
+* :class:`~.decoder.DecoderTikhonov` — SIP's default for a network with a fixed decoder ``D``: the
+  Tikhonov change in ``span D``;
+* :class:`CompiledInverse` — an inverse linear in ``(y, x₀)`` as one matrix.
+
+Those whose first act is ``y₀ = P x₀`` declare :class:`ReusesForward` (``local(y, x0, y0)``): SIP
+passes the ``P x`` it has computed for its loss.
 
 α is a number or a rule: :class:`Discrepancy` (Morozov), :class:`RelativeAlpha`.
 :func:`default_inverse` picks one by what the operator can do (:mod:`pdeinv.physics.capabilities`).
@@ -22,6 +29,7 @@ from .alpha import Discrepancy, FixedAlpha, RelativeAlpha
 from .cg import TikhonovCG
 from .compiled import CompiledInverse
 from .modal import ModalTikhonov, SpectralTikhonov
+from .protocol import ReusesForward
 from .time_reversal import StateReversal, TimeReversal
 
 #: default relative α without noise: cut-off at amplification 1e-10·max g, from float64 rounding: the
@@ -91,5 +99,5 @@ def default_inverse(op, disc=None, noise: float = 0.0, alpha=None):
 
 
 __all__ = ["CompiledInverse", "Discrepancy", "FixedAlpha", "ModalTikhonov", "SpectralTikhonov",
-           "RelativeAlpha",
+           "RelativeAlpha", "ReusesForward",
            "StateReversal", "TikhonovCG", "TimeReversal", "default_alpha", "default_inverse"]

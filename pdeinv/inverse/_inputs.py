@@ -34,3 +34,13 @@ def mass_norms(M, X: np.ndarray) -> np.ndarray:
 def mass_trace(M, n: int) -> float:
     """``tr(M)``: ``E‖ε‖²_M / σ²`` for white noise ``ε ~ N(0, σ²I)`` (``M=None``: ``n``)."""
     return float(n) if M is None else float(M.diagonal().sum())
+
+
+def given_forward(y0, X0: np.ndarray, n_out: int) -> np.ndarray:
+    """``y0 = P x0`` from a caller (:class:`~.protocol.ReusesForward`) as float64 ``(B, n_out)``, one row
+    per row of ``X0``."""
+    Y0, _ = batch(y0, n_out, "y0")
+    if Y0.shape[0] != X0.shape[0]:
+        raise ValueError(f"y0 has {Y0.shape[0]} samples but x0 has {X0.shape[0]}; "
+                         "expected y0 = P x0 row by row")
+    return Y0

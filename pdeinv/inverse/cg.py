@@ -20,8 +20,9 @@ columns share every operator call (one batched ``forward`` + one batched
 stops when ``‖r_b‖_{M⁻¹} ≤ rtol·‖rhs_b‖_{M⁻¹}``.
 
 Cost in operator applications (``forward`` ≈ ``adjoint`` for our schemes):
-``1`` forward (``y₀``) + ``1`` adjoint (right-hand side) + ``it`` × (forward +
-adjoint), plus one adjoint per warm restart during a discrepancy search.
+``1`` forward (``y₀``; none when the caller passes it, :meth:`TikhonovCG.local`) + ``1`` adjoint
+(right-hand side) + ``it`` × (forward + adjoint), plus one adjoint per warm restart during a
+discrepancy search.
 ``last_info`` reports the iterations, relative residuals, calls and the
 column-weighted cost in forward-solve units (one unit = one batched forward).
 """
@@ -33,7 +34,7 @@ import numpy as np
 from .._checks import count, positive
 from ..physics.capabilities import output_mass
 from ..solvers import SuperLU
-from ._inputs import mass_norms, mass_trace, out, pair
+from ._inputs import given_forward, mass_norms, mass_trace, out, pair
 from .alpha import Fit, as_rule
 
 
@@ -44,7 +45,8 @@ class TikhonovCG:
     observation mass (``"auto"``: ``M`` when ``op`` declares field observations,
     :func:`~pdeinv.physics.capabilities.observes_field`, else the identity);
     ``alpha``: a number or a rule; ``scale``: ``λ_max(P*P)``, the unit of
-    relative α rules (estimated by power iteration on first use if omitted).
+    relative α rules (estimated by power iteration on first use if omitted). Declares
+    :class:`~.protocol.ReusesForward`: :meth:`local` takes ``P x₀`` from the caller.
     """
 
     def __init__(self, op, M=None, alpha=1e-8, M_out="auto", rtol=1e-10, maxiter=1000,
@@ -132,17 +134,28 @@ class TikhonovCG:
     # -- the inverse simulator --------------------------------------------------------
     def __call__(self, y, x0) -> np.ndarray:
         Y, X0, single = pair(y, x0, self.op.n_out, self.op.n_in)
+        return self._run(Y, X0, None, single)
+
+    def local(self, y, x0, y0) -> np.ndarray:
+        """``self(y, x0)`` given ``y0 = op.forward(x0)`` (:class:`~.protocol.ReusesForward`): one forward
+        call fewer."""
+        Y, X0, single = pair(y, x0, self.op.n_out, self.op.n_in)
+        return self._run(Y, X0, given_forward(y0, X0, self.op.n_out), single)
+
+    def _run(self, Y, X0, Y0, single):
         B = Y.shape[0]
         self._reset(B)
         self._inside = True
         try:
-            return self._call(Y, X0, single, B)
+            return self._call(Y, X0, Y0, single, B)
         finally:
             self._inside = False
 
-    def _call(self, Y, X0, single, B):
-        R = Y - self.op.forward(X0)
-        self._count("forward", B)
+    def _call(self, Y, X0, Y0, single, B):
+        if Y0 is None:
+            Y0 = self.op.forward(X0)
+            self._count("forward", B)
+        R = Y - Y0
         b = self.op.adjoint(self._mass(self.M_out, R))
         self._count("adjoint", B)
         state = {"X": np.zeros_like(X0), "PX": np.zeros_like(R), "alpha": None, "rel": np.zeros(B)}

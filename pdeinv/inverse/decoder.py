@@ -1,22 +1,57 @@
-"""The physics seen through a fixed decoder, and the local inverse that stays in the decoder's span.
+"""The physics seen through a fixed decoder, and the local inverse whose change stays in the decoder's span.
 
 A network whose output is ``x = D c`` for a fixed decoder ``D`` (``N × k``: :func:`pdeinv.nets.reduced`,
 the prior's leading principal components) can only produce fields in ``span D``. Its observations are
 ``y = P D c = P̂ c`` with ``P̂ = P D`` (``m × k``), whose thin SVD ``P̂ = Q diag(s) Vᵀ`` costs ``k``
 forward calls and one small SVD (:func:`decoded_svd`; HIG's Kronecker route uses the same factor).
 
-:class:`DecoderTikhonov` is the regularized solve *in that span*,
+:class:`DecoderTikhonov` is the local inverse ``P⁻¹_(x₀, P x₀)`` whose change is the regularized
+solve *in that span*:
 
-    x̃ = D argmin_c ‖P̂ c − y‖² + α‖c‖² = D V diag(s / (s² + α)) Qᵀ y,
+    Δc = argmin ‖P̂ Δc − (y − P x₀)‖² + α‖Δc‖² = V diag(s / (s² + α)) Qᵀ (y − P x₀),
+    x̃  = x₀ + D Δc.
 
-with a rounding-level ``α = rel_alpha · s_max²`` (1e-24: singular values resolved to 1e-12 of the
-largest, so float64 rounding in ``y`` (ε ≈ 2e-16 of its norm) reaches a coefficient amplified by at
+It keeps the local-inverse contract (:mod:`pdeinv.inverse.protocol`): at ``y = P x₀`` the residual is
+exactly zero and ``x̃ = x₀``, whatever ``x₀`` is (in ``span D`` or not). The prior shapes the
+regularizer (the change lives in ``span D``, weighted by ``‖Δc‖``), it does not replace the current
+prediction: ``x₀``'s component outside ``span D`` and, inside it, along the null space of ``P̂`` is
+carried over unchanged. ``P x₀`` is one forward call, or none when the caller passes it
+(:meth:`DecoderTikhonov.local`; SIP does, it has computed ``P x`` for its loss): ``P̂ c₀`` from the
+SVD would do only for ``x₀ ∈ span D``, and even then leaves a rounding residue at ``y = P x₀``.
+
+Why it must be local (issue 32). The earlier map ``x̃ = D V diag(s/(s²+α)) Qᵀ y`` ignored ``x₀``: 4.5–11.6 %
+off ``x₀`` at ``y = P x₀`` on heat_2d, and SIP with η = 1 became a regression onto one fixed target
+(the trained default network equalled :func:`pdeinv.references.prior_wiener` to 3.3e-5). For
+``x₀ = D c₀ ∈ span D`` the two differ by
+
+    x̃_local − x̃_old = D (I − V diag(s²/(s²+α)) Vᵀ) c₀  →  D (I − V Vᵀ) c₀   (α → 0),
+
+the component of ``c₀`` in the null space of ``P̂``, which the local map keeps and the old one zeroed
+(plus the bias ``α/(s²+α)`` per kept mode, below 1e-2 for ``s`` above 1e-11·s_max at the default α).
+SIP's fixed point ``x̃ = x`` is now ``Qᵀ(y* − P x) = 0``: the least-squares fit through ``P̂``, with α
+setting only the speed (iterated Tikhonov), not a bias. On the reduced network the proxy gradient
+``x − x̃ = −D Δc`` has no component along ``null P̂``, so coefficients there keep their initial value
+(zero: the head starts at zero), and the run differs from the old one only in the α bias, which
+iterating removes: the effective cut-off after ``k`` steps is ``≈ α/k``. Measured (``pdeinv train SCENE
+--seed 0 --threads 1``, CLI defaults, SIP 30 steps; the old map → this): heat_2d 0.00156 → 0.00132 (at
+1 % 0.0896 both: the Wiener target regularizes), heat_plate 0.00199 → 0.00190, heat_sensors_2d 0.00389
+→ 0.00370, heat_1d 0.00397 → 0.00284, advection_diffusion_2d 0.00139 → 0.00116, heat_sensors_3d 0.0272
+→ 0.0258, wave_sensors_2d 2.29e-5 both, heat_boxes (n=32) 0.588 both; but heat_3d 0.00333 → 0.00424
+and heat_cavity_3d 0.00795 → 0.0127, where the regularized fixed point was better than the
+least-squares one (see the α paragraph: α = 0 gave 0.0047 on heat_3d). A noise-free target that is
+the rounding-level Tikhonov filter in the basis of ``P̂`` (``t = Q diag(s²/(s²+α)) Qᵀ y*``, the noise-free
+case of :class:`pdeinv.targets.SpectralWiener`) puts that regularization back where the contract allows
+it, in what is matched: with it this inverse gave the old figures to three digits (heat_3d 0.00333,
+heat_cavity_3d 0.00795, heat_2d 0.00156, heat_1d 0.00398).
+
+α is rounding-level, ``α = rel_alpha · s_max²`` (1e-24: singular values resolved to 1e-12 of the
+largest, so float64 rounding in the residual (ε ≈ 2e-16 of ``‖y‖``) reaches a coefficient amplified by at
 most ``ε/(2·1e-12) ≈ 1e-4``; noisy observations are denoised before, by the trainer's target,
-:mod:`pdeinv.targets`, in the same basis). Measured (SIP, CLI defaults, noise-free, rel_alpha
-1e-16 → 1e-24): heat_2d 0.0076 → 0.0016, heat_3d 0.0122 → 0.0033 (1e-20: 0.0062; 0, i.e. every
-singular value above the SVD's rounding: 0.0047, rounding amplified), heat_1d 0.0146 → 0.0040,
-heat_sensors_2d 0.0108 → 0.0039, heat_sensors_3d 0.048 → 0.027, heat_cavity_3d 0.0099 → 0.0080,
-wave_sensors_2d 2.3e-5 both.
+:mod:`pdeinv.targets`, in the same basis). Measured with the earlier global map (SIP, CLI defaults,
+noise-free, rel_alpha 1e-16 → 1e-24): heat_2d 0.0076 → 0.0016, heat_3d 0.0122 → 0.0033 (1e-20:
+0.0062; 0, i.e. every singular value above the SVD's rounding: 0.0047, rounding amplified), heat_1d
+0.0146 → 0.0040, heat_sensors_2d 0.0108 → 0.0039, heat_sensors_3d 0.048 → 0.027, heat_cavity_3d
+0.0099 → 0.0080, wave_sensors_2d 2.3e-5 both.
 SIP with it converges to the least-squares fit *through the physics* inside the decoder's span:
 the prior's principal components then extrapolate into modes the observation barely sees, where the
 full-space inverse followed by SIP's Euclidean proxy projects a field that has nothing there.
@@ -33,8 +68,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from .._checks import batch
-from ._inputs import out
+from ._inputs import given_forward, out, pair
 
 #: α relative to s_max² of the decoded physics (module docstring)
 REL_ALPHA = 1e-24
@@ -67,22 +101,36 @@ def _decoded_svd(op, decoder) -> DecodedSVD:
 
 
 class DecoderTikhonov:
-    """``(y, x0) -> x̃``: the Tikhonov solve in the decoder's span (module docstring); ``x0`` is
-    unused (the map is linear in ``y``)."""
+    """``P⁻¹_(x₀, Px₀)(y) = x₀ + D V diag(s/(s²+α)) Qᵀ (y − P x₀)``: the local inverse whose change is the
+    Tikhonov solve in the decoder's span (module docstring). Declares
+    :class:`~pdeinv.inverse.protocol.ReusesForward`: :meth:`local` takes ``P x₀`` from the caller."""
 
     def __init__(self, op, decoder, rel_alpha: float = REL_ALPHA):
         from .._checks import positive
 
         self.rel_alpha = positive(rel_alpha, "rel_alpha")
+        self.op = op
         self.svd = decoded_svd(op, decoder)
         self.rows = decoded_rows(decoder, op.n_in)
         s = self.svd.s
         self.filter = s / (s**2 + self.rel_alpha * (s[0] ** 2 if s.size else 0.0))
 
-    def __call__(self, y, x0=None) -> np.ndarray:
-        Y, single = batch(y, len(self.svd.Q), "y")
-        c = ((Y @ self.svd.Q) * self.filter) @ self.svd.V.T
-        return out(c @ self.rows, single)
+    def __call__(self, y, x0) -> np.ndarray:
+        Y, X0, single = pair(y, x0, len(self.svd.Q), self.rows.shape[1])
+        return out(self._step(Y, X0, self.op.forward(X0)), single)
+
+    def local(self, y, x0, y0) -> np.ndarray:
+        """``self(y, x0)`` given ``y0 = op.forward(x0)``: no forward call."""
+        Y, X0, single = pair(y, x0, len(self.svd.Q), self.rows.shape[1])
+        Y0 = given_forward(y0, X0, len(self.svd.Q))
+        return out(self._step(Y, X0, Y0), single)
+
+    def _step(self, Y, X0, Y0) -> np.ndarray:
+        dc = (((Y - Y0) @ self.svd.Q) * self.filter) @ self.svd.V.T
+        return X0 + dc @ self.rows
+
+    def __repr__(self):
+        return f"DecoderTikhonov(k={self.rows.shape[0]}, r={len(self.svd.s)}, rel_alpha={self.rel_alpha:g})"
 
 
 def decoded_rows(decoder, n: int) -> np.ndarray:

@@ -17,10 +17,10 @@ to the modal tolerance. Per mode the recovered change is ``g²/(g²+α)`` times 
 true one: a relative bias ``α/(g²+α)`` (Holl et al. 2022, heat inverse as a
 spectral filter; Engl, Hanke, Neubauer, *Regularization of Inverse Problems*, §5).
 
-Cost: one forward for ``y₀`` (2 products ``(B,N)·(N,k)``), one projection and one
-synthesis: 2× one batched modal forward. (Using ``ΦᵀMy₀ = g ⊙ ΦᵀMx₀`` would save
-a quarter, but then ``y = y₀`` leaves a rounding residue ``(ΦᵀMΦ − I)``, amplified
-by up to ``1/(2√α)`` — 1.3e-10 relative at α = 1e-12 — whereas ``y − y₀`` computed
+Cost: one forward for ``y₀`` (2 products ``(B,N)·(N,k)``; none when the caller passes ``y₀``,
+:meth:`SpectralTikhonov.local`), one projection and one synthesis: 2× one batched modal forward.
+(Using ``ΦᵀMy₀ = g ⊙ ΦᵀMx₀`` would save a quarter, but then ``y = y₀`` leaves a rounding residue
+``(ΦᵀMΦ − I)``, amplified by up to ``1/(2√α)`` — 1.3e-10 relative at α = 1e-12 — whereas ``y − y₀`` computed
 by the same forward is exactly zero.) The discrepancy principle is applied to the part of the
 data the filter can fit (the projected problem): with ``c`` the coordinates of ``y − y₀`` in the
 basis (orthonormal in the observation norm) the residual and the noise it is compared with are
@@ -40,7 +40,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..physics.capabilities import Spectral, modal_basis
-from ._inputs import out, pair
+from ._inputs import given_forward, out, pair
 from .alpha import Fit, as_rule
 
 
@@ -52,7 +52,8 @@ class SpectralTikhonov:
     (:mod:`pdeinv.physics.compiled`: ``proj = L_o U``, ``out = L_o⁻ᵀ U``, ``synth = L⁻ᵀ V``).
 
     ``alpha``: a number (absolute α) or a rule (:class:`~.alpha.Discrepancy`,
-    :class:`~.alpha.RelativeAlpha`). After each call ``last_info`` holds the α used.
+    :class:`~.alpha.RelativeAlpha`). After each call ``last_info`` holds the α used. Declares
+    :class:`~.protocol.ReusesForward`: :meth:`local` takes ``P x₀`` from the caller.
     """
 
     def __init__(self, op, alpha, modes=None):
@@ -72,13 +73,21 @@ class SpectralTikhonov:
 
     def __call__(self, y, x0) -> np.ndarray:
         Y, X0, single = pair(y, x0, self.op.n_out, self.op.n_in)
+        return out(self._step(Y, X0, self.op.forward(X0)), single)
+
+    def local(self, y, x0, y0) -> np.ndarray:
+        """``self(y, x0)`` given ``y0 = op.forward(x0)`` (:class:`~.protocol.ReusesForward`): no forward."""
+        Y, X0, single = pair(y, x0, self.op.n_out, self.op.n_in)
+        return out(self._step(Y, X0, given_forward(y0, X0, self.op.n_out)), single)
+
+    def _step(self, Y, X0, Y0) -> np.ndarray:
         g = self.modes.g
-        R = Y - self.op.forward(X0)
+        R = Y - Y0
         c = R @ self.modes.proj
         noise_trace = float((self.modes.proj**2).sum())  # E‖ε‖² over the basis / σ² (module docstring)
         alpha = self.rule.select(Fit(self._residual(c), Y, noise_trace, self.scale))
         self.last_info = {"alpha": alpha}
-        return out(X0 + (g / (g**2 + alpha[:, None]) * c) @ self.modes.synth.T, single)
+        return X0 + (g / (g**2 + alpha[:, None]) * c) @ self.modes.synth.T
 
     def _residual(self, c):
         """``ρ(α)`` of the projected problem (module docstring)."""

@@ -11,7 +11,9 @@ import numpy as np
 import torch
 
 from .._checks import positive
+from ..inverse.protocol import ReusesForward
 from ..physics.base import LinearOperator
+from ..problem import Problem
 from .base import OptimizerFactory, Rule, State, Update, check_finite, gradient, prediction, sgd, y_loss
 from .curvature import checked, gauss_newton_max
 from .transforms import OptimizerStep
@@ -28,13 +30,16 @@ class SIPContext(NamedTuple):
     inverse: InverseSimulator
     curvature: float | None = None
     diagonal: tuple | None = None  # the network's Gauss–Newton diagonal, when it has one (calibrate)
+    #: ``(y, x0, y0) -> x̃``: the same inverse given ``y0 = P x0`` (:class:`~pdeinv.inverse.ReusesForward`)
+    local: Callable[[np.ndarray, np.ndarray, np.ndarray], np.ndarray] | None = None
 
 
 def decoder_inverse(problem, model):
     """The default local inverse for a network with a fixed decoder ``x = D c``
-    (``model.linear_in_parameters().decoder``: :func:`pdeinv.nets.reduced`): the Tikhonov solve in
-    ``span D`` (:class:`~pdeinv.inverse.decoder.DecoderTikhonov`), where observations are exact or a
-    denoised target will be fitted; ``None`` otherwise (the problem's own inverse)."""
+    (``model.linear_in_parameters().decoder``: :func:`pdeinv.nets.reduced`): ``x̃ = x + D Δc``, the
+    Tikhonov solve of the residual in ``span D`` (:class:`~pdeinv.inverse.decoder.DecoderTikhonov`),
+    where observations are exact or a denoised target will be fitted; ``None`` otherwise (the
+    problem's own inverse)."""
     from ..inverse.decoder import DecoderTikhonov
     from ..targets import SpectralWiener
 
@@ -56,7 +61,12 @@ class SIP(Rule):
         direction = ∇_θ L̃ / λ̂,   θ ← optimizer(direction)
 
     Only the network is differentiated; the physics runs forward once and the
-    inverse once, both in float64 numpy. ``inverse`` defaults to the problem's
+    inverse once, both in float64 numpy. The inverse keeps the local-inverse contract
+    (``P⁻¹_(x, Px)(Px) = x``, :mod:`pdeinv.inverse.protocol`), so ``x̃ − x`` is the regularized
+    inverse of the residual ``η (y* − Px)`` and the fixed point is ``Pᵀ(y* − Px) = 0`` in the
+    inverse's norm; one that declares :class:`~pdeinv.inverse.ReusesForward` gets the ``y = P(x)``
+    computed here (``inverse.local(y + Δy, x, y)``, one forward call fewer per step; it must be
+    built on ``problem.operator``, as the defaults are). ``inverse`` defaults to the problem's
     own (``problem.inverse(y_target, x0)``), which for linear ``P`` and η = 1 with
     an exact inverse makes ``x̃`` the exact solution; for a network with a fixed decoder
     (:func:`pdeinv.nets.reduced`) to the solve in the decoder's span (:func:`decoder_inverse`:
@@ -106,8 +116,14 @@ class SIP(Rule):
         return {"eta": self.eta, "inverse": inverse, "normalize": self.normalize}
 
     def context(self, problem, model) -> SIPContext:
-        return SIPContext(problem.operator, self.inverse if self.inverse is not None else
-                          decoder_inverse(problem, model) or problem.inverse)
+        inverse = self.inverse if self.inverse is not None else decoder_inverse(problem, model)
+        if inverse is None:  # the problem's own; a pdeinv.Problem's calls its inverse_simulator
+            inverse = problem.inverse
+            simulator = problem.inverse_simulator if isinstance(problem, Problem) else None
+        else:
+            simulator = inverse
+        local = simulator.local if isinstance(simulator, ReusesForward) else None
+        return SIPContext(problem.operator, inverse, local=local)
 
     def calibrate(self, state: State, model: torch.nn.Module, y: torch.Tensor) -> State:
         """``λ̂`` on the batch ``y`` (when ``normalize``): called once, before the first step."""
@@ -132,7 +148,7 @@ class SIP(Rule):
 
     def update(self, state: State, model: torch.nn.Module, y_target: torch.Tensor,
                target: torch.Tensor | None = None) -> Update:
-        op, inverse, curvature, diagonal = state.context
+        op, inverse, curvature, diagonal, local = state.context
         x = prediction(model(y_target))
         x_np = x.detach().cpu().double().numpy()
         yt = (y_target if target is None else target).detach().cpu().double().numpy()
@@ -140,7 +156,8 @@ class SIP(Rule):
         loss = 0.5 * float(((y - yt) ** 2).sum(-1).mean())
         if not math.isfinite(loss):  # the inverse is never called on it; the guard refuses
             return Update(None, {"loss": loss})
-        x_tilde = np.asarray(inverse(y + self.eta * (yt - y), x_np))
+        y_step = y + self.eta * (yt - y)
+        x_tilde = np.asarray(inverse(y_step, x_np) if local is None else local(y_step, x_np, y))
         if x_tilde.shape != x_np.shape:
             raise ValueError(f"the inverse simulator returned shape {x_tilde.shape}; "
                              f"expected {x_np.shape}")

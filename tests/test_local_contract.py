@@ -1,0 +1,251 @@
+"""The local-inverse contract (DESIGN.md; issue 32 item 3) for every inverse pdeinv ships.
+
+``P⁻¹_(x₀, P x₀)(P x₀) = x₀`` to rounding, from random ``x₀`` (white noise: in no prior's span, no
+decoder's span, no smooth subspace), for every inverse class and every built-in scene's default
+``problem.inverse`` and SIP default inverse; the inverse is *local*: its output minus ``x₀`` is the
+inverse of the residual alone, and whatever of ``x₀`` the physics (or the decoded physics ``P̂ = P D``)
+cannot see is carried over, not zeroed. The old ``DecoderTikhonov`` (``x̃ = D V diag(s/(s²+α)) Qᵀ y``,
+``x₀`` ignored) fails all three.
+"""
+
+import numpy as np
+import pytest
+
+import pdeinv
+import pdeinv.inverse as inv
+from pdeinv import nets
+from pdeinv.inverse import (
+    CompiledInverse,
+    Discrepancy,
+    RelativeAlpha,
+    ReusesForward,
+    SpectralTikhonov,
+    StateReversal,
+    TikhonovCG,
+    TimeReversal,
+)
+from pdeinv.inverse.decoder import DecoderTikhonov
+from pdeinv.problem import available
+
+#: every built-in scene, small (default backend unless the key says otherwise)
+SCENES = {
+    "advection_diffusion_2d": dict(n=6, steps=5),
+    "heat_1d": dict(n=16, steps=10),
+    "heat_1d-modal": dict(n=16, steps=10, backend="modal"),
+    "heat_2d": dict(n=6, steps=5),
+    "heat_2d-steps": dict(n=6, steps=5, backend="steps"),
+    "heat_3d": dict(n=3, steps=5),
+    "heat_boxes": dict(n=8, steps=5),
+    "heat_cavity_3d": dict(steps=3),
+    "heat_plate": dict(refine=0, steps=5),
+    "heat_sensors_2d": dict(n=6, steps=6, record_every=2, sensors=5),
+    "heat_sensors_3d": dict(n=3, steps=6, record_every=2, sensors=5),
+    "reaction_diffusion_2d": dict(n=6, steps=5),
+    "wave_1d": dict(n=16, steps=8),
+    "wave_2d": dict(n=6, steps=8),
+    "wave_2d-steps": dict(n=6, steps=8, backend="steps"),
+    "wave_3d": dict(n=3, steps=5),
+    "wave_sensors_2d": dict(n=6, steps=12, sensors=8, record_every=2),
+}
+
+#: relative tolerance of ``inverse(P x₀, x₀) = x₀`` in ‖·‖_M; every residual-form inverse is exact
+#: (the residual is exactly zero), time reversal and its compiled matrix to rounding
+TOL = 1e-10
+
+
+def scene(key):
+    return pdeinv.load_problem(key.split("-")[0], **SCENES[key])
+
+
+def white(p, B=4, seed=0):
+    """Random ``x₀`` of white noise: in no special subspace."""
+    return np.random.default_rng(seed).standard_normal((B, p.N))
+
+
+def test_every_builtin_scene_is_listed():
+    assert {k.split("-")[0] for k in SCENES} >= set(available())
+
+
+@pytest.fixture(scope="module")
+def problems():
+    return {}
+
+
+def get(problems, key):
+    if key not in problems:
+        problems[key] = scene(key)
+    return problems[key]
+
+
+@pytest.mark.parametrize("key", list(SCENES))
+def test_each_scene_default_inverse_returns_x0(problems, key):
+    """``problem.inverse(P x₀, x₀) = x₀`` and the same for the inverse SIP uses by default with the scene's
+    default network (the decoder's span for the heat scenes, the problem's own otherwise)."""
+    p = get(problems, key)
+    x0 = white(p)
+    y0 = p.operator.forward(x0)
+    assert np.max(p.relative_error(p.inverse(y0, x0), x0)) <= TOL
+    context = pdeinv.SIP().context(p, p.model())
+    assert np.max(p.relative_error(context.inverse(y0, x0), x0)) <= TOL
+    if context.local is not None:  # the route SIP takes: its own P x passed in
+        assert np.max(p.relative_error(context.local(y0, x0, y0), x0)) <= TOL
+
+
+# -- every inverse class: (problem key, factory(problem) -> (inverse, forward)) -----------------------
+
+def _plain(make):
+    return lambda p: (make(p), p.operator.forward)
+
+
+def _full_state(p):
+    def forward(X):
+        return np.hstack(p.operator.final_state(X))
+
+    return StateReversal(p.operator), forward
+
+
+def _compiled(p):
+    op = p.operator
+    return CompiledInverse(TimeReversal(op), op.n_out, op.n_in), op.forward
+
+
+def _decoder(p):
+    model = nets.reduced(k_in=8, k_out=10)(p)
+    return DecoderTikhonov(p.operator, model.linear_in_parameters().decoder), p.operator.forward
+
+
+CLASSES = {
+    "ModalTikhonov": ("heat_1d-modal", _plain(lambda p: inv.ModalTikhonov(p.operator, RelativeAlpha(1e-12)))),
+    "SpectralTikhonov": ("heat_sensors_2d", _plain(lambda p: SpectralTikhonov(
+        p.operator, RelativeAlpha(1e-12), modes=p.inverse_simulator.modes))),
+    "SpectralTikhonov-discrepancy": ("heat_sensors_2d", _plain(lambda p: SpectralTikhonov(
+        p.operator, Discrepancy(0.01), modes=p.inverse_simulator.modes))),
+    "TikhonovCG": ("heat_2d-steps", _plain(lambda p: TikhonovCG(p.operator, p.disc.M, 1e-8))),
+    "TikhonovCG-discrepancy": ("heat_2d-steps", _plain(lambda p: TikhonovCG(p.operator, p.disc.M,
+                                                                            Discrepancy(0.01)))),
+    "TimeReversal": ("wave_2d-steps", _plain(lambda p: TimeReversal(p.operator))),
+    "StateReversal": ("wave_2d-steps", _full_state),
+    "CompiledInverse": ("wave_2d-steps", _compiled),
+    "DecoderTikhonov": ("heat_1d", _decoder),
+    "DecoderTikhonov-identity": ("heat_2d", _plain(lambda p: DecoderTikhonov(p.operator, None,
+                                                                             rel_alpha=1e-12))),
+}
+
+
+def test_every_shipped_inverse_is_listed():
+    shipped = {name for name in inv.__all__ if isinstance(getattr(inv, name), type)
+               and name not in {"Discrepancy", "FixedAlpha", "RelativeAlpha", "ReusesForward"}}
+    assert {k.split("-")[0] for k in CLASSES} >= shipped | {"DecoderTikhonov"}
+
+
+@pytest.mark.parametrize("name", list(CLASSES))
+def test_each_inverse_returns_x0(problems, name):
+    key, factory = CLASSES[name]
+    p = get(problems, key)
+    inverse, forward = factory(p)
+    x0 = white(p, seed=1)
+    y0 = forward(x0)
+    assert np.max(p.relative_error(inverse(y0, x0), x0)) <= TOL
+    assert np.max(p.relative_error(inverse(y0[0], x0[0])[None], x0[:1])) <= TOL  # one sample in, one out
+    if isinstance(inverse, ReusesForward):  # the caller's y₀ changes nothing but the cost
+        y = y0 + np.random.default_rng(2).standard_normal(y0.shape) * np.abs(y0).max()
+        assert np.max(p.relative_error(inverse.local(y0, x0, y0), x0)) <= TOL
+        assert np.allclose(inverse.local(y, x0, y0), inverse(y, x0), rtol=1e-12, atol=0)
+
+
+#: inverses linear in the residual: a fixed α (a discrepancy α depends on y itself)
+LINEAR = [n for n in CLASSES if not n.endswith("discrepancy")]
+
+
+@pytest.mark.parametrize("name", LINEAR)
+def test_the_change_is_the_inverse_of_the_residual(problems, name):
+    """``inverse(P x₀ + δ, x₀) − x₀ = inverse(δ, 0)`` for a small ``δ``: the change depends on the
+    residual alone, linearly (doubling δ doubles it) — the prediction ``x₀`` is moved, never replaced."""
+    key, factory = CLASSES[name]
+    p = get(problems, key)
+    inverse, forward = factory(p)
+    x0 = white(p, seed=3)
+    y0 = forward(x0)
+    delta = 1e-3 * np.abs(y0).max() * np.random.default_rng(4).standard_normal(y0.shape)
+    change = inverse(y0 + delta, x0) - x0
+    alone = inverse(delta, np.zeros_like(x0))
+    scale = p.disc.norm(alone) + 1e-6 * p.disc.norm(x0)  # rounding of x₀ + Δx − x₀, amplified by the filter
+    assert np.max(p.disc.norm(change - alone) / scale) <= 1e-7
+    assert np.max(p.disc.norm(inverse(2 * delta, np.zeros_like(x0)) - 2 * alone) / scale) <= 1e-7
+    assert np.min(p.disc.norm(alone) / p.disc.norm(x0)) > 1e-6  # a change that is really there
+
+
+# -- what the physics cannot see is kept ---------------------------------------------------------------
+
+@pytest.fixture(scope="module")
+def blind():
+    """heat_sensors_2d with 4 sensors, one record: ``P`` is 4 × 49, a 45-dimensional null space."""
+    return pdeinv.load_problem("heat_sensors_2d", n=8, steps=6, sensors=4, record_every=6)
+
+
+def null_basis(A, rel=1e-13):
+    """Orthonormal columns spanning ``{v : A v = 0}`` (to ``rel`` of ``A``'s largest singular value)."""
+    _, s, Vt = np.linalg.svd(A)
+    rank = int(np.sum(s > rel * s[0]))
+    return Vt[rank:].T
+
+
+@pytest.mark.parametrize("which", ["decoder", "identity-decoder", "spectral", "cg"])
+def test_the_null_space_component_of_x0_is_kept(blind, which):
+    """``inverse(y, x₀ + n) = inverse(y, x₀) + n`` for ``n`` the physics cannot see (``P n = 0``; for the
+    decoder inverse ``n = D c`` with ``P̂ c = 0``) and any ``y``: the change does not touch it. The old
+    global decoder map returned the same field for both, i.e. zeroed ``n``."""
+    p, op = blind, blind.operator
+    rng = np.random.default_rng(5)
+    if which == "decoder":
+        decoder = nets.reduced(k_in=4, k_out=12)(p).linear_in_parameters().decoder  # 12 components > 4 rows
+        D = decoder.detach().double().numpy().T  # (N, k)
+        inverse = DecoderTikhonov(op, decoder, rel_alpha=1e-12)
+        C = null_basis(op.forward(D.T).T)  # null space of P̂ = P D, in coefficients
+        assert C.shape[1] >= 8
+        n = (C @ rng.standard_normal((C.shape[1], 3))).T @ D.T
+    else:
+        inverse = {"identity-decoder": lambda: DecoderTikhonov(op, None, rel_alpha=1e-12),
+                   "spectral": lambda: SpectralTikhonov(op, RelativeAlpha(1e-12),
+                                                        modes=p.inverse_simulator.modes),
+                   "cg": lambda: TikhonovCG(op, p.disc.M, RelativeAlpha(1e-12))}[which]()
+        Z = null_basis(op.forward(np.eye(p.N)).T)
+        assert Z.shape[1] == p.N - op.n_out
+        n = (Z @ rng.standard_normal((Z.shape[1], 3))).T
+    x0 = white(p, B=3, seed=6)
+    n *= p.disc.norm(x0)[:, None] / p.disc.norm(n)[:, None]  # as large as x₀
+    y = op.forward(white(p, B=3, seed=7))  # any observation
+    kept = inverse(y, x0 + n) - inverse(y, x0)
+    assert np.max(p.relative_error(kept, n)) <= 1e-8
+
+
+def test_sip_passes_its_forward_to_the_inverse(problems, monkeypatch):
+    """SIP's default inverse (:class:`ReusesForward`) gets the ``P x`` SIP computed for its loss: one
+    forward call per step, not two, and the same step as through the plain ``inverse(y, x0)``."""
+    import torch
+
+    p = get(problems, "heat_plate")
+    op, calls = p.operator, []
+    forward = op.forward
+    monkeypatch.setattr(op, "forward", lambda X: calls.append(len(X)) or forward(X))
+    _, y = p.sample(16, seed=8)
+    Y = torch.as_tensor(y)
+    steps = {}
+    for route in ("local", "plain"):
+        torch.manual_seed(0)
+        model = p.model()
+        rule = pdeinv.SIP()
+        state = rule.init(p, model)
+        assert isinstance(state.context.inverse, DecoderTikhonov)
+        if route == "plain":
+            rule = pdeinv.SIP(inverse=lambda y, x0, _inv=state.context.inverse: _inv(y, x0))
+            state = rule.init(p, model)
+            assert state.context.local is None
+        x = model(Y).detach().numpy().copy()
+        calls.clear()
+        rule.step(state, model, Y)
+        steps[route] = (len(calls), model(Y).detach().numpy() - x)
+    assert (steps["local"][0], steps["plain"][0]) == (1, 2), steps
+    change = steps["plain"][1]
+    assert np.allclose(steps["local"][1], change, rtol=1e-6, atol=1e-9 * np.abs(change).max())
+    assert np.abs(steps["local"][1]).max() > 0
