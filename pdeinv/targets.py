@@ -130,9 +130,26 @@ class SpectralWiener:
         when there is no noise or the operator has no spectral basis (nothing to filter by). With a
         ``model`` that has a fixed decoder ``D`` (``model.decoder``, :func:`pdeinv.nets.reduced`) the
         basis is the SVD of ``P D`` (module docstring: the MMSE in ``span D``)."""
+        if not noise and getattr(model, "decoder", None) is not None:
+            return self.rounding(problem, model)
         if not self.applies(problem, noise, model):
             return None
         return self.fit_basis(self._basis(problem, model), y, noise)
+
+    def rounding(self, problem, model) -> Filtered:
+        """Noise-free observations through a decoder: ``t = Q diag(s²/(s² + α)) Qᵀ y`` with the
+        rounding-level ``α = REL_ALPHA·s_max²`` of :mod:`pdeinv.inverse.decoder`. SIP's local inverse
+        keeps the contract, so its fixed point is the least-squares fit of its target: this target makes
+        it the rounding-level Tikhonov solve in ``span D`` (the decoder's missing prior energy and y's
+        rounding are not fitted). Measured (SIP, CLI defaults): heat_3d 0.00424 → 0.00333 and
+        heat_cavity_3d 0.0127 → 0.00795 against fitting ``y`` itself (heat_2d 0.00132 → 0.00156)."""
+        from .inverse.decoder import REL_ALPHA
+
+        basis = self._basis(problem, model)
+        s = basis.g
+        f = s**2 / (s**2 + REL_ALPHA * (s[0] ** 2 if s.size else 0.0))
+        return Filtered(basis.proj, basis.out, f, {"name": "tikhonov_rounding", "modes": int(s.size),
+                                                   "kept": int(s.size), "rel_alpha": REL_ALPHA})
 
     def fit_basis(self, modes, y: np.ndarray, noise: float) -> Filtered:
         """The filter in a given basis ``modes`` (``proj``, ``out``, ``g``: ``P = out diag(g) projᵀ``-like,
