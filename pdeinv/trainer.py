@@ -199,6 +199,15 @@ class Trainer:
             "dtype": str(self.dtype), "target": getattr(self.target, "name", self.target),
             **({} if self._own is None else {"data": self._own.fingerprint})})
 
+    def _network_settings(self) -> dict:
+        """``problem.model``'s settings: with own data, the linear part takes nothing from the scene's
+        sampler where it can (:func:`pdeinv.nets.data_base`)."""
+        if self._own is None or getattr(self.problem, "model_factory", None) is not None:
+            return {}
+        from .nets import data_base
+
+        return {"base": data_base(self.problem)}
+
     def _guard(self) -> Guard:
         return Guard(self.max_failures, self.step_factor, self.max_loss_growth, self.min_scale,
                      self.recover_after, self.snapshot_every)
@@ -207,7 +216,7 @@ class Trainer:
         """Model on ``device``, data, preconditioning, rule and stopping states, batch order; resumed."""
         if self.model is None:
             torch.manual_seed(self.seed)
-            self.model = self.problem.model()
+            self.model = self.problem.model(**self._network_settings())
         self.dtype = self.dtype or getattr(next(iter(self.model.parameters()), None), "dtype", torch.float32)
         model = self.model.to(device=self.device, dtype=self.dtype)
         if self.checkpoint is not None:

@@ -119,3 +119,24 @@ def test_cli_fits_the_prior_by_default_and_records_it(tmp_path, monkeypatch):
     fit = json.loads((tmp_path / "r" / "metrics.json").read_text())["prior_fit"]
     assert fit["prior"] == "4096 draws of the scene's prior (bumps)" and fit["seconds"] < 10
     assert main(["train", "heat_1d", "--steps", "3", "--prior-fit", "-1", "--out", str(tmp_path / "s")]) == 2
+
+
+def test_own_data_takes_no_prior_from_the_scene(tmp_path):
+    """A data file's run: the linear part is the whitened map (fitted on the file's y; no decoder from the
+    scene's sampler), recorded in run.json, and predict rebuilds it."""
+    import json
+
+    from pdeinv.cli import main
+
+    p = pdeinv.load_problem("heat_1d", prior="boxes")
+    x, y = p.sample(200, seed=4)
+    np.savez(tmp_path / "d.npz", x=x, y=y)
+    out = tmp_path / "run"
+    assert main(["train", "heat_1d", "--data", str(tmp_path / "d.npz"), "--n-test", "40", "--steps", "3",
+                 "--prior-fit", "2", "--out", str(out), "--threads", "1"]) == 0
+    spec = json.loads((out / "run.json").read_text())["network"]
+    assert spec["base"] == "whitened"
+    assert json.loads((out / "metrics.json").read_text())["prior_fit"]["prior"].startswith("the data file's x")
+    assert main(["predict", str(out), "--data", str(tmp_path / "d.npz"), "--out", str(tmp_path / "p.npz")]) == 0
+    model = pdeinv.load_problem("heat_1d").model(base="whitened")
+    assert model.base.decoder is None

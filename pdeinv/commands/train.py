@@ -184,7 +184,7 @@ def _lost_peer(err: RuntimeError) -> bool:
 NETS = ("default", "linear", "whitened", "reduced")
 
 
-def _network_spec(problem, hp: dict, net: str = "default") -> dict:
+def _network_spec(problem, hp: dict, net: str = "default", data: bool = False) -> dict:
     """run.json's network: the MLP of ``--hidden``, else ``--net`` (the problem's default network, the
     whitened linear map or the prior decoder, :mod:`pdeinv.nets`), with the preset's
     ``rows_per_component`` cap (first-order rules) where the problem has no model_factory."""
@@ -199,7 +199,16 @@ def _network_spec(problem, hp: dict, net: str = "default") -> dict:
     if own and net != "default":
         raise UsageError(f"--net {net}: problem {problem.name!r} builds its own network (model_factory); "
                          "only --net default applies")
-    return {"kind": net, **({"rows_per_component": cap} if cap and not own else {})}
+    spec = {"kind": net, **({"rows_per_component": cap} if cap and not own else {})}
+    if data and net == "default" and not own:  # the file's prior, never the scene's (pdeinv.nets.data_base)
+        from pdeinv.nets import data_base
+
+        spec["base"] = data_base(problem)
+        if spec["base"] == "auto":
+            warnings.warn(f"{problem.N} unknowns: the default network's decoder is built from the scene's "
+                          f"prior ({problem.settings.get('prior', 'its sampler')}), not from --data; "
+                          "--net whitened takes nothing from it", RuntimeWarning, stacklevel=2)
+    return spec
 
 
 def _prior_fit(args):
@@ -270,7 +279,7 @@ def _parallel_train(args, out, ckpt, device, parallel) -> int:
     _checks.check_run(problem, args, hp)  # memory, HIG step time, --export-samples (before allocating)
     stop = STOPS[args.stop](problem)
     torch.manual_seed(args.seed)
-    net = _network_spec(problem, hp, args.net)
+    net = _network_spec(problem, hp, args.net, bool(args.data))
     trainer = Trainer(problem, rule, network(problem, net), steps=_checks.steps(args, hp),
                       time_budget=args.time_budget,
                       n_train=args.n_train or N_TRAIN, n_test=args.n_test, batch_size=hp["batch_size"],
