@@ -136,7 +136,9 @@ def test_own_data_takes_no_prior_from_the_scene(tmp_path):
                  "--prior-fit", "2", "--out", str(out), "--threads", "1"]) == 0
     spec = json.loads((out / "run.json").read_text())["network"]
     assert spec["base"] == "whitened"
-    assert json.loads((out / "metrics.json").read_text())["prior_fit"]["prior"].startswith("the data file's x")
-    assert main(["predict", str(out), "--data", str(tmp_path / "d.npz"), "--out", str(tmp_path / "p.npz")]) == 0
+    fit = json.loads((out / "metrics.json").read_text())["prior_fit"]
+    assert fit["prior"].startswith("the data file's x")
+    d, pred = str(tmp_path / "d.npz"), str(tmp_path / "p.npz")
+    assert main(["predict", str(out), "--data", d, "--out", pred]) == 0
     model = pdeinv.load_problem("heat_1d").model(base="whitened")
     assert model.base.decoder is None
