@@ -38,10 +38,10 @@ iterating removes: the effective cut-off after ``k`` steps is ``≈ α/k``. Meas
 → 0.00370, heat_1d 0.00397 → 0.00284, advection_diffusion_2d 0.00139 → 0.00116, heat_sensors_3d 0.0272
 → 0.0258, wave_sensors_2d 2.29e-5 both, heat_boxes (n=32) 0.588 both; but heat_3d 0.00333 → 0.00424
 and heat_cavity_3d 0.00795 → 0.0127, where the regularized fixed point was better than the
-least-squares one (see the α paragraph: α = 0 gave 0.0047 on heat_3d). A noise-free target that is
-the rounding-level Tikhonov filter in the basis of ``P̂`` (``t = Q diag(s²/(s²+α)) Qᵀ y*``, the noise-free
-case of :class:`pdeinv.targets.SpectralWiener`) puts that regularization back where the contract allows
-it, in what is matched: with it this inverse gave the old figures to three digits (heat_3d 0.00333,
+least-squares one (see the α paragraph: α = 0 gave 0.0047 on heat_3d). The noise-free target is
+therefore the rounding-level Tikhonov filter in the basis of ``P̂`` (``t = Q diag(s²/(s²+α)) Qᵀ y*``,
+:meth:`pdeinv.targets.SpectralWiener.rounding`, the trainer's default): it puts that regularization back
+where the contract allows it, in what is matched, and gives the old figures to three digits (heat_3d 0.00333,
 heat_cavity_3d 0.00795, heat_2d 0.00156, heat_1d 0.00398).
 
 α is rounding-level, ``α = rel_alpha · s_max²`` (1e-24: singular values resolved to 1e-12 of the
