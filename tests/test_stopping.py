@@ -116,11 +116,11 @@ def test_cli_defaults_on_noisy_data_fit_a_target_and_stop_only_without_one(tmp_p
     m = json.loads((stopped / "metrics.json").read_text())
     assert m["stopped_by"] == "discrepancy" and m["stop_rule"]["noise_source"] == "problem"
     assert "(discrepancy)" in capsys.readouterr().out
-    quiet = tmp_path / "quiet"  # noise-free: no stopping rule unless asked for, nothing to denoise
+    quiet = tmp_path / "quiet"  # noise-free: no stopping rule unless asked for, only rounding to filter
     assert main(["train", "heat_1d", "--method", "sip", "--steps", "20", "--out", str(quiet),
                  "--export-samples", "0"]) == 0
     m = json.loads((quiet / "metrics.json").read_text())
-    assert m["stopped_by"] == "steps" and "stop_rule" not in m and "target" not in m
+    assert m["stopped_by"] == "steps" and "stop_rule" not in m and m["target"]["name"] == "tikhonov_rounding"
 
 
 def test_cli_refuses_an_optimizer_for_a_rule_without_one(tmp_path, capsys):
