@@ -27,7 +27,7 @@ _WHERE = {
     **dict.fromkeys(["Discrepancy", "FixedAlpha", "ModalTikhonov", "RelativeAlpha", "StateReversal",
                      "SpectralTikhonov", "TikhonovCG", "TimeReversal", "default_inverse",
                      "CompiledInverse"], "inverse"),
-    **dict.fromkeys(["GD", "HIG", "SIP", "NonFiniteError", "adam", "sgd"], "methods"),
+    **dict.fromkeys(["GD", "HIG", "SIP", "Supervised", "NonFiniteError", "adam", "sgd"], "methods"),
     **dict.fromkeys(["Net", "mlp", "reduced", "whitened", "zero_last_layer"], "nets"),
     "estimate_noise": "noise", "sensor_matrix": "observe",
     **dict.fromkeys(["Heat", "Leapfrog", "LinearOperator", "Matrix", "Modal", "Stepping", "Wave",

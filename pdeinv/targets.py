@@ -100,6 +100,35 @@ class Filtered:
 
 
 @dataclass(frozen=True)
+class TrueFields:
+    """The training rows' true fields ``x`` as the target (:class:`pdeinv.methods.supervised.Supervised`):
+    ``fit(problem, y, noise, fields=x)`` returns a target whose value on the training rows is ``x``.
+    Needs ``x``: a scene's own draws or a data file with ``x`` (else ``ValueError``)."""
+
+    name: str = "true_fields"
+
+    def fit(self, problem, y, noise, fields=None):
+        x = None if fields is None else fields()
+        if x is None:
+            raise ValueError("target TrueFields (supervised training) needs the training rows' x: a data "
+                             "file without x has none; give x in the file or use a physics-based rule")
+        x = np.asarray(x, dtype=float)
+        if len(x) != len(y):
+            raise ValueError(f"TrueFields: {len(x)} fields for {len(y)} observations")
+        return _Fields(x)
+
+
+class _Fields:
+    """A fitted :class:`TrueFields`: the training rows' ``x`` whatever ``y`` (rows aligned)."""
+
+    def __init__(self, x: np.ndarray):
+        self.x, self.info = x, {"name": "true_fields", "rows": len(x)}
+
+    def __call__(self, y) -> np.ndarray:
+        return self.x
+
+
+@dataclass(frozen=True)
 class SpectralWiener:
     """The y-only Wiener filter per mode of the operator's spectral basis (module docstring)."""
 

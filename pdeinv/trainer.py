@@ -35,6 +35,7 @@ from .trainset import (
     seed_stream,
     stop_rows,
     test_rows,
+    training_fields,
     training_rows,
 )
 from .unseen import of_predictions
@@ -222,8 +223,9 @@ class Trainer:
         if self.checkpoint is not None:
             ckpts.check_resumable(self.rule)
         y_np, y_train, test = self._data()
+        fields = lambda: training_fields(self.problem, self._own, self.n_train, self.seed)  # noqa: E731
         t_train, self._target_info = fit_inputs(self.problem, self.rule, self.target, model, y_np, y_train,
-                                                self.fit_scaling)
+                                                self.fit_scaling, fields)
         stop_state = None if self.stop is None else self.stop.init(
             self.problem, y_np, stop_rows(self.problem, self._own, self.stop.n_val, self.seed))
         self.parallel.check_same("run", lambda: {

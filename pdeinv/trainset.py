@@ -65,13 +65,21 @@ def prior_rows(problem, own, n: int, seed: int) -> tuple[tuple | None, str]:
     return problem.sample(n, seed_stream(seed, PRIOR_DATA)), f"{n} draws of the scene's prior ({prior})"
 
 
-def fit_inputs(problem, rule, target, model, y_np, y_train, fit_scaling: bool):
+def training_fields(problem, own, n_train: int, seed: int):
+    """The training rows' true fields (numpy) or ``None``: own data's ``x``, or the seeded draws'
+    (the same stream as :func:`training_rows`, so the same rows)."""
+    if own is not None:
+        return own.x
+    return problem.sample(n_train, seed_stream(seed, TRAIN_DATA))[0]
+
+
+def fit_inputs(problem, rule, target, model, y_np, y_train, fit_scaling: bool, fields=None):
     """What the network sees and must match: ``(goal, info)`` of :func:`fit_target`, and with
     ``fit_scaling`` the model's input transform fitted on ``y_np`` at the problem's noise level
     (:func:`pdeinv.nets.fit_preconditioning`; never on ``x``)."""
     from .nets import fit_preconditioning
 
-    goal, info = fit_target(problem, rule, target, y_np, y_train, model)
+    goal, info = fit_target(problem, rule, target, y_np, y_train, model, fields)
     if fit_scaling:  # a fitted target is denoised: the input keeps every direction (drop=0), each scaled
         # at most to the noise floor σ² (clean data's rounding-level directions stay small)
         noise = getattr(problem, "noise", None) or None
@@ -79,7 +87,7 @@ def fit_inputs(problem, rule, target, model, y_np, y_train, fit_scaling: bool):
     return goal, info
 
 
-def fit_target(problem, rule, target, y_np, y_train, model=None):
+def fit_target(problem, rule, target, y_np, y_train, model=None, fields=None):
     """``(goal, info)``: what ``P f(y)`` must match when it is not ``y_train`` itself (``goal`` None) and
     the fitted target's description (None without one).
 
@@ -88,14 +96,18 @@ def fit_target(problem, rule, target, y_np, y_train, model=None):
     (a float32 copy of ``y`` puts rounding 6e-8 into every residual, which SIP's local inverse amplifies
     by up to ``1/(2√α)``). A rule whose ``update`` takes no ``target`` keeps ``y`` (precision) or is
     refused (a fitted target). A strategy whose ``fit`` takes ``model=`` gets the network (a fixed
-    decoder changes the basis the target filters in)."""
+    decoder changes the basis the target filters in), one whose ``fit`` takes ``fields=`` a callable
+    returning the training rows' ``x`` or ``None`` (:class:`~pdeinv.targets.TrueFields`); ``"auto"`` is
+    the rule's own ``default_target()`` when it has one."""
     import numpy as np
     import torch
 
     from .methods.base import takes_target
     from .targets import SpectralWiener
 
-    strategy = SpectralWiener() if target == "auto" else target
+    own_default = getattr(rule, "default_target", None)  # e.g. Supervised: the true fields
+    strategy = ((own_default() if callable(own_default) else None) or SpectralWiener()) \
+        if target == "auto" else target
     noise = getattr(problem, "noise", None) or 0.0
     if strategy is None and noise > 0:
         warnings.warn(f"noise={noise:g} and target=None: every rule converges to the least-squares fit "
@@ -104,7 +116,9 @@ def fit_target(problem, rule, target, y_np, y_train, model=None):
                       stacklevel=5)
     fitted = None
     if strategy is not None:
-        kw = {"model": model} if "model" in inspect.signature(strategy.fit).parameters else {}
+        wants = inspect.signature(strategy.fit).parameters
+        kw = {**({"model": model} if "model" in wants else {}),
+              **({"fields": fields or (lambda: None)} if "fields" in wants else {})}
         fitted = strategy.fit(problem, y_np, noise or None, **kw)
     if fitted is not None and not takes_target(rule):
         if target != "auto":

@@ -10,10 +10,11 @@ import importlib
 
 _WHERE = {**dict.fromkeys(["NonFiniteError", "Resumable", "State", "Update", "UpdateRule", "adam", "sgd"],
                           "base"),
-          "GD": "gd", "Guard": "guard", "apply_if_finite": "guard", "HIG": "hig", "SIP": "sip"}
+          "GD": "gd", "Guard": "guard", "apply_if_finite": "guard", "HIG": "hig", "SIP": "sip",
+          "Supervised": "supervised"}
 
-__all__ = ["GD", "HIG", "SIP", "Guard", "NonFiniteError", "Resumable", "State", "Update", "UpdateRule",
-           "adam", "apply_if_finite", "sgd"]
+__all__ = ["GD", "HIG", "SIP", "Supervised", "Guard", "NonFiniteError", "Resumable", "State", "Update",
+           "UpdateRule", "adam", "apply_if_finite", "sgd"]
 
 
 def __getattr__(name: str):

@@ -68,6 +68,7 @@ from .gd import GD, GD_LR
 from .hig import HIG
 from .names import METHOD_NAMES
 from .sip import SIP
+from .supervised import Supervised
 
 #: SIP's proxy optimizer by name: (factory, normalize the proxy gradient by its curvature, default lr).
 #: With ``normalize`` SGD's lr is in units of the Landweber step 1/λ_max (SIP's docstring): lr 1 on
@@ -81,6 +82,7 @@ METHODS = {
     "sip": lambda hp: SIP(eta=hp["eta"], optimizer=OPTIMIZERS[hp["optimizer"]][0](hp["lr"]),
                           normalize=OPTIMIZERS[hp["optimizer"]][1]),
     "hig": lambda hp: HIG(eta=hp["eta"], tau=hp["tau"]),
+    "supervised": lambda hp: Supervised(optimizer=adam(hp["lr"])),  # needs x (pdeinv.targets.TrueFields)
 }
 assert sorted(METHODS) == sorted(METHOD_NAMES), "add the method's name to methods/names.py too"
 
@@ -93,6 +95,9 @@ GENERIC = {
     "sip": {"lr": None, "eta": 1.0, "batch_size": None, "optimizer": "sgd", "steps": 30},
     # HIG: the exact Kronecker route on the default network, full batch, η 1 on the normalized step
     "hig": {"eta": 1.0, "tau": 1e-6, "batch_size": None, "steps": 1000},
+    # supervised on the true fields (x in the data): Adam 1e-3, batches of 32, 1000 steps, the first-order
+    # rules' network (one whitened direction per 8 rows)
+    "supervised": {"lr": 1e-3, "batch_size": 32, "steps": 1000, "rows_per_component": 8},
 }
 
 #: HIG's batch on an MLP (``--hidden``): the full batch is the preset only for the networks linear in θ
