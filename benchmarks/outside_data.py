@@ -35,9 +35,10 @@ def main():
     out = Path(a.out) / f"{a.scene}_{a.prior}_{a.noise}"
     out.parent.mkdir(parents=True, exist_ok=True)
     np.savez(f"{out}.npz", x=x, y=y)
-    cmd = [sys.executable, "-m", "pdeinv", "train", a.scene, "--data", f"{out}.npz", "--set", f"noise={a.noise}",
-           "--seed", "0", "--out", str(out), "--overwrite", "--threads", "1"]
-    rc = subprocess.run(cmd, capture_output=True, text=True, env={**os.environ, "OMP_NUM_THREADS": "1"}).returncode
+    cmd = [sys.executable, "-m", "pdeinv", "train", a.scene, "--data", f"{out}.npz",
+           "--set", f"noise={a.noise}", "--seed", "0", "--out", str(out), "--overwrite", "--threads", "1"]
+    env = {**os.environ, "OMP_NUM_THREADS": "1"}
+    rc = subprocess.run(cmd, capture_output=True, text=True, env=env).returncode
     m = json.loads((out / "metrics.json").read_text())
     xt, yt, xtr, ytr = x[-n_test:], y[-n_test:], x[:-n_test], y[:-n_test]
     err = lambda e: float(np.mean(p.relative_error(e, xt)))  # noqa: E731
