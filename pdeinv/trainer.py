@@ -113,6 +113,12 @@ class Trainer:
     or SVD physics backend is applied there by torch (:mod:`pdeinv.physics.device`; time stepping stays
     on the CPU). An unknown device, or CUDA where there is none, is a ``ValueError``.
 
+    **Prior fit.** ``prior_fit`` (a :class:`~pdeinv.refine.PriorFit`; ``None``, the default here, skips it;
+    ``pdeinv train`` sets one) fits a network's part that learns the prior (:class:`~pdeinv.refine.Refined`,
+    the default network's nonlinear correction) after the rule, on ``prior_draws`` fresh draws of the
+    scene, or on own data's training rows when they carry ``x`` (none without: a warning); its time counts
+    as training time and ``metrics["prior_fit"]`` says what was fitted on what.
+
     **Data parallel.** ``parallel`` (:class:`~pdeinv.distributed.Single`, or
     :class:`~pdeinv.distributed.DataParallel` from torchrun's environment by
     :func:`pdeinv.distributed.from_env`) shards each *global* batch (``batch_size``, divisible by the
@@ -319,7 +325,6 @@ class Trainer:
         if warning and self.parallel.is_writer:  # energy where the physics cannot see (pdeinv.unseen)
             warnings.warn(warning, RuntimeWarning, stacklevel=2)
         return Result(run.model, self.history, record, run.state)
-
 
     def _fit_prior(self, run: _Run) -> dict | None:
         """The network's part fitted on prior draws after the rule (:mod:`pdeinv.refine`), if it has one;
