@@ -42,6 +42,10 @@ from .unseen import of_predictions
 
 __all__ = ["Callback", "Result", "Trainer", "seed_stream", "train"]
 
+#: at most this many field entries in a scene's prior draws (x, y and the base's estimates in float64 and
+#: float32: ~20 bytes each, 2 GB): 4096 draws up to 48 828 unknowns, fewer above, never under 256
+PRIOR_ENTRIES = 100_000_000
+
 #: ``callback(record, model) -> bool | None``; returning True stops training after this step
 Callback = Callable[[dict, torch.nn.Module], "bool | None"]
 
@@ -331,7 +335,8 @@ class Trainer:
         its time counts as training time. What was done, and where the prior came from, or ``None``."""
         if self.prior_fit is None or not self.prior_fit.applies(run.model):
             return None
-        draws, source = prior_rows(self.problem, self._own, self.prior_draws, self.seed)
+        n = min(self.prior_draws, max(256, PRIOR_ENTRIES // max(self.problem.N, 1)))  # memory: O(n·N)
+        draws, source = prior_rows(self.problem, self._own, n, self.seed)
         if draws is None:
             if self.parallel.is_writer:
                 warnings.warn(f"the network's nonlinear correction was not fitted: prior {source}; it stays "
