@@ -246,9 +246,11 @@ REDUCED_K_IN = 1024
 #: takes the whitened map instead (an error floor of 0.1 %)
 DECODER_MAX_UNCAPTURED = 1e-6
 
-#: unknowns (or observations) up to which :func:`linear_default` falls back to the whitened map
-#: (``N²`` parameters: 126 MB in float64 at 3 969)
-WHITENED_MAX = 8_192
+#: whitened components of the linear part where no decoder is used for the prior (:func:`linear_default`'s
+#: fallback, :func:`data_base`): ``N·k`` parameters, linear in the mesh. The training rows bound the
+#: whitening's rank anyway (heat_boxes 64×64, SIP noise-free: 0.1715 with 1024 or 2048 components and
+#: with all 3 969, which carry 2 945 dead columns; 4.1 M / 8.1 M / 15.8 M parameters)
+FALLBACK_COMPONENTS = 2048
 
 #: unknowns above which :func:`default_model` builds :func:`reduced` even for a reversible operator
 #: (measured on heat_2d; the table is in :func:`reduced`)
@@ -287,19 +289,22 @@ def default_model(problem, rows_per_component: float | None = None, refine: bool
     decoder against 0.171, heat_sensors_2d 0.314 against 0.262 (heat_2d 0.263 against 0.286)."""
     if base not in ("auto", "whitened"):
         raise ValueError(f"base={base!r} is not allowed; expected 'auto' or 'whitened'")
-    net = whitened("linear", rows_per_component=rows_per_component)(problem) if base == "whitened" else \
+    net = _whitened_fallback(problem, rows_per_component) if base == "whitened" else \
         linear_default(problem, rows_per_component)
     return refined(problem, net) if refine else net
 
 
 def data_base(problem) -> str:
-    """The linear part for a user's data file (``default_model``'s ``base``): ``'whitened'`` where it fits
-    (:data:`WHITENED_MAX`): the whitening is fitted on the file's ``y`` and nothing comes from the
-    scene's sampler (a prior decoder would be the scene's prior: heat_2d files from other priors, SIP
-    1.31–1.68× best-α Tikhonov with it, and the whitened map better in all six cases measured, issue
-    32); ``'auto'`` above, where the decoder is the scene's and the run says so."""
-    m, n = problem.operator.n_out, problem.operator.n_in
-    return "whitened" if max(m, n) <= WHITENED_MAX else "auto"
+    """The linear part for a user's data file (``default_model``'s ``base``): ``'whitened'``, the whitening
+    fitted on the file's ``y`` with at most :data:`FALLBACK_COMPONENTS` components, so that nothing comes
+    from the scene's sampler (a prior decoder would be the scene's prior: heat_2d files from other priors,
+    SIP 1.31–1.68× best-α Tikhonov with it, and the whitened map better in all six cases measured, issue
+    32)."""
+    return "whitened"
+
+
+def _whitened_fallback(problem, rows_per_component=None) -> nn.Module:
+    return whitened("linear", rows_per_component=rows_per_component, components=FALLBACK_COMPONENTS)(problem)
 
 
 def linear_default(problem, rows_per_component: float | None = None) -> nn.Module:
@@ -307,17 +312,16 @@ def linear_default(problem, rows_per_component: float | None = None) -> nn.Modul
     linear``): :func:`reduced` or :func:`whitened` as described there. A decoder that leaves more than
     :data:`DECODER_MAX_UNCAPTURED` of the prior's energy out has an error floor of its square root
     (the SIP paper's boxes at 64×64: 512 components leave 1.3 %, SIP 1.07 against 0.14 for the whitened
-    map, its rounding-level solve amplifying the missing part): up to :data:`WHITENED_MAX` unknowns the
-    whitened linear map is taken instead."""
+    map, its rounding-level solve amplifying the missing part): the whitened linear map with at most
+    :data:`FALLBACK_COMPONENTS` components is taken instead (parameters linear in the mesh)."""
     big = max(problem.operator.n_in, problem.operator.n_out) > REDUCED_ABOVE
     kw = {"rows_per_component": rows_per_component}
     if not (big or _prior_decoded(problem, rows_per_component)):
         return whitened("linear", **kw)(problem)
     net = reduced(**kw)(problem)
     info = getattr(net, "decoder_info", {})
-    if 1 - info.get("captured", 1.0) > DECODER_MAX_UNCAPTURED and \
-            max(problem.operator.n_in, problem.operator.n_out) <= WHITENED_MAX:
-        return whitened("linear", **kw)(problem)
+    if 1 - info.get("captured", 1.0) > DECODER_MAX_UNCAPTURED:
+        return _whitened_fallback(problem, rows_per_component)
     return net
 
 
@@ -357,7 +361,8 @@ def default_size(problem) -> tuple[int, int]:
         k_in, k_out = min(REDUCED_K_IN, m), min(REDUCED_K, n)
         size = k_in * k_out + k_out + m * k_in + n * k_out + m + k_in
         # a decoder that misses the prior falls back to the whitened map (linear_default)
-        dense = max(size, dense if max(m, n) <= WHITENED_MAX else 0)
+        kf = min(m, n, FALLBACK_COMPONENTS)
+        dense = max(size, m * kf + kf * n + n)
     return dense + refined_size(problem), max(m, n)
 
 
@@ -395,7 +400,8 @@ BODIES = {
 
 
 def whitened(body: str = "linear", hidden=(256, 256), activation=nn.Tanh, rel_floor: float | None = None,
-             drop: float | str = "edge", dtype: torch.dtype = DTYPE, rows_per_component: float | None = None):
+             drop: float | str = "edge", dtype: torch.dtype = DTYPE, rows_per_component: float | None = None,
+             components: int | None = None):
     """A ``model_factory``: :class:`Net` of a :class:`Whitening` and a body from :data:`BODIES`, in
     ``dtype`` (default float64: see :data:`DTYPE`). With more observations than unknowns
     (``m > N``: sensor time series) the whitening keeps the ``N`` leading components: noise-free
@@ -408,7 +414,8 @@ def whitened(body: str = "linear", hidden=(256, 256), activation=nn.Tanh, rel_fl
 
     def factory(problem) -> nn.Module:
         m, n = problem.operator.n_out, problem.operator.n_in
-        pre = Whitening(m, rel_floor, drop, components=n if m > n else None,
+        k = min(m, n) if components is None else min(components, m, n)
+        pre = Whitening(m, rel_floor, drop, components=k if k < m else None,
                         rows_per_component=rows_per_component)
         return Net(pre, BODIES[body](pre.k, n, tuple(hidden), activation)).to(dtype)
 

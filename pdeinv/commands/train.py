@@ -204,10 +204,6 @@ def _network_spec(problem, hp: dict, net: str = "default", data: bool = False) -
         from pdeinv.nets import data_base
 
         spec["base"] = data_base(problem)
-        if spec["base"] == "auto":
-            warnings.warn(f"{problem.N} unknowns: the default network's decoder is built from the scene's "
-                          f"prior ({problem.settings.get('prior', 'its sampler')}), not from --data; "
-                          "--net whitened takes nothing from it", RuntimeWarning, stacklevel=2)
     return spec
 
 
