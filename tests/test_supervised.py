@@ -10,15 +10,16 @@ from pdeinv.targets import TrueFields
 
 
 def test_supervised_fits_the_true_fields_and_reports_the_y_loss():
-    """heat_1d, the preset, 300 steps: x_err 0.231 measured (Adam through the physics: 0.353 at 1000)."""
+    """The preset (full-batch SGD at lr 1 on the whitened map) is the least-squares fit of x on the whitened
+    y in one step: its x-loss does not move after it, and the fit is the empirical linear MMSE of the
+    training pairs (heat_1d: x_err measured 0.0026 after 10 steps; SIP 0.0040)."""
     p = pdeinv.load_problem("heat_1d")
     rule, hp = make_rule("supervised", p)
-    net = p.model(rows_per_component=hp["rows_per_component"])
-    res = pdeinv.train(p, rule, net, steps=300, batch_size=hp["batch_size"], seed=0, progress=False)
+    res = pdeinv.train(p, rule, steps=hp["steps"], batch_size=hp["batch_size"], seed=0, progress=False)
     assert res.metrics["target"] == {"name": "true_fields", "rows": 1024}
     xs = [h["x_loss"] for h in res.history if "x_loss" in h]
-    assert np.mean(xs[-20:]) < 0.5 * xs[0]  # it fits x ...
-    assert res.metrics["x_err"] < 0.3 and all(np.isfinite(h["loss"]) for h in res.history)  # ... and y
+    assert xs[1] < 1e-4 * xs[0] and abs(xs[-1] - xs[1]) <= 1e-6 * xs[0]
+    assert res.metrics["x_err"] < 0.005 and all(np.isfinite(h["loss"]) for h in res.history)
 
 
 def test_supervised_direction_is_the_gradient_of_the_x_loss():
@@ -29,7 +30,7 @@ def test_supervised_direction_is_the_gradient_of_the_x_loss():
     with torch.no_grad():
         for q in net.parameters():
             q.normal_(0, 0.1)
-    rule = pdeinv.Supervised()
+    rule = pdeinv.Supervised(normalize=False)
     yt, xt = torch.as_tensor(y), torch.as_tensor(x)
     up = rule.update(rule.init(p, net), net, yt, xt)
     loss = 0.5 * ((net(yt) - xt) ** 2).sum(-1).mean()

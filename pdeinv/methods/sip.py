@@ -164,12 +164,17 @@ class SIP(Rule):
         target = torch.as_tensor(x_tilde, dtype=x.dtype, device=x.device)
         check_finite("the inverse simulator's x̃", target)
         proxy = y_loss(x, target)  # ½ mean ‖x − x̃‖², target carries no gradient
-        if self.normalize and curvature is None:
-            raise ValueError("SIP(normalize=True) needs its curvature: call state = rule.calibrate(state, "
-                             "model, y) on a first batch (pdeinv.Trainer and rule.step do)")
-        direction = gradient(proxy, model)
-        if self.normalize:
-            scale = (None,) * len(direction) if diagonal is None else diagonal
-            direction = tuple(None if d is None else (d if s is None else d / s) / curvature
-                              for d, s in zip(direction, scale, strict=True))
+        direction = self.normalized(gradient(proxy, model), curvature, diagonal)
         return Update(direction, {"loss": loss, "proxy": float(proxy.detach())})
+
+    def normalized(self, direction: tuple, curvature: float | None, diagonal: tuple | None) -> tuple:
+        """``d⁻¹ ∇ / λ̂`` (the class docstring) when ``normalize``, else ``direction`` unchanged."""
+        if not self.normalize:
+            return direction
+        if curvature is None:
+            raise ValueError(f"{type(self).__name__}(normalize=True) needs its curvature: call state = "
+                             "rule.calibrate(state, model, y) on a first batch (pdeinv.Trainer and "
+                             "rule.step do)")
+        scale = (None,) * len(direction) if diagonal is None else diagonal
+        return tuple(None if d is None else (d if s is None else d / s) / curvature
+                     for d, s in zip(direction, scale, strict=True))

@@ -5,10 +5,16 @@ fitted to them directly,
 
     L_x = ½ · mean_i ‖f(y*_i) − x_i‖²        (Euclidean over the unknowns, mean over the batch),
 
-with any torch optimizer; ``x`` reaches the rule as its ``target`` (:class:`pdeinv.targets.TrueFields`,
-what ``target="auto"`` means for this rule), so it trains through the common trainer like every other
-rule. The physics is not differentiated: it runs forward once per step (no gradient) for the y-loss
-every rule reports (:mod:`.base`). A hybrid of a physics rule and this one is not offered yet.
+which is SIP's proxy ``½ mean ‖x − x̃‖²`` with the true field in place of the inverse simulator's
+``x̃``: the same Gauss–Newton matrix, so the same normalization (:class:`~.sip.SIP`'s ``normalize``:
+the network's Gauss–Newton diagonal and largest eigenvalue, measured once). The preset, plain SGD at
+lr 1 on the full batch, is then one exact least-squares step on a network linear in its parameters
+(the whitened map: the empirical linear MMSE of the training pairs; the prior decoder: its
+least-squares fit in the decoder's span). ``x`` reaches the rule as its ``target``
+(:class:`pdeinv.targets.TrueFields`, what ``target="auto"`` means for this rule), so it trains through
+the common trainer like every other rule. The physics is not differentiated: it runs forward once per
+step (no gradient) for the y-loss every rule reports (:mod:`.base`). A hybrid of a physics rule and
+this one is not offered yet.
 """
 
 from __future__ import annotations
@@ -18,26 +24,22 @@ from dataclasses import dataclass, field
 import numpy as np
 import torch
 
-from .base import OptimizerFactory, Rule, Update, adam, gradient, prediction
-from .transforms import OptimizerStep
+from .base import OptimizerFactory, Update, gradient, prediction, sgd, y_loss
+from .sip import SIP, SIPContext
 
 
 @dataclass(frozen=True)
-class Supervised(Rule):
-    """Direction ``∇_θ L_x`` (module docstring), applied by ``optimizer`` (default Adam 1e-3)."""
+class Supervised(SIP):
+    """Direction ``d⁻¹ ∇_θ L_x / λ̂`` (module docstring), applied by ``optimizer`` (default: SGD, lr 1)."""
 
-    optimizer: OptimizerFactory = field(default_factory=lambda: adam(1e-3))
+    optimizer: OptimizerFactory = field(default_factory=lambda: sgd(1.0))
     name: str = "supervised"
 
-    @property
-    def transform(self) -> OptimizerStep:
-        return OptimizerStep(self.optimizer)
-
     def settings(self) -> dict:
-        return {}
+        return {"normalize": self.normalize}
 
-    def context(self, problem, model):
-        return problem.operator
+    def context(self, problem, model) -> SIPContext:
+        return SIPContext(problem.operator, None)
 
     def default_target(self):
         """What ``target="auto"`` fits for this rule: the training rows' true fields."""
@@ -50,11 +52,13 @@ class Supervised(Rule):
         if target is None:
             raise ValueError("Supervised needs the training rows' true fields as its target: keep "
                              "target='auto' (pdeinv.targets.TrueFields) and give data with x")
+        op, _, curvature, diagonal, _ = state.context
         x = prediction(model(y_target))
         if target.shape != x.shape:
             raise ValueError(f"Supervised: the target has shape {tuple(target.shape)}, the network's output "
                              f"{tuple(x.shape)}; the target must be the true fields x")
-        loss_x = 0.5 * (x - target.to(x.dtype)).pow(2).sum(-1).mean()
-        y = np.asarray(state.context.forward(x.detach().cpu().double().numpy()))
+        loss_x = y_loss(x, target.to(x.dtype))  # ½ mean ‖f(y) − x‖²
+        y = np.asarray(op.forward(x.detach().cpu().double().numpy()))
         loss = 0.5 * float(((y - y_target.detach().cpu().double().numpy()) ** 2).sum(-1).mean())
-        return Update(gradient(loss_x, model), {"loss": loss, "x_loss": float(loss_x.detach())})
+        direction = self.normalized(gradient(loss_x, model), curvature, diagonal)
+        return Update(direction, {"loss": loss, "x_loss": float(loss_x.detach())})
