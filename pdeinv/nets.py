@@ -327,15 +327,24 @@ def linear_default(problem, rows_per_component: float | None = None) -> nn.Modul
 
 def refined(problem, base: nn.Module) -> nn.Module:
     """``base`` plus a nonlinear correction on a grid fitted on prior draws (:class:`pdeinv.refine.Refined`),
-    for a problem whose unknowns are nodal values on a mesh of dimension 1–3; ``base`` otherwise."""
+    for a problem whose unknowns are nodal values on a mesh of dimension 1–3; ``base`` otherwise. Where
+    the operator has a modal basis (the heat scenes' modal backend) the correction also sees the
+    physics' own Tikhonov estimate (:class:`pdeinv.refine.SpectralFilter`, α at the noise level or at
+    rounding): full rank, where ``base`` is learned from the training rows and has at most their rank
+    (heat_boxes n=96: base 0.600 against best-α Tikhonov 0.108)."""
     from .grid import GridMap, spacing
-    from .refine import Refined
+    from .inverse import NOISE_FREE_REL_ALPHA
+    from .physics.capabilities import modal_basis
+    from .refine import Refined, SpectralFilter
 
     disc = getattr(problem, "disc", None)
     mesh = getattr(getattr(disc, "basis", None), "mesh", None)
     if mesh is None or not 1 <= problem.points.shape[0] <= 3:
         return base
-    return Refined(base, GridMap(problem.points, spacing(mesh)))
+    modes = modal_basis(problem.operator)  # a full-rank physics estimate as a second input, where cheap
+    noise = float(getattr(problem, "noise", 0.0) or 0.0)
+    physics = None if modes is None else SpectralFilter(modes, max(noise, NOISE_FREE_REL_ALPHA**0.5) ** 2)
+    return Refined(base, GridMap(problem.points, spacing(mesh)), physics=physics)
 
 
 def _prior_decoded(problem, rows_per_component) -> bool:

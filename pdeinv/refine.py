@@ -50,7 +50,7 @@ class UNet(nn.Module):
     (``2c``, ``4c`` below), GELU, skip connections, a zero-initialized 1×1 output: ``g ≡ 0`` at start.
     Parameters ~ ``60 c²·3^dim / 9``, independent of the mesh."""
 
-    def __init__(self, dim: int, c: int = 16):
+    def __init__(self, dim: int, c: int = 16, channels_in: int = 1):
         super().__init__()
         Conv, act = _conv(dim), nn.GELU
 
@@ -59,7 +59,7 @@ class UNet(nn.Module):
                                  Conv(b, b, 3, padding=1), act())
 
         self.dim = dim
-        self.e1, self.e2, self.e3 = block(1, c), block(c, 2 * c, 2), block(2 * c, 4 * c, 2)
+        self.e1, self.e2, self.e3 = block(channels_in, c), block(c, 2 * c, 2), block(2 * c, 4 * c, 2)
         self.u2 = nn.Sequential(Conv(6 * c, 2 * c, 3, padding=1), act())
         self.u1 = nn.Sequential(Conv(3 * c, c, 3, padding=1), act())
         self.out = Conv(c, 1, 1)
@@ -74,6 +74,24 @@ class UNet(nn.Module):
         c = self.e3(b)
         d = self.u2(torch.cat([up(c, b), b], 1))
         return self.out(self.u1(torch.cat([up(d, a), a], 1)))
+
+
+class SpectralFilter(nn.Module):
+    """A fixed linear estimate from the physics alone, ``x_T = synth (g/(g² + α) ⊙ projᵀ y)`` in an
+    operator's spectral basis (the modal heat backend): Tikhonov with ``α = rel·max g²``, nothing learned,
+    full rank. Its buffers are not saved (rebuilt from the problem, deterministic)."""
+
+    def __init__(self, modes, rel_alpha: float):
+        super().__init__()
+        g = np.asarray(modes.g, dtype=float)
+        alpha = rel_alpha * float(np.max(g**2)) if g.size else 0.0
+        self.register_buffer("proj", torch.as_tensor(np.asarray(modes.proj, dtype=float)), persistent=False)
+        self.register_buffer("filt", torch.as_tensor(g / (g**2 + alpha)), persistent=False)
+        self.register_buffer("synth", torch.as_tensor(np.asarray(modes.synth, dtype=float)), persistent=False)
+
+    def forward(self, y: torch.Tensor) -> torch.Tensor:
+        y = y.to(self.proj.dtype)
+        return ((y @ self.proj) * self.filt) @ self.synth.T
 
 
 @dataclass(frozen=True)
@@ -114,10 +132,12 @@ class Refined(nn.Module):
     ``f = b`` exactly and the base's declared structure (linear in its parameters, decoder,
     Gauss–Newton diagonal) is the network's: the rules train ``b`` as they would alone."""
 
-    def __init__(self, base: nn.Module, grid: GridMap, channels: int = 16, dim: int | None = None):
+    def __init__(self, base: nn.Module, grid: GridMap, channels: int = 16, dim: int | None = None,
+                 physics: SpectralFilter | None = None):
         super().__init__()
-        self.base, self.grid = base, grid
-        self.correction = UNet(dim or len(grid.shape), channels).to(torch.float32)
+        self.base, self.grid, self.physics = base, grid, physics
+        inputs = 1 if physics is None else 2
+        self.correction = UNet(dim or len(grid.shape), channels, inputs).to(torch.float32)
         self.correction.requires_grad_(False)  # trained by fit_prior only
         self.register_buffer("active", torch.zeros((), dtype=torch.bool))
         self.prior_info: dict = {}
@@ -162,11 +182,16 @@ class Refined(nn.Module):
         xb = self.base(y)
         if not bool(self.active):
             return xb
-        return xb + self._correct(xb).to(xb.dtype)
+        return xb + self.grid.to_mesh(self.correction(self._inputs(y, xb))).to(xb.dtype)
 
-    def _correct(self, xb: torch.Tensor) -> torch.Tensor:
+    def _inputs(self, y: torch.Tensor, xb: torch.Tensor) -> torch.Tensor:
+        """The correction's input images: ``Ê b(y)``, and ``Ê x_T(y)`` with a physics filter."""
         g = self.grid.to_grid(xb.to(torch.float32))
-        return self.grid.to_mesh(self.correction(g))
+        if self.physics is None:
+            return g
+        with torch.no_grad():
+            t = self.physics(y).to(torch.float32)
+        return torch.cat([g, self.grid.to_grid(t)], 1)
 
     def load_state_dict(self, state_dict, strict: bool = True, assign: bool = False):
         """Also a state dict of the base network alone (a run saved before the correction existed)."""
@@ -194,10 +219,11 @@ class Refined(nn.Module):
         val, tr = perm[:n_val], perm[n_val:]
         dtype = next(self.base.parameters()).dtype
         with torch.no_grad():
-            xb = torch.cat([self.base(torch.as_tensor(y[i:i + 512], dtype=dtype)).float()
-                            for i in range(0, n, 512)])
+            parts = [(yb, self.base(yb).float()) for yb in
+                     (torch.as_tensor(y[i:i + 512], dtype=dtype) for i in range(0, n, 512))]
+            xb = torch.cat([b for _, b in parts])
+            inputs = torch.cat([self._inputs(yb, b) for yb, b in parts])
         xt = torch.as_tensor(x, dtype=torch.float32)
-        inputs = self.grid.to_grid(xb)
 
         def held_out_error() -> float:
             with torch.no_grad():
