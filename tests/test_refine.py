@@ -155,3 +155,18 @@ def test_a_decoder_that_misses_the_prior_gives_way_to_the_whitened_map(monkeypat
     assert boxes_net.decoder is None  # the whitened map
     assert bumps_net.decoder is not None
     assert 1 - bumps_net.decoder_info["captured"] <= nets.DECODER_MAX_UNCAPTURED
+
+
+def test_the_physics_channel_is_the_tikhonov_solve_from_zero():
+    """SpectralFilter(y) = SpectralTikhonov(y, x0=0) at the same relative α: the physics' own full-rank
+    estimate that the correction sees beside the learned base (heat scenes on the modal backend)."""
+    from pdeinv.inverse import RelativeAlpha, SpectralTikhonov
+    from pdeinv.refine import SpectralFilter
+
+    p = pdeinv.load_problem("heat_boxes", n=16, noise=0.01)
+    _, y = p.sample(4, 0)
+    net = p.model()
+    assert isinstance(net.physics, SpectralFilter) and net.correction.e1[0].in_channels == 2
+    ref = SpectralTikhonov(p.operator, RelativeAlpha(0.01**2))(y, np.zeros((4, p.N)))
+    assert np.allclose(net.physics(torch.as_tensor(y)).numpy(), ref, rtol=1e-10, atol=1e-12)
+    assert "physics.proj" not in net.state_dict()  # rebuilt from the problem, not saved
