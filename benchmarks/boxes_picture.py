@@ -15,6 +15,7 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 import torch  # noqa: E402
+from linear_oracles import best_mmse, best_tikhonov  # noqa: E402
 
 from pdeinv.runs import load_run  # noqa: E402
 from pdeinv.trainset import TEST_DATA, seed_stream  # noqa: E402
@@ -30,14 +31,8 @@ def main():
     problem, model = load_run(a.run)
     xt, yt = problem.sample(128, seed_stream(0, TEST_DATA))
     err = lambda e: float(np.mean(problem.relative_error(e, xt)))  # noqa: E731
-    U, s, Vt = np.linalg.svd(problem.operator.forward(np.eye(problem.N)).T, full_matrices=False)
-    tik = min((((yt @ U) * (s / (s**2 + 10.0**k * s[0] ** 2))) @ Vt for k in range(-30, 0)), key=err)
-    xs, ys = problem.sample(a.draws, seed=12_345)
-    mx, my = xs.mean(0), ys.mean(0)
-    Cyy, Cxy = (ys - my).T @ (ys - my) / a.draws, (xs - mx).T @ (ys - my) / a.draws
-    lam = np.linalg.eigvalsh(Cyy).max()
-    mmse = min((mx + (yt - my) @ np.linalg.solve(Cyy + 10.0**k * lam * np.eye(len(Cyy)), Cxy.T)
-                for k in range(-20, -1)), key=err)
+    tik = best_tikhonov(problem, xt, yt)
+    mmse = best_mmse(problem, xt, yt, *problem.sample(a.draws, seed=12_345))
     with torch.no_grad():
         net = model(torch.as_tensor(yt, dtype=next(model.parameters()).dtype)).double().numpy()
     rows = [int(i) for i in a.samples.split(",")]

@@ -17,6 +17,7 @@ import sys
 from pathlib import Path
 
 import numpy as np
+from linear_oracles import best_mmse, best_tikhonov
 
 import pdeinv
 
@@ -42,13 +43,7 @@ def main():
     m = json.loads((out / "metrics.json").read_text())
     xt, yt, xtr, ytr = x[-n_test:], y[-n_test:], x[:-n_test], y[:-n_test]
     err = lambda e: float(np.mean(p.relative_error(e, xt)))  # noqa: E731
-    mx, my = xtr.mean(0), ytr.mean(0)
-    Cyy, Cxy = (ytr - my).T @ (ytr - my) / len(ytr), (xtr - mx).T @ (ytr - my) / len(ytr)
-    lam = np.linalg.eigvalsh(Cyy).max()
-    mmse = min(err(mx + (yt - my) @ np.linalg.solve(Cyy + 10.0**k * lam * np.eye(len(Cyy)), Cxy.T))
-               for k in range(-20, -1))
-    U, s, Vt = np.linalg.svd(p.operator.forward(np.eye(p.N)).T)
-    tik = min(err(((yt @ U) * (s / (s**2 + 10.0**k * s[0] ** 2))) @ Vt) for k in range(-30, 0))
+    mmse, tik = err(best_mmse(p, xt, yt, xtr, ytr)), err(best_tikhonov(p, xt, yt))
     fit = m.get("prior_fit", {})
     print(f"{a.scene} file prior={a.prior} noise={a.noise}: exit {rc}, default {m['x_err']:.4f} (linear part "
           f"{fit.get('error_before')}, correction kept {fit.get('kept')}), MMSE of the file's x {mmse:.4f}, "
