@@ -5,7 +5,7 @@
 
 Each cell runs ``pdeinv train SCENE --method M [--set noise=δ] --out DIR`` exactly as a user would
 (no other flags: the preset's steps, batch, optimizer, target and stopping rule), reads its
-``metrics.json``, and computes Tikhonov with the oracle α (``pdeinv.references.tikhonov_best`` on a
+``metrics.json``, and computes Tikhonov with the oracle α (``pdeinv.training.references.tikhonov_best`` on a
 fine grid, α ≥ 1e-16·s_max²) on the same 128 held-out pairs the run was tested on
 (``problem.sample(128, seed_stream(0, TEST_DATA))``). Prints a markdown table and writes
 ``OUT/accuracy.json``. One thread per run: timings are comparable within one invocation only.
@@ -29,7 +29,7 @@ GRID = tuple(10.0 ** (-k / 4) for k in range(0, 65))
 def tikhonov(scene: str, noise: float) -> float:
     import pdeinv
     from pdeinv import references
-    from pdeinv.trainset import TEST_DATA, seed_stream
+    from pdeinv.training.trainset import TEST_DATA, seed_stream
 
     p = pdeinv.load_problem(scene, noise=noise)
     x, y = p.sample(128, seed_stream(0, TEST_DATA))

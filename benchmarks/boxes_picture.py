@@ -17,8 +17,8 @@ import numpy as np  # noqa: E402
 import torch  # noqa: E402
 from linear_oracles import best_mmse, best_tikhonov  # noqa: E402
 
-from pdeinv.runs import load_run  # noqa: E402
-from pdeinv.trainset import TEST_DATA, seed_stream  # noqa: E402
+from pdeinv.io.runs import load_run  # noqa: E402
+from pdeinv.training.trainset import TEST_DATA, seed_stream  # noqa: E402
 
 
 def main():

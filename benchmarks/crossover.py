@@ -18,7 +18,7 @@ solves are the same solve: every ``A`` here is symmetric). The cost of a run is
     run = setup + steps · solve        (reported for ``--steps``; recompute for others)
 
 Solvers: ``cholesky`` (cholespy, the default direct solver), ``splu`` (SuperLU, the fallback),
-``amg`` (:class:`pdeinv.solvers.AMGCG`, block CG, ``rtol`` 1e-12) and ``amg-loop`` (the same
+``amg`` (:class:`pdeinv.fem.solvers.AMGCG`, block CG, ``rtol`` 1e-12) and ``amg-loop`` (the same
 hierarchy, scipy CG column by column with pyamg's V-cycle; only while it fits the budget).
 Memory: the growth of the process's resident set across the setup (``/proc/self/statm``; the
 factors of cholespy are not visible to tracemalloc), and for ``splu`` and ``amg`` the exact
@@ -39,7 +39,7 @@ import time
 import numpy as np
 
 from pdeinv import mesh as meshes
-from pdeinv.forms import discretize
+from pdeinv.fem.forms import discretize
 
 #: (heat dt κ, Newmark (c dt / 2)²) at the scenes' defaults
 SCENES = {"heat": lambda M, K: M + (1.0 / 100) * 0.01 * K,
@@ -73,7 +73,7 @@ def rss() -> int:
 
 def solvers(include_loop: bool = True) -> dict:
     """``name -> factory A -> solver`` for the comparison."""
-    from pdeinv.solvers import AMGCG, Cholesky, SuperLU
+    from pdeinv.fem.solvers import AMGCG, Cholesky, SuperLU
 
     out = {"cholesky": Cholesky, "splu": SuperLU, "amg": AMGCG}
     if include_loop:

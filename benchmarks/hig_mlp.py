@@ -9,7 +9,7 @@ route, the routes interleaved in one process on one thread:
 
 * ``auto``: today's choice for a network not linear in θ (the dense Jacobian with the Gram or SVD,
   or matrix-free when the dense Jacobian exceeds ``max_jacobian_gb``);
-* ``last_layer``: the last layer's exact step, hidden layers fixed (:mod:`pdeinv.methods.hig_layers`);
+* ``last_layer``: the last layer's exact step, hidden layers fixed (:mod:`pdeinv.methods.hig.layers`);
 * with ``--equal-time``: ``last_layer`` again with the first route's wall time as its time budget
   (row ``last=t``).
 
@@ -37,8 +37,8 @@ def run(problem, hidden, route: str, steps: int | None, batch: int, budget: floa
     import torch
 
     import pdeinv
+    from pdeinv.io.runs import network
     from pdeinv.methods.presets import make_rule
-    from pdeinv.runs import network
 
     rule, _ = make_rule("hig", problem, hidden=hidden)
     rule = dataclasses.replace(rule, route=route)
@@ -71,7 +71,7 @@ def main(argv=None) -> None:
     parser.add_argument("--equal-time", action="store_true")
     args = parser.parse_args(argv)
 
-    from pdeinv.threads import limit
+    from pdeinv.util.threads import limit
 
     limit(1)
     import pdeinv

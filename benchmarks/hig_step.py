@@ -13,7 +13,7 @@ Measured (2-core machine shared with other jobs, one thread):
 
 * before (kept-rows route of the last session): wave_2d 2.03–2.15× (HIG 86–93 ms, Adam 40–45 ms);
 * dead feature columns out of the products, modes below the float32 products' rounding left out, no
-  products once the step is below the weights' resolution (:mod:`pdeinv.methods.hig_fixed`), and the
+  products once the step is below the weights' resolution (:mod:`pdeinv.methods.hig.fixed`), and the
   guard's copy every 10th step for both sides: see the closing numbers in ``docs/results.md``.
 """
 
@@ -32,8 +32,8 @@ def step_s(problem, method: str, steps: int | None, noise: float = 0.0) -> float
     import torch
 
     import pdeinv
+    from pdeinv.io.runs import network
     from pdeinv.methods.presets import make_rule
-    from pdeinv.runs import network
 
     rule, hp = make_rule(method, problem, noise)
     spec = {"kind": "default", **({"rows_per_component": hp["rows_per_component"]}

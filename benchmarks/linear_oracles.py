@@ -17,8 +17,8 @@ import argparse
 import numpy as np
 
 import pdeinv
-from pdeinv.commands import parse_sets
-from pdeinv.trainset import TEST_DATA, seed_stream
+from pdeinv.cli.commands import parse_sets
+from pdeinv.training.trainset import TEST_DATA, seed_stream
 
 
 def best_tikhonov(problem, xt, yt) -> np.ndarray:

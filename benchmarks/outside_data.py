@@ -2,7 +2,7 @@
 
     python benchmarks/outside_data.py boxes 0.01 [--scene heat_2d] [--rows 1152] [--out /tmp/outside]
 
-Draws ``rows`` pairs of ``SCENE`` with ``--set prior=PRIOR`` (``pdeinv.sampling.PRIORS``) and noise
+Draws ``rows`` pairs of ``SCENE`` with ``--set prior=PRIOR`` (``pdeinv.problem.sampling.PRIORS``) and noise
 ``NOISE`` into a ``.npz`` file, trains ``pdeinv train SCENE --data FILE`` without other flags (the
 file's last 128 rows are its test set), and prints the run's x-error beside best-α Tikhonov and the
 linear MMSE fitted on the file's *training* x (both with the best regularization, chosen on the test

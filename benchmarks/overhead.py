@@ -46,8 +46,8 @@ os.environ.setdefault("OMP_NUM_THREADS", "1")
 
 def setup(name: str):
     import pdeinv
+    from pdeinv.io.runs import network
     from pdeinv.methods.presets import make_rule
-    from pdeinv.runs import network
 
     problem = pdeinv.load_problem(name)
     rule, hp = make_rule("adam", problem)
@@ -78,7 +78,7 @@ def plain_step_s(problem, model, batch_size: int, steps: int, lr: float) -> floa
     from pdeinv import apply
     from pdeinv.methods.base import y_loss
     from pdeinv.nets import fit_preconditioning
-    from pdeinv.trainset import BATCH_ORDER, TRAIN_DATA, seed_stream
+    from pdeinv.training.trainset import BATCH_ORDER, TRAIN_DATA, seed_stream
 
     _, y_np = problem.sample(1024, seed_stream(0, TRAIN_DATA))
     fit_preconditioning(model, y_np, problem.noise or None)
@@ -114,7 +114,7 @@ def main(argv=None) -> None:
     parser.add_argument("--repeats", type=int, default=5)
     args = parser.parse_args(argv)
 
-    from pdeinv.threads import limit
+    from pdeinv.util.threads import limit
 
     limit(1)
     problem, rule, hp, model0 = setup(args.problem)

@@ -4,12 +4,12 @@
         [--sizes3 8 16 24 32] [--budget 120] [--out docs/scaling.md]
 
 For the unit square (``n × n × 2`` P1 triangles) and the unit cube (``n³ × 6`` P1
-tetrahedra), Dirichlet boundary, it builds (``pdeinv.forms.discretize`` and the
+tetrahedra), Dirichlet boundary, it builds (``pdeinv.fem.forms.discretize`` and the
 operators directly, not the scenes):
 
 * heat ``Heat(M, K, κ=0.01, T=1, 100 steps, backward Euler)`` with ``backend`` =
   ``steps`` (the default direct solver, Cholesky or SuperLU), ``steps+amg``
-  (:class:`pdeinv.solvers.AMGCG`), ``modal``, ``dense``, ``svd``;
+  (:class:`pdeinv.fem.solvers.AMGCG`), ``modal``, ``dense``, ``svd``;
 * wave ``Wave(M, K, c=1, T=0.5, 50 Newmark steps)`` (SuperLU, its default) compiled to
   ``steps``, ``steps+amg``, ``dense``, ``svd``.
 
@@ -51,15 +51,15 @@ QUICK = {2: (6, 8), 3: (3, 4)}
 def discretization(dim: int, n: int):
     """P1 on the unit square / cube with ``n`` subdivisions per side, Dirichlet boundary."""
     from pdeinv import mesh
-    from pdeinv.forms import discretize
+    from pdeinv.fem.forms import discretize
 
     return discretize(mesh.unit_square(n) if dim == 2 else mesh.unit_cube(n))
 
 
 def operator(disc, physics: str, backend: str):
     """The operator of one case (see the module docstring)."""
+    from pdeinv.fem.solvers import AMGCG
     from pdeinv.physics import Heat, Wave
-    from pdeinv.solvers import AMGCG
 
     amg = backend == "steps+amg"
     kind = "steps" if amg else backend

@@ -17,7 +17,10 @@ class NumericalError(RuntimeError):
 
 
 class NonFiniteError(NumericalError):
-    """A loss or an update contained NaN or Inf; the parameters were left untouched."""
+    """A loss or an update contained NaN or Inf; the parameters were left untouched. ``overshoot``:
+    the factor to cut the step size by beyond the usual one (a finite blow-up's), or None."""
+
+    overshoot: float | None = None
 
 
 class TooManyModes(NumericalError):

@@ -3,7 +3,7 @@ a sum of 4–10 axis-aligned boxes, from u(T).
 
 Defaults: the unit square, 64×64×2 P1 triangles (63² = 3 969 unknowns), κT = 8/n² = 8/64² (the
 paper's κT = 8 in units of its 64 cells; ``kappa`` unset keeps 8 cells² at any ``n``), the paper's
-prior (``prior='boxes'``, :func:`pdeinv.sampling.boxes`: 4–10 boxes, half-sides up to 10 cells,
+prior (``prior='boxes'``, :func:`pdeinv.problem.sampling.boxes`: 4–10 boxes, half-sides up to 10 cells,
 strengths U(0, 1), centres in the central 80 %), noise-free.
 A mode sin(jπx)sin(kπy) keeps an amplification ≈ e^{-κTπ²(j²+k²)}: 1e-3 at j² + k² ≈ 360, float64
 rounding (1e-16) at j² + k² ≈ 1 900; the boxes' jumps put energy far beyond both, which only a prior

@@ -28,10 +28,10 @@ from pdeinv.problems.heat_plate import names
 
 from pdeinv import mesh, scenes
 from pdeinv import settings as s
-from pdeinv.forms import discretize
+from pdeinv.fem.forms import discretize
 from pdeinv.inverse import default_inverse
 from pdeinv.physics import Heat
-from pdeinv.problem import Problem
+from pdeinv.problem.definition import Problem
 
 CAVITY = Path(__file__).resolve().parent / "meshes" / "cavity.msh"
 

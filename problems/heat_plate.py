@@ -22,11 +22,11 @@ import numpy as np
 
 from pdeinv import mesh, scenes
 from pdeinv import settings as s
-from pdeinv.forms import discretize
+from pdeinv.fem.forms import discretize
+from pdeinv.fem.sensors import boundary_loops
 from pdeinv.inverse import default_inverse
-from pdeinv.observe import boundary_loops
 from pdeinv.physics import Heat
-from pdeinv.problem import Problem
+from pdeinv.problem.definition import Problem
 
 PLATE = Path(__file__).resolve().parent / "meshes" / "plate.msh"
 

@@ -4,7 +4,8 @@
 θ-scheme steps (record-major ``y.reshape(B, R, n_s)``, see
 :mod:`pdeinv.physics.propagator`). ``backend``: time stepping, or the
 run compiled once to a dense matrix or a truncated SVD (no modal basis for records;
-``auto`` by the cost of a training run, :mod:`pdeinv.physics.compiled`). Given coordinates on the Dirichlet
+``auto`` by the cost of a training run, :mod:`pdeinv.physics.backends.compiled`). Given coordinates on the
+Dirichlet
 boundary are refused: the field is 0 there.
 
 Defaults: κ = 0.05, T = 1 (diffusion length √(κT) ≈ 0.22, about the sensor
@@ -15,7 +16,7 @@ inner 80% of the box), every 10th step recorded (10 records, 250 observations).
 Inverse simulator: :func:`pdeinv.inverse.default_inverse` — with ``auto`` the run is compiled to
 its SVD (134 singular values above 1e-12·max on the defaults), so the local inverse is the exact
 Tikhonov filter per singular value (α 1e-20 relative; noisy data go to a denoised target,
-:mod:`pdeinv.targets`). Measured on the defaults (8 bump samples from x₀ = 0, noise-free): 0.9 ms,
+:mod:`pdeinv.methods.targets`). Measured on the defaults (8 bump samples from x₀ = 0, noise-free): 0.9 ms,
 relative L² error 0.040 — 25 sensors see the smooth part only. With ``backend='steps'`` it is a
 Tikhonov-regularized block-CG solve on ``(PᵀP + αM)Δx = Pᵀ(y − y₀)`` instead.
 """

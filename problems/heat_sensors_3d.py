@@ -1,10 +1,10 @@
 """Heat in the unit cube (or a tetra mesh file), u = 0 on the boundary: recover u(0) from sensor time series.
 
 The 3-D version of heat_sensors_2d: ``sensors`` point sensors inside the cube (Halton
-points, bases 2, 3, 5, in the inner 80% of the box; :func:`pdeinv.observe.interior_points`)
+points, bases 2, 3, 5, in the inner 80% of the box; :func:`pdeinv.fem.sensors.interior_points`)
 record u every ``record_every`` θ-scheme steps (record-major ``y.reshape(B, R, n_s)``).
 ``backend``: time stepping, or the run compiled once to a dense matrix or a truncated SVD
-(``auto`` by the cost of a training run, :mod:`pdeinv.physics.compiled`). Coordinates
+(``auto`` by the cost of a training run, :mod:`pdeinv.physics.backends.compiled`). Coordinates
 ``(n, 3)`` may be given instead of a count; points on the Dirichlet boundary are refused.
 
 Defaults: κ = 0.05, T = 1 (diffusion length √(κT) ≈ 0.22, about the spacing of the

@@ -22,7 +22,7 @@ step recorded (48 records, 3072 observations).
 Inverse simulator: :func:`pdeinv.inverse.default_inverse` — the operator is compiled to its SVD
 (``backend='auto'``), so the local inverse is the exact Tikhonov filter per singular value, with
 the library's α (1e-20 relative to the largest ``g²``, :data:`pdeinv.inverse.NOISE_FREE_REL_ALPHA`;
-noisy data go to a denoised target, :mod:`pdeinv.targets`); ``alpha`` sets another relative α.
+noisy data go to a denoised target, :mod:`pdeinv.methods.targets`); ``alpha`` sets another relative α.
 """
 
 
@@ -30,9 +30,9 @@ import numpy as np
 
 from pdeinv import mesh, observe, scenes
 from pdeinv import settings as s
-from pdeinv.forms import discretize
+from pdeinv.fem.forms import discretize
 from pdeinv.inverse import RelativeAlpha, default_inverse
-from pdeinv.problem import Problem
+from pdeinv.problem.definition import Problem
 
 SETTINGS = {**scenes.WAVE, "n": (32, s.positive_int), "T": (1.5, s.positive),
             "steps": (96, s.positive_int), "mesh": (None, s.optional_path),

@@ -16,7 +16,7 @@ def _torch_threads():
 
 @pytest.fixture(autouse=True, scope="session")
 def _private_cache(tmp_path_factory):
-    """The disk cache (pdeinv.cache) in a fresh folder, on: tests never read or write the user's cache.
+    """The disk cache (pdeinv.util.cache) in a fresh folder, on: tests never read or write the user's cache.
     Subprocesses started by tests inherit the environment."""
     with pytest.MonkeyPatch.context() as mp:
         mp.setenv("PDEINV_CACHE_DIR", str(tmp_path_factory.mktemp("pdeinv-cache")))

@@ -15,7 +15,7 @@ from pathlib import Path
 
 from pdeinv.cli import main
 
-checkpoint = importlib.import_module("pdeinv.checkpoint")
+checkpoint = importlib.import_module("pdeinv.training.checkpoint")
 guard = importlib.import_module("pdeinv.methods.guard")  # the Guard applies every update through it
 
 KIND, N = os.environ["PDEINV_PAUSE"].split(":")

@@ -121,7 +121,7 @@ def test_weyl_count_in_3d_errs_on_the_safe_side():
     is at least the number of discrete Dirichlet eigenvalues below λ, and not absurdly more."""
     import scipy.linalg as la
 
-    from pdeinv.physics.modal import weyl_count
+    from pdeinv.physics.backends.modal import weyl_count
 
     p = load("heat_3d", n=6, backend="steps")
     lam = la.eigh(p.disc.K.toarray(), p.disc.M.toarray(), eigvals_only=True)

@@ -8,11 +8,11 @@ from exact import dot_test, load
 
 from pdeinv import observe
 from pdeinv.cli import main
-from pdeinv.export import write_fields
-from pdeinv.forms import discretize
-from pdeinv.mesh import unit_cube
+from pdeinv.fem.forms import discretize
+from pdeinv.fem.mesh import unit_cube
+from pdeinv.io.export import write_fields
+from pdeinv.io.plots import mid_slice
 from pdeinv.physics import Heat
-from pdeinv.plots import mid_slice
 
 meshio = pytest.importorskip("meshio")
 

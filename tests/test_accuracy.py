@@ -12,8 +12,8 @@ import torch
 import pdeinv
 from pdeinv import references as refs
 from pdeinv.methods.presets import make_rule
-from pdeinv.stopping import DiscrepancyStop
-from pdeinv.trainset import TEST_DATA, seed_stream
+from pdeinv.training.stopping import DiscrepancyStop
+from pdeinv.training.trainset import TEST_DATA, seed_stream
 
 GRID = tuple(10.0 ** (-k / 4) for k in range(0, 65))  # α / s_max² from 1 to 1e-16
 
@@ -69,7 +69,7 @@ def test_sip_on_the_reduced_network_beats_best_alpha_tikhonov(monkeypatch):
     projecting the full-space solve gave 0.050 / 0.142)."""
     from pdeinv import nets
 
-    monkeypatch.setattr(nets, "REDUCED_ABOVE", 100)  # the small heat_2d below gets the reduced net
+    monkeypatch.setattr(nets.defaults, "REDUCED_ABOVE", 100)  # the small heat_2d below gets the reduced net
     for noise in (0.0, 0.01):
         p = pdeinv.load_problem("heat_2d", n=24, noise=noise)  # 529 unknowns, a 256-column decoder
         res = _cli_sip(p)
@@ -79,7 +79,7 @@ def test_sip_on_the_reduced_network_beats_best_alpha_tikhonov(monkeypatch):
 
 def _mmse(problem):
     """The linear MMSE fitted on the *training x* (an oracle: the trainer never sees x), on the test set."""
-    from pdeinv.trainset import TRAIN_DATA
+    from pdeinv.training.trainset import TRAIN_DATA
 
     xtr, _ = problem.sample(1024, seed_stream(0, TRAIN_DATA))
     xt, yt = problem.sample(128, seed_stream(0, TEST_DATA))

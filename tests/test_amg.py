@@ -1,14 +1,14 @@
-"""AMG-preconditioned CG (pdeinv.solvers.AMGCG) and the automatic choice of solver by mesh dimension."""
+"""AMG-preconditioned CG (pdeinv.fem.solvers.AMGCG) and the automatic choice of solver by mesh dimension."""
 
 import numpy as np
 import pytest
 import scipy.sparse as sp
 from exact import dot_test
 
-from pdeinv import mesh, solvers
 from pdeinv.errors import ConvergenceError
+from pdeinv.fem import mesh, solvers
+from pdeinv.fem.solvers import AMG_CROSSOVER, AMGCG, Cholesky, SuperLU, amg_cg, default_solver, uses_amg
 from pdeinv.physics import Heat, Wave
-from pdeinv.solvers import AMG_CROSSOVER, AMGCG, Cholesky, SuperLU, amg_cg, default_solver, uses_amg
 
 CASES = [(2, 24, "heat"), (2, 24, "wave"), (3, 8, "heat"), (3, 8, "wave")]
 
@@ -16,7 +16,7 @@ CASES = [(2, 24, "heat"), (2, 24, "wave"), (3, 8, "heat"), (3, 8, "wave")]
 def discretization(dim: int, n: int):
     """P1 on the unit square / cube, ``n`` subdivisions per side, Dirichlet boundary (as
     ``benchmarks/scaling.py``)."""
-    from pdeinv.forms import discretize
+    from pdeinv.fem.forms import discretize
 
     return discretize(mesh.unit_square(n) if dim == 2 else mesh.unit_cube(n))
 

@@ -1,4 +1,4 @@
-"""Disk cache of factorizations (pdeinv.cache): hits, misses, corrupt entries, concurrency, switches."""
+"""Disk cache of factorizations (pdeinv.util.cache): hits, misses, corrupt entries, concurrency, switches."""
 
 import os
 import subprocess
@@ -12,8 +12,9 @@ import pytest
 import scipy.sparse as sp
 
 import pdeinv
-from pdeinv import cache
-from pdeinv.physics import Heat, Modal, modes
+from pdeinv.physics import Heat, Modal
+from pdeinv.physics.backends import modes
+from pdeinv.util import cache
 
 
 @pytest.fixture
@@ -197,13 +198,14 @@ class _Called(Exception):
 def test_no_cache_flag_switches_the_cache_off(folder, monkeypatch, tmp_path, command):
     import importlib
 
-    from pdeinv import cli, commands
+    from pdeinv import cli
+    from pdeinv.cli import commands
 
     args = cli.build_parser().parse_args([command, "heat_1d", "--out", str(tmp_path / "o"), "--no-cache"])
     commands.no_cache(args)
     assert os.environ["PDEINV_NO_CACHE"] == "1" and not cache.enabled()
     monkeypatch.setenv("PDEINV_NO_CACHE", "0")
-    module = importlib.import_module(f"pdeinv.commands.{command}")
+    module = importlib.import_module(f"pdeinv.cli.commands.{command}")
 
     def called(a):
         raise _Called(a.no_cache)
@@ -214,7 +216,7 @@ def test_no_cache_flag_switches_the_cache_off(folder, monkeypatch, tmp_path, com
 
 
 def _heat(n=10, **kw):
-    d = pdeinv.discretize(pdeinv.mesh.unit_square(n))
+    d = pdeinv.discretize(pdeinv.fem.mesh.unit_square(n))
     return Heat(d.M, d.K, backend="steps", measure=d.measure, dim=d.dim, **kw)
 
 
@@ -231,7 +233,7 @@ def test_modal_backend_from_the_cache_equals_the_fresh_one_bitwise(folder, monke
     def no_build(*a, **k):
         raise AssertionError("built although cached")
 
-    monkeypatch.setattr("pdeinv.physics.modal.lowest_modes", no_build)
+    monkeypatch.setattr("pdeinv.physics.backends.modal.lowest_modes", no_build)
     hit = Modal(heat)
     for name in ("lam", "Phi", "g", "MPhi"):
         assert np.array_equal(getattr(hit, name), getattr(fresh, name))

@@ -156,7 +156,7 @@ def test_rules_without_state_dict_cannot_be_checkpointed(heat, tmp_path):
 
 
 def test_a_resumed_default_hig_run_agrees_with_the_uninterrupted_one_to_rounding(heat, tmp_path):
-    """HIG's kept-rows route (pdeinv.methods.hig_fixed) carries its residual between steps outside the
+    """HIG's kept-rows route (pdeinv.methods.hig.fixed) carries its residual between steps outside the
     checkpoint: a resumed run recomputes it, so it agrees with the uninterrupted run to rounding, not
     bitwise (the one documented exception)."""
     def run(ckpt=None, resume=False, callbacks=()):

@@ -7,7 +7,7 @@ import pytest
 from scipy.sparse.linalg import ArpackNoConvergence
 
 from pdeinv.cli import main
-from pdeinv.commands import show
+from pdeinv.cli.commands import show
 from pdeinv.errors import ConvergenceError, NonFiniteError, TooManyModes
 
 

@@ -7,7 +7,7 @@ from exact import dot_test, load
 
 import pdeinv
 from pdeinv.inverse import FixedAlpha, SpectralTikhonov, TikhonovCG
-from pdeinv.physics import compiled
+from pdeinv.physics.backends import compiled
 
 SCENES = {
     "wave_2d": dict(n=6, steps=20),
@@ -117,7 +117,7 @@ def test_svd_tolerance_outside_zero_one_is_refused():
 def test_hig_on_compressed_rows_takes_the_same_step(name, kw):
     """``J = (I ⊗ Q) J_c``: the step from r rows per sample equals the one from all m rows."""
     from pdeinv.methods import HIG
-    from pdeinv.methods.hig import compress
+    from pdeinv.methods.hig.rule import compress
 
     p = load(name, **kw)
     small, Q = compress(p.operator)
@@ -163,7 +163,7 @@ def test_compiled_arrays_come_from_the_disk_cache_the_second_time(monkeypatch):
 def test_time_reversal_compiled_with_the_forward_agrees_with_stepping(monkeypatch):
     """wave_2d (dense forward): time reversal compiled to one matrix equals reversing the run."""
     from pdeinv.inverse import CompiledInverse, TimeReversal
-    from pdeinv.physics.compiled import fingerprint
+    from pdeinv.physics.backends.compiled import fingerprint
 
     p = load("wave_2d", n=8)
     op = p.operator

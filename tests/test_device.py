@@ -1,6 +1,7 @@
-"""Physics on a torch device (:mod:`pdeinv.physics.device`): the dense, modal and SVD matmuls in torch.
+"""Physics on a torch device (:mod:`pdeinv.physics.backends.device`): the dense, modal and SVD matmuls in
+torch.
 
-The CUDA path is the torch path of :class:`~pdeinv.physics.device.Placed` with another
+The CUDA path is the torch path of :class:`~pdeinv.physics.backends.device.Placed` with another
 device, so it is checked here on the CPU: agreement with the numpy backend to 1e-12, the
 dot-product identity, ``gradcheck`` in float64 through the autograd bridge, no numpy call on
 the way, and a training run equal to the numpy one. The CUDA tests run only where CUDA is.
@@ -14,7 +15,7 @@ import torch
 from exact import load
 
 import pdeinv
-from pdeinv.physics.device import Placed, placed, resolve
+from pdeinv.physics.backends.device import Placed, placed, resolve
 
 CUDA = pytest.mark.skipif(not torch.cuda.is_available(), reason="needs CUDA")
 

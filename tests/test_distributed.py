@@ -1,4 +1,4 @@
-"""Data-parallel training (:mod:`pdeinv.distributed`): the torchrun contract and its refusals.
+"""Data-parallel training (:mod:`pdeinv.training.distributed`): the torchrun contract and its refusals.
 
 * Two processes (gloo, one thread each) train the same run as one process: the per-step
   losses and the final x/y errors agree to float tolerance, for GD and SIP. The GD run goes
@@ -30,9 +30,9 @@ import pytest
 import torch
 
 import pdeinv
-from pdeinv import distributed
 from pdeinv.cli import main
-from pdeinv.distributed import DataParallel, Single
+from pdeinv.training import distributed
+from pdeinv.training.distributed import DataParallel, Single
 
 ROOT = Path(__file__).resolve().parents[1]
 RUN = ["train", "heat_1d", "--set", "n=16", "--set", "steps=10", "--hidden", "16", "--steps", "12",
@@ -266,15 +266,28 @@ def test_from_env_refuses_one_gpu_for_all_ranks_and_a_bad_world_size(monkeypatch
     assert isinstance(distributed.from_env(torch.device("cpu")), Single)
 
 
-def test_the_sharded_rule_is_resumable_when_looked_up_statically():
-    """Python ≥ 3.12 checks runtime protocols with inspect.getattr_static, which ignores __getattr__:
-    the data-parallel wrapper must carry the checkpoint protocol itself (issue 24's latent bug)."""
+def test_the_sharded_rule_declares_what_its_rule_declares():
+    """The data-parallel wrapper is a Rule that passes on its rule's declarations and carries the
+    checkpoint protocol itself, not through ``__getattr__`` (which static lookups ignore: issue 24's
+    latent bug); a rule of the minimal protocol declares no data-parallel form and is refused."""
     import inspect
 
-    from pdeinv.methods.base import Resumable
+    from pdeinv.methods.base import Rule
+    from pdeinv.methods.protocol import declared
 
     sharded = DataParallel(2, 0).rule(pdeinv.GD())
-    assert isinstance(sharded, Resumable)
+    assert isinstance(sharded, Rule) and sharded.resumable and sharded.accepts_target
+    assert sharded.name == "gd"
+
+    class Minimal:
+        name, transform = "mine", pdeinv.GD().transform
+
+        def init(self, problem, model): ...
+
+        def update(self, state, model, y): ...
+
+    with pytest.raises(ValueError, match="'mine' cannot run on 2 processes: it declares no data-parallel"):
+        DataParallel(2, 0).rule(declared(Minimal()))
     for name in ("state_dict", "load_state_dict", "hyperparameters"):
         assert callable(inspect.getattr_static(sharded, name))
     assert sharded.hyperparameters() == pdeinv.GD().hyperparameters()

@@ -13,9 +13,9 @@ import torch
 
 import pdeinv
 from pdeinv.cli import main
-from pdeinv.export import predict, read_fields, vertex_values, write_fields
+from pdeinv.io.export import predict, read_fields, vertex_values, write_fields
 from pdeinv.nets import MLP
-from pdeinv.trainset import TEST_DATA, seed_stream
+from pdeinv.training.trainset import TEST_DATA, seed_stream
 
 
 @pytest.mark.parametrize("name, kw", [("heat_2d", dict(n=6)), ("heat_2d", dict(n=4, element="P2")),
@@ -61,7 +61,7 @@ def test_bad_arguments(tmp_path):
         write_fields(tmp_path / "f.vtu", p, x, x[:1])
     with pytest.raises(FileNotFoundError, match="does not exist"):
         read_fields(tmp_path / "none.vtu")
-    pdeinv.mesh.save(tmp_path / "plain.vtu", p.disc.basis.mesh)
+    pdeinv.fem.mesh.save(tmp_path / "plain.vtu", p.disc.basis.mesh)
     with pytest.raises(ValueError, match="no x_true"):
         read_fields(tmp_path / "plain.vtu")
 
@@ -109,14 +109,14 @@ def test_show_bad_input_exits_2_with_one_line(tmp_path, capsys, argv, match):
 
 
 def _tetra_field():
-    """A P1 field on a tetra mesh with homogeneous Dirichlet conditions (built without pdeinv.forms)."""
+    """A P1 field on a tetra mesh with homogeneous Dirichlet conditions (built without pdeinv.fem.forms)."""
     import types
 
     import scipy.sparse as sp
     import skfem
     from skfem.models.poisson import laplace, mass
 
-    from pdeinv.forms import Discretization
+    from pdeinv.fem.forms import Discretization
 
     basis = skfem.Basis(skfem.MeshTet().refined(2), skfem.ElementTetP1())
     free = basis.complement_dofs(basis.get_dofs())
@@ -147,7 +147,7 @@ def test_3d_fields_are_written_as_tetra_cells(tmp_path, suffix):
 
 def test_cells_without_a_picture_get_a_clear_refusal(tmp_path):
     """3-D tetra fields are drawn as slices (tests/test_3d_io.py); other cells are refused."""
-    from pdeinv.plots import plot_fields
+    from pdeinv.io.plots import plot_fields
 
     problem, x = _tetra_field()
     points, cells, fields = read_fields(write_fields(tmp_path / "f.vtu", problem, x, x))

@@ -1,4 +1,4 @@
-"""HIG's Kronecker route (pdeinv.methods.hig_kron) equals the dense SVD route, without forming J."""
+"""HIG's Kronecker route (pdeinv.methods.hig.kron) equals the dense SVD route, without forming J."""
 
 import math
 
@@ -9,7 +9,7 @@ from torch import nn
 import pdeinv
 from pdeinv import nets
 from pdeinv.methods import HIG
-from pdeinv.precondition import Whitening
+from pdeinv.nets.whitening import Whitening
 
 pytestmark = pytest.mark.usefixtures("one_thread")
 
@@ -96,7 +96,7 @@ def test_input_gram_reuses_its_eigenpairs_for_the_same_rows_in_any_order():
     its eigenpairs; other rows: a new decomposition that agrees with numpy's."""
     import numpy as np
 
-    from pdeinv.methods import hig_kron
+    from pdeinv.methods.hig import kron as hig_kron
 
     rng = np.random.default_rng(0)
     y = torch.as_tensor(rng.standard_normal((40, 6)))
@@ -122,7 +122,7 @@ def test_the_batch_side_gram_equals_the_feature_side_gram(rows):
     import numpy as np
 
     from pdeinv.inverse.decoder import DecodedSVD
-    from pdeinv.methods import hig_kron
+    from pdeinv.methods.hig import kron as hig_kron
 
     rng = np.random.default_rng(3)
     k, m, r = 12, 9, 6
@@ -169,7 +169,7 @@ def test_the_carried_residual_follows_the_weights(moved, float32, monkeypatch):
     multiplier c, 0 for a rejected step); weights moved otherwise are recomputed. Each way, the next
     step equals a fresh rule's at the same weights: to float64 rounding, or to 1e-5 with the float32
     products of large scenes (hig_fixed.FLOAT32_ABOVE)."""
-    from pdeinv.methods import hig_fixed
+    from pdeinv.methods.hig import fixed as hig_fixed
 
     if float32:
         monkeypatch.setattr(hig_fixed, "FLOAT32_ABOVE", 0)
@@ -269,7 +269,7 @@ def test_uncorrelated_features_take_a_diagonal_gram_and_the_same_step(dead, monk
     import numpy as np
 
     from pdeinv.inverse.decoder import DecodedSVD
-    from pdeinv.methods import hig_fixed
+    from pdeinv.methods.hig import fixed as hig_fixed
 
     rng = np.random.default_rng(5)
     rows, k, m, r, out = 40, 9, 8, 6, 7
@@ -304,7 +304,7 @@ def test_a_step_below_the_weights_resolution_is_not_computed(diagonal, monkeypat
     keeps M; the step a fresh rule computes at those weights (features, physics, residual: its own
     rounding) is at the rounding floor too — plus the features' correlations, at most UNCORRELATED,
     when their Gram was taken as diagonal — and the loss is at its floor."""
-    from pdeinv.methods import hig_fixed
+    from pdeinv.methods.hig import fixed as hig_fixed
 
     monkeypatch.setattr(hig_fixed, "UNCORRELATED", 1e-10 if diagonal else -1.0)
     p, model, Y = full_batch("wave")
@@ -334,7 +334,7 @@ def test_a_step_below_the_weights_resolution_is_not_computed(diagonal, monkeypat
 
 
 def test_rows_keys_are_equal_for_the_same_rows_in_any_order_and_differ_by_one_ulp():
-    from pdeinv.methods import hig_kron
+    from pdeinv.methods.hig import kron as hig_kron
 
     y = torch.randn(50, 13, dtype=torch.float64)
     goal = torch.randn(50, 13, dtype=torch.float64)
@@ -346,12 +346,15 @@ def test_rows_keys_are_equal_for_the_same_rows_in_any_order_and_differ_by_one_ul
     nudged[7, 3] = torch.nextafter(nudged[7, 3], torch.tensor(math.inf, dtype=torch.float64))
     assert hig_kron.rows_key(nudged) != hig_kron.rows_key(y)
     assert hig_kron.rows_key(y[:, :12]) != hig_kron.rows_key(y)  # another width
+    a, b = y[:1], y[1:2]  # a multiset: the same rows, not as often, are other rows
+    assert hig_kron.rows_key(torch.cat([a, a, b])) != hig_kron.rows_key(torch.cat([a, b, b]))
+    assert hig_kron.rows_key(torch.cat([a, b, a])) == hig_kron.rows_key(torch.cat([a, a, b]))
 
 
 def test_the_rows_key_of_the_same_tensors_is_kept_until_they_change_in_place(monkeypatch):
     """A full-batch run passes the training tensors themselves: their key is hashed once; an in-place
     change (a new ``_version``) or other tensors are hashed again."""
-    from pdeinv.methods import hig_kron
+    from pdeinv.methods.hig import kron as hig_kron
 
     calls = []
     real = hig_kron.rows_key

@@ -1,7 +1,8 @@
-"""HIG on dense networks (MLPs): the last-layer route (pdeinv.methods.hig_layers) takes the exact step of
-the last layer; the dense routes build J from the layer structure (pdeinv.methods.hig_structured)."""
+"""HIG on dense networks (MLPs): the last-layer route (pdeinv.methods.hig.layers) takes the exact step of
+the last layer; the dense routes build J from the layer structure (pdeinv.methods.hig.structured)."""
 
 import copy
+import warnings
 
 import pytest
 import torch
@@ -182,7 +183,7 @@ def test_the_structured_jacobian_gives_the_torch_func_step(name, route, tau, rel
     trainable or some frozen, with and without a decoder, in float64 (1e-7 relative: the kept
     condition number reaches 1e7 at τ = 1e-7; the Gram at τ = 1e-2, where its squared condition number
     does not amplify the two Jacobians' rounding differences past 1e-9)."""
-    from pdeinv.methods import hig_routes
+    from pdeinv.methods.hig import routes as hig_routes
 
     p = problem()
     model = STRUCTURED[name](p)
@@ -200,3 +201,22 @@ def test_other_networks_keep_the_torch_func_jacobian():
     model = nets.whitened("residual", hidden=(4,))(p)
     nets.fit_preconditioning(model, p.sample(64, seed=1)[1])
     assert steps(p, model, ("auto",), 1e-6)["auto"].info["jacobian"] in ("reverse", "forward")
+
+
+def test_auto_over_the_jacobian_budget_says_only_the_last_layer_trains():
+    """``route="auto"`` whose dense J does not fit takes the last-layer route with a warning naming it,
+    never silently (a review found the hidden layers frozen without a word)."""
+    p = problem()
+    model = MODELS["dense, hidden frozen"](p)
+    for q in model.parameters():
+        q.requires_grad_(True)
+    _, y = p.sample(8, seed=2)
+    rule = HIG(route="auto", max_jacobian_gb=1e-5)
+    with pytest.warns(UserWarning, match="only the last layer trains"):
+        out = rule.update(rule.init(p, model), model, torch.as_tensor(y, dtype=torch.float64))
+    assert out.info["route"] == "last_layer"
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        rule = HIG(route="auto")  # within the budget: the dense route, no warning
+        assert rule.update(rule.init(p, model), model, torch.as_tensor(y, dtype=torch.float64)).info[
+            "route"] != "last_layer"

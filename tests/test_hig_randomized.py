@@ -58,7 +58,7 @@ def test_capped_sketch_with_power_iterations_finds_the_top_subspace(scene):
     # the exact top-k step, by hand from the SVD of the dense Jacobian
     from torch.func import functional_call, jacrev
 
-    from pdeinv.autograd import apply
+    from pdeinv.physics.bridge import apply
     params = {n: q.detach() for n, q in model.named_parameters()}
     jac = jacrev(lambda prm: apply(p.operator, functional_call(model, prm, (y,))))(params)
     J = torch.cat([jac[n].reshape(y.numel(), -1) for n in params], 1).numpy()
@@ -76,7 +76,7 @@ def test_capped_sketch_with_power_iterations_finds_the_top_subspace(scene):
 def test_auto_goes_matrix_free_only_when_the_dense_jacobian_does_not_fit(scene):
     p, model, y = scene
     # dense (gram route, 45 × 263 float32 + float64) ≈ 142 kB; the 10-probe sketch ≈ 70 kB; the MLP's
-    # last-layer step (pdeinv.methods.hig_layers) ≈ 2 kB: a dense network takes that instead
+    # last-layer step (pdeinv.methods.hig.layers) ≈ 2 kB: a dense network takes that instead
     _, info = _delta(p, model, y, route="auto", probes=10, max_jacobian_gb=100e3 / 2**30)
     assert info["route"] == "last_layer"
     _, info = _delta(p, model, y, wrap=True, route="auto", probes=10, max_jacobian_gb=100e3 / 2**30)

@@ -25,7 +25,7 @@ from pdeinv.inverse import (
     TimeReversal,
 )
 from pdeinv.inverse.decoder import DecoderTikhonov
-from pdeinv.problem import available
+from pdeinv.problem.definition import available
 
 #: every built-in scene, small (default backend unless the key says otherwise)
 SCENES = {

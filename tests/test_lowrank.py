@@ -4,8 +4,8 @@ import numpy as np
 import pytest
 
 import pdeinv
-from pdeinv.physics import compiled
-from pdeinv.physics.lowrank import RankTooHigh, svd_from_products
+from pdeinv.physics.backends import compiled
+from pdeinv.physics.backends.lowrank import RankTooHigh, svd_from_products
 
 
 @pytest.fixture(autouse=True)

@@ -10,7 +10,7 @@ import pdeinv
 @pytest.mark.parametrize("suffix", [".msh", ".vtu", ".vtk"])
 def test_file_mesh_equals_builtin(tmp_path, suffix):
     path = tmp_path / f"square{suffix}"
-    pdeinv.mesh.save(path, pdeinv.mesh.unit_square(8))
+    pdeinv.fem.mesh.save(path, pdeinv.fem.mesh.unit_square(8))
     a, b = load("heat_2d", n=8), load("heat_2d", mesh=str(path))
     assert a.N == b.N
     x = np.random.default_rng(0).standard_normal(a.N)
@@ -23,7 +23,7 @@ def test_file_mesh_with_boundary_lines_and_3d_points(tmp_path):
     """gmsh-style files: 3-D points with z = 0 and line cells on the boundary."""
     import meshio
 
-    m = pdeinv.mesh.unit_square(4)
+    m = pdeinv.fem.mesh.unit_square(4)
     pts = np.c_[m.p.T, np.zeros(m.nvertices)]
     lines = m.facets[:, m.boundary_facets()].T
     path = tmp_path / "g.vtu"
@@ -33,10 +33,10 @@ def test_file_mesh_with_boundary_lines_and_3d_points(tmp_path):
 
 
 def test_interval_and_square():
-    assert pdeinv.mesh.interval(10).nelements == 10
-    assert pdeinv.mesh.unit_square(3).nelements == 18
+    assert pdeinv.fem.mesh.interval(10).nelements == 10
+    assert pdeinv.fem.mesh.unit_square(3).nelements == 18
     with pytest.raises(ValueError, match="empty"):
-        pdeinv.mesh.interval(4, 1.0, 0.0)
+        pdeinv.fem.mesh.interval(4, 1.0, 0.0)
 
 
 def test_sample_is_seeded_and_noisy():
@@ -64,26 +64,26 @@ def test_tetra_mesh_round_trips(tmp_path, suffix):
     import skfem
 
     m = skfem.MeshTet().refined(1)
-    pdeinv.mesh.save(tmp_path / f"cube{suffix}", m)
+    pdeinv.fem.mesh.save(tmp_path / f"cube{suffix}", m)
     assert _cells(tmp_path / f"cube{suffix}") == ["tetra"]
-    back = pdeinv.mesh.load(tmp_path / f"cube{suffix}")
+    back = pdeinv.fem.mesh.load(tmp_path / f"cube{suffix}")
     assert type(back) is skfem.MeshTet1
     np.testing.assert_array_equal(back.t, m.t)
     np.testing.assert_allclose(back.p, m.p)
 
 
 @pytest.mark.parametrize("make, facet", [
-    (lambda: pdeinv.mesh.interval(4), "vertex"),
-    (lambda: pdeinv.mesh.unit_square(3), "line"),
+    (lambda: pdeinv.fem.mesh.interval(4), "vertex"),
+    (lambda: pdeinv.fem.mesh.unit_square(3), "line"),
     (lambda: __import__("skfem").MeshTet().refined(1), "triangle"),
 ])
 def test_named_boundaries_round_trip_in_every_dimension(tmp_path, make, facet):
     """Named boundaries are written as physical groups of the facet cells (points, lines, triangles)."""
     m = make()
     m = m.with_boundaries({"low": lambda x: np.isclose(x[0], 0.0), "high": lambda x: np.isclose(x[0], 1.0)})
-    pdeinv.mesh.save(tmp_path / "m.msh", m)
+    pdeinv.fem.mesh.save(tmp_path / "m.msh", m)
     assert facet in _cells(tmp_path / "m.msh")
-    back = pdeinv.mesh.load(tmp_path / "m.msh")
+    back = pdeinv.fem.mesh.load(tmp_path / "m.msh")
     assert sorted(back.boundaries) == ["high", "low"]
     for name, x in (("low", 0.0), ("high", 1.0)):
         assert len(back.boundaries[name]) == len(m.boundaries[name]) > 0
@@ -97,7 +97,7 @@ def test_save_refuses_unsupported_meshes(tmp_path, name, suffix):
 
     m = getattr(skfem, name)()
     with pytest.raises(ValueError, match=rf"{name}.*not supported.*MeshLine1, MeshTri1, MeshTet1"):
-        pdeinv.mesh.save(tmp_path / f"m{suffix}", m)
+        pdeinv.fem.mesh.save(tmp_path / f"m{suffix}", m)
     assert not (tmp_path / f"m{suffix}").exists()
 
 
@@ -112,7 +112,7 @@ def test_load_refuses_unsupported_cells(tmp_path, cells, match):
     pts = np.array([[0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0], [0, 0, 1], [1, 0, 1], [1, 1, 1], [0, 1, 1.0]])
     meshio.write(tmp_path / "m.vtu", meshio.Mesh(pts, [(k, np.array(c)) for k, c in cells]))
     with pytest.raises(ValueError, match=match + r".*supported.*line, triangle or tetra"):
-        pdeinv.mesh.load(tmp_path / "m.vtu")
+        pdeinv.fem.mesh.load(tmp_path / "m.vtu")
 
 
 def test_tetra_meshes_discretize_and_others_are_refused():

@@ -1,5 +1,5 @@
 """Named boundaries: tags read from mesh files (gmsh physical groups, meshio cell sets),
-written back by ``pdeinv.mesh.save``, kept by refinement, and used for Dirichlet selection."""
+written back by ``pdeinv.fem.mesh.save``, kept by refinement, and used for Dirichlet selection."""
 
 from pathlib import Path
 
@@ -10,8 +10,8 @@ import pytest
 import pdeinv
 from pdeinv import mesh
 from pdeinv.cli import main
-from pdeinv.forms import discretize
-from pdeinv.mesh import _facet_tags
+from pdeinv.fem.forms import discretize
+from pdeinv.fem.mesh import _facet_tags
 
 PLATE = Path(__file__).resolve().parents[1] / "problems" / "meshes" / "plate.msh"
 

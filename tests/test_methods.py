@@ -14,7 +14,8 @@ import torch
 from torch import nn
 
 import pdeinv
-from pdeinv.methods import GD, HIG, SIP, NonFiniteError, adam, hig_routes, sgd
+from pdeinv.methods import GD, HIG, SIP, NonFiniteError, adam, sgd
+from pdeinv.methods.hig import routes as hig_routes
 
 pytestmark = pytest.mark.usefixtures("one_thread")  # small dense work: one torch thread
 

@@ -5,11 +5,12 @@ import pytest
 
 import pdeinv
 from pdeinv.errors import TooManyModes
-from pdeinv.physics import Heat, Modal, Stepping, modes
+from pdeinv.physics import Heat, Modal, Stepping
+from pdeinv.physics.backends import modes
 
 
 def _heat(n, **kw):
-    d = pdeinv.discretize(pdeinv.mesh.unit_square(n))
+    d = pdeinv.discretize(pdeinv.fem.mesh.unit_square(n))
     return Heat(d.M, d.K, backend="steps", measure=d.measure, dim=d.dim, **kw)
 
 
@@ -56,7 +57,7 @@ def test_the_stopping_rule_weighs_each_mode_by_its_gain():
 
 
 def test_too_many_modes_is_refused_and_k_checked():
-    d = pdeinv.discretize(pdeinv.mesh.unit_square(16))
+    d = pdeinv.discretize(pdeinv.fem.mesh.unit_square(16))
     flat = lambda lam: np.zeros_like(lam)  # noqa: E731  every mode matters: more than half of N
     with pytest.raises(TooManyModes, match="more than"):
         modes.lowest_modes(d.M, d.K, flat, np.log(1e-14), k=30, dense_max=0)
@@ -66,7 +67,7 @@ def test_too_many_modes_is_refused_and_k_checked():
 
 def test_a_rank_deficient_block_keeps_its_range():
     """``W = V B`` exactly when ``W`` has dependent columns; the filled-in columns are M-orthonormal."""
-    d = pdeinv.discretize(pdeinv.mesh.unit_square(12))
+    d = pdeinv.discretize(pdeinv.fem.mesh.unit_square(12))
     rng = np.random.default_rng(0)
     basis = modes._Basis(d.N, 8)
     basis.append(*(lambda V: (V, d.M @ V))(modes._cholqr(rng.standard_normal((d.N, 4)), d.M)[0]))

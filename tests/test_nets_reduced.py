@@ -9,10 +9,10 @@ import torch
 import pdeinv
 from pdeinv import nets
 from pdeinv.cli import main
+from pdeinv.io.runs import load_run
 from pdeinv.methods.presets import make_rule
-from pdeinv.precondition import Whitening
-from pdeinv.runs import load_run
-from pdeinv.trainer import Trainer
+from pdeinv.nets.whitening import Whitening
+from pdeinv.training.trainer import Trainer
 
 pytestmark = pytest.mark.usefixtures("one_thread")
 
@@ -36,6 +36,9 @@ def test_the_head_starts_at_zero_and_the_decoder_is_orthonormal_and_fixed():
     p = pdeinv.load_problem("heat_2d", n=12)
     model = nets.reduced(k_in=16, k_out=16)(p)
     y = torch.randn(3, p.operator.n_out)
+    with pytest.raises(RuntimeError, match="Whitening .* is not fitted"):  # never a silent pass-through
+        model(y)
+    nets.fit_preconditioning(model, p.sample(32, seed=1)[1])
     assert torch.count_nonzero(model(y)) == 0
     Phi = model.post.basis.double().T.numpy()  # (N, k) with ‖columns‖ ∝ the prior's rms amplitude
     G = Phi.T @ Phi
@@ -80,7 +83,7 @@ def test_the_default_follows_reversibility_then_size(monkeypatch):
     wave = pdeinv.load_problem("wave_2d", n=8)
     assert nets.REDUCED_ABOVE >= 961  # wave_2d at its default size keeps the whitened linear map
     assert nets.default_model(wave).decoder is None
-    monkeypatch.setattr(nets, "REDUCED_ABOVE", wave.N - 1)
+    monkeypatch.setattr(nets.defaults, "REDUCED_ABOVE", wave.N - 1)
     assert nets.default_model(wave).decoder is not None
 
 
@@ -121,9 +124,10 @@ def test_bad_sizes_and_bodies_are_refused():
 
 
 def test_a_run_with_the_reduced_default_resumes_and_predicts(tmp_path, monkeypatch, capsys):
-    monkeypatch.setattr(nets, "REDUCED_ABOVE", 100)  # heat_2d n=16 (225 unknowns) gets the reduced net
+    monkeypatch.setattr(nets.defaults, "REDUCED_ABOVE", 100)  # heat_2d n=16 (225 unknowns): reduced
     out = tmp_path / "run"
-    # 4 SIP steps of batch 8 end at x_err 11.8 (pdeinv.verdict: exit 3), kept: resuming is the point here
+    # 4 SIP steps of batch 8 end at x_err 11.8 (pdeinv.training.verdict: exit 3), kept: resuming is the
+    # point here
     args = ["train", "heat_2d", "--set", "n=16", "--n-train", "64", "--n-test", "16", "--batch-size", "8",
             "--threads", "1", "--export-samples", "0", "--checkpoint-every", "2", "--accept-bad",
             "--out", str(out)]
@@ -153,7 +157,7 @@ def test_short_sip_training_on_heat_2d_reaches_the_measured_error():
 
 
 def test_the_reduced_network_is_selectable_by_name_in_a_run_record():
-    from pdeinv.runs import network
+    from pdeinv.io.runs import network
 
     p = pdeinv.load_problem("heat_2d", n=8)
     model = network(p, {"kind": "reduced", "k_in": 12, "k_out": 10})

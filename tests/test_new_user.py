@@ -81,7 +81,7 @@ def test_steps_in_float_notation_is_accepted():
 
 def test_time_budget_alone_is_not_cut_at_1000_steps():
     from pdeinv.cli import build_parser
-    from pdeinv.commands._checks import steps
+    from pdeinv.cli.commands._checks import steps
 
     args = build_parser().parse_args(["train", "heat_1d", "--out", "x", "--time-budget", "30"])
     assert args.steps is None and steps(args) is None  # the budget alone decides
@@ -107,7 +107,7 @@ def test_problems_lists_settings_and_defaults(capsys):
 
 
 def test_setup_progress_line(capsys):
-    from pdeinv.commands import build_problem
+    from pdeinv.cli.commands import build_problem
 
     build_problem("train", "heat_1d", ["n=8"], after_s=0.0)
     err = capsys.readouterr().err
@@ -171,7 +171,7 @@ def test_plots_show_sensors_and_ticks():
     matplotlib.use("Agg")
     p = pdeinv.load_problem("heat_sensors_2d", n=8, sensors=5)
     x, _ = p.sample(1)
-    ax = pdeinv.plots.plot_prediction(p, x, x).axes[0]
+    ax = pdeinv.io.plots.plot_prediction(p, x, x).axes[0]
     assert len(ax.get_xticks()) > 0 and any(line.get_label() == "sensors" for line in ax.lines)
 
 

@@ -18,8 +18,8 @@ from pdeinv import observe
 from pdeinv.inverse import SpectralTikhonov, default_inverse
 from pdeinv.physics import Heat, Modal, Propagator, Wave
 from pdeinv.physics.capabilities import Spectral, modal_basis
-from pdeinv.problem import Problem, load_problem
-from pdeinv.sampling import gaussian_bumps
+from pdeinv.problem.definition import Problem, load_problem
+from pdeinv.problem.sampling import gaussian_bumps
 
 
 def _rel(a, b):
@@ -27,7 +27,7 @@ def _rel(a, b):
 
 
 def test_heat_is_a_propagator_with_the_one_loop():
-    d = pdeinv.discretize(pdeinv.mesh.unit_square(6))
+    d = pdeinv.discretize(pdeinv.fem.mesh.unit_square(6))
     op = Heat(d.M, d.K, steps=10, backend="steps")
     assert isinstance(op, Propagator) and op.kind == "steps" and op.backend is None
     assert op.stepping() is op
@@ -38,7 +38,7 @@ def test_reaction_diffusion_written_the_cheap_way_gets_the_modal_backend(scheme)
     """``M u' + (κK + rM) u = 0`` as ``Heat(..., C=r*M)``: symmetric matrices, so ``auto`` takes the
     modal form (it used to be refused for any ``C``), equal to time stepping and its own transpose;
     each mode decays by ``r(dt(κλ + r))ⁿ``."""
-    d = pdeinv.discretize(pdeinv.mesh.unit_square(16))
+    d = pdeinv.discretize(pdeinv.fem.mesh.unit_square(16))
     r, kw = 2.0, dict(kappa=0.01, steps=50, scheme=scheme, measure=d.measure, dim=d.dim)
     op = Heat(d.M, d.K, C=r * d.M, **kw)
     assert op.symmetric and op.kind == "modal", op.choice
@@ -70,7 +70,7 @@ def test_convection_still_has_no_modal_form():
 
 
 def test_sensor_and_wave_runs_have_no_modal_form():
-    d = pdeinv.discretize(pdeinv.mesh.unit_square(6))
+    d = pdeinv.discretize(pdeinv.fem.mesh.unit_square(6))
     S = observe.sensor_matrix(d, [[0.5, 0.5]])
     with pytest.raises(ValueError, match="records sensors"):
         Modal(Heat(d.M, d.K, steps=10, backend="steps").sensors(S, 5))
@@ -80,7 +80,7 @@ def test_sensor_and_wave_runs_have_no_modal_form():
 
 def _hand_built(n=16, sensors=12, with_inverse=False):
     """A new user's module: unit square, Dirichlet on the left edge only, 12 sensors, ``.sensors(S, 10)``."""
-    m = pdeinv.mesh.unit_square(n).with_boundaries({"left": lambda x: np.isclose(x[0], 0.0)})
+    m = pdeinv.fem.mesh.unit_square(n).with_boundaries({"left": lambda x: np.isclose(x[0], 0.0)})
     disc = pdeinv.discretize(m, dirichlet="left")
     S = observe.sensor_matrix(disc, observe.interior_points(m, sensors))
     op = Heat(disc.M, disc.K, kappa=0.05, T=1.0, steps=100, backend="steps",
@@ -107,7 +107,7 @@ def test_a_hand_built_sensor_operator_goes_through_the_chooser(with_inverse):
 
 
 def test_a_hand_built_wave_is_compiled_by_the_problem_and_an_explicit_choice_is_kept():
-    d = pdeinv.discretize(pdeinv.mesh.unit_square(8))
+    d = pdeinv.discretize(pdeinv.fem.mesh.unit_square(8))
     auto = Problem("w", d, Wave(d.M, d.K, steps=20), partial(gaussian_bumps, d.points))
     assert auto.operator.choice.startswith("auto: ") and auto.operator.kind == "dense", auto.operator.choice
     kept = Problem("w", d, Wave(d.M, d.K, steps=20).compile("steps"), partial(gaussian_bumps, d.points))
@@ -117,9 +117,9 @@ def test_a_hand_built_wave_is_compiled_by_the_problem_and_an_explicit_choice_is_
 def test_a_spectral_basis_is_one_declared_class():
     """The modal basis, the SVD and the lazy SVD of a dense map are all :class:`Spectral`; anything
     else (an object with look-alike attributes) is not a basis."""
-    from pdeinv.physics.compiled import spectral_basis
+    from pdeinv.physics.backends.compiled import spectral_basis
 
-    d = pdeinv.discretize(pdeinv.mesh.unit_square(6))
+    d = pdeinv.discretize(pdeinv.fem.mesh.unit_square(6))
     heat = Heat(d.M, d.K, steps=10, backend="modal")
     svd = Heat(d.M, d.K, steps=10, backend="svd")
     dense = Heat(d.M, d.K, steps=10, backend="dense")

@@ -12,8 +12,8 @@ import torch
 import pdeinv
 from pdeinv.cli import main
 from pdeinv.methods import GD, adam
-from pdeinv.stopping import DiscrepancyStop
-from pdeinv.trainer import Trainer
+from pdeinv.training.stopping import DiscrepancyStop
+from pdeinv.training.trainer import Trainer
 
 pytestmark = pytest.mark.usefixtures("one_thread")  # small dense work: one torch thread
 
@@ -99,8 +99,8 @@ def test_cli_train_predict_and_load_run(heat, pairs, tmp_path, capsys):
                  "--vtu", str(tmp_path / "pred.vtu")]) == 0
     assert "x_err" in capsys.readouterr().out
     xhat = np.load(pred)["x"]
-    np.testing.assert_allclose(xhat, pdeinv.export.predict(model, y[50:]))
-    from pdeinv.export import read_fields
+    np.testing.assert_allclose(xhat, pdeinv.io.export.predict(model, y[50:]))
+    from pdeinv.io.export import read_fields
 
     assert read_fields(tmp_path / "pred.vtu")[2]["x_pred"].shape[0] == 10
 
@@ -215,9 +215,9 @@ def test_cli_predict_never_writes_over_an_input(tmp_path, pairs, capsys, out, vt
 def test_data_from_another_discretization_is_measured_and_warned_about(heat, tmp_path, capsys):
     """The same scene with 10 instead of 100 backward-Euler steps: a model mismatch well above rounding,
     recorded in metrics.json and said on stderr with both numbers, and a run fitting it exactly (noise
-    level 0) ends worse than predicting zero: exit 3 (pdeinv.verdict); our own data: rounding, no
+    level 0) ends worse than predicting zero: exit 3 (pdeinv.training.verdict); our own data: rounding, no
     warning, exit 0."""
-    from pdeinv.data import model_mismatch
+    from pdeinv.training.data import model_mismatch
 
     other = pdeinv.load_problem("heat_1d", n=16, steps=10)
     x, y = other.sample(60, seed=3)
@@ -264,7 +264,7 @@ def test_noisy_data_without_a_declared_level_trains_at_the_level_it_shows(tmp_pa
     Gavish–Donoho estimate says 0.0079 on heat_2d, and a Wiener target 20 % low keeps pure-noise modes:
     x-error 6.6e4 measured), said in one line, recorded in run.json, and the run reaches the oracle-α
     Tikhonov of the same test rows; --set noise=0 is obeyed (and fitting the noise exactly ends
-    worse than predicting zero: exit 3, pdeinv.verdict)."""
+    worse than predicting zero: exit 3, pdeinv.training.verdict)."""
     from pdeinv import references
 
     p = pdeinv.load_problem("heat_2d", n=16, noise=0.01)
@@ -448,7 +448,7 @@ def test_cli_net_chooses_the_network_and_predict_rebuilds_it(tmp_path, capsys, n
     np.savez(tmp_path / "obs.npz", y=y)
     pred = tmp_path / "p.npz"
     assert main(["predict", str(out), "--data", str(tmp_path / "obs.npz"), "--out", str(pred)]) == 0
-    np.testing.assert_allclose(np.load(pred)["x"], pdeinv.export.predict(model, y))
+    np.testing.assert_allclose(np.load(pred)["x"], pdeinv.io.export.predict(model, y))
 
 
 def test_cli_net_and_hidden_together_are_refused(tmp_path, capsys):

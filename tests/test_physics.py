@@ -90,7 +90,7 @@ def test_auto_takes_modal_on_a_coarse_mesh_where_weyl_over_counts():
 def test_auto_prefers_stepping_when_few_steps_and_slow_decay():
     """N = 2209 is beyond dense modes and Weyl predicts more than N/2 live ones: no modal form is
     offered; stepping wins a short run (the one chooser weighs the whole run, compiled.plan)."""
-    from pdeinv.physics.compiled import expecting
+    from pdeinv.physics.backends.compiled import expecting
 
     with expecting(steps=1):
         op = load("heat_2d", n=48, steps=2, kappa=1e-4).operator
@@ -140,7 +140,7 @@ def test_amg_solver_matches_direct():
 
 
 def test_lumped_mass_is_diagonal_and_conserves_mass():
-    m = pdeinv.mesh.unit_square(8)
+    m = pdeinv.fem.mesh.unit_square(8)
     full = pdeinv.discretize(m, dirichlet=False)
     lumped = pdeinv.discretize(m, dirichlet=False, lumped=True)
     assert (lumped.M - lumped.M.T).nnz == 0 and lumped.M.nnz == lumped.N
@@ -148,7 +148,7 @@ def test_lumped_mass_is_diagonal_and_conserves_mass():
 
 
 def test_neumann_heat_conserves_mass():
-    m = pdeinv.mesh.unit_square(8)
+    m = pdeinv.fem.mesh.unit_square(8)
     d = pdeinv.discretize(m, dirichlet=False)
     for backend in ("steps", "modal"):
         op = Heat(d.M, d.K, kappa=0.1, T=1.0, steps=20, backend=backend)
@@ -160,7 +160,7 @@ def test_neumann_heat_conserves_mass():
 @pytest.mark.parametrize("scheme", ["be", "cn"])
 def test_sparse_eigensolver_path_matches_stepping(monkeypatch, scheme):
     """Force the block Krylov eigensolve used on large meshes (1521 unknowns, ~110 modes)."""
-    from pdeinv.physics import modes
+    from pdeinv.physics.backends import modes
 
     monkeypatch.setattr(modes, "DENSE_MAX", 10)
     modal = load("heat_2d", n=40, scheme=scheme, backend="modal", kappa=0.02).operator

@@ -1,15 +1,15 @@
-"""PCA whitening of observations (pdeinv.precondition) and noise-level estimation (pdeinv.noise)."""
+"""PCA whitening of observations (pdeinv.nets.whitening) and noise-level estimation (pdeinv.inverse.noise)."""
 
 import numpy as np
 import pytest
 import torch
 
 import pdeinv
-from pdeinv.checkpoint import Checkpoint
+from pdeinv.inverse.noise import estimate_noise, marchenko_pastur_median, noise_variance
 from pdeinv.methods import SIP, adam
 from pdeinv.nets import Net, fit_preconditioning, whitened
-from pdeinv.noise import estimate_noise, marchenko_pastur_median, noise_variance
-from pdeinv.precondition import Whitening
+from pdeinv.nets.whitening import Whitening
+from pdeinv.training.checkpoint import Checkpoint
 
 
 def _gaussian(n, m, seed=0, decades=8):
@@ -183,7 +183,7 @@ def test_a_rounding_level_estimate_is_no_noise():
     :func:`estimate_noise` says 0 (noise-free) below ROUNDING_LEVEL; a level just above it, 1e-12, is
     still estimated."""
     import pdeinv
-    from pdeinv.noise import ROUNDING_LEVEL
+    from pdeinv.inverse.noise import ROUNDING_LEVEL
 
     _, y = pdeinv.load_problem("heat_1d").sample(300, 5)
     assert estimate_noise(y) == 0.0

@@ -16,7 +16,7 @@ from pathlib import Path
 import setuptools
 
 import pdeinv
-from pdeinv.problem import available
+from pdeinv.problem.definition import available
 
 ROOT = Path(__file__).resolve().parents[1]
 BUILTINS = sorted(p.stem for p in (ROOT / "problems").glob("*.py") if not p.stem.startswith("_"))

@@ -28,7 +28,7 @@ def test_version(capsys):
 
 def test_train_is_the_function_and_the_old_module_path_an_alias():
     """Issue 24: the module ``pdeinv/train.py`` shadowed by the function ``pdeinv.train`` is now
-    ``pdeinv.trainer``; ``from pdeinv.train import …`` still resolves (an alias, for one release) and
+    ``pdeinv.training.trainer``; ``from pdeinv.train import …`` still resolves (an alias, for one release) and
     importing it never rebinds ``pdeinv.train``."""
     import sys
     from pathlib import Path
@@ -36,11 +36,12 @@ def test_train_is_the_function_and_the_old_module_path_an_alias():
     import pdeinv.train  # noqa: F401
     from pdeinv.train import TEST_DATA, Trainer, seed_stream
 
-    import pdeinv.trainer
-    import pdeinv.trainset
+    import pdeinv.training.trainer
+    import pdeinv.training.trainset
 
-    assert pdeinv.train is pdeinv.trainer.train and Trainer is pdeinv.trainer.Trainer
-    assert seed_stream is pdeinv.trainset.seed_stream and TEST_DATA == pdeinv.trainset.TEST_DATA
+    assert pdeinv.train is pdeinv.training.trainer.train and Trainer is pdeinv.training.trainer.Trainer
+    trainset = pdeinv.training.trainset
+    assert seed_stream is trainset.seed_stream and TEST_DATA == trainset.TEST_DATA
     assert not (Path(pdeinv.__file__).parent / "train.py").exists()
     with pytest.raises(ImportError, match="nothing"):
         from pdeinv.train import nothing  # noqa: F401

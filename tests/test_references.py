@@ -3,7 +3,7 @@
 import numpy as np
 from exact import load
 
-from pdeinv.references import best_filter, dense_operator, mmse, tikhonov_best, tikhonov_path
+from pdeinv.training.references import best_filter, dense_operator, mmse, tikhonov_best, tikhonov_path
 
 
 def _data(p, n_train):

@@ -5,10 +5,10 @@ import pytest
 import torch
 
 import pdeinv
-from pdeinv.grid import GridMap, spacing
+from pdeinv.fem.grid import GridMap, spacing
 from pdeinv.methods.presets import make_rule
-from pdeinv.refine import PriorFit, Refined
-from pdeinv.sampling import boxes, gaussian_random_field
+from pdeinv.nets.refine import PriorFit, Refined
+from pdeinv.problem.sampling import boxes, gaussian_random_field
 
 
 @pytest.mark.parametrize("name, kw", [("heat_1d", {}), ("heat_boxes", {"n": 8}), ("heat_3d", {"n": 4})])
@@ -112,7 +112,7 @@ def test_cli_fits_the_prior_by_default_and_records_it(tmp_path, monkeypatch):
     from pdeinv.cli import main
 
     monkeypatch.delenv("PDEINV_PRIOR_FIT")
-    monkeypatch.setattr("pdeinv.commands.train.PRIOR_FIT_S", 3.0)
+    monkeypatch.setattr("pdeinv.cli.commands.train.PRIOR_FIT_S", 3.0)
     assert main(["train", "heat_1d", "--steps", "3", "--out", str(tmp_path / "r"), "--threads", "1"]) == 0
     import json
 
@@ -149,7 +149,7 @@ def test_a_decoder_that_misses_the_prior_gives_way_to_the_whitened_map(monkeypat
     root; heat_boxes 64×64 SIP: 1.07 with it, 0.17 with the whitened map); smooth bumps are."""
     from pdeinv import nets
 
-    monkeypatch.setattr(nets, "REDUCED_ABOVE", 100)  # heat_2d's bumps get the decoder at any size
+    monkeypatch.setattr(nets.defaults, "REDUCED_ABOVE", 100)  # heat_2d's bumps get the decoder at any size
     boxes_net = nets.linear_default(pdeinv.load_problem("heat_boxes", n=32))  # 512 of 961: not all
     bumps_net = nets.linear_default(pdeinv.load_problem("heat_2d", n=32))
     assert boxes_net.decoder is None  # the whitened map
@@ -161,7 +161,7 @@ def test_the_physics_channel_is_the_tikhonov_solve_from_zero():
     """SpectralFilter(y) = SpectralTikhonov(y, x0=0) at the same relative α: the physics' own full-rank
     estimate that the correction sees beside the learned base (heat scenes on the modal backend)."""
     from pdeinv.inverse import RelativeAlpha, SpectralTikhonov
-    from pdeinv.refine import SpectralFilter
+    from pdeinv.nets.refine import SpectralFilter
 
     p = pdeinv.load_problem("heat_boxes", n=16, noise=0.01)
     _, y = p.sample(4, 0)

@@ -95,7 +95,7 @@ def test_outputs_respect_the_umask(tmp_path, capsys, umask):
 def test_a_full_disk_during_a_checkpoint_keeps_the_previous_one(tmp_path, capsys, monkeypatch):
     import torch
 
-    import pdeinv.checkpoint
+    import pdeinv.training.checkpoint
 
     out, calls, real = tmp_path / "run", [], torch.save
 
@@ -106,12 +106,12 @@ def test_a_full_disk_during_a_checkpoint_keeps_the_previous_one(tmp_path, capsys
             raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
         return real(obj, fh, *a, **kw)
 
-    monkeypatch.setattr(pdeinv.checkpoint.torch, "save", save)
+    monkeypatch.setattr(pdeinv.training.checkpoint.torch, "save", save)
     code = train(out, "--checkpoint-every", "1", "--export-samples", "0", steps=5)
     line = one_line(capsys, "pdeinv train: cannot write: checkpoint ")
     assert code == 1 and "No space left on device" in line and "previous checkpoint is intact" in line
     assert "--resume" in line
-    monkeypatch.setattr(pdeinv.checkpoint.torch, "save", real)
+    monkeypatch.setattr(pdeinv.training.checkpoint.torch, "save", real)
     assert Checkpoint(out / "checkpoint.pt").load()["position"]["step"] == 2
     assert not list(out.glob(".*.tmp"))
 
@@ -119,8 +119,8 @@ def test_a_full_disk_during_a_checkpoint_keeps_the_previous_one(tmp_path, capsys
 def test_history_grows_with_the_checkpoints_and_a_heartbeat_speaks_off_a_terminal(tmp_path, capsys):
     """history.csv is written with every checkpoint (not only at the end), and off a terminal the CLI's
     heartbeat prints a progress line every ``every_s`` seconds of training."""
-    from pdeinv.commands._folder import FolderCheckpoint
-    from pdeinv.commands.train import _Heartbeat
+    from pdeinv.cli.commands._folder import FolderCheckpoint
+    from pdeinv.cli.commands.train import _Heartbeat
 
     ckpt = FolderCheckpoint(tmp_path / "checkpoint.pt", 1, lambda: None)
     ckpt.save({"history": [{"step": 1, "wall_s": 0.1, "loss": 0.5}], "model": {}})

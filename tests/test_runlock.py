@@ -1,8 +1,8 @@
-"""One run per output folder (:mod:`pdeinv.runlock`): a second run on a held folder is refused in one
+"""One run per output folder (:mod:`pdeinv.util.runlock`): a second run on a held folder is refused in one
 line naming the folder and the holder's PID, writing nothing; a SIGKILLed holder never blocks the
 next run; runs one after another are unaffected.
 
-Holders are small subprocesses that load ``pdeinv/runlock.py`` by path (no torch import: ~50 ms).
+Holders are small subprocesses that load ``pdeinv/util/runlock.py`` by path (no torch import: ~50 ms).
 """
 
 from __future__ import annotations
@@ -15,9 +15,9 @@ from pathlib import Path
 
 import pytest
 
-from pdeinv import runlock
 from pdeinv.cli import main
-from pdeinv.runlock import NAME, FolderLocked, RunLock
+from pdeinv.util import runlock
+from pdeinv.util.runlock import NAME, FolderLocked, RunLock
 
 MODULE = Path(runlock.__file__)
 SMALL = ["--set", "n=16", "--set", "steps=10", "--hidden", "8", "--n-train", "16", "--n-test", "8",

@@ -7,11 +7,11 @@ from exact import dot_test, load
 
 import pdeinv
 from pdeinv import observe
-from pdeinv.advection import cellular_flow, convection, max_cell_peclet
+from pdeinv.fem.advection import cellular_flow, convection, max_cell_peclet
+from pdeinv.fem.solvers import AMGCG, SuperLU, default_solver, is_symmetric
 from pdeinv.inverse import TikhonovCG, default_inverse
 from pdeinv.physics import Leapfrog
 from pdeinv.physics.capabilities import observes_field
-from pdeinv.solvers import AMGCG, SuperLU, default_solver, is_symmetric
 
 
 def _nonsymmetric(n=30, seed=0):
@@ -59,7 +59,7 @@ def test_advection_inverse_round_trip_chosen_by_capability(backend, inverse):
 
 
 def test_streamline_diffusion_is_symmetric_psd_along_the_flow_and_off_below_peclet_one():
-    d = pdeinv.discretize(pdeinv.mesh.unit_square(16))
+    d = pdeinv.discretize(pdeinv.fem.mesh.unit_square(16))
     flow = cellular_flow(10.0)
     D = (convection(d, flow, 1e-3) - convection(d, flow, kappa=1e9)).toarray()  # δ = 0 for huge κ
     assert np.abs(D).max() > 0 and np.allclose(D, D.T, atol=1e-14)
@@ -85,8 +85,8 @@ def test_sensor_records_are_plain_numbers_even_when_there_are_as_many_as_unknown
 
 
 def test_leapfrog_with_sensors_records_the_leapfrog_run():
-    d = pdeinv.discretize(pdeinv.mesh.unit_square(6))
-    lumped = pdeinv.discretize(pdeinv.mesh.unit_square(6), lumped=True).M
+    d = pdeinv.discretize(pdeinv.fem.mesh.unit_square(6))
+    lumped = pdeinv.discretize(pdeinv.fem.mesh.unit_square(6), lumped=True).M
     S = observe.sensor_matrix(d, [[0.5, 0.5], [0.3, 0.6]])
     op = Leapfrog(lumped, d.K, T=0.6, steps=12).sensors(S, 4)
     assert dot_test(op) <= 1e-12
@@ -117,7 +117,7 @@ def test_default_inverse_chooses_by_capability_not_class():
 
 
 def test_weyl_count_has_the_three_dimensional_constant():
-    from pdeinv.physics.modal import weyl_count
+    from pdeinv.physics.backends.modal import weyl_count
 
     class Box:
         measure, dim = 1.0, 3
@@ -143,7 +143,7 @@ def test_export_writes_sensor_records_never_as_fields(tmp_path):
     """Same bug in the export: records with n_out == N were written as mesh fields."""
     import meshio
 
-    from pdeinv.export import write_fields
+    from pdeinv.io.export import write_fields
 
     p = load("heat_sensors_2d", n=4, sensors=9, steps=10, record_every=10)
     x, y = p.sample(2, seed=0)

@@ -91,7 +91,7 @@ def test_taylor_remainder_rate(name):
 
 def test_layout_is_record_major():
     """Record r of a run with record_every=k is S times the plain operator after (r+1)k steps."""
-    d = pdeinv.discretize(pdeinv.mesh.unit_square(6))
+    d = pdeinv.discretize(pdeinv.fem.mesh.unit_square(6))
     S = observe.sensor_matrix(d, observe.interior_points(d.basis.mesh, 3))
     x = np.random.default_rng(0).standard_normal((2, d.N))
     for Op, Sens, kw in ((Heat, sensors, dict(kappa=0.05, backend="steps")), (Wave, sensors, {})):
@@ -105,7 +105,7 @@ def test_layout_is_record_major():
 
 @pytest.mark.parametrize("element", ["P1", "P2"])
 def test_sensor_at_a_node_reads_the_nodal_value(element):
-    d = pdeinv.discretize(pdeinv.mesh.unit_square(5), element)
+    d = pdeinv.discretize(pdeinv.fem.mesh.unit_square(5), element)
     idx = np.array([0, 3, d.N // 2, d.N - 1])
     S = observe.sensor_matrix(d, d.points[:, idx].T)
     u = np.random.default_rng(2).standard_normal(d.N)
@@ -114,7 +114,7 @@ def test_sensor_at_a_node_reads_the_nodal_value(element):
 
 @pytest.mark.parametrize("kind", ["heat", "wave"])
 def test_all_nodes_final_step_only_is_the_plain_operator(kind):
-    d = pdeinv.discretize(pdeinv.mesh.unit_square(6))
+    d = pdeinv.discretize(pdeinv.fem.mesh.unit_square(6))
     S = observe.sensor_matrix(d, d.points.T)
     if kind == "heat":
         plain = Heat(d.M, d.K, kappa=0.05, steps=8, backend="steps")
@@ -130,7 +130,7 @@ def test_all_nodes_final_step_only_is_the_plain_operator(kind):
 
 
 def test_heat_sensors_reuse_a_stepping_backend():
-    d = pdeinv.discretize(pdeinv.mesh.unit_square(6))
+    d = pdeinv.discretize(pdeinv.fem.mesh.unit_square(6))
     S = observe.sensor_matrix(d, [[0.5, 0.5]])
     stepping = Heat(d.M, d.K, backend="steps")
     # one θ-step (one factorization) shared by the final-field backend and the sensor run
@@ -143,7 +143,7 @@ def test_heat_sensors_reuse_a_stepping_backend():
 
 
 def test_boundary_sensors_sit_on_the_boundary_and_inset_moves_them_inside():
-    m = pdeinv.mesh.unit_square(8)
+    m = pdeinv.fem.mesh.unit_square(8)
     on = observe.boundary_points(m, 12)
     assert np.allclose(np.min(np.stack([on, 1 - on]), axis=(0, 2)), 0)
     inset = observe.boundary_points(m, 12, inset=0.125)
@@ -212,7 +212,7 @@ def test_plate_file_is_what_the_script_makes():
     spec = importlib.util.spec_from_file_location("make_plate", ROOT / "problems/meshes/make_plate.py")
     mod = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(mod)
-    made, shipped = mod.plate(), pdeinv.mesh.load(ROOT / "problems/meshes/plate.msh")
+    made, shipped = mod.plate(), pdeinv.fem.mesh.load(ROOT / "problems/meshes/plate.msh")
     np.testing.assert_allclose(shipped.p, made.p, atol=1e-12)
     np.testing.assert_array_equal(shipped.t, made.t)
     assert sorted(shipped.boundaries) == sorted(made.boundaries) == ["hole", "outer"]
@@ -248,7 +248,7 @@ def test_plate_default_p2_loads():
 
 
 def test_a_long_sensor_list_goes_through_the_finder_in_chunks(monkeypatch):
-    """Chunks of the element finder and probes (pdeinv.observe.CHUNK) give the same sensor matrix and
+    """Chunks of the element finder and probes (pdeinv.fem.sensors.CHUNK) give the same sensor matrix and
     the same points outside as one call (one call at 10⁶ sensors needed a 5.45 GiB temporary)."""
     p = pdeinv.load_problem("heat_sensors_2d", n=8, sensors=5)
     disc = p.disc

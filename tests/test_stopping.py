@@ -1,14 +1,14 @@
-"""Stopping rules that never see x (pdeinv.stopping), through the common trainer."""
+"""Stopping rules that never see x (pdeinv.training.stopping), through the common trainer."""
 
 import numpy as np
 import pytest
 import torch
 
 import pdeinv
-from pdeinv.checkpoint import Checkpoint
 from pdeinv.inverse import default_alpha, default_inverse
 from pdeinv.methods import SIP, sgd
-from pdeinv.stopping import DiscrepancyStop
+from pdeinv.training.checkpoint import Checkpoint
+from pdeinv.training.stopping import DiscrepancyStop
 
 STEPS = 1500
 

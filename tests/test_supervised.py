@@ -6,7 +6,7 @@ import torch
 
 import pdeinv
 from pdeinv.methods.presets import make_rule
-from pdeinv.targets import TrueFields
+from pdeinv.methods.targets import TrueFields
 
 
 def test_supervised_fits_the_true_fields_and_reports_the_y_loss():

@@ -1,4 +1,4 @@
-"""The y-only denoised target (pdeinv.targets) and the pieces SIP's defaults rest on."""
+"""The y-only denoised target (pdeinv.methods.targets) and the pieces SIP's defaults rest on."""
 
 import numpy as np
 import pytest
@@ -8,9 +8,9 @@ import pdeinv
 from pdeinv import references as refs
 from pdeinv.inverse import Discrepancy, SpectralTikhonov
 from pdeinv.methods.curvature import gauss_newton_max
-from pdeinv.physics.compiled import spectral_basis
-from pdeinv.targets import SpectralWiener
-from pdeinv.trainset import TEST_DATA, TRAIN_DATA, seed_stream
+from pdeinv.methods.targets import SpectralWiener
+from pdeinv.physics.backends.compiled import spectral_basis
+from pdeinv.training.trainset import TEST_DATA, TRAIN_DATA, seed_stream
 
 
 def _filtered_estimate(problem, fitted, y):

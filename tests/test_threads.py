@@ -1,10 +1,10 @@
-"""``--threads`` bounds every thread pool (:mod:`pdeinv.threads`): torch's and the BLAS/OpenMP pools."""
+"""``--threads`` bounds every thread pool (:mod:`pdeinv.util.threads`): torch's and the BLAS/OpenMP pools."""
 
 import torch
 
 from pdeinv import threads
 from pdeinv.cli import main
-from pdeinv.trainer import Trainer
+from pdeinv.training.trainer import Trainer
 
 
 def _counts():

@@ -17,7 +17,7 @@ import pdeinv
 from pdeinv.cli import main
 from pdeinv.methods import GD, HIG, SIP, adam, sgd
 from pdeinv.nets import MLP
-from pdeinv.trainer import Trainer
+from pdeinv.training.trainer import Trainer
 
 pytestmark = pytest.mark.usefixtures("one_thread")  # small dense work: one torch thread
 

@@ -1,4 +1,5 @@
-"""The energy a trained network puts where the physics cannot see (pdeinv.unseen), against the prior's."""
+"""The energy a trained network puts where the physics cannot see (pdeinv.training.unseen), against the
+prior's."""
 
 from __future__ import annotations
 
@@ -9,7 +10,7 @@ import torch
 import pdeinv
 from pdeinv import nets
 from pdeinv.methods import GD, sgd
-from pdeinv.unseen import FACTOR, SLACK, unseen_energy
+from pdeinv.training.unseen import FACTOR, SLACK, unseen_energy
 
 pytestmark = pytest.mark.usefixtures("one_thread")
 

@@ -1,4 +1,4 @@
-"""A run that ends worse than predicting zero is never reported as a success (pdeinv.verdict)."""
+"""A run that ends worse than predicting zero is never reported as a success (pdeinv.training.verdict)."""
 
 from __future__ import annotations
 
@@ -13,7 +13,7 @@ import pdeinv
 from pdeinv import nets
 from pdeinv.cli import main
 from pdeinv.methods import GD, sgd
-from pdeinv.verdict import FailedRun, failure
+from pdeinv.training.verdict import FailedRun, failure
 
 pytestmark = pytest.mark.usefixtures("one_thread")
 

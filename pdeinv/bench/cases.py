@@ -23,13 +23,13 @@ from functools import cache, partial
 import numpy as np
 import torch
 
-from .. import references as refs
-from ..autograd import apply
 from ..methods import GD, HIG, SIP, adam, sgd
 from ..methods.presets import make_rule
 from ..nets import MLP
-from ..problem import load_problem
-from ..trainer import Trainer
+from ..physics.bridge import apply
+from ..problem.definition import load_problem
+from ..training import references as refs
+from ..training.trainer import Trainer
 from .forward import exact_factor
 from .stress import Case
 

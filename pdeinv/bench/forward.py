@@ -18,7 +18,7 @@ import time
 import numpy as np
 
 from ..errors import TooManyModes
-from ..problem import load_problem
+from ..problem.definition import load_problem
 from .timing import best
 
 _COMMON = {"element", "T", "steps", "noise", "n", "mesh", "scheme", "backend", "prior"}

@@ -21,11 +21,11 @@ from dataclasses import dataclass, field
 
 import torch
 
-from ..checkpoint import network_identity
 from ..methods import NonFiniteError
 from ..methods.presets import hyperparameters, make_rule
 from ..nets import MLP, whitened
-from ..trainer import Trainer
+from ..training.checkpoint import network_identity
+from ..training.trainer import Trainer
 
 
 @dataclass(frozen=True)
@@ -76,7 +76,7 @@ def setup(problem, cand: Candidate, scale: float = 1.0, seed: int = 0):
 def train_once(problem, cand: Candidate, scale: float, seed: int, budget_s: float,
                n_train: int, n_test: int, eval_every: int) -> dict:
     """One run (with ``--stop auto``); a NaN/Inf is an outcome (``x_err = inf``), not a crash."""
-    from ..commands.train import STOPS
+    from ..cli.commands.train import STOPS
 
     rule, hp, model = setup(problem, cand, scale, seed)
     batch = None if hp["batch_size"] is None else min(hp["batch_size"], n_train)

@@ -18,9 +18,9 @@ from pathlib import Path
 
 import torch
 
-from .. import references as refs
-from ..files import atomic_write
-from ..trainset import TEST_DATA, TRAIN_DATA, seed_stream
+from ..training import references as refs
+from ..training.trainset import TEST_DATA, TRAIN_DATA, seed_stream
+from ..util.files import atomic_write
 from . import amortize, backends, forward, methods, plots, skips
 from .ratios import operator_ratios, step_ratios
 from .timing import machine
@@ -52,13 +52,13 @@ def bench(problem, out, quick: bool = False, budget_s: float | None = None, seed
     default: on a shared 2-core machine a second process stalls torch's 2-thread kernels at every
     barrier (Adam steps on heat_2d varied from 0.03 s to 1 s within one run).
     """
-    from .. import threads as pools
+    from ..util import threads as pools
 
     before = torch.get_num_threads()
     if threads is not None:
         if int(threads) < 1:
             raise ValueError(f"threads={threads!r} is not allowed; expected an integer >= 1")
-        pools.limit(int(threads))  # torch's and the BLAS/OpenMP pools (pdeinv.threads)
+        pools.limit(int(threads))  # torch's and the BLAS/OpenMP pools (pdeinv.util.threads)
     try:
         return _bench(problem, out, quick, budget_s, seed, log)
     finally:

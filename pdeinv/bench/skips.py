@@ -16,8 +16,8 @@ from __future__ import annotations
 import numpy as np
 import torch
 
-from ..autograd import apply
 from ..physics.base import LinearOperator
+from ..physics.bridge import apply
 from .timing import best, peak_bytes, stepping
 
 

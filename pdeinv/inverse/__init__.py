@@ -22,8 +22,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..physics.backends.compiled import spectral_basis
 from ..physics.capabilities import output_mass, reversible
-from ..physics.compiled import spectral_basis
 from ..physics.propagator import chosen
 from .alpha import Discrepancy, FixedAlpha, RelativeAlpha
 from .cg import TikhonovCG
@@ -62,7 +62,7 @@ def default_inverse(op, disc=None, noise: float = 0.0, alpha=None):
 
     * a spectral basis (``op.modes``: the modal heat backend, or a compiled SVD), or a compiled
       dense forward (``op.backend.P``, whose SVD in the problem's norms is then computed on the
-      first call, :class:`~pdeinv.physics.compiled.LazySVD`) → :class:`SpectralTikhonov`: the exact
+      first call, :class:`~pdeinv.physics.backends.compiled.LazySVD`) → :class:`SpectralTikhonov`: the exact
       Tikhonov filter per singular value (Morozov's α in closed form);
     * else reversible (``final_state`` and ``reverse``, e.g. :class:`~pdeinv.Wave` time stepping)
       → :class:`TimeReversal` (no α; exact at ``y₀``; two stepping runs).
@@ -79,12 +79,12 @@ def default_inverse(op, disc=None, noise: float = 0.0, alpha=None):
       when the operator knows it (else power iteration on first use).
 
     ``alpha`` defaults to the rounding level :func:`default_alpha` ``(0)`` where ``op`` has a spectral
-    basis: with noisy observations the trainer then fits a denoised target (:mod:`pdeinv.targets`),
+    basis: with noisy observations the trainer then fits a denoised target (:mod:`pdeinv.methods.targets`),
     the inverse sees no noise, and since the fixed point of SIP with any Tikhonov inverse is the
     least-squares solution of its target (``Pᵀ(t − Px) = 0``) α only sets the speed: α → 0 is
     Gauss–Newton, one step. Without a spectral basis no target is fitted, the inverse's α is the
     only regularization of each step, and it defaults to :func:`default_alpha` ``(noise)`` (the
-    iteration then semi-converges: a stopping rule ends it, :mod:`pdeinv.stopping`).
+    iteration then semi-converges: a stopping rule ends it, :mod:`pdeinv.training.stopping`).
     """
     M = getattr(op, "mass", None) if disc is None else disc.M
     chosen(op, M)  # an operator no one chose a backend for: compiled by auto, as training will use it

@@ -70,7 +70,7 @@ class RelativeAlpha:
 class Discrepancy:
     """Morozov's discrepancy principle: per sample, the α with ``ρ(α) = τ·‖ε‖`` expected.
 
-    Noise model of :func:`pdeinv.sampling.add_noise`: ``y = P x + δ·rms(Px)·ε``,
+    Noise model of :func:`pdeinv.problem.sampling.add_noise`: ``y = P x + δ·rms(Px)·ε``,
     ``ε ~ N(0, I)``. Residuals are measured in the **M-norm of the observation
     space** (the norm of the Tikhonov functional), where white noise has
     ``E‖δ·rms·ε‖²_M = δ²·rms(Px)²·tr(M_out)``. ``rms(Px)`` is estimated from the

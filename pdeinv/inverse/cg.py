@@ -32,8 +32,8 @@ from __future__ import annotations
 import numpy as np
 
 from .._checks import count, positive
+from ..fem.solvers import SuperLU
 from ..physics.capabilities import output_mass
-from ..solvers import SuperLU
 from ._inputs import given_forward, mass_norms, mass_trace, out, pair
 from .alpha import Fit, as_rule
 

@@ -8,9 +8,9 @@ Time reversal is such a map: ``P⁻¹_(x₀)(y) = R_u y + R_v v_T(x₀)`` (see
 it costs two BLAS products per batch instead of two stepping runs (a forward for
 ``v_T(x₀)``, then the reverse). ``G`` is built on the first call (GD and Adam never pay
 for it) from the inverse itself on identity columns
-(:func:`pdeinv.physics.compiled.matrix`: ``m + N`` calls, each a forward and a reverse
+(:func:`pdeinv.physics.backends.compiled.matrix`: ``m + N`` calls, each a forward and a reverse
 run), under the dense budget, through the disk cache when the operator has a
-:func:`~pdeinv.physics.compiled.fingerprint`. It agrees with the stepping inverse to
+:func:`~pdeinv.physics.backends.compiled.fingerprint`. It agrees with the stepping inverse to
 rounding (``tests/test_compiled.py``). Only for inverses linear in both arguments: a
 Tikhonov inverse with Morozov's α per sample is not.
 """
@@ -26,7 +26,7 @@ class CompiledInverse:
     """``x̃ = y G_yᵀ + x₀ G_xᵀ`` for rows, from ``inverse(y, x0)`` linear in ``(y, x0)``."""
 
     def __init__(self, inverse, n_out: int, n_in: int, parts: dict | None = None):
-        from ..physics.compiled import budget_gb
+        from ..physics.backends.compiled import budget_gb
 
         self.inverse, self.n_out, self.n_in = inverse, n_out, n_in
         need, have = 2 * 8 * n_in * (n_out + n_in) / 1e9, budget_gb()
@@ -38,7 +38,7 @@ class CompiledInverse:
     def matrices(self) -> tuple[np.ndarray, np.ndarray]:
         """``(G_yᵀ, G_xᵀ)``, built on first use (a run that never calls the inverse never pays)."""
         if self._G is None:
-            from ..physics.compiled import matrix
+            from ..physics.backends.compiled import matrix
 
             n_out, n_in, inverse = self.n_out, self.n_in, self.inverse
 
@@ -48,7 +48,7 @@ class CompiledInverse:
             if self._parts is None:
                 G = make()["G"]
             else:
-                from ..cache import cached
+                from ..util.cache import cached
 
                 G = cached("compiled_inverse", {**self._parts, "inverse": type(inverse).__name__,
                                                 "shape": [n_in, n_out + n_in]}, make)["G"]

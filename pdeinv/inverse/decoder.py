@@ -21,7 +21,7 @@ SVD would do only for ``x₀ ∈ span D``, and even then leaves a rounding resid
 
 Why it must be local (issue 32). The earlier map ``x̃ = D V diag(s/(s²+α)) Qᵀ y`` ignored ``x₀``: 4.5–11.6 %
 off ``x₀`` at ``y = P x₀`` on heat_2d, and SIP with η = 1 became a regression onto one fixed target
-(the trained default network equalled :func:`pdeinv.references.prior_wiener` to 3.3e-5). For
+(the trained default network equalled :func:`pdeinv.training.references.prior_wiener` to 3.3e-5). For
 ``x₀ = D c₀ ∈ span D`` the two differ by
 
     x̃_local − x̃_old = D (I − V diag(s²/(s²+α)) Vᵀ) c₀  →  D (I − V Vᵀ) c₀   (α → 0),
@@ -40,14 +40,15 @@ iterating removes: the effective cut-off after ``k`` steps is ``≈ α/k``. Meas
 and heat_cavity_3d 0.00795 → 0.0127, where the regularized fixed point was better than the
 least-squares one (see the α paragraph: α = 0 gave 0.0047 on heat_3d). The noise-free target is
 therefore the rounding-level Tikhonov filter in the basis of ``P̂`` (``t = Q diag(s²/(s²+α)) Qᵀ y*``,
-:meth:`pdeinv.targets.SpectralWiener.rounding`, the trainer's default): it puts that regularization back
+:meth:`pdeinv.methods.targets.SpectralWiener.rounding`, the trainer's default): it puts that
+regularization back
 where the contract allows it, in what is matched, and gives the old figures to three digits (heat_3d 0.00333,
 heat_cavity_3d 0.00795, heat_2d 0.00156, heat_1d 0.00398).
 
 α is rounding-level, ``α = rel_alpha · s_max²`` (1e-24: singular values resolved to 1e-12 of the
 largest, so float64 rounding in the residual (ε ≈ 2e-16 of ``‖y‖``) reaches a coefficient amplified by at
 most ``ε/(2·1e-12) ≈ 1e-4``; noisy observations are denoised before, by the trainer's target,
-:mod:`pdeinv.targets`, in the same basis). Measured with the earlier global map (SIP, CLI defaults,
+:mod:`pdeinv.methods.targets`, in the same basis). Measured with the earlier global map (SIP, CLI defaults,
 noise-free, rel_alpha 1e-16 → 1e-24): heat_2d 0.0076 → 0.0016, heat_3d 0.0122 → 0.0033 (1e-20:
 0.0062; 0, i.e. every singular value above the SVD's rounding: 0.0047, rounding amplified), heat_1d
 0.0146 → 0.0040, heat_sensors_2d 0.0108 → 0.0039, heat_sensors_3d 0.048 → 0.027, heat_cavity_3d

@@ -1,7 +1,7 @@
 """Local inverse in a spectral basis: the Tikhonov filter ``g/(g² + α)`` per mode.
 
 Written for the modal backend ``P = Φ diag(g) ΦᵀM`` (``ΦᵀMΦ = I``, ``g = r(dt μ)ⁿ`` on the
-kept modes, :mod:`pdeinv.physics.modal`); any :class:`~pdeinv.physics.capabilities.Spectral`
+kept modes, :mod:`pdeinv.physics.backends.modal`); any :class:`~pdeinv.physics.capabilities.Spectral`
 basis (a compiled SVD) works the same way with ``proj``, ``synth`` in place of ``MΦ``, ``Φ``. The
 regularized change
 
@@ -47,9 +47,9 @@ from .alpha import Fit, as_rule
 class SpectralTikhonov:
     """``P⁻¹_(x₀, Px₀)(y) = x₀ + synth (g/(g²+α) ⊙ c)``, ``c = (y − Px₀) proj``, for any operator
     with a spectral basis ``op.modes`` or one given as ``modes`` (``g``, ``proj``, ``out``, ``synth``,
-    ``mass_out``; :class:`~pdeinv.physics.compiled.LazySVD` for a dense forward):
+    ``mass_out``; :class:`~pdeinv.physics.backends.compiled.LazySVD` for a dense forward):
     the modal heat backend (``proj = MΦ``, ``out = synth = Φ``) or a compiled SVD
-    (:mod:`pdeinv.physics.compiled`: ``proj = L_o U``, ``out = L_o⁻ᵀ U``, ``synth = L⁻ᵀ V``).
+    (:mod:`pdeinv.physics.backends.compiled`: ``proj = L_o U``, ``out = L_o⁻ᵀ U``, ``synth = L⁻ᵀ V``).
 
     ``alpha``: a number (absolute α) or a rule (:class:`~.alpha.Discrepancy`,
     :class:`~.alpha.RelativeAlpha`). After each call ``last_info`` holds the α used. Declares

@@ -10,7 +10,7 @@ parameters; applying it is someone else's job (:mod:`.guard`, the trainer)::
 
 ``y`` is a batch of target observations ``y*`` (torch, ``(B, n_out)``), the network's input; an
 optional ``target`` (same shape) is what ``P f(y*)`` must match instead of ``y*`` (a denoised
-``y*``, :mod:`pdeinv.targets`; the trainer passes it only when it has one);
+``y*``, :mod:`pdeinv.methods.targets`; the trainer passes it only when it has one);
 ``update.direction`` holds one tensor per trainable parameter (in
 ``model.parameters()`` order, ``None`` for one the rule leaves alone) and
 ``update.info`` at least ``loss`` — the y-loss of the batch *before* the update,
@@ -30,15 +30,14 @@ the one place that does it for every rule; :mod:`.guard` imports nothing from he
 
 from __future__ import annotations
 
-import inspect
 from collections.abc import Callable
 from functools import partial
-from typing import Any, NamedTuple, Protocol, runtime_checkable
+from typing import Any, ClassVar, NamedTuple, Protocol
 
 import torch
 
-from ..checkpoint import plain
 from ..errors import NonFiniteError  # noqa: F401  (re-exported)
+from ..util.files import plain
 from . import guard
 from .guard import describe, finite, trainable  # noqa: F401  (re-exported)
 
@@ -71,19 +70,11 @@ class UpdateRule(Protocol):
                target: torch.Tensor | None = None) -> Update: ...
 
 
-def takes_target(rule) -> bool:
-    """Whether ``rule.update`` accepts ``target=`` (the built-in rules do; a user's rule written to the
-    three-argument protocol does not, and keeps working on ``y``)."""
-    try:
-        return "target" in inspect.signature(rule.update).parameters
-    except (TypeError, ValueError):  # no signature to read: assume the minimal protocol
-        return False
-
-
-@runtime_checkable
 class Resumable(Protocol):
-    """A rule whose run can be checkpointed: its state saved and restored, and every hyper-parameter
-    a resumed run must share named."""
+    """A rule whose run can be checkpointed (declared by ``resumable = True``, :mod:`.protocol`): its
+    state saved and restored, and every hyper-parameter a resumed run must share named."""
+
+    resumable: bool
 
     def state_dict(self, state) -> dict: ...
 
@@ -159,7 +150,24 @@ def gradient(loss: torch.Tensor, model: torch.nn.Module) -> tuple[torch.Tensor |
 
 class Rule:
     """``init``, one-off ``step``, ``state_dict`` / ``load_state_dict`` and ``hyperparameters`` for
-    rules that define ``context(problem, model)``, ``update``, ``transform`` and ``settings()``."""
+    rules that define ``context(problem, model)``, ``update``, ``transform`` and ``settings()``; and the
+    declarations the trainer asks (:mod:`.protocol`), here with their defaults."""
+
+    #: ``update`` takes ``target=`` (what ``P f(y)`` must match instead of ``y``)
+    accepts_target: ClassVar[bool] = True
+    #: ``state_dict`` / ``load_state_dict`` / ``hyperparameters`` restore a run
+    resumable: ClassVar[bool] = True
+
+    def default_target(self):
+        """The target strategy ``target="auto"`` means for this rule; ``None``: the trainer's default
+        (:class:`~pdeinv.methods.targets.SpectralWiener`)."""
+        return None
+
+    def data_parallel(self, sum_over: Callable, processes: int) -> Rule | None:
+        """The rule to run on each of ``processes`` data-parallel ranks (``sum_over`` sums numpy arrays
+        over them), whose directions the ranks then average; ``None``: it cannot run so. Default:
+        itself, for a direction that is a mean over the batch's rows (GD, Adam, SIP); HIG overrides."""
+        return self
 
     def init(self, problem, model: torch.nn.Module) -> State:
         return State(self.context(problem, model), self.transform.init(trainable(model)))

@@ -7,7 +7,7 @@ from dataclasses import dataclass, field
 
 import torch
 
-from ..autograd import apply
+from ..physics.bridge import apply
 from .base import OptimizerFactory, Rule, State, Update, gradient, prediction, sgd, y_loss
 from .curvature import checked, gauss_newton_max, operator_norm2
 from .transforms import OptimizerStep
@@ -75,7 +75,7 @@ class GD(Rule):
         if self.normalize and lam is None:
             raise ValueError("GD(normalize=True) needs its curvature: call state = rule.calibrate(state, "
                              "model, y) on a first batch (pdeinv.Trainer and rule.step do)")
-        goal = y_target if target is None else target  # what P f(y*) must match (pdeinv.targets)
+        goal = y_target if target is None else target  # what P f(y*) must match (pdeinv.methods.targets)
         loss = y_loss(apply(op, prediction(model(y_target))), goal)
         value = float(loss.detach())
         if not math.isfinite(value):  # no backward through it: the guard refuses the update

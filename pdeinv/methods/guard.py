@@ -23,7 +23,7 @@ resumes bitwise. Copying every step cost 4.6 ms of a 45 ms Adam step on heat_2d'
 tested with one sum per tensor (NaN and Inf propagate through it; the entrywise test runs only when
 the sum is not finite).
 
-**Policy** (:class:`Guard`; the trainer, :mod:`pdeinv.trainer`, only reports):
+**Policy** (:class:`Guard`; the trainer, :mod:`pdeinv.training.trainer`, only reports):
 
 1. every rejection rolls back to the last good state and multiplies the step size by ``step_factor``
    (½; a test-set blow-up found by the trainer's evaluation also by its overshoot);
@@ -73,15 +73,16 @@ def describe(t: torch.Tensor) -> str:
 
 
 def resumable(rule) -> bool:
-    """Whether ``rule`` saves and restores its state (looked up on the object, so a wrapper that
-    forwards through ``__getattr__`` counts: ``isinstance(_, Resumable)`` does not from Python 3.12)."""
-    return callable(getattr(rule, "state_dict", None)) and callable(getattr(rule, "load_state_dict", None))
+    """Whether ``rule`` saves and restores its state: its declaration (:mod:`pdeinv.methods.protocol`;
+    the guard takes declared rules only)."""
+    return rule.resumable
 
 
 def apply_if_finite(rule, state, model: torch.nn.Module, y: torch.Tensor, scale: float = 1.0,
                     max_loss: float = math.inf, snapshot: Snapshot | None = None,
                     target: torch.Tensor | None = None):
-    """One step of ``rule`` on batch ``y`` (with ``target`` if given, :mod:`pdeinv.targets`): ``(state,
+    """One step of ``rule`` on batch ``y`` (with ``target`` if given, :mod:`pdeinv.methods.targets`):
+    ``(state,
     info)``; refuses a non-finite loss or update, or a loss above ``max_loss``; ``snapshot`` keeps the
     verified pre-step state (module docstring)."""
     direction, info = rule.update(state, model, y) if target is None else \
@@ -101,7 +102,7 @@ def apply_if_finite(rule, state, model: torch.nn.Module, y: torch.Tensor, scale:
 def step(rule, state, model: torch.nn.Module, y: torch.Tensor):
     """One guarded update at full step size, calibrating the rule first on its first step: ``(state,
     info)`` (one-off use, e.g. ``rule.step``; a run uses a :class:`Guard`)."""
-    if state.steps == 0 and callable(getattr(rule, "calibrate", None)):
+    if state.steps == 0:
         state = rule.calibrate(state, model, y)
     return apply_if_finite(rule, state, model, y)
 

@@ -17,12 +17,12 @@ No per-scene table: every step size follows from the maths.
   kept directions, so one step solves it; with minibatches of 32 the test variance along the
   trailing whitened directions was 1e4–1e7 times the batch's on wave_2d and the unconverged
   error was amplified by as much (x-error 0.35 against < 5e-6 full batch, 3 steps). Noisy data
-  need no other setting: the trainer fits a denoised target (:mod:`pdeinv.targets`).
+  need no other setting: the trainer fits a denoised target (:mod:`pdeinv.methods.targets`).
 * **gd**: plain SGD at lr 1 on the gradient normalized by ``λ_max(PᵀP)·λ_max(JᵀJ/B)`` (the stable
   step, :class:`~.gd.GD`): stable on every scene, slow on smoothing ones (it is Landweber).
 * **adam**: lr 1e-3 on the raw gradient (Adam is scale-invariant), batch 32.
 * gd and adam train the default network with **one whitened direction per 8 training rows**
-  (``rows_per_component=8``, :class:`~pdeinv.precondition.Whitening`): a first-order rule stops
+  (``rows_per_component=8``, :class:`~pdeinv.nets.whitening.Whitening`): a first-order rule stops
   far from the least-squares map, and whatever weight it leaves on the trailing whitened
   directions is amplified on new data wherever the observations fill about as many directions
   as there are training rows (wave_2d: 961 of 1024; the sample covariance's smallest eigenvalues
@@ -65,7 +65,7 @@ from __future__ import annotations
 from .._checks import positive
 from .base import adam, sgd
 from .gd import GD, GD_LR
-from .hig import HIG
+from .hig.rule import HIG
 from .names import METHOD_NAMES
 from .sip import SIP
 from .supervised import Supervised
@@ -82,7 +82,7 @@ METHODS = {
     "sip": lambda hp: SIP(eta=hp["eta"], optimizer=OPTIMIZERS[hp["optimizer"]][0](hp["lr"]),
                           normalize=OPTIMIZERS[hp["optimizer"]][1]),
     "hig": lambda hp: HIG(eta=hp["eta"], tau=hp["tau"]),
-    "supervised": lambda hp: Supervised(optimizer=sgd(hp["lr"])),  # needs x (pdeinv.targets.TrueFields)
+    "supervised": lambda hp: Supervised(optimizer=sgd(hp["lr"])),  # needs x (targets.TrueFields)
 }
 assert sorted(METHODS) == sorted(METHOD_NAMES), "add the method's name to methods/names.py too"
 

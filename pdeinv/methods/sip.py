@@ -13,7 +13,7 @@ import torch
 from .._checks import positive
 from ..inverse.protocol import ReusesForward
 from ..physics.base import LinearOperator
-from ..problem import Problem
+from ..problem.definition import Problem
 from .base import OptimizerFactory, Rule, State, Update, check_finite, gradient, prediction, sgd, y_loss
 from .curvature import checked, gauss_newton_max
 from .transforms import OptimizerStep
@@ -41,7 +41,7 @@ def decoder_inverse(problem, model):
     where observations are exact or a denoised target will be fitted; ``None`` otherwise (the
     problem's own inverse)."""
     from ..inverse.decoder import DecoderTikhonov
-    from ..targets import SpectralWiener
+    from .targets import SpectralWiener
 
     lin = getattr(model, "linear_in_parameters", None)
     lin = lin() if callable(lin) else None

@@ -11,7 +11,8 @@ the network's Gauss–Newton diagonal and largest eigenvalue, measured once). Th
 lr 1 on the full batch, is then one exact least-squares step on a network linear in its parameters
 (the whitened map: the empirical linear MMSE of the training pairs; the prior decoder: its
 least-squares fit in the decoder's span). ``x`` reaches the rule as its ``target``
-(:class:`pdeinv.targets.TrueFields`, what ``target="auto"`` means for this rule), so it trains through
+(:class:`pdeinv.methods.targets.TrueFields`, what ``target="auto"`` means for this rule), so it trains
+through
 the common trainer like every other rule. The physics is not differentiated: it runs forward once per
 step (no gradient) for the y-loss every rule reports (:mod:`.base`). A hybrid of a physics rule and
 this one is not offered yet.
@@ -43,7 +44,7 @@ class Supervised(SIP):
 
     def default_target(self):
         """What ``target="auto"`` fits for this rule: the training rows' true fields."""
-        from ..targets import TrueFields
+        from .targets import TrueFields
 
         return TrueFields()
 
@@ -51,7 +52,7 @@ class Supervised(SIP):
                target: torch.Tensor | None = None) -> Update:
         if target is None:
             raise ValueError("Supervised needs the training rows' true fields as its target: keep "
-                             "target='auto' (pdeinv.targets.TrueFields) and give data with x")
+                             "target='auto' (pdeinv.methods.targets.TrueFields) and give data with x")
         op, _, curvature, diagonal, _ = state.context
         x = prediction(model(y_target))
         if target.shape != x.shape:

@@ -1,9 +1,9 @@
 """Linear evolution operators with exact discrete adjoints: scheme × observation, one propagator."""
 
+from .backends.modal import Modal
 from .base import LinearOperator, Matrix, Transposed
 from .heat import Heat
 from .leapfrog import Leapfrog
-from .modal import Modal
 from .propagator import FinalField, Propagator, Records, sensors
 from .wave import Wave
 

@@ -17,9 +17,9 @@ from __future__ import annotations
 import numpy as np
 
 from .._checks import choice, count, positive
-from ..solvers import default_solver, solver_for
-from .modal import weyl_count
-from .modes import largest_eigenvalue
+from ..fem.solvers import default_solver, solver_for
+from .backends.modal import weyl_count
+from .backends.modes import largest_eigenvalue
 from .propagator import FinalField, Propagator
 from .schemes import Theta
 
@@ -32,7 +32,7 @@ class Heat(Propagator):
     ``M``, ``K``: condensed mass and stiffness (sparse, symmetric); ``scheme``: 'be' or 'cn';
     ``backend``: 'auto', 'steps', 'modal', 'dense', 'svd' or a backend object; ``solver``: factory
     ``A -> object with solve`` (default:
-    :func:`~pdeinv.solvers.default_solver` for a ``dim``-D mesh: AMG-CG above its crossover, else
+    :func:`~pdeinv.fem.solvers.default_solver` for a ``dim``-D mesh: AMG-CG above its crossover, else
     Cholesky if cholespy is installed, else SuperLU); ``tol``: relative amplification below which
     modes are dropped (modal backend); ``measure``: |Ω|, for Weyl's count of the modes;
     ``C``: a matrix added to ``κK`` (convection: then no modal form; a reaction ``rM``: modal).

@@ -16,7 +16,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from .._checks import count, positive
-from .modes import largest_eigenvalue
+from .backends.modes import largest_eigenvalue
 from .propagator import FinalField, Propagator
 from .schemes import Leapfrog as LeapfrogStep
 

@@ -95,9 +95,9 @@ class Propagator(LinearOperator):
         ``self.mass``; Euclidean for records), 'modal' (a symmetric θ-scheme's final field, in its own
         mass, :mod:`.modal`), 'steps' (none) or 'auto' (:func:`.compiled.plan` by the cost of a run)."""
         from ..errors import TooManyModes
-        from . import modal
+        from .backends import modal
+        from .backends.compiled import build, fingerprint, in_cache, plan
         from .capabilities import reversible
-        from .compiled import build, fingerprint, in_cache, plan
 
         kind = one_of(kind, "backend", ("auto", "steps", "modal", "dense", "svd"))
         why = f"backend={kind!r} requested"
@@ -122,7 +122,7 @@ class Propagator(LinearOperator):
             adjoint=self._step_adjoint if low_rank else None), why)
 
     def _modal(self, why: str) -> Propagator:
-        from .modal import Modal
+        from .backends.modal import Modal
 
         basis = Modal(self)
         return self._use(basis, f"{why}; {basis.k} of {self.n_in} modes kept")

@@ -26,7 +26,7 @@ from __future__ import annotations
 import numpy as np
 import scipy.sparse as sp
 
-from ..solvers import is_symmetric
+from ..fem.solvers import is_symmetric
 
 
 class _Implicit:

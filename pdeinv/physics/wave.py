@@ -12,7 +12,7 @@ from __future__ import annotations
 import numpy as np
 
 from .._checks import batch, count, positive
-from ..solvers import SuperLU
+from ..fem.solvers import SuperLU
 from .propagator import FinalField, Propagator
 from .schemes import Newmark
 

@@ -1,0 +1,87 @@
+"""Command line: ``pdeinv demo | train | ...``, one module per subcommand in :mod:`pdeinv.cli.commands`.
+
+Errors a user can fix (bad settings, missing files, an ``--out`` folder another run
+holds) end with exit code 2 and a one-line message on stderr, never a traceback; a
+numerical failure on valid input (:mod:`pdeinv.errors`) or running out of memory ends
+with exit code 1 and one line that says what to change; a training run that failed its
+final check (:mod:`pdeinv.training.verdict`: worse than predicting zero) ends with exit code 3 and one
+line after writing its files, unless ``--accept-bad``; Ctrl-C ends with 130 and one
+line. Any other exception is a bug and keeps its traceback.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import pkgutil
+import sys
+
+from ..errors import numerical_types
+from ..util.runlock import FolderLocked
+from . import commands
+from .commands import UsageError, parse_sets
+
+__all__ = ["UsageError", "build_parser", "main", "parse_sets"]
+
+
+def command_modules() -> list:
+    """Every module in :mod:`pdeinv.cli.commands` with an ``add_parser``, ordered by its ``ORDER``."""
+    found = [importlib.import_module(f"{commands.__name__}.{m.name}")
+             for m in pkgutil.iter_modules(commands.__path__)]
+    found = [m for m in found if hasattr(m, "add_parser")]
+    return sorted(found, key=lambda m: (getattr(m, "ORDER", 100), m.__name__))
+
+
+def build_parser() -> argparse.ArgumentParser:
+    from .. import __version__
+
+    p = argparse.ArgumentParser(prog="pdeinv", description="PDE inverse problems on finite elements.")
+    p.add_argument("--version", action="version", version=f"pdeinv {__version__}")
+    sub = p.add_subparsers(dest="command", required=True)
+    for module in command_modules():
+        module.add_parser(sub)
+    return p
+
+
+#: the seeds every command accepts: numpy's SeedSequence and torch.manual_seed both take these
+SEED_MAX = 2**32 - 1
+
+
+def check_common(args) -> None:
+    """Options several subcommands share, checked once before any work: ``--seed`` in
+    ``0..2³²−1``, ``--max-memory-gb`` > 0 (set as :mod:`pdeinv.util.memory`'s budget)."""
+    seed = getattr(args, "seed", None)
+    if seed is not None and not 0 <= seed <= SEED_MAX:
+        raise UsageError(f"--seed {seed} is not allowed; expected an integer from 0 to {SEED_MAX}")
+    from ..util import memory
+
+    memory.set_budget(getattr(args, "max_memory_gb", None))  # None: the default (each call anew)
+
+
+def main(argv=None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    try:
+        check_common(args)
+        return args.func(args)
+    except numerical_types() as err:  # before ValueError: numpy's LinAlgError is one
+        print(f"pdeinv {args.command}: numerical failure: {err}", file=sys.stderr)
+        return 1
+    except (UsageError, FolderLocked, ValueError, FileNotFoundError, NotImplementedError) as err:
+        print(f"pdeinv {args.command}: error: {err}", file=sys.stderr)
+        return 2
+    except MemoryError as err:
+        print(f"pdeinv {args.command}: out of memory: {err or 'no message'}; use a coarser mesh, a smaller "
+              "batch or fewer samples", file=sys.stderr)
+        return 1
+    except KeyboardInterrupt:  # `train` reports its checkpoint itself and returns 130
+        print(f"pdeinv {args.command}: interrupted", file=sys.stderr)
+        return 130
+    finally:
+        from ..util.threads import restore
+
+        restore()  # --threads bounded the BLAS pools for this command only
+
+
+if __name__ == "__main__":
+    sys.exit(main())

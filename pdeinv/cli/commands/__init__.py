@@ -1,0 +1,125 @@
+"""One module per ``pdeinv`` subcommand; each exposes ``add_parser(subparsers)``.
+
+``pdeinv.cli`` finds them by themselves (sorted by a module-level ``ORDER``).
+``add_parser`` registers the subcommand's arguments and sets ``func`` (``args -> exit code``).
+Modules import their heavy dependencies inside ``func`` so ``pdeinv --help`` stays fast.
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+
+class UsageError(Exception):
+    """A user mistake the CLI reports in one line (exit code 2)."""
+
+
+def parse_sets(pairs: list[str]) -> dict:
+    """``["kappa=0.02", "mesh=f.msh"]`` -> ``{"kappa": "0.02", ...}`` (problems coerce types)."""
+    out = {}
+    for item in pairs or []:
+        key, sep, value = item.partition("=")
+        if not sep or not key:
+            raise UsageError(f"--set {item!r} is not KEY=VALUE")
+        out[key.strip()] = value.strip()
+    return out
+
+
+def add_set_argument(parser) -> None:
+    parser.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
+                        help="problem override, e.g. --set kappa=0.02 --set n=32")
+
+
+def add_memory_argument(parser) -> None:
+    parser.add_argument("--max-memory-gb", type=float, default=None, metavar="GB",
+                        help="refuse a run whose estimated memory exceeds GB (default: half of the "
+                             "available memory; see pdeinv/util/memory.py)")
+
+
+def build_problem(command: str, name: str, sets: list[str], after_s: float = 1.0, steps: int | None = None):
+    """``pdeinv.load_problem(name, **parse_sets(sets))``, saying on stderr what it builds when that
+    takes longer than ``after_s`` seconds (one line, then its time): a large mesh or a modal basis
+    can take minutes. ``steps``: the training steps the run will take, for the backend's cost
+    model (:func:`pdeinv.physics.backends.compiled.expecting`; ``None``: its default)."""
+    import sys
+    import threading
+    import time
+
+    import pdeinv
+    from pdeinv.physics.backends.compiled import expecting
+
+    overrides = parse_sets(sets)
+    what = f"{name} ({', '.join(f'{k}={v}' for k, v in overrides.items())})" if overrides else name
+    t0 = time.perf_counter()
+    timer = threading.Timer(after_s, lambda: print(f"pdeinv {command}: building {what}…", file=sys.stderr,
+                                                   flush=True))
+    timer.daemon = True
+    timer.start()
+    try:
+        with expecting(steps=steps):
+            problem = pdeinv.load_problem(name, **overrides)
+    finally:
+        timer.cancel()
+    took = time.perf_counter() - t0
+    if took > after_s:
+        print(f"pdeinv {command}: built {problem.name} ({problem.N} unknowns) in {took:.1f} s",
+              file=sys.stderr, flush=True)
+    return problem
+
+
+def run_parser(sub, name: str, help: str, quick: str):
+    """A subcommand parser with the arguments every sweep shares: PROBLEM, ``--out DIR``, ``--quick``."""
+    p = sub.add_parser(name, help=help)
+    p.add_argument("problem")
+    p.add_argument("--out", required=True, metavar="DIR")
+    p.add_argument("--quick", action="store_true", help=quick)
+    add_memory_argument(p)
+    return p
+
+
+def out_path(text: str, flag: str = "--out") -> Path:
+    """``--out`` as a path, refusing an empty one (it would silently mean the current folder)."""
+    if not str(text).strip():
+        raise UsageError(f"{flag} {text!r} is empty; expected a path")
+    return Path(text)
+
+
+def not_an_input(outputs, inputs) -> None:
+    """Refuse an output path that resolves to an input file (it would be overwritten or deleted)."""
+    ins = {Path(p).resolve(): name for name, p in inputs if p}
+    for name, p in outputs:
+        if p and Path(p).resolve() in ins:
+            raise UsageError(f"{name} {str(p)!r} is the same file as {ins[Path(p).resolve()]}: writing it "
+                             "would destroy that input; choose another path")
+
+
+def prepare_out(out) -> None:
+    """Refuse an ``--out`` that is a file; create the folder and prove it writable before any work."""
+    import tempfile
+
+    if out.exists() and not out.is_dir():
+        raise UsageError(f"--out {str(out)!r} is a file; expected a directory")
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+        with tempfile.TemporaryFile(dir=out):
+            pass
+    except OSError as err:
+        raise UsageError(f"--out {str(out)!r} is not a writable directory ({err.strerror or err}); "
+                         "choose another --out") from None
+
+
+def set_threads(n: int) -> None:
+    """``--threads``: torch's threads and every BLAS/OpenMP pool (:func:`pdeinv.util.threads.limit`), n >=
+    1."""
+    if n < 1:
+        raise UsageError(f"--threads {n} is not allowed; expected an integer >= 1")
+    from pdeinv.util.threads import limit
+
+    limit(n)
+
+
+def no_cache(args) -> None:
+    """``--no-cache``: ``PDEINV_NO_CACHE=1`` for this process (:mod:`pdeinv.util.cache` then recomputes)."""
+    if getattr(args, "no_cache", False):
+        os.environ["PDEINV_NO_CACHE"] = "1"

@@ -1,0 +1,50 @@
+"""The ``--out`` folder of ``pdeinv train`` while it trains: a previous run's files replaced only once
+this run writes (``--overwrite``), and ``history.csv`` rewritten with every checkpoint.
+
+What the folder holds when the run ends is :mod:`pdeinv.io.runs`. No torch at import: the CLI imports
+every module of :mod:`pdeinv.cli.commands` to build its parser.
+"""
+
+from __future__ import annotations
+
+
+class Fresh:
+    """``--overwrite``: delete the previous run's files once, just before this run writes its first
+    file, so a run refused while setting up (a bad setting, a memory estimate) leaves them intact and
+    one that trained never leaves a mix of two runs."""
+
+    def __init__(self, out, enabled: bool):
+        self.out, self.pending = out, enabled
+
+    def __call__(self) -> None:
+        if self.pending:
+            from pdeinv.io.runs import clear_outputs
+
+            clear_outputs(self.out)
+            self.pending = False
+
+
+class FolderCheckpoint:
+    """The run folder's :class:`~pdeinv.training.checkpoint.Checkpoint` (its ``path``, ``every``, ``exists``,
+    ``load``), whose ``save`` calls ``fresh()`` first and writes ``history.csv`` beside it after (the
+    history grows with the run, not only at its end)."""
+
+    def __init__(self, path, every: int, fresh):
+        from pdeinv.training.checkpoint import Checkpoint
+
+        self.checkpoint, self.fresh = Checkpoint(path, every), fresh
+        self.path, self.every = self.checkpoint.path, self.checkpoint.every
+
+    def exists(self) -> bool:
+        return self.checkpoint.exists()
+
+    def load(self) -> dict:
+        return self.checkpoint.load()
+
+    def save(self, payload: dict) -> None:
+        from pdeinv.util.files import write_csv
+
+        self.fresh()
+        self.checkpoint.save(payload)
+        if payload.get("history"):
+            write_csv(payload["history"], self.path.parent / "history.csv")

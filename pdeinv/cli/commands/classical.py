@@ -1,0 +1,105 @@
+"""``pdeinv classical PROBLEM --data F.npz``: the classical solves of a data file, to compare a run with.
+
+Reads ``y`` (and ``x`` if present) like ``pdeinv train --data`` (:func:`pdeinv.training.data.read_npz`) and
+reconstructs every row with what needs no training:
+
+* **Tikhonov with Morozov's α** (x-free): the problem's inverse (:func:`pdeinv.inverse.default_inverse`)
+  with :class:`~pdeinv.inverse.Discrepancy` at the noise level — the problem's (``--set noise=``), else
+  the file's, else estimated from the file (:func:`pdeinv.estimate_noise`; a rounding-level estimate
+  is 0). A noise-free file gets the noise-free α instead (``tikhonov_noise_free``,
+  :data:`pdeinv.inverse.NOISE_FREE_REL_ALPHA` of the largest ``g²``);
+* **the y-only Wiener target** (x-free, noisy files, where the operator has a spectral basis): what
+  ``pdeinv train`` fits the physics to (:mod:`pdeinv.methods.targets`), solved in closed form;
+* **the prior Wiener estimate** (x-free): the same filter in the basis of ``P D``, ``D`` the prior's
+  principal components (:func:`pdeinv.training.references.prior_wiener`): what the default network converges
+  to where the operator is not reversible; it assumes the problem's prior describes the data;
+* with ``x``: **best-α Tikhonov** (the oracle α, chosen with the file's x), the **linear MMSE**
+  fitted on the file's own x (:func:`pdeinv.training.references.mmse`, noise variance from the level above:
+  an oracle too, the best linear estimate for data distributed as the file) and the data's
+  **model mismatch** ``mean ‖P x − y‖/‖y‖`` (:func:`pdeinv.training.data.model_mismatch`).
+
+Prints one line per solve (x-error with x, and the relative residual ``mean ‖P x̂ − y‖/‖y‖``) and
+writes them to ``--out`` (JSON) if given; x-errors are relative L²(Ω) over all the file's rows
+(a run's ``x_err`` is over its test rows: compare on the same rows).
+"""
+
+from __future__ import annotations
+
+import json
+import sys
+
+from . import add_set_argument, build_problem, not_an_input, out_path, set_threads
+
+ORDER = 2
+
+
+def cmd_classical(args) -> int:
+    import numpy as np
+
+    from pdeinv.inverse import NOISE_FREE_REL_ALPHA, Discrepancy, default_alpha, default_inverse
+    from pdeinv.inverse.noise import estimate_noise
+    from pdeinv.methods.targets import SpectralWiener
+    from pdeinv.training import references
+    from pdeinv.training.data import model_mismatch, read_meta, read_npz
+    from pdeinv.util.files import atomic_write
+
+    out = out_path(args.out) if args.out is not None else None
+    if out is not None:
+        not_an_input([("--out", args.out)], [("--data", args.data)])
+    set_threads(args.threads)
+    problem = build_problem("classical", args.problem, args.set)
+    y, x = read_npz(args.data, problem.operator.n_out, problem.N)
+    declared = read_meta(args.data, problem.points).get("noise")
+    noise = problem.noise or declared or (estimate_noise(y) if min(y.shape) >= 4 else 0.0)
+    source = "the problem's" if problem.noise else "the file's" if declared else "estimated from the file"
+    if not noise:  # rounding is no noise level (pdeinv.inverse.noise.ROUNDING_LEVEL): the noise-free branch
+        source += " (noise-free)"
+
+    def err(xh) -> dict:
+        """x-error (with x) and the relative residual ``mean ‖P x̂ − y‖/‖y‖`` (always)."""
+        res = np.linalg.norm(problem.operator.forward(xh) - y, axis=1) / np.linalg.norm(y, axis=1)
+        return {"x_err": None if x is None else float(np.mean(problem.relative_error(xh, x))),
+                "residual": float(np.mean(res))}
+
+    zeros = np.zeros((len(y), problem.N))
+    rows = {"noise": {"level": noise, "source": source}}
+    if noise > 0:
+        inv = default_inverse(problem.operator, getattr(problem, "disc", None), noise, Discrepancy(noise))
+        rows["tikhonov_morozov"] = err(inv(y, zeros))
+        fitted = SpectralWiener().fit(problem, y, noise)
+        if fitted is not None:
+            rows["wiener_target"] = {**err(problem.inverse(fitted(y), zeros)), "kept": fitted.info["kept"],
+                                     "modes": fitted.info["modes"]}
+    else:
+        inv = default_inverse(problem.operator, getattr(problem, "disc", None), 0.0, default_alpha(0.0))
+        rows["tikhonov_noise_free"] = {**err(inv(y, zeros)), "alpha_rel": NOISE_FREE_REL_ALPHA}
+    if getattr(problem, "sampler", None) is not None:
+        estimate, info = references.prior_wiener(problem, y, noise)
+        rows["prior_wiener"] = {**err(estimate(y)), **info}
+    if x is not None:
+        best = references.tikhonov_best(problem, y, x)
+        rows["tikhonov_best_alpha"] = {"x_err": best["x_err"], "alpha_rel": best["alpha_rel"]}
+        if len(x) >= 2:  # the linear MMSE with the file's own x as the prior: an oracle like the α above
+            sigma2 = noise**2 * float(np.mean(problem.operator.forward(x) ** 2))
+            estimate, info = references.mmse(problem, x, sigma2)
+            rows["mmse_oracle"] = {**err(estimate(y)), "sigma2_rule": info["sigma2_rule"]}
+        rows["model_mismatch"] = model_mismatch(problem.operator, x, y)
+    for name, value in rows.items():
+        print(f"{problem.name} {name}: {json.dumps(value)}")
+    if out is not None:
+        text = json.dumps({"problem": problem.name, "data": str(args.data), "rows": len(y), **rows}, indent=2)
+        atomic_write(out, lambda fh: fh.write(text.encode()))
+    sys.stdout.flush()
+    return 0
+
+
+def add_parser(sub) -> None:
+    c = sub.add_parser("classical", help="Tikhonov (Morozov α, best α with x), the Wiener target, the "
+                                         "MMSE and the model mismatch of a data file: what a trained run is "
+                                         "compared with")
+    c.add_argument("problem")
+    c.add_argument("--data", required=True, metavar="FILE.npz", help="y (B, m), optionally x (B, N)")
+    c.add_argument("--out", default=None, metavar="FILE.json", help="also write the numbers as JSON")
+    add_set_argument(c)
+    c.add_argument("--threads", type=int, default=1, help="threads of torch and of numpy/scipy's BLAS")
+    c.set_defaults(func=cmd_classical)

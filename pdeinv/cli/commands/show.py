@@ -1,0 +1,48 @@
+"""``pdeinv show DIR``: PNG pictures of true vs predicted fields from a training run's ``fields.vtu``."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from . import UsageError
+
+ORDER = 2
+
+
+def _samples(text: str | None):
+    if text is None:
+        return None
+    try:
+        return [int(k) for k in text.split(",")]
+    except ValueError:
+        raise UsageError(f"--samples {text!r} is not a comma-separated list of integers, e.g. 0,2") from None
+
+
+def cmd_show(args) -> int:
+    """Read ``DIR/fields.vtu`` (or ``.xdmf``) and write ``DIR/fields.png`` (or ``--png``)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    from pdeinv.io.export import read_fields
+    from pdeinv.io.plots import save_fields_png
+
+    run = Path(args.dir)
+    if not run.is_dir():
+        raise UsageError(f"{str(run)!r} is not a directory; expected the --out DIR of `pdeinv train`")
+    found = [run / name for name in ("fields.vtu", "fields.xdmf") if (run / name).is_file()]
+    if not found:
+        raise UsageError(f"{str(run)!r} holds no fields.vtu or fields.xdmf; "
+                         "expected the --out DIR of `pdeinv train`")
+    points, cells, fields = read_fields(found[0])
+    png = Path(args.png) if args.png else run / "fields.png"
+    save_fields_png(png, points, cells, fields, samples=_samples(args.samples), title=run.name)
+    print(f"wrote {png}")
+    return 0
+
+
+def add_parser(sub) -> None:
+    s = sub.add_parser("show", help="PNG of true vs predicted vs error fields of a training run")
+    s.add_argument("dir", metavar="DIR", help="the --out directory of `pdeinv train`")
+    s.add_argument("--samples", default=None, metavar="K,K", help="which test samples (default: all written)")
+    s.add_argument("--png", default=None, help="output file (default DIR/fields.png)")
+    s.set_defaults(func=cmd_show)

@@ -1,0 +1,454 @@
+"""``pdeinv train``: train the default network on a problem and write its results to ``--out``."""
+
+from __future__ import annotations
+
+import json
+import re
+import sys
+import time
+import warnings
+from pathlib import Path
+
+from . import (
+    UsageError,
+    _checks,
+    add_set_argument,
+    build_problem,
+    no_cache,
+    out_path,
+    parse_sets,
+    prepare_out,
+    set_threads,
+)
+
+ORDER = 1
+#: exit code of a run that failed its verdict (pdeinv.training.verdict) without --accept-bad
+FAILED = 3
+
+
+def _discrepancy(problem):
+    from pdeinv.training.stopping import DiscrepancyStop
+
+    return DiscrepancyStop(noise=None if problem.noise else "estimate")
+
+
+def _auto(problem):
+    """Noisy data: the trainer's denoised target (pdeinv.methods.targets) when it can fit one — its fixed
+    point
+    is regularized, and a discrepancy stop would only end slower rules (HIG: 0.141 at step 10 against
+    0.12 at step 100 on heat_2d at 1 %) before they reach it —, else the discrepancy stop."""
+    from pdeinv.methods.targets import SpectralWiener
+
+    if not problem.noise or SpectralWiener().applies(problem, problem.noise):
+        return None
+    return _discrepancy(problem)
+
+
+#: --stop: name -> problem -> stopping rule (or None). 'auto' stops noisy data by the discrepancy
+#: principle where no denoised target regularizes it, and leaves other runs to --steps / --time-budget.
+STOPS = {
+    "auto": _auto,
+    "discrepancy": _discrepancy,
+    "none": lambda problem: None,
+}
+
+
+def _hidden(text: str) -> tuple[int, ...]:
+    try:
+        widths = tuple(int(w) for w in text.split(","))
+    except ValueError:
+        raise UsageError(f"--hidden {text!r} is not a comma-separated list of widths, e.g. 64,64") from None
+    if not widths or min(widths) < 1:
+        raise UsageError(f"--hidden {text!r}: widths must be integers >= 1")
+    return widths
+
+
+def _one_line(message, category, filename, lineno, file=None, line=None) -> None:
+    print(f"pdeinv train: warning: {message}", file=sys.stderr)
+
+
+def _check_flags(args, out) -> None:
+    """Refuse conflicting flags and an ``--out`` holding another run's files, before any work."""
+    from pdeinv.io.runs import existing_outputs
+
+    if args.resume and args.overwrite:
+        raise UsageError("--resume and --overwrite conflict: --resume continues the run in --out, "
+                         "--overwrite deletes it; pass one of them")
+    found = existing_outputs(out) if out.is_dir() else []
+    if found and not (args.overwrite or args.resume):
+        raise UsageError(f"{out / found[0]} exists; choose another --out, pass --resume to continue that "
+                         f"run or --overwrite to replace it (a previous run's files: {', '.join(found)})")
+    if args.checkpoint_every < 0:
+        raise UsageError(f"--checkpoint-every {args.checkpoint_every} is not allowed; "
+                         "expected an integer >= 1, or 0 for no checkpoints")
+    if args.resume and args.checkpoint_every == 0:
+        raise UsageError("--resume needs checkpoints; drop --checkpoint-every 0")
+    if args.export_samples < 0:
+        raise UsageError(f"--export-samples {args.export_samples} is not allowed; expected an integer >= 0")
+    if args.n_train is not None and args.n_train < 2:
+        raise UsageError(f"--n-train {args.n_train} is not allowed; expected an integer >= 2 (the whitening "
+                         "fits a covariance)")
+    if args.n_test is not None and args.n_test < 1:
+        raise UsageError(f"--n-test {args.n_test} is not allowed; expected an integer >= 1")
+    if args.data and args.n_train is not None:
+        raise UsageError("--n-train does not apply with --data: the file's rows train, except the last "
+                         "--n-test (and the stopping rule's) rows, which are held out")
+
+
+class _Heartbeat:
+    """A callback that prints one progress line every ``every_s`` seconds of training when stderr is
+    not a terminal (a log file, CI, ``nohup``), where tqdm's bar stays silent: a long run is never
+    mute (a user's run once printed nothing for 580 s)."""
+
+    def __init__(self, steps: int | None, every_s: float = 60.0):
+        self.steps, self.every_s, self.last = steps, every_s, time.monotonic()
+
+    def __call__(self, record: dict, model) -> bool:
+        now = time.monotonic()
+        if now - self.last >= self.every_s:
+            self.last = now
+            of = f"/{self.steps}" if self.steps else ""
+            errs = "".join(f", {k} {record[k]:.4g}" for k in ("x_err", "y_err") if k in record)
+            print(f"pdeinv train: step {record['step']}{of}, loss {record['loss']:.4g}{errs}, "
+                  f"{record['wall_s']:.0f} s", file=sys.stderr, flush=True)
+        return False
+
+
+def cmd_train(args) -> int:
+    """Train the default network; write metrics.json, history.csv, training.png, fields.vtu/png.
+
+    Under torchrun (``WORLD_SIZE`` > 1) every process runs this with the same command line
+    (checked); only rank 0 writes and reports, the others fail quietly with the same exit code
+    (every check here runs identically on every rank, so rank 0's line speaks for all).
+    """
+    from pdeinv.training.distributed import rank_from_env
+
+    if rank_from_env() == 0:
+        return _train(args)
+    from pdeinv.errors import numerical_types
+
+    try:
+        return _train(args)
+    except numerical_types():
+        return 1
+    except (UsageError, ValueError, FileNotFoundError, NotImplementedError):
+        return 2
+    except KeyboardInterrupt:
+        return 130
+
+
+def _train(args) -> int:
+    from pdeinv.physics.backends.device import resolve
+    from pdeinv.training.distributed import from_env
+    from pdeinv.training.verdict import FailedRun
+
+    out = out_path(args.out)
+    ckpt = out / "checkpoint.pt"
+    _check_flags(args, out)
+    try:
+        device = resolve(args.device)
+    except ValueError as err:
+        raise UsageError(f"--{err}") from None
+    parallel = from_env(device)  # torchrun: joins the process group (a barrier); else one process
+    try:
+        parallel.check_same("command line", {k: v for k, v in vars(args).items() if k != "func"})
+        with warnings.catch_warnings():  # the trainer's warnings (data, rejected steps): one line each
+            warnings.simplefilter("always", RuntimeWarning)
+            # numpy's and scipy's overflow notes are internals: our checks report what they lead to
+            warnings.filterwarnings("ignore", category=RuntimeWarning, module=r"(numpy|scipy)(\.|$)")
+            warnings.filterwarnings("ignore", category=FailedRun)  # _run says it, as an error or not
+            warnings.showwarning = _one_line
+            return _parallel_train(args, out, ckpt, device, parallel)
+    except RuntimeError as err:
+        if parallel.world_size == 1 or not _lost_peer(err):
+            raise
+        again = f"continue from {ckpt} with --resume" if ckpt.exists() else "no checkpoint was written"
+        if parallel.is_writer:
+            why = re.sub(r"^\[[^\]]*\]\s*", "", str(err).strip().splitlines()[0])[:120]  # no C++ source path
+            print(f"pdeinv train: a process of the {parallel.world_size}-process run stopped or cannot be "
+                  f"reached ({why}); {again}", file=sys.stderr)
+        return 1
+    finally:
+        parallel.close()
+
+
+def _lost_peer(err: RuntimeError) -> bool:
+    """Whether ``err`` is a collective failing because another rank died or timed out."""
+    import torch.distributed as dist
+
+    text = str(err).lower()
+    return isinstance(err, dist.DistError) or any(
+        w in text for w in ("connection", "timed out", "timeout", "gloo", "nccl", "peer"))
+
+
+#: ``--net``: the network kinds a user chooses by name (run.json's ``network.kind``, pdeinv.io.runs.NETWORKS)
+NETS = ("default", "linear", "whitened", "reduced")
+
+
+def _network_spec(problem, hp: dict, net: str = "default", data: bool = False) -> dict:
+    """run.json's network: the MLP of ``--hidden``, else ``--net`` (the problem's default network, the
+    whitened linear map or the prior decoder, :mod:`pdeinv.nets`), with the preset's
+    ``rows_per_component`` cap (first-order rules) where the problem has no model_factory."""
+    if hp["hidden"] is not None:
+        if net != "default":
+            widths = ",".join(map(str, hp["hidden"]))
+            raise UsageError(f"--net {net} and --hidden {widths} choose two networks (--hidden is the "
+                             "MLP's widths): drop one of them")
+        return {"kind": "mlp", "hidden": list(hp["hidden"])}
+    cap = hp.get("rows_per_component")
+    own = getattr(problem, "model_factory", None) is not None
+    if own and net != "default":
+        raise UsageError(f"--net {net}: problem {problem.name!r} builds its own network (model_factory); "
+                         "only --net default applies")
+    spec = {"kind": net, **({"rows_per_component": cap} if cap and not own else {})}
+    if data and net == "default" and not own:  # the file's prior, never the scene's (pdeinv.nets.data_base)
+        from pdeinv.nets import data_base
+
+        spec["base"] = data_base(problem)
+    return spec
+
+
+def _prior_fit(args):
+    """``--prior-fit S``: the prior fit of a network's nonlinear correction (:mod:`pdeinv.nets.refine`) for at
+    most S seconds; 0: none."""
+    import os
+
+    from pdeinv.nets.refine import PriorFit
+
+    seconds, where = args.prior_fit, "--prior-fit"
+    if seconds is None:  # the default, which PDEINV_PRIOR_FIT may change (e.g. 0 in a test suite)
+        seconds, where = os.environ.get("PDEINV_PRIOR_FIT", str(PRIOR_FIT_S)), "PDEINV_PRIOR_FIT="
+        try:
+            seconds = float(seconds)
+        except ValueError:
+            raise UsageError(f"{where}{seconds!r}: expected seconds >= 0 (0: no prior fit)") from None
+    if not seconds >= 0:
+        raise UsageError(f"{where}{seconds:g}: expected seconds >= 0 (0: no prior fit)")
+    return PriorFit(time_budget=seconds, seed=args.seed) if seconds > 0 else None
+
+
+#: ``--prior-fit``'s default: seconds for the prior fit of the default network's correction
+PRIOR_FIT_S = 300.0
+
+
+def _parallel_train(args, out, ckpt, device, parallel) -> int:
+    import torch
+
+    from pdeinv.io.runs import network
+    from pdeinv.methods.presets import make_rule
+    from pdeinv.training.data import npz_rounding_level, read_meta, read_npz, undeclared_noise
+    from pdeinv.training.trainer import Trainer
+    from pdeinv.training.trainset import N_TRAIN
+
+    from ._folder import FolderCheckpoint, Fresh
+
+    hidden = _hidden(args.hidden) if args.hidden is not None else None
+    fresh = Fresh(out, args.overwrite)
+    set_threads(args.threads)
+    no_cache(args)
+    overrides = parse_sets(args.set)
+    problem = build_problem("train", args.problem, args.set, steps=args.steps)  # says so when slow
+    y, x = read_npz(args.data, problem.operator.n_out, problem.N) if args.data else (None, None)
+    meta = read_meta(args.data, problem.points) if args.data else {}
+    if "noise" in meta and "noise" in overrides and float(overrides["noise"]) != meta["noise"]:
+        raise UsageError(f"--set noise={overrides['noise']} conflicts with the noise={meta['noise']:g} the "
+                         f"data file {args.data!r} declares; drop one of them")
+    if "noise" in meta and "noise" not in overrides and "noise" in problem.settings:  # the file's level
+        args.set = [*args.set, f"noise={meta['noise']:g}"]
+        overrides = parse_sets(args.set)
+        problem = build_problem("train", args.problem, args.set, steps=args.steps)
+    rounding = npz_rounding_level(args.data) if args.data else 0.0
+    # noisy data with no declared level would be fitted exactly (the noise amplified by the inverse):
+    # rounding is noise, and so is what the observations show (pdeinv.training.data.undeclared_noise)
+    level = undeclared_noise(args.data, y, problem) if args.data and "noise" not in overrides else rounding
+    if level > problem.noise and "noise" in problem.settings:  # say so, train with it
+        why = (f"is stored in lower precision than float64: its rounding is noise of relative level "
+               f"{level:.2g}" if level == rounding else f"declares no noise level; its observations show "
+               f"noise of relative level {level:.2g} (pdeinv.training.data.undeclared_noise)")
+        warnings.warn(f"--data {args.data!r} {why}, above the problem's {problem.noise:g}; training "
+                      f"with --set noise={level:.2g} (--set noise=… declares the level)", RuntimeWarning,
+                      stacklevel=2)
+        args.set = [*args.set, f"noise={level:.2g}"]  # run.json and --resume see the level trained with
+        overrides = parse_sets(args.set)
+        problem = build_problem("train", args.problem, args.set, steps=args.steps)
+    rule, hp = make_rule(args.method, problem, problem.noise, lr=args.lr, eta=args.eta, tau=args.tau,
+                         batch_size=args.batch_size, hidden=hidden, optimizer=args.optimizer)
+    _checks.check_run(problem, args, hp)  # memory, HIG step time, --export-samples (before allocating)
+    stop = STOPS[args.stop](problem)
+    torch.manual_seed(args.seed)
+    net = _network_spec(problem, hp, args.net, bool(args.data))
+    trainer = Trainer(problem, rule, network(problem, net), steps=_checks.steps(args, hp),
+                      time_budget=args.time_budget,
+                      n_train=args.n_train or N_TRAIN, n_test=args.n_test, batch_size=hp["batch_size"],
+                      seed=args.seed, eval_every=args.eval_every, max_failures=args.max_failures,
+                      checkpoint=FolderCheckpoint(ckpt, args.checkpoint_every, fresh) if args.checkpoint_every
+                      else None,
+                      resume=args.resume, stop=stop, data=y, data_x=x, device=device, parallel=parallel,
+                      prior_fit=_prior_fit(args),
+                      callbacks=[] if sys.stderr.isatty() else [_Heartbeat(_checks.steps(args, hp))])
+    if not parallel.is_writer:  # trains its shard; rank 0 writes everything
+        failed = trainer.fit().metrics["failed"]
+        return FAILED if failed and not args.accept_bad else 0
+    prepare_out(out)
+    try:
+        return _run(args, out, problem, overrides, net, hp, trainer, fresh)
+    except FileNotFoundError:  # e.g. --resume without a checkpoint: bad input (exit 2)
+        raise
+    except OSError as err:  # a full disk, no permission: not the input's fault, not numerical
+        where = f" ({err.filename})" if err.filename else ""
+        again = "; free space and continue with --resume" if (out / "checkpoint.pt").exists() else ""
+        print(f"pdeinv train: cannot write: {err.strerror or err}{where}{again}", file=sys.stderr)
+        return 1
+
+
+def _run(args, out, problem, overrides, net, hp, trainer, fresh) -> int:
+    """Train under the folder's lock and write every output; see :data:`pdeinv.io.runs.OUTPUTS`."""
+    import torch
+
+    from pdeinv.errors import NonFiniteError
+    from pdeinv.io.runs import RUN_FILE, clear_outputs, save_run
+    from pdeinv.util.files import atomic_write, write_csv
+    from pdeinv.util.runlock import RunLock
+
+    from ._plot import training_curves
+
+    ckpt = out / "checkpoint.pt"
+    with RunLock(out):  # one run per --out: a second one is refused
+        try:
+            result = trainer.fit()  # its warnings: one line on stderr each (_train)
+        except NonFiniteError:
+            fresh()
+            if trainer.history:
+                write_csv(trainer.history, out / "history.csv")
+            raise
+        except KeyboardInterrupt:
+            fresh()
+            saved = f"continue from {ckpt} with --resume" if ckpt.exists() else "no checkpoint was written"
+            print(f"pdeinv train: interrupted; {saved}", file=sys.stderr)
+            return 130
+        fresh()
+        metrics = {**result.metrics, "method": args.method, "hyperparameters": hp,
+                   "settings": {k: v for k, v in problem.settings.items()},
+                   "route": result.history[-1].get("route"), "torch_threads": torch.get_num_threads()}
+        if args.data:
+            metrics["data"] = {"file": str(args.data), **metrics["data"]}
+        metrics["accept_bad"] = bool(args.accept_bad)  # beside the verdict "failed" (pdeinv.training.verdict)
+        # atomic: a kill while writing never leaves a truncated metrics.json or model.pt
+        text = json.dumps(metrics, indent=2, default=str).encode()
+        atomic_write(out / "metrics.json", lambda fh: fh.write(text))
+        write_csv(result.history, out / "history.csv")
+        training_curves(result.history, out / "training.png", f"{problem.name}, {args.method}")
+        save_run(out, args.problem, overrides, net, result.model)
+        written = {"metrics.json", "history.csv", "training.png", "model.pt", RUN_FILE, "checkpoint.pt"}
+        x_test, y_test = trainer.held_out()
+        if args.export_samples:  # ParaView files and a picture of a few held-out samples
+            from pdeinv.io.export import export_run
+
+            files = export_run(out, problem, result.model, x_test, y_test,
+                               samples=min(args.export_samples, len(y_test)))
+            written |= {Path(p).name for p in files.values()}
+        clear_outputs(out, keep=written)  # e.g. fields.vtu of an earlier run or a resumed one
+        x_err = "n/a (no x in the data)" if metrics["x_err"] is None else f"{metrics['x_err']:.4f}"
+        print(f"{problem.name} {args.method}: {metrics['steps']} steps ({metrics['stopped_by']}) in "
+              f"{metrics['wall_s']:.2f} s, x_err {x_err}, y_err {metrics['y_err']:.4f} -> {out}")
+        return _verdict(metrics["failed"], args.accept_bad, out)
+
+
+def _verdict(failed: str | None, accept: bool, out: Path) -> int:
+    """Exit code 0, or :data:`FAILED` with one line on stderr when the run failed
+    (:mod:`pdeinv.training.verdict`)
+    and ``--accept-bad`` was not given; its files are written either way."""
+    if not failed:
+        return 0
+    if accept:
+        print(f"pdeinv train: warning: the run failed: {failed}; kept (--accept-bad)", file=sys.stderr)
+        return 0
+    print(f"pdeinv train: error: the run failed: {failed}; its files are in {out} (metrics.json: "
+          "\"failed\"); --accept-bad ends such a run with exit code 0", file=sys.stderr)
+    return FAILED
+
+
+def add_parser(sub) -> None:
+    from pdeinv.methods.names import METHOD_NAMES as METHODS
+    from pdeinv.training.trainset import N_TRAIN
+
+    t = sub.add_parser("train", help="train a network with GD, Adam, SIP or HIG; write metrics.json")
+    t.add_argument("problem")
+    t.add_argument("--method", choices=sorted(METHODS), default="sip",
+                   help="update rule (default: sip, the most accurate; methods/presets.py)")
+    t.add_argument("--steps", type=int, default=None,
+                   help="training steps (default: the method's preset: 30 full-batch steps for sip, 1000 "
+                        "(hig: full-batch) otherwise; no limit when --time-budget is given)")
+    t.add_argument("--time-budget", type=float, default=None, metavar="SECONDS",
+                   help="also stop once training wall time exceeds this")
+    t.add_argument("--seed", type=int, default=0)
+    t.add_argument("--no-cache", action="store_true", help="no disk cache of factorizations")
+    t.add_argument("--out", required=True, metavar="DIR")
+    add_set_argument(t)
+    t.add_argument("--lr", type=float, default=None, help="optimizer learning rate (gd, adam, sip)")
+    t.add_argument("--eta", type=float, default=None, help="step scale η (sip, hig)")
+    t.add_argument("--tau", type=float, default=None, help="relative singular-value cut (hig)")
+    t.add_argument("--batch-size", type=int, default=None,
+                   help="samples per step (default: the method's preset; sip: every training sample)")
+    t.add_argument("--optimizer", choices=("adam", "sgd"), default=None,
+                   help="SIP's proxy optimizer (default: sgd on the curvature-normalized proxy, "
+                        "methods/presets.py)")
+    t.add_argument("--stop", choices=sorted(STOPS), default="auto",
+                   help="stopping rule that never looks at x: 'discrepancy' stops once the residual on "
+                        "128 held-out observations reaches 1.1x the noise level (the problem's, or an "
+                        "estimate when it has none); 'auto' (default) uses it on noisy problems the "
+                        "denoised target (pdeinv.methods.targets) cannot filter (no spectral basis)")
+    t.add_argument("--net", choices=NETS, default="default",
+                   help="network (default: the problem's: a linear estimate (the prior decoder where the "
+                        "operator is not reversible, else the whitened linear map) trained by the rule, "
+                        "plus a nonlinear correction fitted on the prior (--prior-fit); linear: the "
+                        "linear estimate alone; pdeinv.nets.default_model)")
+    t.add_argument("--prior-fit", type=float, default=None, metavar="S",
+                   help="after the rule, fit the default network's nonlinear correction on draws of the "
+                        "prior (the scene's sampler, or the rows of --data that carry x) for at most S "
+                        "seconds (default 300, or $PDEINV_PRIOR_FIT; 0: off, the network stays the rule's "
+                        "linear estimate)")
+    t.add_argument("--hidden", default=None, metavar="W,W", help="MLP hidden widths, e.g. 64,64")
+    t.add_argument("--data", default=None, metavar="FILE.npz",
+                   help="train on your own observations: an .npz with y (B, m), optionally x (B, N) "
+                        "(used only to report errors). Rows keep their order: the last --n-test rows "
+                        "are the test set, the stopping rule's 128 rows (when it is on) come before "
+                        "them, the rest train; shuffle the rows first if the file is sorted. The noise "
+                        "level is the problem's (--set noise=...)")
+    t.add_argument("--n-train", type=int, default=None,
+                   help=f"training samples (default {N_TRAIN}; not with --data)")
+    t.add_argument("--n-test", type=int, default=128,
+                   help="test samples; with --data the last N rows of the file (default 128)")
+    t.add_argument("--eval-every", type=int, default=50)
+    t.add_argument("--device", default="cpu",
+                   help="torch device of the network and of dense/modal/SVD physics: cpu (default), "
+                        "cuda, cuda:N (time stepping stays on the CPU). Data parallel: torchrun "
+                        "--nproc_per_node=P -m pdeinv train ... (gloo on cpu, NCCL on cuda; the batch "
+                        "is the global one and must divide by P; hig on the default networks only)")
+    t.add_argument("--threads", type=int, default=1,
+                   help="threads of torch and of numpy/scipy's BLAS/OpenMP pools (default 1: on 2 cores a "
+                        "heat_2d step of an MLP took 6.8 ms with one thread and 18-20 ms with two, idle "
+                        "machine; pdeinv.util.threads)")
+    t.add_argument("--export-samples", type=int, default=3, metavar="K",
+                   help="write fields.vtu (ParaView) and fields.png for K test samples (0: none)")
+    t.add_argument("--overwrite", action="store_true",
+                   help="delete the previous run's files in DIR first (only files pdeinv train writes: "
+                        "metrics.json, checkpoint.pt, model.pt, fields.vtu, ...); not with --resume")
+    t.add_argument("--checkpoint-every", type=int, default=100, metavar="K",
+                   help="save DIR/checkpoint.pt atomically every K steps and at the end (0: never)")
+    t.add_argument("--resume", action="store_true",
+                   help="continue from DIR/checkpoint.pt (same problem, settings, network, seed and "
+                        "data); --steps may grow, not shrink below the steps done")
+    t.add_argument("--max-failures", type=int, default=5, metavar="K",
+                   help="stop after K consecutive rejected steps (a NaN/Inf loss or update, or a loss "
+                        "over 1000x the lowest so far; redoing the rolled-back step does not end a "
+                        "streak); each rejection restores the last good state and halves the learning "
+                        "rate / eta, never below 1e-12 of it (the run stops there), and it doubles back "
+                        "after 50 accepted steps")
+    t.add_argument("--accept-bad", action="store_true",
+                   help="exit 0 even when the run fails its final check (else exit code 3; the files are "
+                        "written either way, the reason in metrics.json's 'failed'): a held-out x_err >= 1, "
+                        "no better than predicting zero; without x in the data, predictions with over 2x the "
+                        "prior's energy where the physics cannot see (pdeinv.training.unseen)")
+    _checks.add_arguments(t)  # --allow-slow, --max-memory-gb
+    t.set_defaults(func=cmd_train)

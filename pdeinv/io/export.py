@@ -1,0 +1,151 @@
+"""Fields on the mesh for ParaView: true, predicted and error fields written with meshio.
+
+A field of the free unknowns ``(N,)`` is extended by zero to the Dirichlet
+unknowns (:meth:`pdeinv.fem.forms.Discretization.extend`) and restricted to the mesh
+vertices (for P2 the vertex DOFs come first in scikit-fem's numbering, so the
+vertex values are the first ``nvertices`` coefficients; edge midpoints are not
+written). One file holds every array as point data, named
+
+    x_true_<k>, x_pred_<k>, x_error_<k> = x_pred_<k> − x_true_<k>
+
+for sample ``k`` (and ``y_obs_<k>``, ``y_pred_<k>`` when the observation is a
+field on the mesh too, e.g. the final temperature). The suffix picks the
+format: ``.vtu`` (one file) or ``.xdmf`` (XML + HDF5 needs h5py, so XDMF is
+written with inline XML data). Sensor positions go to a separate vertex-cell file.
+Cells are named through :data:`pdeinv.fem.mesh.CELL_TYPES` (line, triangle, tetra); a mesh
+outside that table is refused. Pictures come from :mod:`pdeinv.io.plots` (3-D: mid-plane slices).
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import numpy as np
+
+from .._checks import batch
+from ..fem.mesh import cell_type, points_3d
+from ..physics.capabilities import observes_field
+from .plots import save_fields_png
+
+#: what :func:`write_fields` writes per sample, in order
+KINDS = ("x_true", "x_pred", "x_error", "y_obs", "y_pred")
+
+
+def vertex_values(disc, X: np.ndarray) -> np.ndarray:
+    """Free-unknown fields ``(B, N)`` -> values at the mesh vertices ``(B, nvertices)``
+    (:meth:`pdeinv.fem.forms.Discretization.vertex_values`)."""
+    return disc.vertex_values(X)
+
+
+def _cells(mesh) -> list:
+    """meshio cells of ``mesh`` through the one table :data:`pdeinv.fem.mesh.CELL_TYPES` (refuses others)."""
+    return [(cell_type(mesh).cell, mesh.t.T)]
+
+
+def write_fields(path, problem, x_true, x_pred, y_obs=None, y_pred=None) -> Path:
+    """Write true/predicted/error initial fields (and field observations) of a few samples.
+
+    ``x_*`` have shape ``(B, N)`` on the free unknowns; ``x_true=None`` (observations
+    without true fields, e.g. ``pdeinv predict``) writes ``x_pred_<k>`` only. ``y_*`` are
+    written only if the operator declares its observations fields on the mesh
+    (:func:`pdeinv.physics.capabilities.observes_field`; sensor records are not). Returns the path.
+    """
+    import meshio
+
+    path = Path(path)
+    if path.suffix not in (".vtu", ".xdmf"):
+        raise ValueError(f"fields file {str(path)!r}: suffix {path.suffix!r} is not allowed; "
+                         "expected '.vtu' or '.xdmf'")
+    disc = problem.disc
+    x_pred, _ = batch(x_pred, disc.N, "x_pred")
+    fields = {"x_pred": x_pred}
+    if x_true is not None:
+        x_true, _ = batch(x_true, disc.N, "x_true")
+        if x_true.shape != x_pred.shape:
+            raise ValueError(f"x_true has shape {x_true.shape} but x_pred has {x_pred.shape}")
+        fields = {"x_true": x_true, "x_pred": x_pred, "x_error": x_pred - x_true}
+    for name, y in (("y_obs", y_obs), ("y_pred", y_pred)):
+        if y is not None and observes_field(problem.operator):
+            fields[name] = batch(y, disc.N, name)[0]
+    mesh = disc.basis.mesh
+    data = {f"{name}_{k}": v for name, X in fields.items() for k, v in enumerate(vertex_values(disc, X))}
+    if path.suffix == ".xdmf":
+        with meshio.xdmf.TimeSeriesWriter(os.fspath(path), data_format="XML") as w:
+            w.write_points_cells(points_3d(mesh), _cells(mesh))
+            w.write_data(0.0, point_data=data)
+    else:
+        meshio.write(os.fspath(path), meshio.Mesh(points_3d(mesh), _cells(mesh), point_data=data))
+    return path
+
+
+def write_sensors(path, points) -> Path:
+    """Sensor coordinates ``(n, dim)`` as vertex cells (ParaView: render as points)."""
+    import meshio
+
+    P = np.atleast_2d(np.asarray(points, dtype=float))
+    P = np.c_[P, np.zeros((P.shape[0], 3 - P.shape[1]))]
+    meshio.write(os.fspath(path), meshio.Mesh(P, [("vertex", np.arange(len(P))[:, None])]))
+    return Path(path)
+
+
+def read_fields(path) -> tuple:
+    """``(mesh_points (nv, 3), cells, {kind: (B, nv)})`` from a file written by :func:`write_fields`."""
+    import meshio
+
+    path = os.fspath(path)
+    if not os.path.isfile(path):
+        raise FileNotFoundError(f"fields file {path!r} does not exist; "
+                                "run `pdeinv train ... --out DIR` first")
+    if path.endswith(".xdmf"):
+        with meshio.xdmf.TimeSeriesReader(path) as r:
+            points, cells = r.read_points_cells()
+            _, data, _ = r.read_data(0)
+    else:
+        m = meshio.read(path)
+        points, cells, data = m.points, m.cells, m.point_data
+    out = {}
+    for kind in KINDS:
+        keys = [k for k in data if k.rsplit("_", 1)[0] == kind]
+        keys.sort(key=lambda k: int(k.rsplit("_", 1)[1]))
+        if keys:
+            out[kind] = np.stack([np.asarray(data[k]) for k in keys])
+    if "x_true" not in out:
+        raise ValueError(f"fields file {path!r} holds no x_true_<k> arrays; expected a file written by "
+                         "pdeinv.io.export.write_fields")
+    cells = cells[0].data if hasattr(cells[0], "data") else cells[0][1]
+    return points, cells, out
+
+
+def predict(model, y) -> np.ndarray:
+    """``f(y)`` as float64 numpy, evaluated without gradients in the model's dtype."""
+    import torch
+
+    param = next(iter(model.parameters()), None)
+    dtype = param.dtype if param is not None else torch.float32
+    with torch.no_grad():
+        return model(torch.as_tensor(np.asarray(y), dtype=dtype)).double().cpu().numpy()
+
+
+def export_run(out, problem, model, x, y, samples: int = 3, png: bool = True) -> dict:
+    """A run's pictures and ParaView files for the first ``samples`` of ``(x, y)``.
+
+    Writes ``out/fields.vtu`` (see :func:`write_fields`), ``out/sensors.vtu`` when
+    the problem has ``settings['sensor_points']``, and ``out/fields.png`` (only with true
+    fields: ``x=None`` writes the predictions alone; 3-D fields as mid-plane slices,
+    :func:`pdeinv.io.plots.mid_slice`). Returns
+    ``{name: path}`` of what was written.
+    """
+    out = Path(out)
+    x = None if x is None else np.asarray(x)[:samples]
+    y = np.asarray(y)[:samples]
+    xhat = predict(model, y)
+    yhat = problem.operator.forward(xhat)
+    written = {"fields": write_fields(out / "fields.vtu", problem, x, xhat, y, yhat)}
+    points = problem.settings.get("sensor_points") if isinstance(problem.settings, dict) else None
+    if points is not None:
+        written["sensors"] = write_sensors(out / "sensors.vtu", points)
+    if png and x is not None:
+        written["png"] = save_fields_png(out / "fields.png", *read_fields(written["fields"]),
+                                         title=f"{problem.name}: test samples")
+    return written

@@ -1,0 +1,139 @@
+"""Run folders: what ``pdeinv train --out DIR`` writes, and :func:`load_run` to rebuild its network.
+
+``DIR/run.json`` records what rebuilds the run's problem and network::
+
+    {"format": "pdeinv-run", "version": 1,
+     "problem": "heat_2d" | "/abs/path/module.py", "overrides": {"kappa": "0.02", ...},
+     "network": {"kind": "default"} | {"kind": "mlp", "hidden": [64, 64]}
+                | {"kind": "reduced", "k_in": 256, "k_out": 256, "body": "linear"}}
+
+and ``DIR/model.pt`` the network's state dict, the fitted whitening / input scaling
+buffers included. ``load_run(DIR)`` calls ``load_problem(problem, **overrides)``,
+builds the network from :data:`NETWORKS` and loads the state dict (strict). Both
+files are written atomically (:func:`pdeinv.util.files.atomic_write`).
+
+:data:`OUTPUTS` lists every file ``pdeinv train`` writes into ``DIR``;
+:func:`clear_outputs` removes those (and their stale temporaries), never other files.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from pathlib import Path
+
+from ..util.files import atomic_write, remove_stale_temporaries
+
+FORMAT, VERSION = "pdeinv-run", 1
+RUN_FILE, MODEL_FILE = "run.json", "model.pt"
+
+#: every file ``pdeinv train`` writes into its ``--out`` folder (``.lock`` is the run lock's own)
+OUTPUTS = ("metrics.json", "history.csv", "training.png", MODEL_FILE, RUN_FILE, "checkpoint.pt",
+           "fields.vtu", "fields.xdmf", "fields.png", "sensors.vtu")
+
+
+def _mlp(problem, hidden):
+    from ..nets import MLP
+
+    return MLP(problem.operator.n_out, problem.operator.n_in, hidden=tuple(hidden))
+
+
+def _from_nets(name: str):
+    """A :data:`NETWORKS` entry ``pdeinv.nets.<name>(**settings)(problem)`` (torch imported when used)."""
+    def build(problem, **settings):
+        from .. import nets
+
+        return getattr(nets, name)(**settings)(problem)
+    return build
+
+
+#: network kinds: ``kind -> (problem, **settings) -> nn.Module`` (untrained; the state dict fills it)
+NETWORKS = {
+    "default": lambda problem, **settings: problem.model(**settings),
+    "linear": lambda problem, **settings: __import__("pdeinv.nets").nets.linear_default(problem, **settings),
+    "mlp": _mlp,
+    "reduced": _from_nets("reduced"),
+    "whitened": _from_nets("whitened"),
+}
+
+
+def network(problem, spec: dict):
+    """A fresh network of ``spec`` (``{"kind": ..., **settings}``) for ``problem``."""
+    spec = dict(spec)
+    kind = spec.pop("kind", None)
+    if kind not in NETWORKS:
+        raise ValueError(f"network kind {kind!r} is not known; expected one of {', '.join(NETWORKS)}")
+    return NETWORKS[kind](problem, **spec)
+
+
+def problem_spec(name_or_path: str) -> str:
+    """A problem name as given, or a module path made absolute (the run can be loaded from elsewhere)."""
+    spec = os.fspath(name_or_path)
+    if spec.endswith(".py") or os.sep in spec or "/" in spec:
+        return str(Path(spec).resolve())
+    return spec
+
+
+def save_run(out, problem: str, overrides: dict, network_spec: dict, model) -> None:
+    """Write ``out/run.json`` and ``out/model.pt`` (module docstring)."""
+    import torch
+
+    out = Path(out)
+    record = {"format": FORMAT, "version": VERSION, "problem": problem_spec(problem),
+              "overrides": {k: str(v) for k, v in overrides.items()}, "network": network_spec}
+    text = json.dumps(record, indent=2).encode()
+    atomic_write(out / MODEL_FILE, lambda fh: torch.save(model.state_dict(), fh))
+    atomic_write(out / RUN_FILE, lambda fh: fh.write(text))
+
+
+def load_run(run_dir):
+    """``(problem, model)`` of a finished ``pdeinv train`` run folder (``model`` in eval mode).
+
+    ``ValueError`` when ``run_dir`` is not a folder, has no ``run.json`` or ``model.pt``,
+    or they do not fit together.
+    """
+    import torch
+
+    from ..problem.definition import load_problem
+
+    run = Path(run_dir)
+    where = f"run folder {os.fspath(run)!r}"
+    if not run.is_dir():
+        raise ValueError(f"{where} is not a directory; expected the --out DIR of a finished `pdeinv train`")
+    missing = [name for name in (RUN_FILE, MODEL_FILE) if not (run / name).is_file()]
+    if missing:
+        raise ValueError(f"{where} holds no {' or '.join(missing)}: no trained model "
+                         "(is it the --out DIR of a finished `pdeinv train`?)")
+    try:
+        record = json.loads((run / RUN_FILE).read_text())
+        assert record.get("format") == FORMAT and {"problem", "overrides", "network"} <= set(record)
+    except (ValueError, AssertionError, AttributeError):
+        raise ValueError(f"{where}: {RUN_FILE} is not a pdeinv run record; rerun `pdeinv train`") from None
+    problem = load_problem(record["problem"], **record["overrides"])
+    model = network(problem, record["network"])
+    try:
+        state = torch.load(run / MODEL_FILE, map_location="cpu", weights_only=True)
+        model.load_state_dict(state)
+    except Exception as err:  # noqa: BLE001  (unpickling and shape errors differ by torch version)
+        first = (str(err).strip().splitlines() or [type(err).__name__])[0][:120]
+        raise ValueError(f"{where}: {MODEL_FILE} does not fit its {RUN_FILE} ({first})") from None
+    return problem, model.eval()
+
+
+def clear_outputs(out, keep=()) -> list[str]:
+    """Remove the files of :data:`OUTPUTS` in ``out`` (not those in ``keep``) and their stale
+    temporaries; other files stay. Returns the names removed."""
+    out, removed = Path(out), []
+    for name in OUTPUTS:
+        if name in keep:
+            continue
+        remove_stale_temporaries(out / name)
+        if (out / name).is_file():
+            (out / name).unlink()
+            removed.append(name)
+    return removed
+
+
+def existing_outputs(out) -> list[str]:
+    """The files of :data:`OUTPUTS` present in ``out``."""
+    return [name for name in OUTPUTS if (Path(out) / name).is_file()]

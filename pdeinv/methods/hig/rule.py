@@ -1,0 +1,289 @@
+"""Half-inverse gradients (HIG): Schnell, Holl & Thuerey, ICLR 2022."""
+
+from __future__ import annotations
+
+import math
+import warnings
+from collections.abc import Callable
+from dataclasses import dataclass, field, replace
+
+import numpy as np
+import torch
+
+from ..._checks import choice, count, nonnegative, positive
+from ...errors import NonFiniteError
+from ...inverse.decoder import decoded_svd
+from ...physics.base import Matrix
+from ...physics.bridge import apply
+from ...physics.capabilities import modal_basis
+from ...util.memory import HIG_JACOBIAN_GB
+from ..base import Rule, State, Update, prediction, y_loss
+from ..transforms import Add
+from . import fixed as hig_fixed
+from . import kron as hig_kron
+from .routes import JACOBIANS, ROUTES, Batch
+
+SETTINGS = ("eta", "tau", "exponent", "route", "jacobian", "max_jacobian_gb", "gram_cond_max", "probes",
+            "power_iters", "seed", "normalize")
+
+
+@dataclass(frozen=True)
+class HIG(Rule):
+    """``Δθ = −η · V Λ^e Uᵀ g`` from the stacked Jacobian ``J = U Λ Vᵀ`` (e = ``exponent``).
+
+    ``J`` stacks the per-sample Jacobians ``∂y_i/∂θ = P · ∂x_i/∂θ`` of network and
+    physics over the batch (rows = batch × n_out, columns = trainable parameters),
+    ``g`` stacks the per-sample loss gradients ``∂/∂y_i ½‖y_i − y*_i‖² = y_i − y*_i``.
+    Singular values ``σ ≤ τ · σ_max`` are *dropped* (their directions get no
+    update), never clamped. ``e = −½`` is the half-inverse of the paper; ``e = −1``
+    with η = 1 is the Gauss–Newton step ``−J⁺ g`` (hence ``g`` is the per-sample
+    residual, not divided by the batch size: GN does not depend on the loss scale).
+    The direction is the step itself (:class:`~.transforms.Add`, as in the reference
+    code, no optimizer); the guard's multiplier scales it.
+
+    Routes are strategy objects chosen by table (:mod:`.hig_routes`).
+    Jacobian (``jacobian=``, all with ``torch.func`` over ``functional_call``):
+
+    * ``"forward"``: ``∂x_i/∂θ`` by ``vmap(jacrev(f))``, then ONE forward physics call
+      on all ``B · n_params`` Jacobian columns;
+    * ``"reverse"``: ``vmap(jacrev(P ∘ f))``, i.e. ONE adjoint physics call on
+      ``B · n_out`` unit cotangents, then the network's vector-Jacobian products;
+    * ``"auto"``: the route with fewer physics columns (reverse unless the network
+      has fewer parameters than observations) — identical results, the physics cost
+      differs by the factor ``n_params / n_out``.
+
+    On a dense network (:class:`pdeinv.MLP`, :func:`pdeinv.nets.dense`, a :class:`~pdeinv.nets.Net` with
+    such a body) ``J`` and ``J Jᵀ`` are built from its layer structure instead
+    (:mod:`pdeinv.methods.hig.structured`, ``info["jacobian"] == "structured"``): the same ``J``,
+    no ``torch.func``, and ``J Jᵀ`` at ``(B·r)²`` per hidden width instead of per parameter
+    (heat_1d, MLP (64, 64), batch 32: 0.16 s per step against 1.2 s).
+
+    Decomposition (``route=``; recorded in ``info["route"]``):
+
+    * ``"svd"``: float64 thin SVD of ``J``;
+    * ``"gram"``: float64 ``eigh(J Jᵀ) = U Λ² Uᵀ``, update ``−η Jᵀ U Λ^(e−1) Uᵀ g``
+      (``V = Jᵀ U Λ⁻¹``): ~10–20× faster when rows ≪ parameters (measured), but
+      squaring doubles the condition number's exponent, so small kept σ lose
+      accuracy (relative error ≈ 2e-16 · cond²);
+    * ``"randomized"``: matrix-free, ``J`` is never formed: a rank-``probes``
+      randomized SVD from ``jvp``/``vjp`` products with ``power_iters`` power
+      iterations (:mod:`pdeinv.methods.hig.randomized`); exact when
+      ``rank(J) ≤ probes``, else the step lives in the top-``probes`` singular
+      subspace (``info["rank_limited"]`` says when the cap, not τ, cut the spectrum);
+    * ``"last_layer"``: for a dense network (:class:`pdeinv.MLP`, :func:`pdeinv.nets.dense`, a
+      :class:`~pdeinv.nets.Net` with such a body; others are refused): the exact step of its last
+      ``nn.Linear`` on the hidden features (``J_LᵀJ_L = (P̂ᵀP̂) ⊗ (H̃ᵀH̃)``, :mod:`.hig_kron`'s algebra),
+      ``J`` never formed; **the hidden layers take no step** (:mod:`pdeinv.methods.hig.layers`: a
+      Kronecker-factored step for them was measured to diverge); τ and ``σ_max`` are the last layer's;
+    * ``"auto"``: ``gram`` when rows ≤ parameters and the kept part's condition
+      number ``σ_max/σ_min,kept`` is at most ``gram_cond_max`` (1e6: relative error
+      ≲ 2e-4 in the smallest kept direction), else ``svd`` (recorded as
+      ``"svd"``; ``info["gram_rejected"]`` says the Gram route was tried first);
+      when the dense Jacobian would exceed ``max_jacobian_gb``, ``last_layer`` for a dense
+      network (measured better than ``randomized`` at equal steps and at equal wall time:
+      heat_2d and wave_2d, MLP (64, 64), :mod:`pdeinv.methods.hig.layers`), else ``randomized``.
+
+    **Compressed rows.** With a spectral basis of rank ``r < m`` (the modal heat backend, a
+    compiled SVD: ``P = Out diag(g) Inᵀ`` exactly) and ``Out = Q R`` (Euclidean QR), each
+    sample's Jacobian is ``∂y/∂θ = Q C ∂x/∂θ`` with ``C = R diag(g) Inᵀ`` (``r × N``); ``Q``
+    has orthonormal columns, so ``J = (I ⊗ Q) J_c`` has the singular values of ``J_c`` and
+    ``Uᵀ g = U_cᵀ (I ⊗ Qᵀ) g``: the same step from ``r`` rows per sample instead of ``m``
+    (:func:`compress`; heat_2d: 217 of 961).
+
+    **Kronecker** (``route="kronecker"``, and ``"auto"`` whenever the network declares it is linear
+    in its parameters after a fixed feature map, :meth:`pdeinv.nets.Net.linear_in_parameters`: the
+    whitened linear and the reduced default networks): ``J Jᵀ = (Z̃Z̃ᵀ) ⊗ (P̂P̂ᵀ)``, so the exact
+    step needs one ``B × B`` eigendecomposition per step and the SVD of ``P̂ = P D`` once
+    (:mod:`.hig_kron`); ``J`` is never formed, whatever the network's size.
+
+    **Scale** (``normalize=True``, default): the step is multiplied by ``σ_max^-(1+e)``, so that
+    it changes the residual along singular direction ``k`` by the factor ``1 − η (σ_k/σ_max)^(1+e)``:
+    η = 1 solves the leading direction in one step and ``0 < η < 2`` is stable whatever the
+    scale of ``P``, of the network's input and of the batch (raw, that factor is
+    ``1 − η σ_k^(1+e)``, and the stable η moved with all three: on whitened inputs
+    ``σ_max ≈ √B · s_max(P)``). For Gauss–Newton (``e = −1``) the factor is 1: it is scale-free.
+
+    **Data-parallel** (:meth:`data_parallel`, what ``torchrun`` uses): on the Kronecker route the
+    shards' moments are summed over the processes, so every rank takes the whole batch's exact
+    step (:mod:`.hig_kron`); the Jacobian routes couple the whole stacked ``J`` and are refused.
+
+    A route whose memory exceeds ``max_jacobian_gb`` is refused with a
+    ``ValueError`` before anything is computed. The randomized probes are drawn
+    from ``SeedSequence([seed, step])``, so a resumed run repeats them.
+    """
+
+    eta: float = 1.0
+    tau: float = 1e-6
+    exponent: float = -0.5
+    route: str = "auto"
+    jacobian: str = "auto"
+    max_jacobian_gb: float = HIG_JACOBIAN_GB
+    gram_cond_max: float = 1e6
+    probes: int = 128
+    power_iters: int = 1
+    seed: int = 0
+    normalize: bool = True
+    name: str = "hig"
+    #: sums numpy arrays over data-parallel processes (:meth:`data_parallel`); None: one process
+    sum_over: Callable | None = field(default=None, compare=False, repr=False)
+
+    def __post_init__(self):
+        positive(self.eta, "eta")
+        nonnegative(self.tau, "tau")
+        if not self.tau < 1:
+            raise ValueError(f"tau={self.tau!r} is not allowed; expected 0 <= tau < 1 "
+                             "(relative to the largest singular value)")
+        choice(self.route, "route", (*ROUTES, "kronecker"))
+        count(self.probes, "probes")
+        count(self.power_iters, "power_iters", minimum=0)
+        choice(self.jacobian, "jacobian", tuple(JACOBIANS))
+        positive(self.max_jacobian_gb, "max_jacobian_gb")
+
+    transform = Add()
+
+    def settings(self) -> dict:
+        return {k: getattr(self, k) for k in SETTINGS}
+
+    def data_parallel(self, sum_over: Callable, processes: int) -> HIG:
+        """This rule on one shard of ``processes``: ``sum_over(arrays) -> arrays`` sums over the
+        processes (``all_reduce``); only the Kronecker route runs so (class docstring)."""
+        if self.route not in ("auto", "kronecker"):
+            raise ValueError(f"HIG(route={self.route!r}) cannot run on {processes} processes: its step "
+                             "decomposes the Jacobian stacked over the whole batch; only the Kronecker "
+                             "route (route='auto' or 'kronecker', the default networks) is data-parallel")
+        return replace(self, route="kronecker", sum_over=sum_over)
+
+    def context(self, problem, model):
+        op = problem.operator
+        lin = getattr(model, "linear_in_parameters", None)
+        lin = lin() if callable(lin) and self.route in ("auto", "kronecker") else None
+        if lin is None and self.sum_over is not None:
+            raise ValueError(f"rule 'hig' cannot run on several processes with {type(model).__name__}: "
+                             "only its Kronecker route is data-parallel, and that needs a network linear in "
+                             "its parameters (the default networks); run it with one process, or use gd, "
+                             "adam or sip")
+        if lin is None and self.route == "kronecker":
+            raise ValueError("HIG(route='kronecker') needs a network linear in its parameters after a fixed "
+                             "feature map (model.linear_in_parameters(), e.g. pdeinv.whitened('linear') or "
+                             f"pdeinv.reduced()); {type(model).__name__} does not declare one")
+        kron = None if lin is None else (lin, decoded_svd(op, lin.decoder), hig_kron.InputGram(), {})
+        device = next(iter(model.parameters()), torch.empty(0)).device
+        if kron is None and device.type != "cpu":
+            raise ValueError(f"HIG's Jacobian routes decompose J with numpy on the CPU; the model is on "
+                             f"{device}: use a network linear in its parameters (the default networks: "
+                             "the Kronecker route runs on any device) or train on the CPU")
+        return (op, *compress(op), kron)
+
+    def update(self, state: State, model: torch.nn.Module, y_target: torch.Tensor,
+               target: torch.Tensor | None = None) -> Update:
+        op, small, Q, kron = state.context
+        goal = y_target if target is None else target
+        if kron is not None:
+            return self._kronecker(op, kron, y_target, goal)
+        b = Batch.of(model, small, y_target)  # refuse a route over the memory budget before computing
+        route = self._route(b)
+        with torch.no_grad():
+            y = apply(op, prediction(model(y_target)))
+        r = (y - goal).double()  # g: per-sample residuals, not divided by B (class docstring)
+        loss = float(y_loss(r, torch.zeros_like(r)))
+        if not math.isfinite(loss):
+            return Update(None, {"loss": loss})
+        r = r if Q is None else r @ Q  # the residual's part in range(P); the rest no step can change
+        delta, info = route.direction(b, r.reshape(b.rows), self, state.steps)
+        delta = delta * self._unit(info)
+        sizes = [p.numel() for p in b.params.values()]
+        parts = [d.view(p.shape) for d, p in zip(torch.split(delta, sizes), b.params.values(), strict=True)]
+        return Update(tuple(parts), {**info, "loss": loss})
+
+    def _kronecker(self, op, kron, y_target: torch.Tensor, goal: torch.Tensor) -> Update:
+        """The exact step without ``J`` (:mod:`.hig_kron`); one pass of the feature map gives ``x`` and
+        the features, and rows taken before need neither (:meth:`_fixed`). Data-parallel
+        (``sum_over``): every rank joins the one sum of the moments, NaN where its shard failed, so all
+        ranks take or refuse the same step."""
+        lin, fac, gram, seen = kron
+        key = None if self.sum_over is not None else gram.key_of(y_target, None if goal is y_target else goal)
+        if key is not None and key == gram.seen:  # the same rows again (the full batch): hig_fixed
+            return self._fixed(lin, fac, gram, seen, key, y_target, goal)
+        gram.seen = key
+        x, Z = hig_kron.forward(lin, y_target)
+        try:
+            with torch.no_grad():
+                r = (apply(op, prediction(x)) - goal).double()
+        except NonFiniteError:
+            if self.sum_over is None:
+                raise
+            r = torch.full((len(Z), op.n_out), math.nan, dtype=torch.float64)
+        loss, rows = float(y_loss(r, torch.zeros_like(r))), len(Z)
+        R = r.cpu().numpy()
+        if self.sum_over is None and rows < Z.shape[1]:
+            # new rows, fewer than features (a minibatch): A = Z̃Z̃ᵀ is the smaller Gram; as many rows as
+            # features or more: G = Z̃ᵀZ̃, whose eigenpairs are kept should the same rows come again.
+            if not math.isfinite(loss):
+                return Update(None, {"loss": loss})
+            delta, info = hig_kron.direction_rows(fac, Z, R, self.eta, self.tau, self.exponent)
+        else:
+            G, N = hig_kron.moments(fac, Z, R, gram.kept(key))
+            if self.sum_over is not None:  # the whole batch's moments and mean loss on every rank
+                G, N, totals = self.sum_over([G, N, np.array([loss * rows, rows])])
+                loss, rows = float(totals[0] / totals[1]), int(totals[1])
+            if not (math.isfinite(loss) and np.isfinite(N).all()):
+                return Update(None, {"loss": loss})
+            delta, info = hig_kron.direction(fac, G, N, rows, self.eta, self.tau, self.exponent, gram, key)
+        return Update(hig_kron.split(lin, delta * self._unit(info), lin.layer.weight), {**info, "loss": loss})
+
+    def _fixed(self, lin, fac, gram, seen: dict, key: tuple, y_target, goal) -> Update:
+        """The step on rows taken before, from what they gave once (:mod:`.hig_fixed`): ``seen`` holds
+        the :class:`~.hig_fixed.Carried` state of the last such rows."""
+        if seen.get("key") != key:
+            _, Z = hig_kron.forward(lin, y_target)
+            a, W = gram(gram.kept(key) if gram.kept(key) is not None else Z.T @ Z, key)
+            fixed = hig_fixed.FixedRows.of(fac, Z, goal.detach().cpu().double().numpy(), a, W,
+                                           self.tau, self.exponent)
+            seen.update(key=key, carried=hig_fixed.Carried(fixed))
+        carried, layer = seen["carried"], lin.layer
+        weight = layer.weight.detach().clone() if layer.bias is None else \
+            torch.cat([layer.weight.detach(), layer.bias.detach()[:, None]], 1)  # a fresh copy it keeps
+        info = carried.fixed.info
+        delta, loss = carried.step(weight.cpu().numpy(), self.eta, self._unit(info))
+        if not math.isfinite(loss):
+            return Update(None, {"loss": loss})
+        if delta is None:  # below the weights' resolution: nothing to apply (hig_fixed)
+            return Update((None,) * len(list(layer.parameters())), {**info, "loss": loss})
+        return Update(hig_kron.split(lin, delta, layer.weight, contiguous=False), {**info, "loss": loss})
+
+    def _unit(self, info: dict) -> float:
+        """``σ_max^-(1+e)`` with ``normalize`` (class docstring), else 1."""
+        smax = info.get("sigma_max", 0.0)
+        return smax ** -(1.0 + self.exponent) if self.normalize and smax > 0 else 1.0
+
+    def _route(self, b: Batch):
+        """The first candidate route within ``max_jacobian_gb``; a ``ValueError`` naming them if none fits.
+        A route other than the first is taken with a warning that names it (never silently: the
+        last-layer route trains the last layer only)."""
+        budget = self.max_jacobian_gb * 2**30
+        first, *others = ROUTES[self.route](self, b)
+        for route in (first, *others):
+            if route.memory(b) <= budget:
+                if route is not first:
+                    frozen = ("; only the last layer trains, the hidden layers stay as they are"
+                              if route.name == "last_layer" else "")
+                    warnings.warn(f"HIG: route {first.name!r} needs about {first.memory(b) / 2**30:.3g} GB, "
+                                  f"above max_jacobian_gb={self.max_jacobian_gb:g}; taking the "
+                                  f"{route.describe(b)}{frozen}", stacklevel=2)
+                return route
+        also = "".join(f" (the {r.describe(b)})" for r in others)
+        raise ValueError(
+            f"HIG Jacobian of {b.rows} rows (batch {b.y.shape[0]} × {b.op.n_out} observations) × "
+            f"{b.n_params} parameters needs about {first.memory(b) / 2**30:.3g} GB with route "
+            f"{first.name!r}{also}, above max_jacobian_gb={self.max_jacobian_gb:g}; use a smaller "
+            "batch_size or network (fewer parameters), or raise max_jacobian_gb")
+
+
+def compress(op):
+    """``(C, Q)`` with ``P = Q C`` exactly and ``QᵀQ = I`` (class docstring), as ``(Matrix(C), Q)``; or
+    ``(op, None)`` when ``op`` has no spectral basis or its rank is not below its row count."""
+    basis = modal_basis(op)
+    if basis is None or len(basis.g) >= op.n_out:
+        return op, None
+    Q, R = np.linalg.qr(basis.out)
+    return Matrix((R * basis.g) @ basis.In.T), torch.from_numpy(Q)

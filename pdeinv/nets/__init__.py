@@ -1,0 +1,60 @@
+"""Networks ``f(y; θ) ≈ x``, one family per module, and how the default was chosen.
+
+Every head starts at zero: a random head emits components the physics cannot see
+(its null space), and no update rule removes them again (x-error near 1.0 against
+0.2–0.3 with a zero head on a 961-unknown heat problem). Which one a problem gets:
+:mod:`.defaults`; the nonlinear correction on a grid: :mod:`.refine`; the input whitening:
+:mod:`.whitening`.
+
+Three kinds of network:
+
+* :class:`Net` (:mod:`.net`) = a fitted input transform (:class:`~pdeinv.nets.whitening.Whitening`,
+  PCA whitening of the training observations) and a body from :data:`BODIES`:
+  ``linear`` (``x = A z + b``), ``mlp`` (tanh layers), ``residual`` (both, summed);
+  built by :func:`whitened`, in float64 (:data:`DTYPE`). The **default** where the operator is
+  reversible (the wave scenes, :func:`default_model`) up to :data:`REDUCED_ABOVE` unknowns or
+  observations. It has ``min(m, N)·N + N`` parameters and an ``N × N`` whitening (heat_2d
+  at n = 128: 260 M parameters), so above that, and on every other scene:
+* :func:`reduced` (:mod:`.reduced`): the same :class:`Net` on the ``k_in`` leading whitened components,
+  with a fixed decoder basis ``Φ`` (:class:`Decoder`, the prior's principal components) on the
+  output: ``x = Φ body(z)``; its trained size does not depend on the mesh, and the prior fills
+  what the observations do not see.
+* :class:`MLP` (:mod:`.mlp`): a tanh MLP (256, 256) on per-node standardized input, what ``--method adam``
+  trains (:mod:`pdeinv.methods.presets` says why: a first-order rule leaves weight on the
+  trailing whitened directions, which new data amplify).
+
+Both default networks are linear in their parameters after a fixed feature map
+(:meth:`Net.linear_in_parameters`): SIP's proxy step is then a Newton step
+(:meth:`Net.gauss_newton_diagonal`) and HIG has an exact Kronecker-factored step
+(:mod:`pdeinv.methods.hig.kron`). Measured against best-α Tikhonov on every scene with
+``benchmarks/accuracy.py``: the table is in ``docs/results.md``. The whitening is fitted by
+the trainer on the training observations only (:func:`fit_preconditioning`), never on ``x``,
+and travels with the state dict.
+
+History: an earlier sweep (SIP with Adam on the proxy, float32, 20 s per run) picked the
+whitened linear map for heat (0.032 on heat_2d against 0.073 for the whitened MLP and 0.191
+for the standardized MLP) and kept the MLP for the wave scenes, where time reversal made SIP
+a gradient step; with the spectral local inverse and the curvature-normalized proxy step the
+linear map wins there too (SIP on wave_2d: 5e-9, 1000× below the 0.2–0.3 of the MLP runs).
+"""
+
+from .defaults import (
+           DECODER_MAX_UNCAPTURED,
+           FALLBACK_COMPONENTS,
+           REDUCED_ABOVE,
+           data_base,
+           default_model,
+           default_size,
+           linear_default,
+           refined,
+           refined_size,
+)
+from .mlp import MLP, Residual, dense, mlp, zero_last_layer
+from .net import BODIES, DTYPE, LinearInParameters, Net, fit_preconditioning, whitened
+from .reduced import REDUCED_K, REDUCED_K_IN, REDUCED_UNCAPTURED, Decoder, prior_basis, reduced
+
+__all__ = ["BODIES", "DECODER_MAX_UNCAPTURED", "DTYPE", "FALLBACK_COMPONENTS", "MLP", "REDUCED_ABOVE",
+           "REDUCED_K", "REDUCED_K_IN", "REDUCED_UNCAPTURED", "Decoder", "LinearInParameters", "Net",
+           "Residual", "data_base", "default_model", "default_size", "dense", "fit_preconditioning",
+           "linear_default", "mlp", "prior_basis", "reduced", "refined", "refined_size", "whitened",
+           "zero_last_layer"]

@@ -1,0 +1,156 @@
+"""Which network a problem gets by default (:func:`default_model`) and how large it is (:func:`default_size`):
+the linear part (prior decoder, whitened map or its capped fallback) and the nonlinear correction on a grid
+(:func:`refined`, :mod:`pdeinv.nets.refine`)."""
+
+from __future__ import annotations
+
+from torch import nn
+
+from .net import whitened
+from .reduced import REDUCED_K, REDUCED_K_IN, reduced
+
+#: the largest fraction of the prior's energy a decoder may leave out before :func:`linear_default`
+#: takes the whitened map instead (an error floor of 0.1 %)
+DECODER_MAX_UNCAPTURED = 1e-6
+
+
+#: whitened components of the linear part where no decoder is used for the prior (:func:`linear_default`'s
+#: fallback, :func:`data_base`): ``N·k`` parameters, linear in the mesh. The training rows bound the
+#: whitening's rank anyway (heat_boxes 64×64, SIP noise-free: 0.1715 with 1024 or 2048 components and
+#: with all 3 969, which carry 2 945 dead columns; 4.1 M / 8.1 M / 15.8 M parameters)
+FALLBACK_COMPONENTS = 2048
+
+
+#: unknowns above which :func:`default_model` builds :func:`reduced` even for a reversible operator
+#: (measured on heat_2d; the table is in :func:`reduced`)
+REDUCED_ABOVE = 2_000
+
+
+def default_model(problem, rows_per_component: float | None = None, refine: bool = True,
+                  base: str = "auto") -> nn.Module:
+    """The problem's default network: a linear estimate (below; ``base='whitened'`` forces the whitened
+    map, what a user's data file gets, :func:`data_base`) and, with ``refine``, the nonlinear correction
+    fitted on prior draws (:func:`refined`, :mod:`pdeinv.nets.refine`). The linear part is chosen by what the
+    operator is (:func:`pdeinv.physics.capabilities.reversible`):
+
+    * a **reversible** operator (the wave scenes' final state: an energy-conserving, time-reversible
+      map) loses nothing: every ``x`` is recoverable from ``y`` to rounding, and a network restricted
+      to a prior subspace could only add the prior's uncaptured part. It gets the whitened linear map
+      (:func:`whitened`; wave_2d SIP 5e-9) up to :data:`REDUCED_ABOVE` unknowns or observations.
+    * every other operator (heat: dissipative; sensors: partial) has directions ``y`` does not see,
+      which only the prior can fill. It gets :func:`reduced`, whose fixed decoder is the prior's
+      principal components: the rules then solve *in the decoder's span*
+      (:class:`~pdeinv.inverse.decoder.DecoderTikhonov`) and the noisy target is the Wiener filter in
+      the basis of ``P D`` (:class:`~pdeinv.methods.targets.SpectralWiener`), which reaches the linear MMSE.
+      Measured in closed form (1024 training observations, 128 test pairs; relative L²(Ω)
+      x-errors, noise-free / 1 %; best-α Tikhonov and the MMSE fitted on the *training x* in
+      brackets): heat_2d 0.0085 / 0.0908 (0.037 / 0.117; MMSE 0.090 at 1 %), heat_sensors_2d
+      0.012 / 0.102 (0.045 / 0.147; 0.101), advection_diffusion_2d 0.0089 / 0.097 (0.034 / 0.124;
+      0.097), heat_sensors_3d 0.050 / 0.156 (0.064 / 0.206; 0.155), heat_cavity_3d 0.0099 / 0.070
+      (0.067 / 0.186; 0.072), heat_plate 0.0101 / 0.088 (0.066 / 0.142; 0.086), heat_1d 0.015 /
+      0.119 (0.024 / 0.127; 0.119).
+
+    ``rows_per_component`` caps the whitened directions for first-order rules
+    (:class:`~pdeinv.nets.whitening.Whitening`; ``--method gd`` and ``adam`` use 8,
+    :mod:`pdeinv.methods.presets`). Those rules keep the whitened linear map below
+    :data:`REDUCED_ABOVE` on every scene: they stop far from the fit in the decoder's span that makes
+    the prior extrapolate. Measured (Adam, CLI defaults, 1000 steps): heat_cavity_3d 0.315 with the
+    decoder against 0.171, heat_sensors_2d 0.314 against 0.262 (heat_2d 0.263 against 0.286)."""
+    if base not in ("auto", "whitened"):
+        raise ValueError(f"base={base!r} is not allowed; expected 'auto' or 'whitened'")
+    net = _whitened_fallback(problem, rows_per_component) if base == "whitened" else \
+        linear_default(problem, rows_per_component)
+    return refined(problem, net) if refine else net
+
+
+def data_base(problem) -> str:
+    """The linear part for a user's data file (``default_model``'s ``base``): ``'whitened'``, the whitening
+    fitted on the file's ``y`` with at most :data:`FALLBACK_COMPONENTS` components, so that nothing comes
+    from the scene's sampler (a prior decoder would be the scene's prior: heat_2d files from other priors,
+    SIP 1.31–1.68× best-α Tikhonov with it, and the whitened map better in all six cases measured, issue
+    32)."""
+    return "whitened"
+
+
+def _whitened_fallback(problem, rows_per_component=None) -> nn.Module:
+    return whitened("linear", rows_per_component=rows_per_component, components=FALLBACK_COMPONENTS)(problem)
+
+
+def linear_default(problem, rows_per_component: float | None = None) -> nn.Module:
+    """The linear part of :func:`default_model` (the default before :mod:`pdeinv.nets.refine`; ``--net
+    linear``): :func:`reduced` or :func:`whitened` as described there. A decoder that leaves more than
+    :data:`DECODER_MAX_UNCAPTURED` of the prior's energy out has an error floor of its square root
+    (the SIP paper's boxes at 64×64: 512 components leave 1.3 %, SIP 1.07 against 0.14 for the whitened
+    map, its rounding-level solve amplifying the missing part): the whitened linear map with at most
+    :data:`FALLBACK_COMPONENTS` components is taken instead (parameters linear in the mesh)."""
+    big = max(problem.operator.n_in, problem.operator.n_out) > REDUCED_ABOVE
+    kw = {"rows_per_component": rows_per_component}
+    if not (big or _prior_decoded(problem, rows_per_component)):
+        return whitened("linear", **kw)(problem)
+    net = reduced(**kw)(problem)
+    info = getattr(net, "decoder_info", {})
+    if 1 - info.get("captured", 1.0) > DECODER_MAX_UNCAPTURED:
+        return _whitened_fallback(problem, rows_per_component)
+    return net
+
+
+def refined(problem, base: nn.Module) -> nn.Module:
+    """``base`` plus a nonlinear correction on a grid fitted on prior draws
+    (:class:`pdeinv.nets.refine.Refined`),
+    for a problem whose unknowns are nodal values on a mesh of dimension 1–3; ``base`` otherwise. Where
+    the operator has a modal basis (the heat scenes' modal backend) the correction also sees the
+    physics' own Tikhonov estimate (:class:`pdeinv.nets.refine.SpectralFilter`, α at the noise level or at
+    rounding): full rank, where ``base`` is learned from the training rows and has at most their rank
+    (heat_boxes n=96: base 0.600 against best-α Tikhonov 0.108)."""
+    from ..fem.grid import GridMap, spacing
+    from ..inverse import NOISE_FREE_REL_ALPHA
+    from ..physics.capabilities import modal_basis
+    from .refine import Refined, SpectralFilter
+
+    disc = getattr(problem, "disc", None)
+    mesh = getattr(getattr(disc, "basis", None), "mesh", None)
+    if mesh is None or not 1 <= problem.points.shape[0] <= 3:
+        return base
+    modes = modal_basis(problem.operator)  # a full-rank physics estimate as a second input, where cheap
+    noise = float(getattr(problem, "noise", 0.0) or 0.0)
+    physics = None if modes is None else SpectralFilter(modes, max(noise, NOISE_FREE_REL_ALPHA**0.5) ** 2)
+    return Refined(base, GridMap(problem.points, spacing(mesh)), physics=physics)
+
+
+def _prior_decoded(problem, rows_per_component) -> bool:
+    """Whether :func:`default_model` gives ``problem`` the prior decoder at any size: a non-reversible
+    operator, trained by a rule that converges (no ``rows_per_component`` cap)."""
+    from ..physics.capabilities import reversible
+
+    return rows_per_component is None and not reversible(problem.operator)
+
+
+def default_size(problem) -> tuple[int, int]:
+    """``(parameters + buffers, widest layer)`` of :func:`default_model`'s network for ``problem``,
+    without building it (the memory guard, :func:`pdeinv.util.memory.check_training`; an upper bound:
+    the decoder may keep fewer than :data:`REDUCED_K` columns); a problem
+    with its own ``model_factory`` gets the dense bound ``m² + m n + n`` (an upper bound for
+    the scenes' MLP)."""
+    m, n = problem.operator.n_out, problem.operator.n_in
+    k = min(m, n)  # the whitening's components (:func:`whitened`)
+    dense = m * k + k * n + n
+    if getattr(problem, "model_factory", None) is not None:
+        return dense, max(m, n)
+    if max(m, n) > REDUCED_ABOVE or _prior_decoded(problem, None):
+        k_in, k_out = min(REDUCED_K_IN, m), min(REDUCED_K, n)
+        size = k_in * k_out + k_out + m * k_in + n * k_out + m + k_in
+        # a decoder that misses the prior falls back to the whitened map (linear_default)
+        kf = min(m, n, FALLBACK_COMPONENTS)
+        dense = max(size, m * kf + kf * n + n)
+    return dense + refined_size(problem), max(m, n)
+
+
+def refined_size(problem) -> int:
+    """An upper bound on what :func:`refined` adds: the U-Net's parameters and the grid maps' buffers
+    (``2·N·2^dim`` weights and indices, at most ``4N`` grid points); 0 where it adds nothing."""
+    from .refine import UNet
+
+    dim = problem.points.shape[0] if getattr(problem, "disc", None) is not None else 0
+    if not 1 <= dim <= 3:
+        return 0
+    return sum(q.numel() for q in UNet(dim).parameters()) + 2 * problem.N * 2**dim + 4 * problem.N

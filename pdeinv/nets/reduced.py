@@ -1,0 +1,161 @@
+"""The reduced network (:func:`reduced`): the whitened :class:`~pdeinv.nets.net.Net` on the leading observed
+components with a fixed decoder ``Φ``
+(:class:`Decoder`, the prior's principal components, :func:`prior_basis`)."""
+
+from __future__ import annotations
+
+import torch
+from torch import nn
+
+from .net import BODIES, DTYPE, Net
+from .whitening import Whitening
+
+#: at most this many decoder columns out of :func:`reduced` (``k_out``); fewer when they hold all but
+#: :data:`REDUCED_UNCAPTURED` of the prior's energy. Measured in closed form (the decoder's
+#: rounding-level solve on 128 noise-free test pairs): heat_3d 0.0209 with 256 columns (5.2e-5 of the
+#: prior's energy outside), 0.0122 with 512 (3.9e-7), 0.0119 with all 729; heat_2d, heat_plate and
+#: the sensor scenes need ~270 (below 1e-10 outside).
+REDUCED_K = 512
+
+
+#: the fraction of the prior's energy (``E‖x‖²_M``) the decoder may leave out: an error floor of
+#: ``√1e-10 = 1e-5`` relative, far below what any scene's observations resolve
+REDUCED_UNCAPTURED = 1e-10
+
+
+#: leading whitened components into :func:`reduced` (``k_in``). 1024 rather than 256: with noisy
+#: observations the denoised target depends on y's coordinates along the kept modes, which 256 data
+#: directions capture only in part. Measured (SIP, CLI defaults, 20 full-batch steps, one thread):
+#: heat_plate at 1 % noise 0.146 → 0.142 (best-α Tikhonov 0.141, the closed-form target 0.1405;
+#: k_in = 2560 gives 0.142 too: 1024 training rows span no more), wave_sensors_2d 0.0032 → 0.0028
+#: (noise-free 5e-5 → 4e-5), heat_plate noise-free 0.049 → 0.050.
+REDUCED_K_IN = 1024
+
+
+class Decoder(nn.Module):
+    """``x = Φ c``: a fixed basis ``Φ`` (``N × k``, a buffer, not trained) times coefficients ``c``."""
+
+    def __init__(self, basis: torch.Tensor):
+        super().__init__()
+        self.register_buffer("basis", torch.as_tensor(basis).T.contiguous())  # stored (k, N)
+
+    def forward(self, c: torch.Tensor) -> torch.Tensor:
+        return c @ self.basis
+
+    def extra_repr(self) -> str:
+        k, n = self.basis.shape
+        return f"N={n}, k={k}"
+
+
+def prior_basis(problem, k: int, samples: int | None = None, seed: int = 20_161, chunk: int = 128,
+                scaled: bool = True, uncaptured: float = 0.0):
+    """``Φ`` (``N × k'``): the span of the ``k' ≤ k`` leading L²(Ω) principal components of fields
+    drawn from the problem's prior (``problem.sampler``), with Euclidean-orthonormal columns.
+
+    The M-principal directions maximize the captured ``E‖x‖²_M`` (second moment, not centred, so
+    the prior mean is in the span too): the generalized eigenvectors of ``(M C M, M)`` with
+    ``C = XᵀX`` of the ``n`` drawn fields ``X`` (rows), computed on whichever side is smaller —
+    ``N × N`` when ``N < n``, else from the ``n × n`` Gram ``X M Xᵀ = U S² Uᵀ`` as ``Xᵀ U S⁻¹`` —
+    then a QR makes the columns orthogonal in ``ℝᴺ``. ``k' = k`` unless fewer components hold
+    all but a fraction ``uncaptured`` of the drawn energy (or the draws have lower rank).
+    ``scaled=True`` (default) then scales column ``j`` by the prior's rms
+    amplitude ``σ_j`` along it, normalized so that ``Σ_j ‖Φ_j‖² = N`` (the trace of the
+    identity, which is the decoder of a network with nodal outputs): an optimizer step that
+    moves every coefficient by ``ε`` moves the field by ``ε`` per node in the mean, whatever
+    ``N`` (so Adam's learning rates keep their meaning across meshes), and mostly along the
+    directions the prior fills. Measured (heat_2d, SIP Adam 1e-3, n = 16, 300 steps): x-error
+    0.14 scaled against 1.0 with orthonormal columns (Adam's sign-like steps pushed the
+    low-variance, invisible directions as hard as the leading ones); without the ``N``
+    normalization the error at n = 64 was 6x that at n = 32. ``info``: the captured fraction.
+    Deterministic (``seed``), so a saved network rebuilds the same buffer.
+    """
+    import numpy as np
+    import scipy.linalg as sla
+
+    n = samples or 4 * k
+    rng = np.random.default_rng(seed)
+    X = np.vstack([problem.sampler(min(chunk, n - i), rng) for i in range(0, n, chunk)])
+    M = problem.disc.M if getattr(problem, "disc", None) is not None else None
+    N = X.shape[1]
+    if N < n:  # the N × N side: generalized eigenvectors of (M XᵀX M, M), M-orthonormal
+        Md = np.eye(N) if M is None else M.toarray()
+        XM = X @ Md
+        lam, vecs = sla.eigh(XM.T @ XM, Md)
+    else:  # the n × n side: X M Xᵀ = U S² Uᵀ, directions Xᵀ U S⁻¹
+        lam, vecs = np.linalg.eigh(X @ (M @ X.T) if M is not None else X @ X.T)
+    lam, vecs = lam[::-1], vecs[:, ::-1]
+    rank = int((lam > lam[0] * 1e-14).sum())
+    tail = 1.0 - np.cumsum(lam[:rank]) / lam[lam > 0].sum()  # uncaptured after j + 1 components
+    k = min(k, rank, int(np.searchsorted(-tail, -uncaptured)) + 1)
+    dirs = vecs[:, :k] if N < n else X.T @ (vecs[:, :k] / np.sqrt(lam[:k]))
+    Phi = np.linalg.qr(dirs)[0]
+    if scaled:  # column j ∝ the prior's rms amplitude along it, Σ_j ‖Φ_j‖² = N (see the docstring)
+        rms = np.sqrt(((X @ Phi) ** 2).mean(0))
+        Phi = Phi * (rms * np.sqrt(N / (rms**2).sum()))
+    return Phi, {"captured": float(lam[:k].sum() / lam[lam > 0].sum()), "components": k, "samples": n}
+
+
+def reduced(k_in: int = REDUCED_K_IN, k_out: int = REDUCED_K, body: str = "linear", hidden=(256, 256),
+            activation=nn.Tanh, rel_floor: float | None = None, drop: float | str = "edge",
+            samples: int | None = None, dtype: torch.dtype = DTYPE, scaled: bool = True,
+            rows_per_component: float | None = None, uncaptured: float = REDUCED_UNCAPTURED):
+    """A ``model_factory`` whose *trained* size does not depend on the mesh:
+
+        x = Φ · body(z),   z = D_k U_kᵀ (y − μ)
+
+    ``z``: the ``k_in`` leading whitened PCA components of the observations
+    (:class:`~pdeinv.nets.whitening.Whitening` with ``components=k_in``, fitted on the training
+    observations); ``body``: a network ``k_in → k_out`` from :data:`BODIES` with a
+    zero-initialized last layer; ``Φ``: a *fixed* decoder basis (``N × k_out``,
+    :func:`prior_basis`: the leading principal components of the prior's fields, a buffer).
+    Parameters: ``k_in·k_out + k_out`` for the linear body (262 400 at the defaults; the table
+    below was measured with ``k_in`` = 256, 65 792),
+    whatever ``N``; buffers ``(m + N)·k`` grow linearly. Everything outside the span of
+    ``Φ`` is out of reach: the error floor is the prior's uncaptured part.
+
+    **Measured** with ``python benchmarks/netsize.py`` (heat_2d, noise-free, the CLI's
+    defaults: SIP (Adam 1e-3), 1000 steps, 1024 training and 128 test pairs, seed 0, one
+    thread; 2 shared cores at load 4–6, so compare within a row pair; x-error: mean relative
+    L²(Ω) on the test set; RSS: peak of the process):
+
+    ====  ======  ==============  ============  ========  ========  ======
+    n     N       network         trained       x-error   s/step    RSS GB
+    ====  ======  ==============  ============  ========  ========  ======
+    32    961     whitened lin.   924 482       0.0261    0.093     0.44
+    32    961     reduced         65 792        0.0307    0.045     0.39
+    64    3 969   whitened lin.   15 756 930    0.0298    1.19      1.17
+    64    3 969   reduced         65 792        0.0337    0.127     0.66
+    128   16 129  whitened lin.   260 160 770   (5 steps) 39.8      10.8
+    128   16 129  reduced         65 792        0.0379    0.344     1.67
+    ====  ======  ==============  ============  ========  ========  ======
+
+    With Adam through the physics (``--method adam``) at n = 32: 0.262 (reduced, 0.013 s/step)
+    against 0.284 (whitened linear, 0.026 s/step); reduced at n = 64: 0.289 (0.020 s/step),
+    n = 128: 0.304 (0.066 s/step).
+
+    At n = 64 the whitened linear map is slightly more accurate (0.030 against 0.034) for 9x the
+    step time; at n = 128 it would need ~11 h for the 1000 steps (its step is ~120x the
+    reduced one and the memory 6.5x). The reduced network's error grows only
+    slowly with N (0.031 → 0.038; the heat problem's recoverable content does not grow
+    with the mesh) and its step time is the physics'. Hence :data:`REDUCED_ABOVE` = 2 000:
+    heat_2d at its default n = 32 keeps the whitened linear map (better by 0.005 there),
+    n ≥ 46 switches. Body: ``linear`` (at n = 32, with the decoder before its ``N``
+    normalization: 0.042 against 0.094 for ``mlp`` (256, 256), as for the full-size
+    networks). Decoder scaling: :func:`prior_basis`.
+    """
+    if body not in BODIES:
+        raise ValueError(f"body={body!r} is not allowed; expected one of {', '.join(map(repr, BODIES))}")
+    for name, k in (("k_in", k_in), ("k_out", k_out)):
+        if isinstance(k, bool) or not isinstance(k, int) or k < 1:
+            raise ValueError(f"{name}={k!r} is not allowed; expected an integer >= 1")
+
+    def factory(problem) -> nn.Module:
+        m, n = problem.operator.n_out, problem.operator.n_in
+        basis, info = prior_basis(problem, min(k_out, n), samples, scaled=scaled, uncaptured=uncaptured)
+        pre = Whitening(m, rel_floor, drop, components=min(k_in, m), rows_per_component=rows_per_component)
+        net = Net(pre, BODIES[body](pre.k, basis.shape[1], tuple(hidden), activation),
+                  Decoder(torch.as_tensor(basis, dtype=dtype))).to(dtype)
+        net.decoder_info = info
+        return net
+
+    return factory

@@ -1,0 +1,168 @@
+"""Generalized eigenpairs ``K φ = λ M φ`` of the lowest modes, M-orthonormal (``ΦᵀMΦ = I``).
+
+Small problems use a dense ``scipy.linalg.eigh`` (all modes, exact to rounding). Large ones
+use a **block Krylov method in shift-invert mode** with full reorthogonalization:
+
+    S = (K − σM)⁻¹ M   (self-adjoint in the M-inner product, eigenvalues μ = 1/(λ − σ)),
+    Q = [Q₁ … Q_j] an M-orthonormal basis of span{Q₁, S Q₁, …, S^{j−1} Q₁},
+    S Q = Q H + Q_{j+1} B Eᵀ   (H = QᵀMSQ, B from the last block's orthonormalization),
+
+Rayleigh–Ritz ``H y = μ y`` gives ``λ = σ + 1/μ`` and ``φ = Q y`` with the exact residual norm
+``‖S φ − μ φ‖_M = ‖B y_last‖`` (no extra solve). ``σ`` sits just below 0, so a singular
+Neumann ``K`` is fine.
+
+**Stopping rule — accuracy of the operator, not of every eigenvector.** A caller passes
+``log_gain(λ)``, the log of what each mode is multiplied by (``log|r(dtκλ)ⁿ|`` for heat),
+and ``log_tol``: the modes with ``gain ≥ tol·max gain`` are kept. Mode ``i`` then enters
+the operator with weight ``wᵢ = gainᵢ/max gain`` and its eigenvector error is about
+``resᵢ/μᵢ`` (relative), so we stop once ``wᵢ·resᵢ/μᵢ ≤ eps`` for every kept Ritz pair.
+The most amplified (lowest) modes converge first and most accurately; modes near the
+cut-off only need to be roughly right, because they carry ``≈ tol``. A mode so close to
+the cut-off that the Krylov space has not found it yet carries ``≈ tol`` as well.
+
+Why not ARPACK (``eigsh``): it needs ``ncv ≈ 2k`` vectors and restarts with BLAS-2
+reorthogonalization; for the 281 modes of heat_2d at n=128 (16,129 unknowns) this method,
+with BLAS-3 block products, was 4.2–4.6× faster in the same run (11–14 s against 50–58 s,
+one thread on a machine loaded by four other jobs; eigsh alone took 22 s idle).
+``tests/test_modes.py`` checks the modes against the dense solver and the operator against
+time stepping. Block starts are seeded: a build
+is reproducible.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import scipy.linalg as la
+import scipy.sparse as sp
+import scipy.sparse.linalg as sla
+
+from ...errors import TooManyModes
+
+DENSE_MAX = 1500
+
+
+def _cholqr(W: np.ndarray, M) -> tuple[np.ndarray, np.ndarray]:
+    """``W = Q R`` with ``QᵀMQ = I`` (Cholesky QR twice); ``LinAlgError`` if ``W`` is rank deficient."""
+    R = np.eye(W.shape[1])
+    for _ in range(2):
+        Rk = la.cholesky(W.T @ (M @ W))
+        W = la.solve_triangular(Rk, W.T, trans="T").T
+        R = Rk @ R
+    return W, R
+
+
+class _Basis:
+    """A growing M-orthonormal basis ``Q`` (column blocks), with ``MQ`` kept beside it."""
+
+    def __init__(self, N: int, capacity: int):
+        self.Q = np.empty((N, capacity), order="F")
+        self.MQ = np.empty((N, capacity), order="F")
+        self.m = 0
+
+    def append(self, V: np.ndarray, MV: np.ndarray) -> None:
+        b = V.shape[1]
+        if self.m + b > self.Q.shape[1]:
+            cap = 2 * self.Q.shape[1] + b
+            for name in ("Q", "MQ"):
+                grown = np.empty((self.Q.shape[0], cap), order="F")
+                grown[:, :self.m] = getattr(self, name)[:, :self.m]
+                setattr(self, name, grown)
+        self.Q[:, self.m:self.m + b], self.MQ[:, self.m:self.m + b] = V, MV
+        self.m += b
+
+    def orthogonalize(self, W: np.ndarray) -> np.ndarray:
+        """Remove the basis from ``W`` (classical Gram–Schmidt twice); returns the coefficients."""
+        Q, MQ = self.Q[:, :self.m], self.MQ[:, :self.m]
+        C = MQ.T @ W
+        W -= Q @ C
+        C2 = MQ.T @ W
+        W -= Q @ C2
+        return C + C2
+
+
+def _rank_revealing(W, M, basis: _Basis, rng):
+    """``W = V B`` with M-orthonormal ``V`` when ``W`` is rank deficient: its numerical range
+    (eigenvalues of ``WᵀMW`` above ``1e-14·max``) plus fresh directions orthogonal to the basis."""
+    s, U = la.eigh(W.T @ (M @ W))
+    good = s > 1e-14 * s.max() if s.max() > 0 else np.zeros(len(s), bool)
+    V = W @ (U[:, good] / np.sqrt(s[good]))
+    B = np.zeros((W.shape[1], W.shape[1]))
+    B[:good.sum()] = np.sqrt(s[good])[:, None] * U[:, good].T
+    fresh = rng.standard_normal((W.shape[0], W.shape[1] - good.sum()))
+    for _ in range(2):
+        fresh -= V @ (V.T @ (M @ fresh))
+        basis.orthogonalize(fresh)
+    return np.hstack([V, _cholqr(fresh, M)[0]]) if fresh.shape[1] else V, B
+
+
+def lowest_modes(M, K, log_gain, log_tol: float, k: int = 64, eps: float = 1e-12, block: int = 64,
+                 max_fraction: float = 0.5, dense_max: int | None = None, seed: int = 0):
+    """``(lam, Phi)`` ascending: every mode with ``gain ≥ tol·max gain`` (see the module docstring).
+
+    ``log_gain(lam) -> array``: log of each mode's gain; ``log_tol``: log of the relative
+    cut-off; ``k``: the modes expected (Weyl's law), which sizes the first basis; ``eps``:
+    the operator accuracy aimed at. ``TooManyModes`` once more than ``max_fraction·N`` modes
+    would be kept.
+    """
+    N = M.shape[0]
+    if N <= (DENSE_MAX if dense_max is None else dense_max):
+        lam, Phi = la.eigh(K.toarray(), M.toarray())
+    else:
+        lam, Phi = _block_krylov(sp.csr_matrix(M), sp.csr_matrix(K), log_gain, log_tol, k, eps, block,
+                                 max_fraction, seed)
+    lg = log_gain(lam)
+    keep = lg >= lg.max() + log_tol
+    return lam[keep], Phi[:, keep]
+
+
+def _block_krylov(M, K, log_gain, log_tol, k, eps, block, max_fraction, seed):
+    from ...fem.solvers import default_solver  # here: solvers import torch lazily through cholespy
+
+    if not k >= 1:
+        raise ValueError(f"k={k!r} modes requested; expected an integer >= 1")
+    N = M.shape[0]
+    b = int(min(block, max(1, N // 8)))
+    sigma = -1e-8 * float(K.diagonal().mean() / M.diagonal().mean())
+    solve = default_solver(sp.csc_matrix(K - sigma * M)).solve
+    basis = _Basis(N, min(N, 3 * k + b))
+    H = np.zeros((0, 0))
+    rng = np.random.default_rng(seed)
+    V, _ = _cholqr(rng.standard_normal((N, b)), M)
+    while True:
+        m, b = basis.m, V.shape[1]
+        basis.append(V, M @ V)
+        W = solve(basis.MQ[:, m:m + b])
+        C = basis.orthogonalize(W)
+        H = np.pad(H, ((0, b), (0, b)))
+        H[:m + b, m:m + b] = C
+        if basis.m == N:  # the basis spans everything: Rayleigh–Ritz is exact
+            B = np.zeros((b, b))
+        else:
+            try:
+                V, B = _cholqr(W, M)
+            except la.LinAlgError:  # W (nearly) rank deficient: keep its range, fill up with fresh vectors
+                V, B = _rank_revealing(W, M, basis, rng)
+        if basis.m >= min(2 * k, N):
+            mu, Y = la.eigh(np.triu(H) + np.triu(H, 1).T)  # the computed half: QᵢᵀMSQⱼ, i ≤ j
+            mu, Y = mu[::-1], Y[:, ::-1]
+            lam = sigma + 1.0 / mu
+            lg = log_gain(lam)
+            kept = lg >= lg.max() + log_tol
+            if kept.sum() > max_fraction * N:
+                raise TooManyModes(f"the modal backend would need more than {kept.sum()} of {N} modes "
+                                   f"(> {max_fraction:.0%}); use backend='steps'")
+            res = np.linalg.norm(B @ Y[-b:, :], axis=0)  # S Q = Q H + V B Eᵀ
+            if np.all(np.exp(lg[kept] - lg.max()) * res[kept] / mu[kept] <= eps) and not kept[-1]:
+                return lam[kept], basis.Q[:, :basis.m] @ Y[:, kept]
+        if basis.m == N:  # only reached with max_fraction ≥ 1 and every mode kept
+            raise TooManyModes(f"every one of the {N} modes would be kept; use backend='steps'")
+        if N - basis.m < 2 * b:  # finish with the whole complement of the basis (≤ 2 blocks)
+            V, _ = _rank_revealing(np.zeros((N, N - basis.m)), M, basis, rng)
+
+
+def largest_eigenvalue(M, K) -> float:
+    """``λ_max`` of ``K φ = λ M φ`` (relative accuracy ~1e-8)."""
+    if M.shape[0] <= DENSE_MAX:
+        top = [M.shape[0] - 1] * 2
+        return float(la.eigh(K.toarray(), M.toarray(), eigvals_only=True, subset_by_index=top)[0])
+    return float(sla.eigsh(sp.csc_matrix(K), 1, sp.csc_matrix(M), which="LA", tol=1e-8)[0][0])

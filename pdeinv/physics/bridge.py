@@ -1,0 +1,73 @@
+"""The one bridge from any :class:`~pdeinv.physics.LinearOperator` into torch.
+
+``apply(op, x)`` computes ``y = P x`` row-wise for a batch-first tensor ``x`` of
+shape ``(B, N)`` (or ``(N,)``). The physics runs in float64 numpy under
+``no_grad``; the result comes back in ``x``'s dtype and device. An operator that
+offers ``torch_forward`` (:class:`pdeinv.physics.backends.device.Placed`: a dense, modal or
+SVD backend on a torch device) is applied in float64 torch on its device instead,
+with no round trip through numpy.
+
+Derivatives, all exact for the discrete map:
+
+* reverse mode: ``x̄ = Pᵀ ȳ`` — itself a call of this bridge with ``op.T``, so
+  double back-propagation (e.g. Gauss–Newton products) works too;
+* forward mode (``torch.func.jvp``): ``ẏ = P ẋ`` (P is linear);
+* ``torch.func.vmap``: extra batch dimensions are folded into the row batch, so
+  per-sample Jacobians with ``jacrev``/``vmap`` cost one multi-column physics call.
+"""
+
+from __future__ import annotations
+
+import torch
+
+from .base import LinearOperator
+
+
+def _run(op, x: torch.Tensor) -> torch.Tensor:
+    """``P x`` for a tensor of any leading shape: ``op.torch_forward`` on its device if it has one,
+    else the numpy ``op.forward`` on the CPU."""
+    lead = x.shape[:-1]
+    on_device = getattr(op, "torch_forward", None)
+    if on_device is not None:
+        flat = x.detach().reshape(-1, x.shape[-1]).to(device=op.device, dtype=torch.float64)
+        out = on_device(flat)
+        return out.to(device=x.device, dtype=x.dtype).reshape(*lead, out.shape[-1])
+    flat = x.detach().reshape(-1, x.shape[-1]).to(device="cpu", dtype=torch.float64)
+    out = op.forward(flat.numpy())
+    return torch.from_numpy(out).to(device=x.device, dtype=x.dtype).reshape(*lead, out.shape[-1])
+
+
+class _Physics(torch.autograd.Function):
+    @staticmethod
+    def forward(x, op):
+        return _run(op, x)
+
+    @staticmethod
+    def setup_context(ctx, inputs, output):
+        ctx.op = inputs[1]
+
+    @staticmethod
+    def backward(ctx, grad):
+        return _Physics.apply(grad, ctx.op.T), None
+
+    @staticmethod
+    def jvp(ctx, x_dot, _):
+        return _Physics.apply(x_dot, ctx.op)
+
+    @staticmethod
+    def vmap(info, in_dims, x, op):
+        d = in_dims[0]
+        if d is None:
+            return _Physics.apply(x, op), None
+        return _Physics.apply(x.movedim(d, 0), op), 0
+
+
+def apply(op: LinearOperator, x: torch.Tensor) -> torch.Tensor:
+    """``P x`` for a batch-first tensor, differentiable in reverse and forward mode."""
+    if not isinstance(x, torch.Tensor):
+        raise ValueError(f"x is a {type(x).__name__}; expected a torch.Tensor (use op.forward for numpy)")
+    if x.ndim == 0 or x.shape[-1] != op.n_in:
+        raise ValueError(f"x has shape {tuple(x.shape)}; expected (B, {op.n_in}) or ({op.n_in},)")
+    if not x.is_floating_point():
+        raise ValueError(f"x has dtype {x.dtype}; expected a floating-point tensor")
+    return _Physics.apply(x, op)

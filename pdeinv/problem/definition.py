@@ -1,0 +1,156 @@
+"""``Problem``: one inverse-problem scene, and ``load_problem`` to get one by name or path.
+
+Contract (docs/design.md): ``points`` ``(dim, N)``; ``operator.forward/adjoint``
+(numpy ``(B, N)``); ``inverse(y, x0)``; ``sample(n, seed) -> (x, y)``; ``model()``.
+"""
+
+from __future__ import annotations
+
+import importlib.util
+import os
+import sys
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from importlib import resources
+from pathlib import Path
+
+import numpy as np
+
+from .._checks import batch, count
+from ..fem.forms import Discretization
+from ..physics.base import LinearOperator
+from ..physics.propagator import chosen
+from .sampling import add_noise
+
+#: the package that holds the built-in problems (the repository's ``problems/``, installed as
+#: ``pdeinv.problems`` with its meshes; see ``pyproject.toml``)
+BUILTIN_PACKAGE = "pdeinv.problems"
+
+
+@dataclass
+class Problem:
+    """A scene: discretization, forward operator, data distribution, defaults.
+
+    ``sampler(n, rng) -> (n, N)`` draws true initial fields; observations are
+    ``y = P x`` plus relative Gaussian noise of level ``noise`` (see
+    :func:`pdeinv.problem.sampling.add_noise`). A time-stepping operator no one chose a backend for
+    (``Heat(...).sensors(S, k)``, ``Wave(...)``) is compiled by ``auto`` here, in the norms of
+    ``disc.M`` (:func:`pdeinv.physics.propagator.chosen`): no user has to call ``.compile``.
+    """
+
+    name: str
+    disc: Discretization
+    operator: LinearOperator
+    sampler: Callable[[int, np.random.Generator], np.ndarray]
+    settings: dict = field(default_factory=dict)
+    noise: float = 0.0
+    inverse_simulator: Callable | None = None
+    model_factory: Callable | None = None
+
+    def __post_init__(self):
+        # an operator built by hand goes through the backend chooser as the scenes' do
+        chosen(self.operator, getattr(self.disc, "M", None))
+
+    @property
+    def points(self) -> np.ndarray:
+        return self.disc.points
+
+    @property
+    def N(self) -> int:
+        return self.operator.n_in
+
+    def sample(self, n: int, seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
+        """``(x, y)`` with ``x`` from the sampler and ``y = P x`` (+ noise); seeded."""
+        n = count(n, "n")
+        rng = np.random.default_rng(seed)
+        x = self.sampler(n, rng)
+        return x, add_noise(self.operator.forward(x), self.noise, rng)
+
+    def inverse(self, y, x0) -> np.ndarray:
+        """Local inverse simulator ``P⁻¹_(x0, P x0)(y)``; returns ``x0`` when ``y = P x0``."""
+        if self.inverse_simulator is None:
+            raise NotImplementedError(f"problem {self.name!r} has no inverse simulator")
+        return self.inverse_simulator(y, x0)
+
+    def model(self, **settings):
+        """A fresh default network ``y -> x`` (torch.nn.Module): the problem's ``model_factory``, else
+        :func:`pdeinv.nets.default_model` with ``settings`` (e.g. ``rows_per_component=8``, what
+        ``--method gd`` and ``adam`` train; a ``model_factory`` takes no settings)."""
+        if self.model_factory is not None:
+            if settings:
+                raise ValueError(f"this problem builds its network with its own model_factory, which "
+                                 f"takes no settings; got {', '.join(sorted(settings))}")
+            return self.model_factory(self)
+        from ..nets import default_model
+
+        return default_model(self, **settings)
+
+    def relative_error(self, xhat, x) -> np.ndarray:
+        """Relative L²(Ω) error per sample, ``‖x̂ − x‖_M / ‖x‖_M``."""
+        xhat, _ = batch(xhat, self.N, "xhat")
+        x, _ = batch(x, self.N, "x")
+        return self.disc.relative_error(xhat, x)
+
+    def __repr__(self):
+        return f"Problem({self.name!r}, N={self.N}, operator={self.operator!r})"
+
+
+def builtin_dir() -> Path:
+    """The folder of the built-in problem modules, found through the installed package."""
+    return Path(os.fspath(resources.files(BUILTIN_PACKAGE)))
+
+
+def _problem_dirs(cwd: bool = True) -> list[Path]:
+    """Where ``load_problem('name')`` looks, in order: the folders in ``PDEINV_PROBLEMS``
+    (``os.pathsep``-separated), ``./problems``, the built-ins, then the current folder (after the
+    built-ins: a stray ``heat_2d.py`` there does not shadow the scene)."""
+    extra = [Path(p) for p in os.environ.get("PDEINV_PROBLEMS", "").split(os.pathsep) if p]
+    return extra + [Path.cwd() / "problems", builtin_dir()] + ([Path.cwd()] if cwd else [])
+
+
+def available() -> list[str]:
+    """Names of the problem modules in the problem folders (the current folder's modules are found by
+    name too, but not listed: it holds other Python files)."""
+    names = set()
+    for d in _problem_dirs(cwd=False):
+        if d.is_dir():
+            names |= {p.stem for p in d.glob("*.py") if not p.stem.startswith("_")}
+    return sorted(names)
+
+
+def find_module(name_or_path: str | os.PathLike) -> Path:
+    """The module file of a problem name (searched as in :func:`load_problem`) or path."""
+    spec = os.fspath(name_or_path)
+    if spec.endswith(".py") or os.sep in spec or "/" in spec:
+        path = Path(spec)
+        if not path.is_file():
+            raise FileNotFoundError(f"problem module {spec!r} does not exist")
+        if path.suffix != ".py":
+            raise ValueError(f"problem module {spec!r} is not a .py file; expected a Python module "
+                             "with make(**overrides), or a problem name")
+    else:
+        found = [d / f"{spec}.py" for d in _problem_dirs() if (d / f"{spec}.py").is_file()]
+        if not found:
+            raise ValueError(f"unknown problem {spec!r}; available: {', '.join(available())} "
+                             "(or give the path of a module file)")
+        path = found[0]
+    return path
+
+
+def load_problem(name_or_path: str | os.PathLike, **overrides) -> Problem:
+    """Import ``problems/<name>.py`` (or a module file by path) and call ``make(**overrides)``."""
+    path = find_module(name_or_path)
+    folder = str(path.resolve().parent)
+    if folder not in sys.path and path.resolve().parent != builtin_dir().resolve():
+        # a user's module: its siblings import as a script's do (a helper next to the module)
+        sys.path.insert(0, folder)
+    mod_spec = importlib.util.spec_from_file_location(f"pdeinv_problem_{path.stem}", path)
+    module = importlib.util.module_from_spec(mod_spec)
+    mod_spec.loader.exec_module(module)
+    make = getattr(module, "make", None)
+    if not callable(make):
+        raise ValueError(f"problem module {str(path)!r} has no function make(**overrides)")
+    problem = make(**overrides)
+    if not isinstance(problem, Problem):
+        raise ValueError(f"{str(path)}: make() returned {type(problem).__name__}; expected pdeinv.Problem")
+    return problem

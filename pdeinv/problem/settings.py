@@ -1,0 +1,68 @@
+"""Problem overrides: defaults, type coercion (for CLI strings) and checks.
+
+A problem module declares its settings as ``{name: (default, rule)}``; the rule
+turns a user value (possibly the string from ``--set name=value``) into a valid
+one or raises ``ValueError`` naming the value and what is allowed.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+
+from .. import _checks
+
+
+def _number(cast, check):
+    def rule(value, name):
+        if isinstance(value, str):
+            try:
+                value = float(value)  # "1e2" is a number too; an int rule takes it if it is whole
+            except ValueError:
+                raise ValueError(f"{name}={value!r} is not a number") from None
+            if cast is int and not value.is_integer():
+                kind = "a whole number" if math.isfinite(value) else "finite"
+                raise ValueError(f"{name}={value!r} is not allowed; expected an integer (not {kind})")
+        if cast is int and isinstance(value, float) and value.is_integer():
+            value = int(value)
+        return check(value, name)
+
+    return rule
+
+
+positive_int = _number(int, _checks.count)
+nonnegative_int = _number(int, lambda value, name: _checks.count(value, name, minimum=0))
+positive = _number(float, _checks.positive)
+nonnegative = _number(float, _checks.nonnegative)
+
+
+def one_of(*allowed):
+    return lambda value, name: _checks.choice(value, name, allowed)
+
+
+def optional_path(value, name):
+    """``None`` or the path of an existing file (a directory is refused by name)."""
+    if value is None or value == "":
+        return None
+    if not isinstance(value, (str, os.PathLike)):
+        raise ValueError(f"{name}={value!r} is not allowed; expected a file path")
+    if os.path.isdir(value):
+        raise ValueError(f"{name}={os.fspath(value)!r} is a directory; expected a file")
+    if not os.path.isfile(value):
+        raise FileNotFoundError(f"{name}={os.fspath(value)!r}: no such file")
+    return os.fspath(value)
+
+
+def resolve(spec: dict, overrides: dict, problem: str) -> dict:
+    """Merge ``overrides`` into the defaults of ``spec``, checking every value."""
+    unknown = sorted(set(overrides) - set(spec))
+    if unknown:
+        raise ValueError(
+            f"unknown setting(s) {', '.join(map(repr, unknown))} for problem {problem!r}; "
+            f"allowed: {', '.join(sorted(spec))}"
+        )
+    out = {}
+    for name, (default, rule) in spec.items():
+        value = overrides.get(name, default)
+        out[name] = rule(value, name) if name in overrides else value
+    return out

@@ -1,0 +1,281 @@
+"""A user's own observations: arrays, tensors, torch Datasets and ``.npz`` files, checked once.
+
+**File format** (``pdeinv train --data``, ``pdeinv predict --data``): an ``.npz`` with
+array ``y`` ``(B, m)``, the observations (required), and ``x`` ``(B, N)``, the true
+fields (optional; used only to report errors, never to train or to fit the whitening).
+
+**Held-out rows** (:func:`split`; one rule for ``Trainer(data=...)`` and the CLI): the
+rows keep their order. The **last** ``n_test`` rows are the test set (errors are
+reported on them); when a stopping rule is on, the ``n_val`` rows before them are
+its held-out observations; the first ``B − n_test − n_val`` rows train. Nothing is
+shuffled, so put the rows in random order if the file is sorted (by time, by
+sample…) and the test rows should be representative.
+
+**Checked against our physics** (:func:`model_mismatch`): when ``x`` is given, the mean over the
+rows of ``‖P x − y‖ / ‖y‖`` (Euclidean on the observation coefficients) says how far the file's
+simulator (or instrument) is from ours; with noise of relative level ``δ``
+(:func:`pdeinv.problem.sampling.add_noise`: ``y + δ·rms(y)·ε``) it is about ``δ`` from the noise alone.
+The trainer records it (``metrics["data"]["model_mismatch"]``) and warns when it exceeds what the
+run's noise level explains (:data:`MISMATCH_SLACK`).
+
+Refused with a ``ValueError`` naming the file and what was expected: not an npz,
+an empty file, a missing ``y``, a wrong shape (``y`` must have the problem's ``m``
+columns, ``x`` its ``N`` and as many rows as ``y``), NaN or Inf, a non-numeric array,
+too few rows for the held-out sets and one batch.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import os
+import warnings
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+
+def as_observations(data, m: int, name: str = "data") -> np.ndarray:
+    """``data`` (numpy array, torch tensor or torch ``Dataset``) as a float64 ``(B, m)`` array.
+
+    A Dataset item is one observation ``(m,)``, or a tuple whose first element is one
+    (``TensorDataset(y)``; further elements are ignored).
+    """
+    from torch.utils.data import Dataset
+
+    if isinstance(data, Dataset):
+        items = [data[i] for i in range(len(data))]
+        items = [item[0] if isinstance(item, (tuple, list)) else item for item in items]
+        data = np.stack([_numpy(item) for item in items]) if items else np.zeros((0, m))
+    return _rows(_numpy(data), m, name)
+
+
+def _numpy(a) -> np.ndarray:
+    return a.detach().cpu().numpy() if hasattr(a, "detach") else np.asarray(a)
+
+
+def _rows(a: np.ndarray, width: int, name: str) -> np.ndarray:
+    if a.dtype == object or not np.issubdtype(a.dtype, np.number) or np.iscomplexobj(a):
+        raise ValueError(f"{name} has dtype {a.dtype}; expected a real numeric array")
+    if a.ndim != 2 or a.shape[1] != width:
+        flipped = a.ndim == 2 and a.shape[0] == width
+        hint = " (it looks transposed: rows are samples; pass its .T)" if flipped else ""
+        raise ValueError(f"{name} has shape {a.shape}; expected (B, {width}) for this problem{hint}")
+    if a.shape[0] == 0:
+        raise ValueError(f"{name} has no rows; expected (B, {width}) with B >= 1")
+    if not np.isfinite(a).all():
+        bad = tuple(int(i) for i in np.argwhere(~np.isfinite(a))[0])
+        raise ValueError(f"{name} holds {int((~np.isfinite(a)).sum())} NaN/Inf values (first at {bad}); "
+                         "expected finite values")
+    top = float(np.abs(a).max())
+    if top > MAGNITUDE[1] or 0 < top < MAGNITUDE[0]:
+        raise ValueError(f"{name} holds values up to {top:.3g}: their squares leave float64's range (losses, "
+                         f"covariances); expected magnitudes between {MAGNITUDE[0]:g} and {MAGNITUDE[1]:g}: "
+                         f"rescale the data (e.g. divide by {top:.3g})")
+    return np.ascontiguousarray(a, dtype=np.float64)
+
+
+#: the magnitudes whose squares (and sums of squares) float64 holds
+MAGNITUDE = (1e-150, 1e150)
+
+
+def rounding_level(a) -> float:
+    """The relative noise level a floating dtype's rounding puts into data stored in it: its unit
+    roundoff ``eps/2`` (float32: 6e-8, float16: 5e-4); 0 for float64 and wider. Information below it is
+    gone, and a solve that assumes exact data amplifies it (heat_1d from a float32 file: SIP's x-error
+    17.7 against 0.02 with the same data in float64)."""
+    dtype = np.asarray(a).dtype
+    if not np.issubdtype(dtype, np.floating) or np.finfo(dtype).eps <= np.finfo(np.float64).eps:
+        return 0.0
+    return float(np.finfo(dtype).eps / 2)
+
+
+#: an estimated relative noise level below this is read as clean data (rounding and the tail of a
+#: truncated spectral basis)
+NOISE_FLOOR = 1e-6
+
+
+def undeclared_noise(path, y, problem=None) -> float:
+    """The noise a data file carries without declaring it: the larger of its storage rounding
+    (:func:`npz_rounding_level`) and the level its observations show outside ``range(P)``
+    (:func:`pdeinv.inverse.noise.estimate_noise_outside`, exact under white noise), when ``problem``'s
+    operator
+    has a spectral basis with enough directions outside it and the level is above :data:`NOISE_FLOOR`.
+    Elsewhere (an invertible operator: the wave scenes, or few observations) nothing is estimated: the
+    singular-value estimate (:func:`pdeinv.inverse.noise.estimate_noise`) read 2.4e-4 on clean heat_1d files
+    of 15 observations, and a level that is wrong either way misleads the Wiener target."""
+    from ..inverse.noise import estimate_noise_outside
+    from ..physics.backends.compiled import spectral_basis
+    from ..physics.capabilities import reversible
+
+    level = npz_rounding_level(path)
+    op = None if problem is None else problem.operator
+    if op is None or (reversible(op) and op.n_out <= op.n_in):  # it keeps every direction: none outside
+        return level
+    disc = getattr(problem, "disc", None)
+    basis = spectral_basis(op, None if disc is None else disc.M)  # no SVD for a reversible map (above)
+    est = None if basis is None else estimate_noise_outside(y, basis.out[:, basis.g > 1e-12 * basis.g.max()])
+    return max(level, est if est is not None and est > NOISE_FLOOR else 0.0)
+
+
+def npz_rounding_level(path) -> float:
+    """:func:`rounding_level` of the array ``y`` of a file :func:`read_npz` has accepted."""
+    with np.load(path, allow_pickle=False) as f:
+        return rounding_level(f["y"])
+
+
+def read_npz(path, m: int, n: int) -> tuple[np.ndarray, np.ndarray | None]:
+    """``(y, x or None)`` from an ``.npz`` file, checked against a problem's ``m`` and ``N = n``."""
+    path = Path(path)
+    where = f"data file {os.fspath(path)!r}"
+    if not path.exists():
+        raise FileNotFoundError(f"{where} does not exist")
+    if not path.is_file():
+        raise ValueError(f"{where} is not a file; expected an .npz with array 'y'")
+    if path.stat().st_size == 0:
+        raise ValueError(f"{where} is empty; expected an .npz with array 'y' (np.savez(file, y=y))")
+    try:
+        with np.load(path, allow_pickle=False) as f:
+            if not isinstance(f, np.lib.npyio.NpzFile):
+                raise ValueError("a single .npy array")
+            arrays = {k: f[k] for k in f.files if k in ("x", "y")}
+    except Exception as err:  # noqa: BLE001  (zip, pickle, header errors differ by content)
+        first = (str(err).strip().splitlines() or [type(err).__name__])[0][:100]
+        raise ValueError(f"{where} is not an .npz archive ({first}); expected np.savez(file, y=y[, x=x])") \
+            from None
+    if "y" not in arrays:
+        raise ValueError(f"{where} has no array 'y'; expected np.savez(file, y=y[, x=x]) with y (B, {m})")
+    y = _rows(arrays["y"], m, f"{where}: y")
+    x = arrays.get("x")
+    if x is not None:
+        x = _rows(x, n, f"{where}: x")
+        if len(x) != len(y):
+            raise ValueError(f"{where}: x has {len(x)} rows but y has {len(y)}; expected one x per y")
+    return y, x
+
+
+def read_meta(path, points) -> dict:
+    """The optional keys of a data file, checked: ``noise`` (one number ≥ 0, the relative level, as
+    ``--set noise=``) and ``points`` (the coordinates of the columns of ``x``, ``(dim, N)``, which must
+    be the problem's ``points`` to 1e-9 of their largest coordinate: the same unknowns in the same
+    order). ``{"noise": δ}`` when the file declares a level; a mismatch is a ``ValueError`` naming it."""
+    where = f"data file {os.fspath(path)!r}"
+    with np.load(path, allow_pickle=False) as f:
+        meta = {k: f[k] for k in f.files if k in ("noise", "points")}
+    out = {}
+    if "noise" in meta:
+        v = meta["noise"]
+        if v.size != 1 or not np.issubdtype(v.dtype, np.number) or not np.isfinite(v).all() or float(v) < 0:
+            raise ValueError(f"{where}: noise={v.tolist()!r} is not allowed; expected one number >= 0 "
+                             "(the relative noise level, as --set noise=)")
+        out["noise"] = float(v)
+    if "points" in meta:
+        got, ref = meta["points"], np.asarray(points, dtype=float)
+        if got.shape != ref.shape or not np.issubdtype(got.dtype, np.number):
+            raise ValueError(f"{where}: points has shape {got.shape}; expected {ref.shape} (the coordinates "
+                             "of the problem's unknowns, problem.points: one column per column of x)")
+        diff = np.abs(got.astype(float) - ref).max(0)
+        worst = int(np.argmax(diff))
+        if not diff[worst] <= 1e-9 * max(float(np.abs(ref).max()), np.finfo(float).tiny):
+            a, b = got[:, worst].tolist(), ref[:, worst].tolist()
+            raise ValueError(f"{where}: points differ from the problem's by up to {diff[worst]:.3g} "
+                             f"(column {worst}: {a} against {b}); the columns must be the problem's unknowns "
+                             "in its order (docs/own-data.md: data on another grid is interpolated first)")
+    return out
+
+
+#: the mismatch a run explains: ``MISMATCH_SLACK[0]·δ`` with noise level ``δ`` (the noise alone gives
+#: ≈ δ; 1.1 leaves room for the spread of a finite file), else ``MISMATCH_SLACK[1]`` (a float32 file of
+#: our own simulator is off by ~6e-8)
+MISMATCH_SLACK = (1.1, 1e-6)
+
+
+def model_mismatch(op, x: np.ndarray, y: np.ndarray) -> float:
+    """Mean over rows of ``‖P x_i − y_i‖ / ‖y_i‖`` (Euclidean): how far data ``(x, y)`` made elsewhere is
+    from ``op`` (module docstring)."""
+    r = np.linalg.norm(np.asarray(op.forward(x)) - y, axis=1)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        return float(np.mean(np.where(r == 0, 0.0, r / np.linalg.norm(y, axis=1))))
+
+
+def explained(mismatch: float, noise: float) -> bool:
+    """Whether ``mismatch`` is within what noise of relative level ``noise`` explains."""
+    return mismatch <= (MISMATCH_SLACK[0] * noise if noise else MISMATCH_SLACK[1])
+
+
+#: a figure of :func:`against` above this: the observations are not of the problem's physics at all
+#: (half the observation or more unexplained: made by another problem of the same shapes)
+FOREIGN = 0.5
+
+
+def against(problem, y: np.ndarray, x: np.ndarray | None, path=None) -> tuple[str, float]:
+    """``(what, figure)``: how far observations from elsewhere are from ``problem``'s physics — with
+    ``x``, :func:`model_mismatch`; else the noise level they show outside ``range(P)``
+    (:func:`undeclared_noise`, 0 where it cannot be read). Compare it with the level the problem
+    assumes (:func:`explained`) and with :data:`FOREIGN`."""
+    if x is not None:
+        return "model mismatch mean ‖P x − y‖/‖y‖", model_mismatch(problem.operator, x, y)
+    return "noise level outside the range of P", undeclared_noise(path, y, problem) if path else 0.0
+
+
+def split(rows: int, n_test: int, n_val: int = 0) -> tuple[slice, slice, slice]:
+    """``(train, val, test)`` row slices: the last ``n_test`` rows test, the ``n_val`` before them val."""
+    n_train = rows - n_test - n_val
+    if n_train < 2:
+        raise ValueError(f"the data has {rows} rows; {n_test} test rows"
+                         + (f" and {n_val} rows for the stopping rule" if n_val else "")
+                         + " are held out from its end, leaving fewer than 2 to train on "
+                         "(lower n_test / --n-test or give more rows)")
+    return slice(0, n_train), slice(n_train, n_train + n_val), slice(n_train + n_val, rows)
+
+
+def fingerprint(y: np.ndarray) -> str:
+    """A short hash of the observations: a checkpoint of other data is not resumed."""
+    return hashlib.sha256(np.ascontiguousarray(y, dtype=np.float64).tobytes()).hexdigest()[:16]
+
+
+@dataclass
+class OwnData:
+    """``Trainer(data=...)``'s rows after :func:`own_data`: the training rows, the stopping rule's, the
+    test rows (with their ``x`` or None), the data's fingerprint, its model mismatch and the row ranges."""
+
+    y: np.ndarray
+    y_val: np.ndarray
+    y_test: np.ndarray
+    x_test: np.ndarray | None
+    fingerprint: str
+    model_mismatch: float | None
+    rows: dict
+    x: np.ndarray | None = None  # the training rows' fields, when the file has them (the prior's draws)
+
+    def describe(self) -> dict:
+        """``metrics["data"]``."""
+        return {"rows": self.rows, "x": self.x_test is not None, "model_mismatch": self.model_mismatch,
+                "split": "in order: first rows train, then the stopping rule's rows, "
+                         "the last n_test rows test"}
+
+
+def own_data(problem, data, data_x, n_test: int, n_val: int = 0, warn: bool = True) -> OwnData:
+    """``data`` (``(B, m)`` observations) and ``data_x`` (their fields or None) checked against ``problem``
+    and split by :func:`split`; ``warn``: say when the mismatch exceeds the noise, and what the default
+    split held out (the writer process of a data-parallel run)."""
+    y = as_observations(data, problem.operator.n_out, "data")
+    x = None if data_x is None else as_observations(data_x, problem.N, "data_x")
+    if x is not None and len(x) != len(y):
+        raise ValueError(f"data_x has {len(x)} rows but data has {len(y)}; expected one x per y")
+    mismatch = None if x is None else model_mismatch(problem.operator, x, y)
+    if mismatch is not None and not explained(mismatch, problem.noise) and warn:
+        warnings.warn(f"the data's y differ from this problem's P x by {mismatch:.3g} (mean "
+                      f"‖P x − y‖/‖y‖ over the file's rows), more than its noise level "
+                      f"{problem.noise:g} explains: another simulator, grid or column order? "
+                      "(--set noise=… declares noisy data)", RuntimeWarning, stacklevel=3)
+    train, val, test = split(len(y), n_test, n_val)
+    held = len(y) - train.stop
+    if train.stop < held and warn:  # say what the default splits took
+        stop = f" and {val.stop - val.start} for the stopping rule" if val.stop > val.start else ""
+        warnings.warn(f"the data's {len(y)} rows: the last {test.stop - test.start} are held out as the "
+                      f"test set{stop}, only {train.stop} train; hold out fewer with --n-test "
+                      "(Trainer(n_test=...))", RuntimeWarning, stacklevel=3)
+    return OwnData(y[train], y[val], y[test], None if x is None else x[test], fingerprint(y), mismatch,
+                   {"train": [0, train.stop], "stop": [val.start, val.stop], "test": [test.start, test.stop]},
+                   None if x is None else x[train])

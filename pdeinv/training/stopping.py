@@ -1,0 +1,110 @@
+"""Stopping rules that never look at ``x``: when to stop training on noisy observations.
+
+Every update rule *semi-converges* on noisy data: the physics loss is minimized by
+the unregularized inverse, which fits the noise, so the x-error falls, then rises
+while the y-residual keeps falling. The iteration count is the regularization
+parameter, and Morozov's discrepancy principle chooses it as it chooses Tikhonov's
+α (Engl, Hanke, Neubauer, *Regularization of Inverse Problems*, §4.3 and §6):
+stop at the first iterate whose residual reaches the noise,
+
+    ρ_k = √( Σ_i ‖P f_k(y_i) − y_i‖² / Σ_i m σ_i² ) ≤ τ,      τ > 1,
+
+on **held-out observations** ``y_i`` (the network cannot have memorized their
+noise, so ``ρ`` does not drop below the level a good reconstruction leaves).
+``σ_i² = δ²/(1+δ²) · mean(y_i²)`` is the per-component variance of the relative
+noise ``δ`` (:func:`pdeinv.inverse.noise.noise_variance`), so ``ρ = 1`` is the residual of
+the true ``x``. ``δ`` is the problem's level when it knows one, otherwise (or with
+``noise="estimate"``) estimated from the training observations
+(:func:`pdeinv.inverse.noise.estimate_noise`).
+
+A rule is a strategy object with explicit state, like the update rules::
+
+    state = rule.init(problem, y_train, y_val)        # y: numpy (n, m) observations
+    state, info, stop = rule.check(state, model)      # every rule.every accepted steps
+    rule.describe(state) -> dict                      # what the rule used, for metrics.json
+
+``rule.n_val`` held-out observations are drawn by the trainer (observations only;
+their ``x`` is discarded). ``info`` is merged into the history row.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import NamedTuple
+
+import numpy as np
+import torch
+
+from .._checks import count, positive
+from ..inverse.noise import estimate_noise
+
+
+def finished(at, steps: int | None, time_budget: float | None) -> bool:
+    """Whether a run at ``at`` (its accepted ``step``, ``wall`` seconds of training, ``stopped_by``) is
+    over: a stopping rule or callback ended it, or it reached ``steps`` or ``time_budget`` (each may be
+    None: no limit); never before its first step."""
+    return at.step >= 1 and (at.stopped_by is not None or (steps is not None and at.step >= steps) or (
+        time_budget is not None and at.wall >= time_budget))
+
+
+class DiscrepancyState(NamedTuple):
+    operator: object
+    y_val: np.ndarray
+    noise_sq: float  # Σ_i m σ_i²
+    noise: float  # the relative level δ used
+    noise_source: str  # "problem" or "estimate"
+
+
+@dataclass(frozen=True)
+class DiscrepancyStop:
+    """Stop once the held-out residual ratio ``ρ ≤ tau`` (module docstring).
+
+    ``noise``: ``None`` takes the problem's level (a noise-free problem makes the
+    rule inert: it never fires); ``"estimate"`` estimates it from the training
+    observations; a number is the relative level itself.
+    ``tau = 1.1`` as for Morozov's α (:class:`pdeinv.Discrepancy`).
+    """
+
+    tau: float = 1.1
+    noise: float | str | None = None
+    every: int = 10
+    n_val: int = 128
+    name: str = "discrepancy"
+
+    def __post_init__(self):
+        positive(self.tau, "tau")
+        count(self.every, "every")
+        count(self.n_val, "n_val")
+        if not (self.noise is None or self.noise == "estimate"
+                or (isinstance(self.noise, (int, float)) and self.noise >= 0)):
+            raise ValueError(f"noise={self.noise!r} is not allowed; expected None, 'estimate' or a "
+                             "relative level >= 0")
+
+    def init(self, problem, y_train: np.ndarray, y_val: np.ndarray) -> DiscrepancyState:
+        if self.noise == "estimate":
+            delta, source = estimate_noise(y_train), "estimate"
+        elif self.noise is None:
+            delta, source = float(getattr(problem, "noise", 0.0) or 0.0), "problem"
+        else:
+            delta, source = float(self.noise), "given"
+        y_val = np.asarray(y_val, dtype=float)
+        sigma2 = delta**2 / (1.0 + delta**2) * np.mean(y_val**2, axis=1)
+        return DiscrepancyState(problem.operator, y_val, float(np.sum(sigma2) * y_val.shape[1]), delta,
+                                source)
+
+    def describe(self, state: DiscrepancyState) -> dict:
+        return {"tau": self.tau, "noise": state.noise, "noise_source": state.noise_source}
+
+    @torch.no_grad()
+    def check(self, state: DiscrepancyState, model: torch.nn.Module):
+        if state.noise_sq == 0:  # noise-free: nothing to stop for, and nothing to compute
+            return state, {"discrepancy": np.inf}, False
+        param = next(iter(model.parameters()), None)
+        dtype = param.dtype if param is not None else torch.float32
+        device = param.device if param is not None else None
+        xhat = model(torch.as_tensor(state.y_val, dtype=dtype, device=device)).double().cpu().numpy()
+        if not np.isfinite(xhat).all():
+            return state, {"discrepancy": np.inf}, False
+        r2 = float(np.sum((state.operator.forward(xhat) - state.y_val) ** 2))
+        ratio = float(np.sqrt(r2 / state.noise_sq))
+        return state, {"discrepancy": ratio}, bool(ratio <= self.tau)

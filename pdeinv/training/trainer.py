@@ -1,0 +1,364 @@
+"""The common trainer: one loop for every update rule (no ``if method == ...``). Per step it records
+the batch y-loss (``½ · mean_i ‖P(f(y*_i)) − y*_i‖²``, Euclidean) and the training wall time (steps only,
+not evaluations: runs compare at equal wall-clock time); every ``eval_every`` steps the test errors
+(:mod:`pdeinv.training.evaluation`). It composes :mod:`pdeinv.training.trainset` (data),
+:mod:`pdeinv.methods.guard`,
+:mod:`pdeinv.training.stopping`, :mod:`pdeinv.training.checkpoint` and :mod:`pdeinv.training.distributed`.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+import warnings
+from collections.abc import Callable
+from dataclasses import dataclass, field
+
+import torch
+
+from .._checks import count, nonnegative
+from ..methods.base import NonFiniteError, UpdateRule
+from ..methods.guard import Guard
+from ..methods.protocol import declared
+from ..nets.refine import PriorFit
+from ..physics.backends.device import placed, resolve
+from . import checkpoint as ckpts
+from .checkpoint import Checkpoint, Position
+from .data import OwnData, own_data
+from .distributed import Single
+from .evaluation import check_evaluation, evaluate, metrics
+from .progress import progress
+from .stopping import finished
+from .trainset import (
+    BATCH_ORDER,
+    N_TRAIN,
+    fit_inputs,
+    prior_rows,
+    seed_stream,
+    stop_rows,
+    test_rows,
+    training_fields,
+    training_rows,
+)
+from .unseen import of_predictions
+
+__all__ = ["Callback", "Result", "Trainer", "seed_stream", "train"]
+
+#: at most this many field entries in a scene's prior draws (x, y and the base's estimates in float64 and
+#: float32: ~20 bytes each, 2 GB): 4096 draws up to 48 828 unknowns, fewer above, never under 256
+PRIOR_ENTRIES = 100_000_000
+
+#: ``callback(record, model) -> bool | None``; returning True stops training after this step
+Callback = Callable[[dict, torch.nn.Module], "bool | None"]
+
+
+@dataclass
+class Result:
+    """A finished run: the trained model, the per-step history, the final metrics and rule state."""
+
+    model: torch.nn.Module
+    history: list[dict]
+    metrics: dict
+    state: object = None
+
+
+@dataclass
+class _Run:
+    """One fit's live objects: the model, the rule state, the data, the stopping rule's state."""
+
+    model: torch.nn.Module
+    state: object
+    y_train: torch.Tensor
+    t_train: torch.Tensor | None  # what P f(y) must match (float64) if not y_train (pdeinv.methods.targets)
+    test: tuple
+    stop_state: object
+    at: Position
+    guard: Guard  # step size, failures, lowest loss, last good state (methods.guard)
+
+    def batch(self, size: int, n: int) -> tuple[torch.Tensor, torch.Tensor | None]:
+        """The next ``size`` training rows and their float64 targets (``None``: the rows); all: themselves."""
+        rows, y, t = self.at.next_rows(size, n), self.y_train, self.t_train
+        return (y, t) if size == n else (y[rows], None if t is None else t[rows])
+
+
+@dataclass
+class Trainer:
+    """Train ``model`` on ``problem`` with ``rule`` (a :class:`~pdeinv.methods.GD`, ``SIP``, ``HIG``, …).
+
+    **Data** (:mod:`pdeinv.training.trainset`): ``n_train`` and ``n_test`` independent seeded draws of
+    ``problem.sample``, or the user's rows ``data`` (numpy ``(B, m)``, tensor or torch ``Dataset``;
+    ``data_x`` ``(B, N)``, optional, only for ``x_err``): the last ``n_test`` rows test, the stopping
+    rule's ``stop.n_val`` before them, the rest train (:func:`pdeinv.training.data.own_data`). Batches are
+    drawn
+    without replacement, reshuffled every epoch (``batch_size=None``: every training row in order, each
+    step).
+    ``model=None`` takes ``problem.model()`` after ``torch.manual_seed(seed)``; ``fit_scaling`` fits its
+    input transform on the training observations at the problem's noise level (never on ``x``).
+
+    Stops after ``steps`` steps or ``time_budget`` seconds of training (at least one must be given),
+    when a callback returns True, or when the stopping rule ``stop`` fires (e.g.
+    :class:`~pdeinv.training.stopping.DiscrepancyStop`, every ``stop.every`` accepted steps, on held-out
+    observations only). ``metrics["stopped_by"]`` says which (``steps``, ``time_budget``, the rule's
+    name, or ``callback``) and ``metrics["steps"]`` at which step.
+
+    **Guard** (:class:`~pdeinv.methods.guard.Guard`: its policy, budget and messages). A step whose loss,
+    prediction or update holds NaN/Inf, whose loss exceeds ``max_loss_growth`` (1e3; None: off) times the
+    lowest accepted one, or whose test predictions blow up is *rejected* (a ``history`` row with ``loss``
+    NaN and the message under ``rejected``, and a warning): the last good state (copied every
+    ``snapshot_every`` steps; 1: the step before) is put back, the step size cut by ``step_factor`` (½;
+    back toward 1 after ``recover_after`` clean steps). ``max_failures`` rejections in a row, or one at
+    the floor ``min_scale``, raise :class:`NonFiniteError`.
+
+    **Checkpoints.** ``checkpoint=Checkpoint(path, every=k)`` saves the run atomically every ``k``
+    accepted steps and after the last (:mod:`pdeinv.training.checkpoint`: what it holds; a resumed run repeats
+    the uninterrupted one bitwise, HIG's kept-rows route to rounding). ``resume=True`` continues from
+    it (``FileNotFoundError`` if there is none; ``ValueError`` if it belongs to another problem,
+    network, rule, configured hyper-parameter or data setting, or ``steps`` is below its step);
+    ``steps`` and ``time_budget`` may grow on resume. Wall time spent after the last save is not counted.
+
+    ``device`` (default ``"cpu"``): the model and the training data are moved there, and a dense, modal
+    or SVD physics backend is applied there by torch (:mod:`pdeinv.physics.backends.device`; time stepping
+    stays
+    on the CPU). An unknown device, or CUDA where there is none, is a ``ValueError``.
+
+    **Prior fit.** ``prior_fit`` (a :class:`~pdeinv.nets.refine.PriorFit`; ``None``, the default here,
+    skips it;
+    ``pdeinv train`` sets one) fits a network's part that learns the prior
+    (:class:`~pdeinv.nets.refine.Refined`,
+    the default network's nonlinear correction) after the rule, on ``prior_draws`` fresh draws of the
+    scene, or on own data's training rows when they carry ``x`` (none without: a warning); its time counts
+    as training time and ``metrics["prior_fit"]`` says what was fitted on what.
+
+    **Data parallel.** ``parallel`` (:class:`~pdeinv.training.distributed.Single`, or
+    :class:`~pdeinv.training.distributed.DataParallel` from torchrun's environment by
+    :func:`pdeinv.training.distributed.from_env`) shards each *global* batch (``batch_size``, divisible by the
+    number of processes) and averages the rule's direction and loss; all ranks agree on every stop and
+    rejection; only rank 0 saves checkpoints, warns and shows progress. ``metrics["world_size"]``.
+    """
+
+    problem: object
+    rule: UpdateRule
+    model: torch.nn.Module | None = None
+    steps: int | None = 1000
+    time_budget: float | None = None
+    n_train: int = N_TRAIN
+    n_test: int = 128
+    batch_size: int | None = 32  # None: every training row in each step (full batch)
+    seed: int = 0
+    eval_every: int = 50
+    fit_scaling: bool = True
+    stop: object | None = None  # a stopping rule (pdeinv.training.stopping), strategy object
+    target: object = "auto"  # what P f(y) must match (pdeinv.methods.targets): "auto", None or a strategy
+    callbacks: list[Callback] = field(default_factory=list)
+    progress: bool | None = None
+    dtype: torch.dtype | None = None  # None: the model's own parameter dtype (float32 for the default MLP)
+    checkpoint: Checkpoint | None = None
+    resume: bool = False
+    max_failures: int = 5
+    step_factor: float = 0.5
+    max_loss_growth: float | None = 1e3
+    min_scale: float = 1e-12
+    recover_after: int | None = 50
+    snapshot_every: int = 10
+    device: str | torch.device = "cpu"
+    data: object = None  # own observations (B, m): array, tensor or torch Dataset
+    data_x: object = None  # their true fields (B, N), for errors only
+    parallel: object = field(default_factory=Single)  # pdeinv.training.distributed: Single or DataParallel
+    prior_fit: PriorFit | None = None  # a PriorFitted network's last stage (pdeinv.nets.refine); CLI: on
+    prior_draws: int = 4096  # prior draws for it on a scene (own data: the file's training rows with x)
+    history: list[dict] = field(default_factory=list, init=False)
+    _target_info: dict | None = field(default=None, init=False, repr=False)
+    _own: OwnData | None = field(default=None, init=False, repr=False)
+    _saved_step: int | None = field(default=None, init=False, repr=False)
+    _rule: object = field(default=None, init=False, repr=False)
+
+    def __post_init__(self):
+        if self.steps is None and self.time_budget is None:
+            raise ValueError("give steps=, time_budget= or both; otherwise training never stops")
+        self.steps = None if self.steps is None else count(self.steps, "steps")
+        self.time_budget is None or nonnegative(self.time_budget, "time_budget")
+        self.n_test = count(self.n_test, "n_test")
+        if self.data is not None:
+            self._own = own_data(self.problem, self.data, self.data_x, self.n_test,
+                                 self.stop.n_val if self.stop is not None else 0, self.parallel.is_writer)
+            self.n_train = len(self._own.y)
+        self.n_train = count(self.n_train, "n_train")
+        self.batch_size = self.n_train if self.batch_size is None else count(self.batch_size, "batch_size")
+        if self.batch_size > self.n_train:
+            raise ValueError(f"batch_size={self.batch_size} is larger than n_train={self.n_train}")
+        self.eval_every = count(self.eval_every, "eval_every")
+        self._guard()  # checks its settings
+        if self.resume and self.checkpoint is None:
+            raise ValueError("resume=True needs checkpoint=Checkpoint(path) to resume from")
+        self.device = resolve(self.device)
+        self.parallel.check_batch(self.batch_size)
+        self.rule = declared(self.rule)  # what it can do, checked once (pdeinv.methods.protocol)
+        self._rule = self.parallel.rule(self.rule)  # the rule on this process's shard
+
+    def _data(self):
+        """``(y_train numpy, y_train torch, (x_test, y_test numpy, y_test torch))`` on ``device``."""
+        y = training_rows(self.problem, self._own, self.n_train, self.seed)
+        xt, yt = self.held_out()
+        t = lambda a: torch.as_tensor(a, dtype=self.dtype or torch.float32, device=self.device)  # noqa: E731
+        return y, t(y), (xt, yt, t(yt))
+
+    def held_out(self) -> tuple:
+        """The test set ``(x or None, y)`` as numpy: own data's last rows, or the seeded samples."""
+        return test_rows(self.problem, self._own, self.n_test, self.seed)
+
+    def evaluate(self, model, test) -> dict:
+        """Mean relative L²(Ω) errors on ``test`` (:func:`pdeinv.training.evaluation.evaluate`)."""
+        return evaluate(self.problem, model, test)
+
+    def identity(self, model) -> dict:
+        """What a checkpoint must share with this run to be resumed by it
+        (:mod:`pdeinv.training.checkpoint`)."""
+        return ckpts.run_identity(self.problem, self.rule, model, {
+            "seed": self.seed, "n_train": self.n_train, "n_test": self.n_test, "batch_size": self.batch_size,
+            "dtype": str(self.dtype), "target": getattr(self.target, "name", self.target),
+            **({} if self._own is None else {"data": self._own.fingerprint})})
+
+    def _network_settings(self) -> dict:
+        """``problem.model``'s settings: with own data, the linear part takes nothing from the scene's
+        sampler where it can (:func:`pdeinv.nets.data_base`)."""
+        if self._own is None or getattr(self.problem, "model_factory", None) is not None:
+            return {}
+        from ..nets import data_base
+
+        return {"base": data_base(self.problem)}
+
+    def _guard(self) -> Guard:
+        return Guard(self.max_failures, self.step_factor, self.max_loss_growth, self.min_scale,
+                     self.recover_after, self.snapshot_every)
+
+    def _start(self) -> _Run:
+        """Model on ``device``, data, preconditioning, rule and stopping states, batch order; resumed."""
+        if self.model is None:
+            torch.manual_seed(self.seed)
+            self.model = self.problem.model(**self._network_settings())
+        self.dtype = self.dtype or getattr(next(iter(self.model.parameters()), None), "dtype", torch.float32)
+        model = self.model.to(device=self.device, dtype=self.dtype)
+        if self.checkpoint is not None:
+            ckpts.check_resumable(self.rule)
+        y_np, y_train, test = self._data()
+        fields = lambda: training_fields(self.problem, self._own, self.n_train, self.seed)  # noqa: E731
+        t_train, self._target_info = fit_inputs(self.problem, self.rule, self.target, model, y_np, y_train,
+                                                self.fit_scaling, fields)
+        stop_state = None if self.stop is None else self.stop.init(
+            self.problem, y_np, stop_rows(self.problem, self._own, self.stop.n_val, self.seed))
+        self.parallel.check_same("run", lambda: {
+            **self.identity(model), "steps": self.steps, "time_budget": self.time_budget,
+            "eval_every": self.eval_every, "resume": self.resume, "stop": getattr(self.stop, "name", None)})
+        gen = torch.Generator().manual_seed(seed_stream(self.seed, BATCH_ORDER))
+        run = _Run(model, self._rule.init(placed(self.problem, self.device), model), y_train, t_train, test,
+                   stop_state, Position(gen, torch.randperm(self.n_train, generator=gen)), self._guard())
+        # e.g. SIP's proxy curvature, on the first batch (a no-op for a rule that measures nothing)
+        run.state = self._rule.calibrate(run.state, model, y_train[run.at.order[:self.batch_size]])
+        self.history = []
+        if self.resume:
+            saved = ckpts.load_to_resume(self.checkpoint, self.identity(model), self.steps)
+            run.state = ckpts.restore(saved, model, self.rule, run.state, run.at, run.guard)
+            self.history, self._saved_step = saved["history"], run.at.step
+        if run.at.y_err0 is None:  # a fresh run (a resumed one keeps its starting point's)
+            start = self.evaluate(model, test)["y_err"]
+            run.at.y_err0 = start if math.isfinite(start) else 1.0
+        return run
+
+    def _reject(self, run: _Run, err: NonFiniteError, bar, failed: int) -> None:
+        """Record rejected step ``failed``; the guard rolls back and lowers the step size, or stops."""
+        message = f"step {failed} ({self.rule.name}): {err}"
+        self.history.append({"step": failed, "wall_s": run.at.wall, "loss": math.nan, "rejected": message})
+        run.state, run.at.step, note, stop = run.guard.reject(self.rule, run.state, run.model, run.at.step,
+                                                              failed, err.overshoot)
+        if stop:
+            bar.close()
+            where = ckpts.last_good(run.guard.good.step, self.checkpoint, self._saved_step)
+            raise NonFiniteError(f"{message}; {stop}; {where}") from None
+        if self.parallel.is_writer:
+            warnings.warn(f"{message}; step rejected{note}", RuntimeWarning, stacklevel=4)
+
+    def _after(self, run: _Run, record: dict) -> bool:
+        """Stopping rule (its time counts), evaluation, history, callbacks, checkpoint; True when done."""
+        at = run.at
+        if run.stop_state is not None and at.step % self.stop.every == 0:
+            t0, (run.stop_state, checked, fired) = time.perf_counter(), self.stop.check(run.stop_state,
+                                                                                        run.model)
+            at.wall, at.stopped_by = at.wall + time.perf_counter() - t0, self.stop.name if fired else None
+            record.update(checked)
+        done = finished(at, self.steps, self.time_budget)
+        if at.step % self.eval_every == 0 or done or at.step == 1:
+            record.update(self.evaluate(run.model, run.test))
+            check_evaluation(record["y_err"], run.at.y_err0, self.max_loss_growth)
+        run.guard.accept(at.step)
+        self.history.append(record)
+        for cb in self.callbacks:
+            if cb(record, run.model) and not done:
+                done, at.stopped_by = True, "callback"
+        if self.parallel.agree(done) and not done:  # e.g. another process's time budget ran out
+            done, at.stopped_by = True, "another process"
+        if done and "y_err" not in record:  # a callback stopped between evaluations
+            record.update(self.evaluate(run.model, run.test))
+        if self.parallel.is_writer and self.checkpoint is not None and (
+                done or at.step % self.checkpoint.every == 0):
+            ckpts.save(self.checkpoint, self.identity(run.model), run.model, self.rule, run.state, at,
+                       run.guard, self.history)
+            self._saved_step = at.step
+        return done
+
+    def fit(self) -> Result:
+        run = self._start()
+        bar = progress(self.steps, self.progress if self.parallel.is_writer else False, run.at.step)
+        done = finished(run.at, self.steps, self.time_budget)  # a resumed run that had finished
+        while not done:
+            at, batch, t0 = run.at, run.batch(self.batch_size, self.n_train), time.perf_counter()
+            try:  # one guarded step
+                run.state, info = run.guard.step(self._rule, run.state, run.model, *batch)
+            except NonFiniteError as err:  # rejected: last good state back, step size lowered
+                at.wall += time.perf_counter() - t0
+                self._reject(run, err, bar, at.step + 1)
+                continue
+            at.wall += time.perf_counter() - t0
+            at.step += 1
+            try:
+                done = self._after(run, {"step": at.step, "wall_s": at.wall, **info})
+            except NonFiniteError as err:  # rejected after the fact (a finite blow-up: cut by its overshoot)
+                at.stopped_by = None
+                self._reject(run, err, bar, at.step)
+                continue
+            bar.update(1)
+            bar.set_postfix(loss=f"{info['loss']:.3g}", refresh=False)
+        bar.close()
+        prior = self._fit_prior(run)
+        record = metrics(self, run)
+        if prior is not None:
+            record["prior_fit"] = prior
+        record["unseen_energy"], warning = of_predictions(self.problem, run.model, run.test, self.seed)
+        if warning and self.parallel.is_writer:  # energy where the physics cannot see (.unseen)
+            warnings.warn(warning, RuntimeWarning, stacklevel=2)
+        return Result(run.model, self.history, record, run.state)
+
+    def _fit_prior(self, run: _Run) -> dict | None:
+        """The network's part fitted on prior draws after the rule (:mod:`pdeinv.nets.refine`), if it has one;
+        its time counts as training time. What was done, and where the prior came from, or ``None``."""
+        if self.prior_fit is None or not self.prior_fit.applies(run.model):
+            return None
+        n = min(self.prior_draws, max(256, PRIOR_ENTRIES // max(self.problem.N, 1)))  # memory: O(n·N)
+        draws, source = prior_rows(self.problem, self._own, n, self.seed)
+        if draws is None:
+            if self.parallel.is_writer:
+                warnings.warn(f"the network's nonlinear correction was not fitted: prior {source}; it stays "
+                              "the rule's estimate (give x in the file to learn the prior from it)",
+                              RuntimeWarning, stacklevel=3)
+            return {"kept": False, "prior": source}
+        t0 = time.perf_counter()
+        info = self.prior_fit.fit(run.model, *draws, self.problem.relative_error)
+        run.at.wall += time.perf_counter() - t0
+        if info.get("kept"):  # the run's last record: the refined network's test errors
+            last = {**self.history[-1], **self.evaluate(run.model, run.test), "wall_s": run.at.wall}
+            self.history[-1] = last
+        return {**info, "prior": source}
+
+
+def train(problem, rule, model=None, **kw) -> Result:
+    """``Trainer(problem, rule, model, **kw).fit()``."""
+    return Trainer(problem, rule, model, **kw).fit()

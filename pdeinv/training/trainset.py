@@ -1,0 +1,132 @@
+"""What a run trains and is tested on: seeded samples or a user's rows, the held-out sets, the targets.
+
+Without own data (:mod:`pdeinv.training.data`) every set is a draw from ``problem.sample`` with its own seed
+stream of the run's ``seed`` (:func:`seed_stream`): the training observations from ``TRAIN_DATA``, the
+test pairs from ``TEST_DATA``, the stopping rule's observations from ``VAL_DATA`` (their ``x``
+discarded), the batch order from ``BATCH_ORDER``; so other code can rebuild exactly the same data. With
+own data the rows come from :class:`pdeinv.training.data.OwnData` (its split, in order).
+
+What ``P f(y)`` must match (:func:`fit_target`) is ``y`` itself, a denoised ``y``
+(:mod:`pdeinv.methods.targets`),
+or ``y`` in float64 when the network computes in a lower precision.
+"""
+
+from __future__ import annotations
+
+import warnings
+
+# numpy and torch are imported where used: the CLI's help reads N_TRAIN without them
+
+#: the trainer's seed streams: training data, test data, batch order, held-out observations, prior draws
+TRAIN_DATA, TEST_DATA, BATCH_ORDER, VAL_DATA, PRIOR_DATA = 1, 2, 3, 4, 5
+
+#: training samples when not given (``Trainer(n_train=)``, ``pdeinv train --n-train``)
+N_TRAIN = 1024
+
+
+def seed_stream(seed: int, stream: int) -> int:
+    """Independent integer seed ``stream`` of ``seed`` (``SeedSequence([seed, stream])``).
+
+    The trainer draws its training pairs from ``seed_stream(seed, TRAIN_DATA)``, its
+    test pairs from ``seed_stream(seed, TEST_DATA)`` and its batch order from
+    ``seed_stream(seed, BATCH_ORDER)``, so other code can rebuild exactly the same data.
+    """
+    import numpy as np
+
+    return int(np.random.SeedSequence([seed, stream]).generate_state(1)[0])
+
+
+def training_rows(problem, own, n_train: int, seed: int):
+    """The training observations (numpy): own data's first rows, or ``n_train`` seeded samples."""
+    return own.y if own is not None else problem.sample(n_train, seed_stream(seed, TRAIN_DATA))[1]
+
+
+def test_rows(problem, own, n_test: int, seed: int) -> tuple:
+    """The test set ``(x or None, y)`` (numpy): own data's last rows, or the seeded samples."""
+    return (own.x_test, own.y_test) if own is not None else \
+        problem.sample(n_test, seed_stream(seed, TEST_DATA))
+
+
+def stop_rows(problem, own, n_val: int, seed: int):
+    """The stopping rule's held-out observations (their ``x`` is never drawn into the run)."""
+    return own.y_val if own is not None else problem.sample(n_val, seed_stream(seed, VAL_DATA))[1]
+
+
+def prior_rows(problem, own, n: int, seed: int) -> tuple[tuple | None, str]:
+    """``((x, y) or None, source)``: draws of the prior for a network part fitted on it
+    (:mod:`pdeinv.nets.refine`). Own data: its *training* rows when the file has ``x`` (never the test or
+    stopping rows), ``None`` without ``x`` (the prior is then unknown: never the scene's sampler in its
+    place); a scene: ``n`` fresh draws of ``problem.sample`` (stream ``PRIOR_DATA``)."""
+    if own is not None:
+        if own.x is None:
+            return None, "none: the data file has no x"
+        return (own.x, own.y), f"the data file's x ({len(own.x)} training rows)"
+    prior = getattr(problem, "settings", {}).get("prior", "the scene's sampler")
+    return problem.sample(n, seed_stream(seed, PRIOR_DATA)), f"{n} draws of the scene's prior ({prior})"
+
+
+def training_fields(problem, own, n_train: int, seed: int):
+    """The training rows' true fields (numpy) or ``None``: own data's ``x``, or the seeded draws'
+    (the same stream as :func:`training_rows`, so the same rows)."""
+    if own is not None:
+        return own.x
+    return problem.sample(n_train, seed_stream(seed, TRAIN_DATA))[0]
+
+
+def fit_inputs(problem, rule, target, model, y_np, y_train, fit_scaling: bool, fields=None):
+    """What the network sees and must match: ``(goal, info)`` of :func:`fit_target`, and with
+    ``fit_scaling`` the model's input transform fitted on ``y_np`` at the problem's noise level
+    (:func:`pdeinv.nets.fit_preconditioning`; never on ``x``)."""
+    from ..nets import fit_preconditioning
+
+    goal, info = fit_target(problem, rule, target, y_np, y_train, model, fields)
+    if fit_scaling:  # a fitted target is denoised: the input keeps every direction (drop=0), each scaled
+        # at most to the noise floor σ² (clean data's rounding-level directions stay small)
+        noise = getattr(problem, "noise", None) or None
+        fit_preconditioning(model, y_np, noise, **({"drop": 0} if info else {}))
+    return goal, info
+
+
+def fit_target(problem, rule, target, y_np, y_train, model=None, fields=None):
+    """``(goal, info)``: what ``P f(y)`` must match when it is not ``y_train`` itself (``goal`` None) and
+    the fitted target's description (None without one).
+
+    ``target(y)`` when the target strategy fits one (:mod:`pdeinv.methods.targets`, whose protocol
+    passes it the network and the training rows' fields; ``"auto"`` is the rule's own
+    ``default_target()``, else :class:`~pdeinv.methods.targets.SpectralWiener`), else the float64 ``y``
+    when the network's dtype is lower (a float32 copy of ``y`` puts rounding 6e-8 into every residual,
+    which SIP's local inverse amplifies by up to ``1/(2√α)``). A rule that does not declare
+    ``accepts_target`` (:mod:`pdeinv.methods.protocol`) keeps ``y``: refused for an explicit target,
+    with a warning for ``"auto"`` on noisy data."""
+    import numpy as np
+    import torch
+
+    from ..methods.protocol import declared
+    from ..methods.targets import SpectralWiener
+
+    rule = declared(rule)
+    strategy = ((rule.default_target() or SpectralWiener()) if target == "auto" else target)
+    noise = problem.noise or 0.0
+    if strategy is None and noise > 0:
+        warnings.warn(f"noise={noise:g} and target=None: every rule converges to the least-squares fit "
+                      "of the noise and only a stopping rule regularizes (SIP's default inverse on a "
+                      "spectral basis gets there in one step); keep target='auto'", RuntimeWarning,
+                      stacklevel=5)
+    fitted = None
+    if strategy is not None:
+        fitted = strategy.fit(problem, y_np, noise or None, model=model, fields=fields or (lambda: None))
+    if fitted is not None and not rule.accepts_target:
+        if target != "auto":
+            raise ValueError(f"rule {rule.name!r} cannot use target={target!r}: it does not declare "
+                             "accepts_target = True (its update takes no target=)")
+        if noise > 0:
+            warnings.warn(f"rule {rule.name!r} takes no target= (it does not declare accepts_target = "
+                          f"True): it fits the noisy observations themselves (noise={noise:g}), where "
+                          "target='auto' fits a denoised target; only a stopping rule regularizes it",
+                          RuntimeWarning, stacklevel=5)
+        fitted = None
+    info = None if fitted is None else fitted.info
+    if fitted is None and (y_train.dtype == torch.float64 or not rule.accepts_target):
+        return None, info
+    goal = np.asarray(y_np, dtype=float) if fitted is None else fitted(y_np)
+    return torch.as_tensor(goal, dtype=torch.float64, device=y_train.device), info

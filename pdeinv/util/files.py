@@ -1,0 +1,91 @@
+"""Atomic files: a reader, a crash or a SIGKILL sees the old file or the new one, never half of one.
+
+:func:`atomic_write` writes into a temporary file in the target's own folder,
+flushes and ``fsync``\\ s it, ``os.replace``\\ s it over the target (atomic on POSIX
+and Windows) and ``fsync``\\ s the folder, so after it returns the new file also
+survives a power loss. The file gets the permissions of a plain ``open``
+(``0o666`` minus the umask), not :func:`tempfile.mkstemp`'s ``0o600``. On an error
+(a full disk: ``OSError`` ENOSPC) the temporary is removed and the old file stays
+as it was. A temporary left behind by a killed writer is named
+``.<name>.<random>.tmp``; :func:`remove_stale_temporaries` deletes them (one writer
+per target assumed).
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+import json
+import os
+import tempfile
+from pathlib import Path
+
+import numpy as np
+
+
+def atomic_write(path, write) -> None:
+    """``write(fh)`` into a temporary file beside ``path``, fsync, ``os.replace``, fsync the folder."""
+    path = Path(path)
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+    try:
+        if hasattr(os, "fchmod"):
+            os.fchmod(fd, 0o666 & ~_umask())
+        with os.fdopen(fd, "wb") as fh:
+            write(fh)
+            fh.flush()
+            os.fsync(fh.fileno())
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+    fsync_dir(path.parent)
+
+
+def _umask() -> int:
+    """The process's umask (read by setting it and putting it back)."""
+    mask = os.umask(0o022)
+    os.umask(mask)
+    return mask
+
+
+def fsync_dir(folder: Path) -> None:
+    """``fsync`` a folder, so a rename in it is durable (a no-op where folders cannot be opened)."""
+    try:
+        fd = os.open(folder, os.O_RDONLY)
+    except OSError:  # platforms without directory handles (Windows): os.replace is still atomic
+        return
+    try:
+        os.fsync(fd)
+    except OSError:
+        pass
+    finally:
+        os.close(fd)
+
+
+def remove_stale_temporaries(path) -> None:
+    """Temporaries of ``path`` left by a killed :func:`atomic_write` (one writer per target assumed)."""
+    path = Path(path)
+    for stale in path.parent.glob(f".{path.name}.*.tmp"):
+        stale.unlink(missing_ok=True)
+
+
+def write_csv(rows: list[dict], path) -> None:
+    """``rows`` as CSV with the union of their keys as header (in first-seen order), atomically."""
+    keys = list(dict.fromkeys(k for row in rows for k in row))
+    text = io.StringIO(newline="")
+    writer = csv.DictWriter(text, fieldnames=keys)
+    writer.writeheader()
+    writer.writerows(rows)
+    atomic_write(path, lambda fh: fh.write(text.getvalue().encode()))
+
+
+def plain(value):
+    """``value`` as JSON-able builtins (numpy arrays -> lists, paths -> str), for saving and comparing."""
+    def default(v):
+        if isinstance(v, np.ndarray):
+            return v.tolist()
+        if isinstance(v, np.generic):
+            return v.item()
+        return str(v)  # paths, torch dtypes
+
+    return json.loads(json.dumps(value, default=default))

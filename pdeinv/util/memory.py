@@ -1,0 +1,141 @@
+"""Memory estimates, checked against a budget *before* anything big is allocated.
+
+A run that does not fit should be refused in a second with a number, not killed after
+minutes without one (``heat_2d --set n=20000`` grew to 23.7 GB and got SIGKILL). Each
+check estimates the bytes a step will need and raises :class:`MemoryBudgetError` (a
+``ValueError``: exit code 2 on the command line) naming the estimate, the budget and
+what to change when the estimate exceeds the budget.
+
+**Budget:** ``set_budget(gb)`` (the CLI's ``--max-memory-gb``) or the environment variable
+``PDEINV_MAX_MEMORY_GB``; otherwise half of the memory available now (``MemAvailable`` in
+``/proc/meminfo``, else ``os.sysconf``), leaving the rest to the OS and other programs.
+Without any of these (other systems) nothing is refused.
+
+**Estimates** are rough upper bounds, good to a small factor, not exact accounting:
+
+* mesh and physics: :data:`BYTES_PER_NODE` per mesh node by dimension — the mesh arrays,
+  the assembled P1 mass and stiffness matrices with their assembly temporaries, one sparse
+  factorization and the modal basis. Measured on ``heat_2d`` (P1, modal backend):
+  n = 128 (16 129 unknowns) raised the peak RSS by 300 MB, ~19 kB per node; 1-D and 3-D
+  are scaled by the factorization fill. P2 has ~4× the nodes of P1 on the same mesh.
+  The factorization part, measured by ``benchmarks/crossover.py`` (SuperLU's exact
+  ``nnz(L + U)``; cholespy needs about half): 2-D 0.8–1.9 kB per node up to 10⁶ nodes,
+  3-D 6 kB at 12 167 nodes, 10 kB at 29 791, 14 kB at 59 319 (fill grows like N^{1/3} per
+  node), so the per-node constants stay upper bounds up to ~10⁵ 3-D nodes; above
+  :data:`pdeinv.fem.solvers.AMG_CROSSOVER` the heat operators use AMG-CG, whose hierarchy is
+  ~0.3 kB per node (2-D and 3-D).
+* sensors: the observation vector of one sample (records × sensors) and the sensor matrix.
+* training: the training and test sets (x and y in float64, y again in float32), the
+  network (parameters, gradients and two Adam moments: 16 bytes each in float32) and the
+  activations of one batch.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+
+GB = 1e9
+#: HIG's default budget for a dense stacked Jacobian, in GiB (``HIG.max_jacobian_gb``; above it HIG refuses
+#: the route itself, so ``pdeinv train``'s step-time check leaves it to HIG)
+HIG_JACOBIAN_GB = 4.0
+
+#: bytes per mesh node (P1) for the mesh, matrices, factorization and modal basis, by dimension
+BYTES_PER_NODE = {1: 2_000, 2: 20_000, 3: 60_000}
+
+_budget_gb: float | None = None
+
+
+class MemoryBudgetError(ValueError):
+    """An estimate above the memory budget: bad input for this machine (exit code 2)."""
+
+
+def set_budget(gb: float | None) -> None:
+    """Use ``gb`` gigabytes (10⁹ bytes) as the budget; ``None`` restores the default."""
+    global _budget_gb
+    if gb is not None and (isinstance(gb, bool) or not isinstance(gb, (int, float))
+                           or not math.isfinite(gb) or gb <= 0):
+        raise ValueError(f"--max-memory-gb {gb!r} is not allowed; expected a finite number of GB > 0")
+    _budget_gb = None if gb is None else float(gb)
+
+
+def available_bytes() -> int | None:
+    """Memory available to new allocations now (``MemAvailable``), or ``None`` if unknown."""
+    try:
+        with open("/proc/meminfo") as fh:
+            for line in fh:
+                if line.startswith("MemAvailable:"):
+                    return int(line.split()[1]) * 1024
+    except OSError:
+        pass
+    try:
+        return os.sysconf("SC_AVPHYS_PAGES") * os.sysconf("SC_PAGE_SIZE")
+    except (ValueError, OSError, AttributeError):
+        return None
+
+
+def budget() -> tuple[float, str]:
+    """``(bytes, where it comes from)``; ``math.inf`` when nothing says."""
+    if _budget_gb is not None:
+        return _budget_gb * GB, "--max-memory-gb"
+    env = os.environ.get("PDEINV_MAX_MEMORY_GB")
+    if env:
+        try:
+            value = float(env)
+        except ValueError:
+            raise ValueError(f"PDEINV_MAX_MEMORY_GB={env!r} is not a number of GB") from None
+        if not (math.isfinite(value) and value > 0):
+            raise ValueError(f"PDEINV_MAX_MEMORY_GB={env!r} is not allowed; expected a number of GB > 0")
+        return value * GB, "PDEINV_MAX_MEMORY_GB"
+    avail = available_bytes()
+    if avail is None:
+        return math.inf, "unknown available memory"
+    return avail / 2, f"half of the {avail / GB:.3g} GB available; raise it with --max-memory-gb"
+
+
+def check(nbytes: float, what: str, fix: str) -> None:
+    """Refuse (:class:`MemoryBudgetError`) when ``nbytes`` exceeds the budget."""
+    limit, source = budget()
+    if nbytes > limit:
+        raise MemoryBudgetError(f"{what} needs about {nbytes / GB:.3g} GB of memory, above the budget of "
+                                f"{limit / GB:.3g} GB ({source}); {fix}")
+
+
+def check_mesh(nodes: float, dim: int, what: str, fix: str) -> None:
+    """Refuse a mesh of ``nodes`` nodes in ``dim`` dimensions that would not fit."""
+    check(nodes * BYTES_PER_NODE.get(dim, BYTES_PER_NODE[3]), f"{what} ({nodes:.3g} nodes)", fix)
+
+
+def network_parameters(n_in: int, n_out: int, hidden) -> int:
+    """Parameters of a dense network ``n_in -> hidden... -> n_out`` (weights and biases)."""
+    widths = [n_in, *hidden, n_out]
+    return sum(a * b + b for a, b in zip(widths, widths[1:]))
+
+
+def training_bytes(n_obs: int, n_unknowns: int, n_train: int, n_test: int, n_params: int,
+                   batch: int, widest: int) -> float:
+    """Data sets (x, y float64 and y float32), network state (16 B per parameter), one batch's
+    activations (``widest`` values per sample, ×4 for the backward pass)."""
+    data = (n_train + n_test) * (8 * (n_obs + n_unknowns) + 4 * n_obs)
+    return data + 16 * n_params + 16 * batch * widest
+
+
+def check_training(problem, n_train: int, n_test: int, batch: int, hidden=None) -> None:
+    """Refuse a training run whose data sets and network would not fit.
+
+    ``hidden``: the widths of the MLP the run builds; ``None``: the problem's default
+    network (:func:`pdeinv.nets.default_size`: ``n_obs² + n_obs · n_unknowns`` for the whitened
+    linear map, ``O(k²) + (n_obs + n_unknowns)·k`` for the reduced network on large meshes).
+    """
+    m, n = problem.operator.n_out, problem.operator.n_in
+    if hidden:
+        params = network_parameters(m, n, hidden)
+        widest = max(m, n, *hidden)
+    else:  # the default network's own count (whitened linear map, or the reduced network on big meshes)
+        from ..nets import default_size
+
+        params, widest = default_size(problem)
+    need = training_bytes(m, n, n_train, n_test, params, batch, widest)
+    check(need, f"training {problem.name} ({n_train} + {n_test} samples of {m} observations and {n} "
+                f"unknowns, a network of {params:.3g} parameters)",
+          "use a smaller --n-train / --n-test, --hidden or --batch-size, or a coarser mesh")
