@@ -22,6 +22,8 @@ pytestmark = pytest.mark.usefixtures("one_thread")  # small dense work: one torc
 class Kick(GD):
     """GD whose ``at``-th update is multiplied by 1e7: one finite blow-up (the loss stays finite)."""
 
+    accepts_target = False  # its update takes no target= (pdeinv.methods.protocol)
+
     def __init__(self, at: int):
         super().__init__(sgd(0.05))
         self.at, self.calls = at, 0

@@ -233,7 +233,7 @@ def test_sip_passes_its_forward_to_the_inverse(problems, monkeypatch):
     steps = {}
     for route in ("local", "plain"):
         torch.manual_seed(0)
-        model = p.model()
+        model = pdeinv.nets.fit_preconditioning(p.model(), y)
         rule = pdeinv.SIP()
         state = rule.init(p, model)
         assert isinstance(state.context.inverse, DecoderTikhonov)

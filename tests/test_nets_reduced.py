@@ -77,8 +77,8 @@ def test_the_default_follows_reversibility_then_size(monkeypatch):
     keeps the whitened linear map up to REDUCED_ABOVE unknowns."""
     heat = pdeinv.load_problem("heat_2d", n=8)  # 49 unknowns
     model = nets.default_model(heat)
-    assert isinstance(model.post, nets.Decoder) and isinstance(model.pre, Whitening)
-    assert model.pre.k == min(nets.REDUCED_K_IN, heat.N) and model.decoder is not None
+    assert isinstance(model.base.post, nets.Decoder) and isinstance(model.base.pre, Whitening)
+    assert model.base.pre.k == min(nets.REDUCED_K_IN, heat.N) and model.decoder is not None
     assert nets.default_model(heat, rows_per_component=8).decoder is None  # first-order rules: no decoder
     wave = pdeinv.load_problem("wave_2d", n=8)
     assert nets.REDUCED_ABOVE >= 961  # wave_2d at its default size keeps the whitened linear map
@@ -101,14 +101,14 @@ def test_the_memory_estimate_follows_the_default_network(monkeypatch):
     wave = pdeinv.load_problem("wave_2d", n=8)
     full, _ = nets.default_size(wave)
     model = nets.default_model(wave)
-    buffers = model.pre.basis.numel() + sum(b.numel() for b in model.grid.buffers())
+    buffers = model.base.pre.basis.numel() + sum(b.numel() for b in model.grid.buffers())
     assert full - nets.refined_size(wave) == sum(x.numel() for x in model.base.parameters()) + \
-        model.pre.basis.numel()
+        model.base.pre.basis.numel()
     assert sum(x.numel() for x in model.parameters()) + buffers <= full
     heat = pdeinv.load_problem("heat_2d", n=8)
     est, _ = nets.default_size(heat)  # an upper bound: the decoder may keep fewer columns
     model = nets.default_model(heat)
-    size = sum(x.numel() for x in model.parameters()) + model.post.basis.numel()
+    size = sum(x.numel() for x in model.parameters()) + model.base.post.basis.numel()
     assert size <= est
 
 
@@ -134,7 +134,7 @@ def test_a_run_with_the_reduced_default_resumes_and_predicts(tmp_path, monkeypat
     assert main([*args, "--steps", "4"]) == 0
     assert json.loads((out / "run.json").read_text())["network"] == {"kind": "default"}
     problem, model = load_run(out)
-    assert isinstance(model.post, nets.Decoder) and bool(model.pre.fitted)
+    assert isinstance(model.base.post, nets.Decoder) and bool(model.base.pre.fitted)
     x, y = problem.sample(4, seed=9)
     with torch.no_grad():
         pred = model(torch.as_tensor(y, dtype=torch.float32)).numpy()

@@ -191,4 +191,4 @@ def test_gd_defaults_do_not_blow_up_on_the_sensor_scene(tmp_path):
     network = json.loads((out / "run.json").read_text())["network"]
     assert network == {"kind": "default", "rows_per_component": 8}
     _, model = pdeinv.load_run(out)
-    assert int((model.pre.gain > 0).sum()) == 1024 // 8  # the fitted cap travels with model.pt
+    assert int((model.base.pre.gain > 0).sum()) == 1024 // 8  # the fitted cap travels with model.pt

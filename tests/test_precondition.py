@@ -134,11 +134,11 @@ def test_whitening_survives_state_dict_and_checkpoint_resume(tmp_path):
     p = pdeinv.load_problem("heat_1d", n=16, steps=10)
     torch.manual_seed(0)
     model = p.model()
-    assert isinstance(model.base, Net) and isinstance(model.pre, Whitening)
+    assert isinstance(model.base, Net) and isinstance(model.base.pre, Whitening)
     fit_preconditioning(model, torch.as_tensor(p.sample(64, 0)[1], dtype=torch.float32))
     fresh = p.model()
     fresh.load_state_dict(model.state_dict())
-    assert bool(fresh.pre.fitted) and torch.equal(fresh.pre.basis, model.pre.basis)
+    assert bool(fresh.base.pre.fitted) and torch.equal(fresh.base.pre.basis, model.base.pre.basis)
     y = torch.as_tensor(p.sample(4, 1)[1], dtype=torch.float32)
     assert torch.equal(fresh(y), model(y))
 

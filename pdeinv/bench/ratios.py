@@ -13,6 +13,7 @@ import torch
 
 from ..errors import TooManyModes
 from ..methods.presets import make_rule
+from ..nets import fit_preconditioning
 from ..physics.capabilities import modal_basis
 from .timing import compiled, interleaved, stepping
 
@@ -87,6 +88,7 @@ def step_ratios(problem, model, batch: int = 32, repeats: int = 5, seed: int = 0
     ``hig_step_s`` (the route the network declares: Kronecker on the default), and the float64
     size of the stacked Jacobian ``∂y/∂θ`` a dense route would build (GD and SIP never do)."""
     y = torch.as_tensor(problem.sample(batch, seed)[1], dtype=torch.float32)
+    fit_preconditioning(model, y)  # as the trainer does before its first step
     t = interleaved({m: _stepper(m, problem, model, y) for m in ("adam", "sip", "hig")}, repeats)
     rows = batch * problem.operator.n_out
     n_params = sum(p.numel() for p in model.parameters() if p.requires_grad)

@@ -12,6 +12,7 @@ import torch
 
 from .._checks import positive
 from ..inverse.protocol import ReusesForward
+from ..nets.protocol import declared
 from ..physics.base import LinearOperator
 from ..problem.definition import Problem
 from .base import OptimizerFactory, Rule, State, Update, check_finite, gradient, prediction, sgd, y_loss
@@ -43,9 +44,8 @@ def decoder_inverse(problem, model):
     from ..inverse.decoder import DecoderTikhonov
     from .targets import SpectralWiener
 
-    lin = getattr(model, "linear_in_parameters", None)
-    lin = lin() if callable(lin) else None
-    noise = getattr(problem, "noise", 0.0) or 0.0
+    lin = declared(model).linear_in_parameters()
+    noise = problem.noise or 0.0
     if lin is None or lin.decoder is None or (noise and not SpectralWiener().applies(problem, noise, model)):
         return None
     return DecoderTikhonov(problem.operator, lin.decoder)
@@ -129,12 +129,11 @@ class SIP(Rule):
         """``λ̂`` on the batch ``y`` (when ``normalize``): called once, before the first step."""
         if not self.normalize or state.context.curvature is not None:
             return state
-        exact = getattr(model, "gauss_newton_diagonal", None)
-        diag = exact(y) if callable(exact) else None
+        net = declared(model)  # exact curvature where the network declares it (linear in θ)
+        diag = net.gauss_newton_diagonal(y)
         if diag is not None:  # a dropped input direction has d = 0 and a zero gradient: leave it alone
             diag = tuple(torch.where(d > 0, d, torch.ones_like(d)) for d in diag)
-        exact = getattr(model, "gauss_newton_max", None)  # closed form for networks linear in θ
-        lam = exact(y) if callable(exact) and diag is not None else None
+        lam = net.gauss_newton_max(y) if diag is not None else None
         lam = checked(gauss_newton_max(model, y, diagonal=diag) if lam is None else lam,
                       "SIP(normalize=True): the proxy's curvature")
         return state._replace(context=state.context._replace(curvature=lam, diagonal=diag))

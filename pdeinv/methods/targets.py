@@ -88,6 +88,7 @@ from scipy import stats
 
 from .._checks import positive
 from ..inverse.noise import noise_variance
+from ..nets.protocol import declared
 from ..physics.backends.compiled import spectral_basis
 
 #: the chance that any pure-noise mode counts as clearly detected (module docstring)
@@ -146,18 +147,17 @@ class SpectralWiener:
 
     @staticmethod
     def _basis(problem, model=None):
-        decoder = getattr(model, "decoder", None)
+        decoder = declared(model).decoder
         if decoder is not None:  # the physics as the network sees it: P̂ = P D = Q diag(s) Vᵀ
             from ..inverse.decoder import decoded_svd
 
             Q, s, _ = decoded_svd(problem.operator, decoder)
             return SimpleNamespace(proj=Q, out=Q, g=s)
-        disc = getattr(problem, "disc", None)
-        return spectral_basis(problem.operator, None if disc is None else disc.M)
+        return spectral_basis(problem.operator, None if problem.disc is None else problem.disc.M)
 
     def applies(self, problem, noise: float | None, model=None) -> bool:
         """Whether :meth:`fit` will fit a filter: a noise level and a spectral basis to filter in."""
-        return bool(noise) and (getattr(model, "decoder", None) is not None or
+        return bool(noise) and (declared(model).decoder is not None or
                                 self._basis(problem) is not None)
 
     def fit(self, problem, y: np.ndarray, noise: float | None, model=None, fields=None) -> Filtered | None:
@@ -165,7 +165,7 @@ class SpectralWiener:
         when there is no noise or the operator has no spectral basis (nothing to filter by). With a
         ``model`` that has a fixed decoder ``D`` (``model.decoder``, :func:`pdeinv.nets.reduced`) the
         basis is the SVD of ``P D`` (module docstring: the MMSE in ``span D``)."""
-        if not noise and getattr(model, "decoder", None) is not None:
+        if not noise and declared(model).decoder is not None:
             return self.rounding(problem, model)
         if not self.applies(problem, noise, model):
             return None

@@ -88,7 +88,7 @@ def linear_default(problem, rows_per_component: float | None = None) -> nn.Modul
     if not (big or _prior_decoded(problem, rows_per_component)):
         return whitened("linear", **kw)(problem)
     net = reduced(**kw)(problem)
-    info = getattr(net, "decoder_info", {})
+    info = net.decoder_info
     if 1 - info.get("captured", 1.0) > DECODER_MAX_UNCAPTURED:
         return _whitened_fallback(problem, rows_per_component)
     return net
@@ -107,12 +107,11 @@ def refined(problem, base: nn.Module) -> nn.Module:
     from ..physics.capabilities import modal_basis
     from .refine import Refined, SpectralFilter
 
-    disc = getattr(problem, "disc", None)
-    mesh = getattr(getattr(disc, "basis", None), "mesh", None)
+    mesh = None if problem.disc is None else problem.disc.basis.mesh
     if mesh is None or not 1 <= problem.points.shape[0] <= 3:
         return base
     modes = modal_basis(problem.operator)  # a full-rank physics estimate as a second input, where cheap
-    noise = float(getattr(problem, "noise", 0.0) or 0.0)
+    noise = float(problem.noise or 0.0)
     physics = None if modes is None else SpectralFilter(modes, max(noise, NOISE_FREE_REL_ALPHA**0.5) ** 2)
     return Refined(base, GridMap(problem.points, spacing(mesh)), physics=physics)
 
@@ -134,7 +133,7 @@ def default_size(problem) -> tuple[int, int]:
     m, n = problem.operator.n_out, problem.operator.n_in
     k = min(m, n)  # the whitening's components (:func:`whitened`)
     dense = m * k + k * n + n
-    if getattr(problem, "model_factory", None) is not None:
+    if problem.model_factory is not None:
         return dense, max(m, n)
     if max(m, n) > REDUCED_ABOVE or _prior_decoded(problem, None):
         k_in, k_out = min(REDUCED_K_IN, m), min(REDUCED_K, n)
@@ -150,7 +149,7 @@ def refined_size(problem) -> int:
     (``2·N·2^dim`` weights and indices, at most ``4N`` grid points); 0 where it adds nothing."""
     from .refine import UNet
 
-    dim = problem.points.shape[0] if getattr(problem, "disc", None) is not None else 0
+    dim = problem.points.shape[0] if problem.disc is not None else 0
     if not 1 <= dim <= 3:
         return 0
     return sum(q.numel() for q in UNet(dim).parameters()) + 2 * problem.N * 2**dim + 4 * problem.N

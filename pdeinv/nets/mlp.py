@@ -7,8 +7,10 @@ from __future__ import annotations
 import torch
 from torch import nn
 
+from .protocol import Network
 
-class MLP(nn.Module):
+
+class MLP(Network):
     """``x = W_L σ(… σ(W_1 (y − μ)/s) …)`` with a zero-initialized last layer.
 
     ``shift``/``scale`` (μ, s) standardize the input; set them from training data

@@ -11,10 +11,11 @@ import torch
 from torch import nn
 
 from .mlp import Residual, dense
+from .protocol import Network, declared
 from .whitening import Whitening
 
 
-class Net(nn.Module):
+class Net(Network):
     """``x = post(body(pre(y)))``: a fitted input transform ``pre`` (e.g.
     :class:`~pdeinv.nets.whitening.Whitening`), a trainable ``body`` and a fixed output map
     ``post`` (default: none; :class:`Decoder` in :func:`reduced`). :meth:`fit_observations`
@@ -26,9 +27,7 @@ class Net(nn.Module):
         self.post = nn.Identity() if post is None else post
 
     def fit_observations(self, y, noise: float | None = None, **settings) -> Net:
-        fit = getattr(self.pre, "fit_observations", None)
-        if callable(fit):
-            fit(y, noise, **settings)
+        declared(self.pre).fit_observations(y, noise, **settings)
         return self
 
     def forward(self, y: torch.Tensor) -> torch.Tensor:
@@ -38,7 +37,7 @@ class Net(nn.Module):
     def decoder(self) -> torch.Tensor | None:
         """The fixed output map's rows ``Dᵀ`` (``(k, N)``; :class:`Decoder`), ``None`` without one: the
         network's fields lie in ``span D`` whatever its body (targets and inverses work there)."""
-        return getattr(self.post, "basis", None)
+        return declared(self.post).decoder
 
     def linear_in_parameters(self) -> LinearInParameters | None:
         """The structure ``x = D(W z(y) + b)`` when the body is one ``nn.Linear`` (alone or as the
@@ -124,14 +123,12 @@ DTYPE = torch.float64
 def fit_preconditioning(model: nn.Module, y, noise: float | None = None, **settings) -> nn.Module:
     """Fit ``model``'s input transform on training observations ``y`` (never on ``x``).
 
-    Calls ``model.fit_observations(y, noise, **settings)`` if the model has one (:class:`Net`,
-    :class:`MLP`); ``noise`` is the relative noise level when known (it sets the whitening floor);
-    ``settings`` go to the whitening (``drop=0``: floor at the noise, drop nothing). Other models
-    are left alone.
+    Calls ``model.fit_observations(y, noise, **settings)`` as the model declares it
+    (:mod:`.protocol`: :class:`Net`, :class:`MLP`); ``noise`` is the relative noise level when known
+    (it sets the whitening floor); ``settings`` go to the whitening (``drop=0``: floor at the noise,
+    drop nothing). A model that declares nothing is left alone.
     """
-    fit = getattr(model, "fit_observations", None)
-    if callable(fit):
-        fit(y, noise, **settings)
+    declared(model).fit_observations(y, noise, **settings)
     return model
 
 

@@ -8,6 +8,7 @@ import torch
 from torch import nn
 
 from .net import BODIES, DTYPE, Net
+from .protocol import Network
 from .whitening import Whitening
 
 #: at most this many decoder columns out of :func:`reduced` (``k_out``); fewer when they hold all but
@@ -32,7 +33,7 @@ REDUCED_UNCAPTURED = 1e-10
 REDUCED_K_IN = 1024
 
 
-class Decoder(nn.Module):
+class Decoder(Network):
     """``x = Φ c``: a fixed basis ``Φ`` (``N × k``, a buffer, not trained) times coefficients ``c``."""
 
     def __init__(self, basis: torch.Tensor):
@@ -41,6 +42,11 @@ class Decoder(nn.Module):
 
     def forward(self, c: torch.Tensor) -> torch.Tensor:
         return c @ self.basis
+
+    @property
+    def decoder(self) -> torch.Tensor:
+        """Its rows ``Φᵀ`` (``(k, N)``): a network ending in this map declares it as its decoder."""
+        return self.basis
 
     def extra_repr(self) -> str:
         k, n = self.basis.shape
@@ -75,7 +81,7 @@ def prior_basis(problem, k: int, samples: int | None = None, seed: int = 20_161,
     n = samples or 4 * k
     rng = np.random.default_rng(seed)
     X = np.vstack([problem.sampler(min(chunk, n - i), rng) for i in range(0, n, chunk)])
-    M = problem.disc.M if getattr(problem, "disc", None) is not None else None
+    M = problem.disc.M if problem.disc is not None else None
     N = X.shape[1]
     if N < n:  # the N × N side: generalized eigenvectors of (M XᵀX M, M), M-orthonormal
         Md = np.eye(N) if M is None else M.toarray()

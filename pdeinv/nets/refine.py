@@ -39,6 +39,7 @@ from torch import nn
 from torch.nn import functional as F
 
 from ..fem.grid import GridMap
+from .protocol import Network, declared
 
 
 def _conv(dim: int):
@@ -127,7 +128,7 @@ class PriorFitted(Protocol):
     def fit_prior(self, x, y, relative_error, settings: PriorFit = ..., log=None) -> dict: ...
 
 
-class Refined(nn.Module):
+class Refined(Network):
     """``f(y) = b(y) + E g(Ê b(y))`` (module docstring). Until :meth:`fit_prior` keeps a correction,
     ``f = b`` exactly and the base's declared structure (linear in its parameters, decoder,
     Gauss–Newton diagonal) is the network's: the rules train ``b`` as they would alone."""
@@ -142,41 +143,31 @@ class Refined(nn.Module):
         self.register_buffer("active", torch.zeros((), dtype=torch.bool))
         self.prior_info: dict = {}
 
-    def __getattr__(self, name: str):
-        """Any other attribute is the base network's (``model.pre``, ``model.post``, …)."""
-        try:
-            return super().__getattr__(name)
-        except AttributeError:
-            return getattr(super().__getattr__("base"), name)
-
     # --- the base's declared structure, valid while the correction is off -----------------------
     def fit_observations(self, y, noise=None, **settings):
-        fit = getattr(self.base, "fit_observations", None)
-        if callable(fit):
-            fit(y, noise, **settings)
+        declared(self.base).fit_observations(y, noise, **settings)
         return self
 
-    def _base_only(self):
-        return None if bool(self.active) else self.base
-
-    def _delegate(self, name: str, *args):
-        base = self._base_only()
-        method = None if base is None else getattr(base, name, None)
-        return method(*args) if callable(method) else None
+    def _base(self):
+        """The base's declarations while the correction is off; nothing once it is on."""
+        return declared(None if bool(self.active) else self.base)
 
     def linear_in_parameters(self):
-        return self._delegate("linear_in_parameters")
+        return self._base().linear_in_parameters()
 
     def gauss_newton_diagonal(self, y):
-        return self._delegate("gauss_newton_diagonal", y)
+        return self._base().gauss_newton_diagonal(y)
 
     def gauss_newton_max(self, y):
-        return self._delegate("gauss_newton_max", y)
+        return self._base().gauss_newton_max(y)
 
     @property
     def decoder(self):
-        base = self._base_only()
-        return None if base is None else getattr(base, "decoder", None)
+        return self._base().decoder
+
+    @property
+    def decoder_info(self):
+        return declared(self.base).decoder_info
 
     def forward(self, y: torch.Tensor) -> torch.Tensor:
         xb = self.base(y)

@@ -64,9 +64,9 @@ from __future__ import annotations
 
 import numpy as np
 import torch
-from torch import nn
 
 from ..inverse.noise import noise_variance
+from .protocol import Network
 
 #: default relative floor without a noise level, by the dtype of the buffers (module docstring;
 #: float64: none beyond the numerical rank cut)
@@ -75,7 +75,7 @@ REL_FLOORS = {torch.float64: 0.0, torch.float32: 1e-10}
 REL_FLOOR = REL_FLOORS[torch.float32]
 
 
-class Whitening(nn.Module):
+class Whitening(Network):
     """``z = D Uᵀ (y − μ)`` fitted by :meth:`fit` on training observations (module docstring)."""
 
     def __init__(self, m: int, rel_floor: float | None = None, drop: float | str = "edge",

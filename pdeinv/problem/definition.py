@@ -49,7 +49,7 @@ class Problem:
 
     def __post_init__(self):
         # an operator built by hand goes through the backend chooser as the scenes' do
-        chosen(self.operator, getattr(self.disc, "M", None))
+        chosen(self.operator, None if self.disc is None else self.disc.M)
 
     @property
     def points(self) -> np.ndarray:

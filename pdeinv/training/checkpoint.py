@@ -171,7 +171,7 @@ def run_identity(problem, rule, model: torch.nn.Module, trainer: dict) -> dict:
     """What a checkpoint must share with a run to be resumed by it: the problem and its settings, the
     network, the rule and its *configured* hyper-parameters (the guard's lowered step size is run state,
     not identity), and the trainer's data settings ``trainer``."""
-    return {"problem": getattr(problem, "name", None), "settings": plain(getattr(problem, "settings", {})),
+    return {"problem": problem.name, "settings": plain(problem.settings),
             "network": network_identity(model), "rule": rule.name,
             "hyperparameters": plain(rule.hyperparameters()), "trainer": trainer}
 

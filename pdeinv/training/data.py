@@ -112,8 +112,8 @@ def undeclared_noise(path, y, problem=None) -> float:
     op = None if problem is None else problem.operator
     if op is None or (reversible(op) and op.n_out <= op.n_in):  # it keeps every direction: none outside
         return level
-    disc = getattr(problem, "disc", None)
-    basis = spectral_basis(op, None if disc is None else disc.M)  # no SVD for a reversible map (above)
+    # no SVD for a reversible map (above)
+    basis = spectral_basis(op, None if problem.disc is None else problem.disc.M)
     est = None if basis is None else estimate_noise_outside(y, basis.out[:, basis.g > 1e-12 * basis.g.max()])
     return max(level, est if est is not None and est > NOISE_FLOOR else 0.0)
 

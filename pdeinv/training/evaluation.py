@@ -64,7 +64,7 @@ def metrics(trainer, run) -> dict:
     :class:`~pdeinv.training.verdict.FailedRun`)."""
     last, at = trainer.history[-1], run.at
     metrics = {
-        "problem": getattr(trainer.problem, "name", None), "method": getattr(trainer.rule, "name", None),
+        "problem": trainer.problem.name, "method": trainer.rule.name,
         "steps": at.step, "wall_s": at.wall, "x_err": last.get("x_err"), "y_err": last["y_err"],
         "loss": last["loss"], "step_s": at.wall / at.step, "n_train": trainer.n_train,
         "n_test": trainer.n_test, "batch_size": trainer.batch_size, "seed": trainer.seed,

@@ -84,7 +84,7 @@ class DiscrepancyStop:
         if self.noise == "estimate":
             delta, source = estimate_noise(y_train), "estimate"
         elif self.noise is None:
-            delta, source = float(getattr(problem, "noise", 0.0) or 0.0), "problem"
+            delta, source = float(problem.noise or 0.0), "problem"
         else:
             delta, source = float(self.noise), "given"
         y_val = np.asarray(y_val, dtype=float)

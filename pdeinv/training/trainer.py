@@ -221,7 +221,7 @@ class Trainer:
     def _network_settings(self) -> dict:
         """``problem.model``'s settings: with own data, the linear part takes nothing from the scene's
         sampler where it can (:func:`pdeinv.nets.data_base`)."""
-        if self._own is None or getattr(self.problem, "model_factory", None) is not None:
+        if self._own is None or self.problem.model_factory is not None:
             return {}
         from ..nets import data_base
 

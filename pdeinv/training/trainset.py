@@ -61,7 +61,7 @@ def prior_rows(problem, own, n: int, seed: int) -> tuple[tuple | None, str]:
         if own.x is None:
             return None, "none: the data file has no x"
         return (own.x, own.y), f"the data file's x ({len(own.x)} training rows)"
-    prior = getattr(problem, "settings", {}).get("prior", "the scene's sampler")
+    prior = problem.settings.get("prior", "the scene's sampler")
     return problem.sample(n, seed_stream(seed, PRIOR_DATA)), f"{n} draws of the scene's prior ({prior})"
 
 
@@ -82,7 +82,7 @@ def fit_inputs(problem, rule, target, model, y_np, y_train, fit_scaling: bool, f
     goal, info = fit_target(problem, rule, target, y_np, y_train, model, fields)
     if fit_scaling:  # a fitted target is denoised: the input keeps every direction (drop=0), each scaled
         # at most to the noise floor σ² (clean data's rounding-level directions stay small)
-        noise = getattr(problem, "noise", None) or None
+        noise = problem.noise or None
         fit_preconditioning(model, y_np, noise, **({"drop": 0} if info else {}))
     return goal, info
 

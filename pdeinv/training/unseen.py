@@ -40,7 +40,7 @@ def unseen_energy(problem, xhat: np.ndarray, xref: np.ndarray) -> tuple[dict | N
     if basis is None:
         return None, None
     g = np.asarray(basis.g, dtype=float)
-    keep = g > max(float(getattr(problem, "noise", 0.0) or 0.0), FLOOR) * g.max()
+    keep = g > max(float(problem.noise or 0.0), FLOOR) * g.max()
     if keep.sum() >= problem.N:
         return None, None
     Q = np.linalg.qr(np.asarray(basis.In, dtype=float)[:, keep])[0]

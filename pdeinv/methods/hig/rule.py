@@ -13,6 +13,7 @@ import torch
 from ..._checks import choice, count, nonnegative, positive
 from ...errors import NonFiniteError
 from ...inverse.decoder import decoded_svd
+from ...nets.protocol import declared
 from ...physics.base import Matrix
 from ...physics.bridge import apply
 from ...physics.capabilities import modal_basis
@@ -155,8 +156,7 @@ class HIG(Rule):
 
     def context(self, problem, model):
         op = problem.operator
-        lin = getattr(model, "linear_in_parameters", None)
-        lin = lin() if callable(lin) and self.route in ("auto", "kronecker") else None
+        lin = declared(model).linear_in_parameters() if self.route in ("auto", "kronecker") else None
         if lin is None and self.sum_over is not None:
             raise ValueError(f"rule 'hig' cannot run on several processes with {type(model).__name__}: "
                              "only its Kronecker route is data-parallel, and that needs a network linear in "
