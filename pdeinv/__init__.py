@@ -55,7 +55,7 @@ def __getattr__(name: str):
         raise AttributeError(f"module 'pdeinv' has no attribute {name!r}")
     where = _WHERE[name]
     module = importlib.import_module(f".{where.lstrip('=')}", __name__)
-    value = module if where.startswith("=") else getattr(module, name)
+    value = module if where.startswith("=") else getattr(module, name)  # a lazy package's names too
     globals()[name] = value
     return value
 
@@ -72,7 +72,7 @@ class _Alias(types.ModuleType):
         if name.startswith("__"):  # inspect.getmodule asks every module for __file__: import nothing
             raise AttributeError(f"module 'pdeinv.train' has no attribute {name!r}")
         for module in ("training.trainer", "training.trainset"):
-            value = getattr(importlib.import_module(f"{__name__}.{module}"), name, self)
+            value = vars(importlib.import_module(f"{__name__}.{module}")).get(name, self)
             if value is not self:
                 return value
         raise AttributeError(f"module 'pdeinv.train' has no attribute {name!r}")

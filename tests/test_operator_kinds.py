@@ -27,10 +27,19 @@ def _rel(a, b):
 
 
 def test_heat_is_a_propagator_with_the_one_loop():
+    """The stepping heat operator is the Propagator itself, and it is backward Euler: ten solves of
+    ``(M + dt κ K) u⁺ = M u`` by a plain SciPy loop give the same final field."""
+    import scipy.sparse.linalg as sla
+
     d = pdeinv.discretize(pdeinv.fem.mesh.unit_square(6))
-    op = Heat(d.M, d.K, steps=10, backend="steps")
+    op = Heat(d.M, d.K, kappa=0.01, T=1.0, steps=10, backend="steps")
     assert isinstance(op, Propagator) and op.kind == "steps" and op.backend is None
     assert op.stepping() is op
+    x = np.random.default_rng(0).standard_normal((3, op.n_in))
+    lu, u = sla.splu((d.M + 0.1 * 0.01 * d.K).tocsc()), x.T
+    for _ in range(10):
+        u = lu.solve(d.M @ u)
+    assert _rel(op.forward(x), u.T) < 1e-12
 
 
 @pytest.mark.parametrize("scheme", ["be", "cn"])

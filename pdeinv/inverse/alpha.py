@@ -11,11 +11,20 @@ from __future__ import annotations
 from collections.abc import Callable
 from dataclasses import dataclass
 from numbers import Real
+from typing import Protocol, runtime_checkable
 
 import numpy as np
 
 from .._checks import count, positive
 from .discrepancy import discrepancy_alpha
+
+
+@runtime_checkable
+class AlphaRule(Protocol):
+    """How a regularized solve picks its α: ``select(fit) -> α`` (:class:`FixedAlpha`,
+    :class:`RelativeAlpha`, :class:`Discrepancy`, or a user's own object with that method)."""
+
+    def select(self, fit) -> float: ...
 
 
 @dataclass
@@ -137,7 +146,7 @@ def as_rule(alpha):
     """A number → :class:`FixedAlpha`; an object with ``select(fit)`` → itself."""
     if isinstance(alpha, Real) and not isinstance(alpha, bool):
         return FixedAlpha(alpha)
-    if callable(getattr(alpha, "select", None)):
+    if isinstance(alpha, AlphaRule):
         return alpha
     raise ValueError(f"alpha={alpha!r} is not allowed; expected a number > 0 or a rule such as "
                      "Discrepancy(noise) / RelativeAlpha(rel)")

@@ -138,5 +138,7 @@ def decoded_rows(decoder, n: int) -> np.ndarray:
     """The decoder's rows ``Dᵀ`` as float64 numpy (the identity for ``None``)."""
     if decoder is None:
         return np.eye(n)
-    return np.asarray(decoder.detach().cpu().double().numpy() if hasattr(decoder, "detach") else decoder,
-                      dtype=float)
+    import torch
+
+    return np.asarray(decoder.detach().cpu().double().numpy() if isinstance(decoder, torch.Tensor)
+                      else decoder, dtype=float)

@@ -20,6 +20,6 @@ __all__ = ["GD", "HIG", "SIP", "Supervised", "Guard", "NonFiniteError", "Resumab
 def __getattr__(name: str):
     if name not in _WHERE:
         raise AttributeError(f"module 'pdeinv.methods' has no attribute {name!r}")
-    value = getattr(importlib.import_module(f".{_WHERE[name]}", __name__), name)
+    value = getattr(importlib.import_module(f".{_WHERE[name]}", __name__), name)  # hig is lazy too
     globals()[name] = value
     return value

@@ -13,6 +13,6 @@ __all__ = ["Problem", "available", "load_problem"]
 def __getattr__(name: str):
     if name not in _WHERE:
         raise AttributeError(f"module 'pdeinv.problem' has no attribute {name!r}")
-    value = getattr(importlib.import_module(f".{_WHERE[name]}", __name__), name)
+    value = vars(importlib.import_module(f".{_WHERE[name]}", __name__))[name]
     globals()[name] = value
     return value

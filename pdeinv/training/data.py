@@ -51,7 +51,9 @@ def as_observations(data, m: int, name: str = "data") -> np.ndarray:
 
 
 def _numpy(a) -> np.ndarray:
-    return a.detach().cpu().numpy() if hasattr(a, "detach") else np.asarray(a)
+    import torch
+
+    return a.detach().cpu().numpy() if isinstance(a, torch.Tensor) else np.asarray(a)
 
 
 def _rows(a: np.ndarray, width: int, name: str) -> np.ndarray:

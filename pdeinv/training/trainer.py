@@ -215,7 +215,8 @@ class Trainer:
         (:mod:`pdeinv.training.checkpoint`)."""
         return ckpts.run_identity(self.problem, self.rule, model, {
             "seed": self.seed, "n_train": self.n_train, "n_test": self.n_test, "batch_size": self.batch_size,
-            "dtype": str(self.dtype), "target": getattr(self.target, "name", self.target),
+            "dtype": str(self.dtype),
+            "target": self.target if isinstance(self.target, str | None) else self.target.name,
             **({} if self._own is None else {"data": self._own.fingerprint})})
 
     def _network_settings(self) -> dict:
@@ -236,7 +237,8 @@ class Trainer:
         if self.model is None:
             torch.manual_seed(self.seed)
             self.model = self.problem.model(**self._network_settings())
-        self.dtype = self.dtype or getattr(next(iter(self.model.parameters()), None), "dtype", torch.float32)
+        first = next(iter(self.model.parameters()), None)
+        self.dtype = self.dtype or (torch.float32 if first is None else first.dtype)
         model = self.model.to(device=self.device, dtype=self.dtype)
         if self.checkpoint is not None:
             ckpts.check_resumable(self.rule)
@@ -248,7 +250,8 @@ class Trainer:
             self.problem, y_np, stop_rows(self.problem, self._own, self.stop.n_val, self.seed))
         self.parallel.check_same("run", lambda: {
             **self.identity(model), "steps": self.steps, "time_budget": self.time_budget,
-            "eval_every": self.eval_every, "resume": self.resume, "stop": getattr(self.stop, "name", None)})
+            "eval_every": self.eval_every, "resume": self.resume,
+            "stop": None if self.stop is None else self.stop.name})
         gen = torch.Generator().manual_seed(seed_stream(self.seed, BATCH_ORDER))
         run = _Run(model, self._rule.init(placed(self.problem, self.device), model), y_train, t_train, test,
                    stop_state, Position(gen, torch.randperm(self.n_train, generator=gen)), self._guard())

@@ -130,6 +130,7 @@ class SVD:
 
     name = "svd"
     bytes_per_entry = 4 + 8 + 8  # float32 from torch.func + float64 copy + LAPACK workspace
+    cond_max = float("inf")  # never refuses a conditioning
 
     def direction(self, J, g, rule):
         U, s, Vt = np.linalg.svd(J.numpy(), full_matrices=False)
@@ -315,7 +316,7 @@ class Structured:
         s = np.sqrt(lam2.clip(min=0))
         keep = _kept(s, rule.tau)
         cond = float(s.max() / s[keep].min())
-        if cond > getattr(self.decomposition, "cond_max", float("inf")):
+        if cond > self.decomposition.cond_max:
             return None, {"gram_rejected": cond}
         Uk, sk = U[:, keep], s[keep]
         c = torch.from_numpy(Uk @ (sk ** (rule.exponent - 1) * (Uk.T @ rows.g.numpy())))

@@ -143,7 +143,7 @@ class HIG(Rule):
     transform = Add()
 
     def settings(self) -> dict:
-        return {k: getattr(self, k) for k in SETTINGS}
+        return {k: v for k, v in vars(self).items() if k in SETTINGS}
 
     def data_parallel(self, sum_over: Callable, processes: int) -> HIG:
         """This rule on one shard of ``processes``: ``sum_over(arrays) -> arrays`` sums over the
