@@ -70,6 +70,10 @@ def main(argv=None) -> int:
     except (UsageError, FolderLocked, ValueError, FileNotFoundError, NotImplementedError) as err:
         print(f"pdeinv {args.command}: error: {err}", file=sys.stderr)
         return 2
+    except OSError as err:  # a folder that went away or became read-only after the checks, a full disk
+        where = f" ({err.filename})" if getattr(err, "filename", None) else ""
+        print(f"pdeinv {args.command}: error: cannot write: {err.strerror or err}{where}", file=sys.stderr)
+        return 1
     except MemoryError as err:
         print(f"pdeinv {args.command}: out of memory: {err or 'no message'}; use a coarser mesh, a smaller "
               "batch or fewer samples", file=sys.stderr)

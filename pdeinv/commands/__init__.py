@@ -87,26 +87,19 @@ def out_path(text: str, flag: str = "--out") -> Path:
 
 def not_an_input(outputs, inputs) -> None:
     """Refuse an output path that resolves to an input file (it would be overwritten or deleted)."""
-    ins = {Path(p).resolve(): name for name, p in inputs if p}
+    from pdeinv.outpaths import output_file
+
     for name, p in outputs:
-        if p and Path(p).resolve() in ins:
-            raise UsageError(f"{name} {str(p)!r} is the same file as {ins[Path(p).resolve()]}: writing it "
-                             "would destroy that input; choose another path")
+        if p:
+            output_file(p, name, inputs)
 
 
 def prepare_out(out) -> None:
-    """Refuse an ``--out`` that is a file; create the folder and prove it writable before any work."""
-    import tempfile
+    """Refuse an ``--out`` that is a file; create the folder and prove it writable before any work
+    (:func:`pdeinv.outpaths.output_folder`, the policy of every output path)."""
+    from pdeinv.outpaths import output_folder
 
-    if out.exists() and not out.is_dir():
-        raise UsageError(f"--out {str(out)!r} is a file; expected a directory")
-    try:
-        out.mkdir(parents=True, exist_ok=True)
-        with tempfile.TemporaryFile(dir=out):
-            pass
-    except OSError as err:
-        raise UsageError(f"--out {str(out)!r} is not a writable directory ({err.strerror or err}); "
-                         "choose another --out") from None
+    output_folder(out, "--out")
 
 
 def set_threads(n: int) -> None:
