@@ -9,6 +9,7 @@ argument, the value and what is allowed, and, for the mix-ups users make (argume
 from __future__ import annotations
 
 import os
+import sys
 from numbers import Integral
 
 #: seeds numpy's SeedSequence and torch.manual_seed both take (the CLI's --seed range)
@@ -49,9 +50,10 @@ def _is_rule(value) -> bool:
 
 
 def _is_result(value) -> bool:
-    from .trainer import Result
-
-    return isinstance(value, Result)
+    """A :class:`pdeinv.trainer.Result` (looked up, not imported: the trainer imports this module, and
+    no Result exists before it is imported)."""
+    trainer = sys.modules.get(f"{__package__}.trainer")
+    return trainer is not None and isinstance(value, trainer.Result)
 
 
 def problem(value, where: str = "train"):

@@ -4,9 +4,10 @@
 * an empty path is refused (it would silently mean the current folder);
 * a path that resolves to an input of the command (``--data``, the run's ``model.pt``, the fields file
   being drawn) is refused: writing it would destroy that input;
-* a file inside a run folder (one holding ``run.json`` or ``metrics.json``) whose name is one of the
-  run's own outputs (:data:`pdeinv.runs.OUTPUTS`: ``training.png``, ``metrics.json``, ``model.pt``, …)
-  is refused unless the command owns that file (``pdeinv show`` redraws ``fields.png``);
+* an existing file inside a run folder (one holding ``run.json`` or ``metrics.json``): the run's own
+  outputs (:data:`pdeinv.runs.OUTPUTS`: ``training.png``, ``metrics.json``, ``model.pt``, …) and
+  whatever else is kept there, is refused unless the command owns that file (``pdeinv show`` redraws
+  ``fields.png``);
 * missing parent folders are created; a folder that cannot be created or written (read-only, under a
   file, no permission) is refused, naming the folder;
 * a file path that is an existing folder is refused (and the other way round).
@@ -58,12 +59,11 @@ def _not_an_input(path: Path, flag: str, inputs: Iterable) -> None:
 
 
 def run_output(path) -> bool:
-    """Whether ``path`` is one of a run's own files: a name of :data:`pdeinv.runs.OUTPUTS` in a folder
-    that holds a run (:data:`RUN_MARKERS`)."""
-    from .runs import OUTPUTS
-
+    """Whether ``path`` is an existing file of a run folder (one holding :data:`RUN_MARKERS`): the run's
+    own results (``training.png``, ``metrics.json``, ``model.pt``, … :data:`pdeinv.runs.OUTPUTS`) or
+    anything else kept there."""
     path = Path(path)
-    return path.name in OUTPUTS and any((path.parent / m).is_file() for m in RUN_MARKERS)
+    return path.is_file() and any((path.parent / m).is_file() for m in RUN_MARKERS)
 
 
 def output_file(path, flag: str = "out", inputs: Iterable = (), owns: Iterable[str] = (),

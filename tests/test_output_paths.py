@@ -98,11 +98,16 @@ def test_save_run_creates_its_folder_and_loads_back(tmp_path):
 def test_the_policy_functions(tmp_path):
     (tmp_path / "run").mkdir()
     (tmp_path / "run" / "run.json").write_text("{}")
+    (tmp_path / "run" / "model.pt").write_text("weights")
+    (tmp_path / "run" / "notes.txt").write_text("a user's notes")
     with pytest.raises(OutputPathError, match=r"out '' is empty"):
         output_file("", "out")
     with pytest.raises(OutputPathError, match=r"is one of that run's own files \(model\.pt\)"):
         output_file(tmp_path / "run" / "model.pt")
+    with pytest.raises(OutputPathError, match=r"notes\.txt"):  # whatever a run folder keeps
+        output_file(tmp_path / "run" / "notes.txt")
     assert output_file(tmp_path / "run" / "fields.png", owns=("fields.png",)).parent.is_dir()
+    assert output_file(tmp_path / "run" / "new.png")  # a new file beside the run's is fine
     with pytest.raises(OutputPathError, match=r"expected a file name ending in \.npz"):
         output_file(tmp_path / "x.csv", "--out", suffixes=(".npz",))
     with pytest.raises(OutputPathError, match=r"is a directory; expected a file name"):

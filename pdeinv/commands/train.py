@@ -132,8 +132,10 @@ def cmd_train(args) -> int:
         return 1
     except (UsageError, ValueError, FileNotFoundError, NotImplementedError):
         return 2
-    except KeyboardInterrupt:
-        return 130
+    except KeyboardInterrupt as err:
+        from pdeinv.signals import exit_code
+
+        return exit_code(err)
 
 
 def _train(args) -> int:
@@ -320,11 +322,13 @@ def _run(args, out, problem, overrides, net, hp, trainer, fresh) -> int:
             if trainer.history:
                 write_csv(trainer.history, out / "history.csv")
             raise
-        except KeyboardInterrupt:
+        except KeyboardInterrupt as err:  # Ctrl-C, or SIGTERM (pdeinv.signals): 130 / 143
+            from pdeinv.signals import exit_code, what
+
             fresh()
             saved = f"continue from {ckpt} with --resume" if ckpt.exists() else "no checkpoint was written"
-            print(f"pdeinv train: interrupted; {saved}", file=sys.stderr)
-            return 130
+            print(f"pdeinv train: {what(err)}; {saved}", file=sys.stderr)
+            return exit_code(err)
         fresh()
         metrics = {**result.metrics, "method": args.method, "hyperparameters": hp,
                    "settings": {k: v for k, v in problem.settings.items()},
