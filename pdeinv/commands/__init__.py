@@ -72,7 +72,8 @@ def run_parser(sub, name: str, help: str, quick: str):
     """A subcommand parser with the arguments every sweep shares: PROBLEM, ``--out DIR``, ``--quick``."""
     p = sub.add_parser(name, help=help)
     p.add_argument("problem")
-    p.add_argument("--out", required=True, metavar="DIR")
+    p.add_argument("--out", required=True, metavar="DIR",
+                   help="folder for the results (created with its parents)")
     p.add_argument("--quick", action="store_true", help=quick)
     add_memory_argument(p)
     return p

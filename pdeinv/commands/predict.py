@@ -57,7 +57,7 @@ def cmd_predict(args) -> int:
     atomic_write(out, lambda fh: fh.write(buffer.getvalue()))
     if args.vtu:
         write_fields(args.vtu, problem, x, xhat, y, problem.operator.forward(xhat))
-    error = "" if x is None else f", x_err {float(np.mean(problem.relative_error(xhat, x))):.4f}"
+    error = "" if x is None else f", x_err {float(np.mean(problem.relative_error(xhat, x))):.3g}"
     print(f"{problem.name}: {len(xhat)} predictions{error} -> {out}" + (f", {args.vtu}" if args.vtu else ""))
     return 0
 

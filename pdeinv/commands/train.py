@@ -351,9 +351,10 @@ def _run(args, out, problem, overrides, net, hp, trainer, fresh) -> int:
                                samples=min(args.export_samples, len(y_test)))
             written |= {Path(p).name for p in files.values()}
         clear_outputs(out, keep=written)  # e.g. fields.vtu of an earlier run or a resumed one
-        x_err = "n/a (no x in the data)" if metrics["x_err"] is None else f"{metrics['x_err']:.4f}"
+        # %.3g, never %.4f: "x_err 0.0000" once hid 6e-11
+        x_err = "n/a (no x in the data)" if metrics["x_err"] is None else f"{metrics['x_err']:.3g}"
         print(f"{problem.name} {args.method}: {metrics['steps']} steps ({metrics['stopped_by']}) in "
-              f"{metrics['wall_s']:.2f} s, x_err {x_err}, y_err {metrics['y_err']:.4f} -> {out}")
+              f"{metrics['wall_s']:.2f} s, x_err {x_err}, y_err {metrics['y_err']:.3g} -> {out}")
         return _verdict(metrics["failed"], args.accept_bad, out)
 
 
@@ -379,13 +380,19 @@ def add_parser(sub) -> None:
     t.add_argument("--method", choices=sorted(METHODS), default="sip",
                    help="update rule (default: sip, the most accurate; methods/presets.py)")
     t.add_argument("--steps", type=int, default=None,
-                   help="training steps (default: the method's preset: 30 full-batch steps for sip, 1000 "
-                        "(hig: full-batch) otherwise; no limit when --time-budget is given)")
+                   help="training steps, i.e. updates of the network (default: the method's preset: 30 "
+                        "full-batch steps for sip, 1000 (hig: full-batch) otherwise; no limit when "
+                        "--time-budget is given); not the physics' time steps, which are --set steps=N")
     t.add_argument("--time-budget", type=float, default=None, metavar="SECONDS",
                    help="also stop once training wall time exceeds this")
-    t.add_argument("--seed", type=int, default=0)
+    t.add_argument("--seed", type=int, default=0,
+                   help="seed of everything random: the training and test draws, the batch order, the "
+                        "network's initial weights (an integer from 0 to 2^32-1; default 0)")
     t.add_argument("--no-cache", action="store_true", help="no disk cache of factorizations")
-    t.add_argument("--out", required=True, metavar="DIR")
+    t.add_argument("--out", required=True, metavar="DIR",
+                   help="folder for the run's files (created with its parents; one that holds another run "
+                        "is refused unless --resume or --overwrite): metrics.json, history.csv, "
+                        "training.png, model.pt, run.json, checkpoint.pt, fields.vtu/png")
     add_set_argument(t)
     t.add_argument("--lr", type=float, default=None, help="optimizer learning rate (gd, adam, sip)")
     t.add_argument("--eta", type=float, default=None, help="step scale η (sip, hig)")
@@ -421,7 +428,10 @@ def add_parser(sub) -> None:
                    help=f"training samples (default {N_TRAIN}; not with --data)")
     t.add_argument("--n-test", type=int, default=128,
                    help="test samples; with --data the last N rows of the file (default 128)")
-    t.add_argument("--eval-every", type=int, default=50)
+    t.add_argument("--eval-every", type=int, default=50, metavar="K",
+                   help="compute the held-out test errors (x_err, y_err in history.csv and training.png) "
+                        "every K training steps, and after the first and the last (default 50; not counted "
+                        "as training time)")
     t.add_argument("--device", default="cpu",
                    help="torch device of the network and of dense/modal/SVD physics: cpu (default), "
                         "cuda, cuda:N (time stepping stays on the CPU). Data parallel: torchrun "
