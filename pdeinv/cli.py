@@ -41,6 +41,10 @@ def build_parser() -> argparse.ArgumentParser:
     sub = p.add_subparsers(dest="command", required=True)
     for module in command_modules():
         module.add_parser(sub)
+    from .logs import add_arguments
+
+    for command in sub.choices.values():  # -q/--quiet, -v/--verbose on every subcommand (pdeinv.logs)
+        add_arguments(command)
     return p
 
 
@@ -74,9 +78,12 @@ def main(argv=None) -> int:
 def _main(argv=None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
+    from .logs import cli_logging
+
     try:
         check_common(args)
-        return args.func(args)
+        with cli_logging(args):
+            return args.func(args)
     except numerical_types() as err:  # before ValueError: numpy's LinAlgError is one
         print(f"pdeinv {args.command}: numerical failure: {err}", file=sys.stderr)
         return 1

@@ -1,6 +1,6 @@
 """Small conventions a new user meets in the first hour (issue 36): every flag of ``pdeinv train`` says
 what it does, errors print with ``%.3g`` (``x_err 0.0000`` once hid 6e-11), the package declares its
-type hints (PEP 561 ``py.typed``)."""
+type hints (PEP 561 ``py.typed``), ``--quiet`` / ``--verbose`` set the level of the ``pdeinv`` logger."""
 
 from __future__ import annotations
 
@@ -36,3 +36,17 @@ def test_tiny_errors_are_printed_in_three_significant_digits(tmp_path, capsys):
 def test_the_package_declares_its_type_hints():
     assert (ROOT / "py.typed").is_file()
     assert '"pdeinv" = ["py.typed"]' in (ROOT.parent / "pyproject.toml").read_text()
+
+
+@pytest.mark.parametrize("flag, shown", [("--quiet", []), (None, ["built"]),
+                                         ("--verbose", ["built", "backend"])])
+def test_quiet_and_verbose(flag, shown, capsys):
+    from pdeinv.commands import build_problem
+    from pdeinv.logs import cli_logging
+
+    args = build_parser().parse_args(["demo", "heat_1d", *([flag] if flag else [])])
+    with cli_logging(args):
+        build_problem("demo", "heat_1d", ["n=8"], after_s=0.0)
+    err = capsys.readouterr().err
+    assert [w for w in ("built", "backend") if w in err] == shown, err
+    assert build_parser().parse_args(["train", "x", "--out", "o", "-q"]).quiet

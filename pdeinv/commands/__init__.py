@@ -42,7 +42,7 @@ def build_problem(command: str, name: str, sets: list[str], after_s: float = 1.0
     takes longer than ``after_s`` seconds (one line, then its time): a large mesh or a modal basis
     can take minutes. ``steps``: the training steps the run will take, for the backend's cost
     model (:func:`pdeinv.physics.compiled.expecting`; ``None``: its default)."""
-    import sys
+    import logging
     import threading
     import time
 
@@ -52,8 +52,8 @@ def build_problem(command: str, name: str, sets: list[str], after_s: float = 1.0
     overrides = parse_sets(sets)
     what = f"{name} ({', '.join(f'{k}={v}' for k, v in overrides.items())})" if overrides else name
     t0 = time.perf_counter()
-    timer = threading.Timer(after_s, lambda: print(f"pdeinv {command}: building {what}…", file=sys.stderr,
-                                                   flush=True))
+    log = logging.getLogger("pdeinv")  # INFO: progress a user waits on (pdeinv.logs, --quiet)
+    timer = threading.Timer(after_s, lambda: log.info(f"pdeinv {command}: building {what}…"))
     timer.daemon = True
     timer.start()
     try:
@@ -63,8 +63,8 @@ def build_problem(command: str, name: str, sets: list[str], after_s: float = 1.0
         timer.cancel()
     took = time.perf_counter() - t0
     if took > after_s:
-        print(f"pdeinv {command}: built {problem.name} ({problem.N} unknowns) in {took:.1f} s",
-              file=sys.stderr, flush=True)
+        log.info(f"pdeinv {command}: built {problem.name} ({problem.N} unknowns) in {took:.1f} s")
+    log.debug(f"pdeinv {command}: {problem!r}; backend {getattr(problem.operator, 'choice', 'n/a')}")
     return problem
 
 

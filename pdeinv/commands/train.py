@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import logging
 import re
 import sys
 import time
@@ -108,8 +109,8 @@ class _Heartbeat:
             self.last = now
             of = f"/{self.steps}" if self.steps else ""
             errs = "".join(f", {k} {record[k]:.4g}" for k in ("x_err", "y_err") if k in record)
-            print(f"pdeinv train: step {record['step']}{of}, loss {record['loss']:.4g}{errs}, "
-                  f"{record['wall_s']:.0f} s", file=sys.stderr, flush=True)
+            logging.getLogger("pdeinv").info(f"pdeinv train: step {record['step']}{of}, loss "
+                                             f"{record['loss']:.4g}{errs}, {record['wall_s']:.0f} s")
         return False
 
 
@@ -275,6 +276,7 @@ def _parallel_train(args, out, ckpt, device, parallel) -> int:
     rule, hp = make_rule(args.method, problem, problem.noise, lr=args.lr, eta=args.eta, tau=args.tau,
                          batch_size=args.batch_size, hidden=hidden, optimizer=args.optimizer)
     _checks.check_run(problem, args, hp)  # memory, HIG step time, --export-samples (before allocating)
+    logging.getLogger("pdeinv").debug(f"pdeinv train: --method {args.method} with {hp}")
     stop = STOPS[args.stop](problem)
     torch.manual_seed(args.seed)
     net = _network_spec(problem, hp, args.net, bool(args.data))
@@ -285,7 +287,7 @@ def _parallel_train(args, out, ckpt, device, parallel) -> int:
                       checkpoint=FolderCheckpoint(ckpt, args.checkpoint_every, fresh) if args.checkpoint_every
                       else None,
                       resume=args.resume, stop=stop, data=y, data_x=x, device=device, parallel=parallel,
-                      prior_fit=_prior_fit(args),
+                      prior_fit=_prior_fit(args), progress=False if getattr(args, "quiet", False) else None,
                       callbacks=[] if sys.stderr.isatty() else [_Heartbeat(_checks.steps(args, hp))])
     if not parallel.is_writer:  # trains its shard; rank 0 writes everything
         failed = trainer.fit().metrics["failed"]
