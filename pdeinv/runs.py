@@ -67,11 +67,22 @@ def network(problem, spec: dict):
 
 
 def problem_spec(name_or_path: str) -> str:
-    """A problem name as given, or a module path made absolute (the run can be loaded from elsewhere)."""
+    """A problem name as given, or a module path made absolute (the run can be loaded from elsewhere).
+
+    A name found in the current folder or its ``problems/`` (:func:`pdeinv.problem.find_module`) is
+    stored as its module's absolute path: by name, ``pdeinv predict`` run from another folder said
+    "unknown problem". Built-in names and those on ``PDEINV_PROBLEMS`` stay names."""
     spec = os.fspath(name_or_path)
     if spec.endswith(".py") or os.sep in spec or "/" in spec:
         return str(Path(spec).resolve())
-    return spec
+    from .problem import find_module
+
+    try:
+        folder = find_module(spec).resolve().parent
+    except (ValueError, FileNotFoundError):
+        return spec
+    local = {Path.cwd().resolve(), (Path.cwd() / "problems").resolve()}
+    return str(find_module(spec).resolve()) if folder in local else spec
 
 
 def save_run(out: str | os.PathLike, problem, overrides: dict | None = None, network_spec: dict | None = None,

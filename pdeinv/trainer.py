@@ -148,8 +148,8 @@ class Trainer:
     rejection; only rank 0 saves checkpoints, warns and shows progress. ``metrics["world_size"]``.
     """
 
-    problem: object
-    rule: UpdateRule
+    problem: Problem | str | os.PathLike  # a name / module path is loaded (load_problem)
+    rule: UpdateRule | str  # a method name is built with its preset (methods.presets.make_rule)
     model: torch.nn.Module | None = None
     steps: int | None | str = "preset"  # "preset": the rule's (presets.run_defaults); None: time_budget only
     time_budget: float | None = None
@@ -159,12 +159,12 @@ class Trainer:
     seed: int = 0
     eval_every: int = 50
     fit_scaling: bool = True
-    stop: object | None = None  # a stopping rule (pdeinv.stopping), strategy object
+    stop: object | str | None = None  # a stopping rule (pdeinv.stopping), strategy object, or "discrepancy"
     target: object = "auto"  # what P f(y) must match (pdeinv.targets): "auto", None or a strategy
     callbacks: list[Callback] = field(default_factory=list)
     progress: bool | None = None
     dtype: torch.dtype | None = None  # None: the model's own parameter dtype (float32 for the default MLP)
-    checkpoint: Checkpoint | None = None
+    checkpoint: Checkpoint | str | os.PathLike | None = None  # a path: Checkpoint(path)
     resume: bool = False
     max_failures: int = 5
     step_factor: float = 0.5

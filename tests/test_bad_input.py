@@ -105,6 +105,9 @@ def test_cli_reports_one_line_and_exit_code_2(capsys):
 # Cases elsewhere: tests above (overrides, arrays, problems, meshes, cells), tests/test_sensors.py
 # (sensor positions and layouts), tests/test_train.py (trainer settings, CLI method settings),
 # tests/test_checkpoint.py (checkpoints of other runs, corrupt files) and tests/test_nan_guard.py.
+# Output paths of every command (read-only folders, missing folders, a run's own files, inputs) are
+# tests/test_output_paths.py; signals (SIGTERM, Ctrl-C during start-up) tests/test_signals.py; the
+# names the entry points accept (train("heat_1d", "sip"), presets) tests/test_entry_points.py.
 # The dt-above-stability-limit case (explicit leapfrog on wave scenes) is in tests/test_leapfrog.py;
 # the implicit schemes (heat θ-scheme with θ >= ½, Newmark β = ¼) accept every dt.
 

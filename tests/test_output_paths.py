@@ -116,3 +116,15 @@ def test_the_policy_functions(tmp_path):
         output_folder(tmp_path / "run" / "run.json")
     assert output_folder(tmp_path / "x" / "y").is_dir()
     assert isinstance(OutputPathError("m"), ValueError)  # the CLI's bad-input exit 2
+
+
+def test_a_problem_found_in_the_current_folder_is_stored_by_path(tmp_path, monkeypatch):
+    """``pdeinv train mine`` in the folder of ``mine.py``, then ``pdeinv predict`` from elsewhere."""
+    from pdeinv.problem import builtin_dir
+    from pdeinv.runs import problem_spec
+
+    builtin = builtin_dir() / "heat_1d.py"
+    (tmp_path / "mine.py").write_text(builtin.read_text())
+    monkeypatch.chdir(tmp_path)
+    assert problem_spec("mine") == str((tmp_path / "mine.py").resolve())
+    assert problem_spec("heat_1d") == "heat_1d"  # a built-in stays a name
