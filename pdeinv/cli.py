@@ -84,6 +84,11 @@ def _main(argv=None) -> int:
         check_common(args)
         with cli_logging(args):
             return args.func(args)
+    except KeyboardInterrupt as err:  # first: the clauses below import numpy, which may be half-imported
+        from .signals import exit_code, what  # `train` reports its checkpoint itself, 130 / 143
+
+        print(f"pdeinv {args.command}: {what(err)}", file=sys.stderr)
+        return exit_code(err)
     except numerical_types() as err:  # before ValueError: numpy's LinAlgError is one
         print(f"pdeinv {args.command}: numerical failure: {err}", file=sys.stderr)
         return 1
@@ -98,11 +103,6 @@ def _main(argv=None) -> int:
         print(f"pdeinv {args.command}: out of memory: {err or 'no message'}; use a coarser mesh, a smaller "
               "batch or fewer samples", file=sys.stderr)
         return 1
-    except KeyboardInterrupt as err:  # `train` reports its checkpoint itself and returns 130 / 143
-        from .signals import exit_code, what
-
-        print(f"pdeinv {args.command}: {what(err)}", file=sys.stderr)
-        return exit_code(err)
     finally:
         # --threads bounded the BLAS pools for this command only; a command that never set them (or was
         # interrupted while torch was being imported) must not import torch here: a second import of a
