@@ -105,6 +105,9 @@ def test_cli_reports_one_line_and_exit_code_2(capsys):
 # Cases elsewhere: tests above (overrides, arrays, problems, meshes, cells), tests/test_sensors.py
 # (sensor positions and layouts), tests/test_train.py (trainer settings, CLI method settings),
 # tests/test_checkpoint.py (checkpoints of other runs, corrupt files) and tests/test_nan_guard.py.
+# Output paths of every command (read-only folders, missing folders, a run's own files, inputs) are
+# tests/test_output_paths.py; signals (SIGTERM, Ctrl-C during start-up) tests/test_signals.py; the
+# names the entry points accept (train("heat_1d", "sip"), presets) tests/test_entry_points.py.
 # The dt-above-stability-limit case (explicit leapfrog on wave scenes) is in tests/test_leapfrog.py;
 # the implicit schemes (heat θ-scheme with θ >= ½, Newmark β = ¼) accept every dt.
 
@@ -256,7 +259,84 @@ API = [
      r"checkpoint every=0 is not allowed"),
     ("batch-above-data", lambda: _trainer(batch_size=9, n_train=8), ValueError,
      r"batch_size=9 is larger than n_train=8"),
+    # typed entry points (issue 36): the kind of object is a TypeError, its value a ValueError
+    ("train-args-swapped", lambda: pdeinv.Trainer(pdeinv.SIP(), _heat(), steps=1), TypeError,
+     r"problem is an update rule \(SIP\); expected a pdeinv\.Problem.*swapped\?"),
+    ("train-rule-unknown-name", lambda: pdeinv.Trainer(_heat(), "sipp", steps=1), ValueError,
+     r"rule='sipp' is not a method name; expected one of 'gd', 'adam', 'sip'"),
+    ("train-rule-is-a-class", lambda: pdeinv.Trainer(_heat(), pdeinv.SIP, steps=1), TypeError,
+     r"rule=SIP is a class; expected an instance: pdeinv\.SIP\(\)"),
+    ("train-rule-is-a-number", lambda: pdeinv.Trainer(_heat(), 3, steps=1), TypeError,
+     r"rule=3 is int; expected an update rule .*no init or update method"),
+    ("train-problem-none", lambda: pdeinv.Trainer(None, pdeinv.SIP(), steps=1), TypeError,
+     r"problem=None is NoneType; expected a pdeinv\.Problem"),
+    ("train-problem-unknown-name", lambda: pdeinv.Trainer("heat_4d", pdeinv.SIP(), steps=1), ValueError,
+     r"unknown problem 'heat_4d'"),
+    ("train-model-is-a-result", lambda: pdeinv.Trainer(_heat(), pdeinv.SIP(), _result(), steps=1), TypeError,
+     r"model is a training Result; expected its network: pass result\.model"),
+    ("train-model-is-an-array", lambda: pdeinv.Trainer(_heat(), pdeinv.SIP(), np.zeros((2, 7)), steps=1),
+     TypeError, r"model is an array of shape \(2, 7\); expected a torch\.nn\.Module"),
+    ("train-seed-negative", lambda: _trainer(seed=-1), ValueError,
+     r"seed=-1 is not allowed; expected an integer from 0 to 4294967295"),
+    ("train-seed-float", lambda: _trainer(seed=1.5), ValueError, r"seed=1\.5 is not allowed"),
+    ("train-stop-unknown-name", lambda: _trainer(stop="early"), ValueError,
+     r"stop='early' is not allowed; expected one of 'discrepancy', 'none'"),
+    ("train-stop-is-a-class", lambda: _trainer(stop=pdeinv.DiscrepancyStop), TypeError,
+     r"stop=.* is a class: call it, DiscrepancyStop\(\)"),
+    ("train-checkpoint-number", lambda: _trainer(checkpoint=5), TypeError,
+     r"checkpoint=5 is int; expected pdeinv\.Checkpoint\(path, every=k\) or a path"),
+    ("train-callbacks-not-callable", lambda: _trainer(callbacks=[1]), TypeError,
+     r"callbacks\[0\]=1 is not callable"),
+    ("train-dtype-int", lambda: _trainer(dtype=torch.int64), TypeError, r"dtype=torch\.int64 is not allowed"),
+    ("train-progress-string", lambda: _trainer(progress="yes"), TypeError,
+     r"progress='yes' is str; expected True, False or None"),
+    ("sgd-lr-zero", lambda: pdeinv.sgd(0), ValueError, r"sgd lr=0 is not allowed; expected a number > 0"),
+    ("adam-lr-negative", lambda: pdeinv.adam(-1), ValueError, r"adam lr=-1 is not allowed"),
+    ("adam-lr-nan", lambda: pdeinv.adam(float("nan")), ValueError, r"adam lr=nan is not allowed; .*finite"),
+    ("load-problem-none", lambda: pdeinv.load_problem(None), TypeError,
+     r"name_or_path=None is not allowed; expected a problem name .*pdeinv\.available\(\)"),
+    ("load-problem-a-problem", lambda: pdeinv.load_problem(_heat()), TypeError,
+     r"name_or_path is already a Problem \('heat_1d'\)"),
+    ("predict-result", lambda: pdeinv.export.predict(_result(), np.zeros((2, 7))), TypeError,
+     r"model is a training Result; expected its network: pass result\.model"),
+    ("predict-swapped", lambda: pdeinv.export.predict(np.zeros((2, 7)), _result().model), TypeError,
+     r"model is an array of shape \(2, 7\).*swapped"),
+    ("predict-wrong-width", lambda: pdeinv.export.predict(_result().model, np.zeros((2, 5))), ValueError,
+     r"y has shape \(2, 5\); the network does not take 5 observations per row"),
+    ("predict-wrong-width-problem", lambda: pdeinv.export.predict(_result().model, np.zeros((2, 5)), _heat()),
+     ValueError, r"y has shape \(2, 5\); expected \(B, 7\) or \(7,\)"),
+    ("predict-nan", lambda: pdeinv.export.predict(_result().model, np.full((2, 7), np.nan)), ValueError,
+     r"y contains NaN or Inf"),
+    ("plot-prediction-widths", lambda: pdeinv.plots.plot_prediction(_heat(), np.zeros((2, 7)),
+                                                                    np.zeros((2, 3))),
+     ValueError, r"x_pred has shape \(2, 3\); expected \(B, 7\)"),
+    ("plot-prediction-samples", lambda: pdeinv.plots.plot_prediction(_heat(), np.zeros((2, 7)),
+                                                                     np.zeros((1, 7))),
+     ValueError, r"x_true has shape \(2, 7\) but x_pred has \(1, 7\)"),
+    ("save-run-result", lambda: pdeinv.save_run("unused", "heat_1d", model=_result()), TypeError,
+     r"model is a training Result; expected its network: pass result\.model"),
+    ("save-run-no-model", lambda: pdeinv.save_run("unused", "heat_1d"), TypeError,
+     r"model=None is NoneType; expected a torch\.nn\.Module"),
+    ("save-run-network-kind", lambda: pdeinv.save_run("unused", "heat_1d", {}, {"kind": "cnn"},
+                                                      _result().model),
+     ValueError, r"network_spec=\{'kind': 'cnn'\} is not allowed; expected .*'default'"),
+    ("save-run-read-only", lambda: pdeinv.save_run("/proc/pdeinv-test", "heat_1d", model=_result().model),
+     ValueError, r"out '/proc/pdeinv-test' is not a writable directory"),
 ]
+
+
+def _heat():
+    return load("heat_1d", n=8)
+
+
+_RESULT = []
+
+
+def _result():
+    """One tiny finished run, shared by the rows that need a Result."""
+    if not _RESULT:
+        _RESULT.append(pdeinv.train(_heat(), "sip", n_train=8, n_test=4, steps=1, progress=False))
+    return _RESULT[0]
 
 
 def _trainer(**kw):

@@ -12,7 +12,7 @@ ROOT = Path(pdeinv.__file__).parent
 #: the modules whose imports must not form a cycle: the rules, the guard and what the trainer composes
 SCOPE = ("pdeinv.methods", "pdeinv.training.trainer", "pdeinv.training.trainset",
          "pdeinv.training.evaluation", "pdeinv.training.checkpoint",
-         "pdeinv.training.data", "pdeinv.training.stopping", "pdeinv.training.progress", "pdeinv.io.runs")
+         "pdeinv.training.data", "pdeinv.training.stopping", "pdeinv.util.progress", "pdeinv.io.runs")
 
 
 def imports() -> dict[str, set[str]]:

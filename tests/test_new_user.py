@@ -107,9 +107,13 @@ def test_problems_lists_settings_and_defaults(capsys):
 
 
 def test_setup_progress_line(capsys):
-    from pdeinv.cli.commands import build_problem
+    from argparse import Namespace
 
-    build_problem("train", "heat_1d", ["n=8"], after_s=0.0)
+    from pdeinv.cli.commands import build_problem
+    from pdeinv.cli.logs import cli_logging
+
+    with cli_logging(Namespace()):  # the CLI's logging at INFO (pdeinv.cli.logs)
+        build_problem("train", "heat_1d", ["n=8"], after_s=0.0)
     err = capsys.readouterr().err
     assert re.search(r"pdeinv train: built heat_1d \(7 unknowns\) in \d", err), err
 

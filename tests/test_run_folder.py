@@ -125,8 +125,13 @@ def test_history_grows_with_the_checkpoints_and_a_heartbeat_speaks_off_a_termina
     ckpt = FolderCheckpoint(tmp_path / "checkpoint.pt", 1, lambda: None)
     ckpt.save({"history": [{"step": 1, "wall_s": 0.1, "loss": 0.5}], "model": {}})
     assert (tmp_path / "history.csv").read_text().splitlines() == ["step,wall_s,loss", "1,0.1,0.5"]
-    beat = _Heartbeat(steps=10, every_s=0.0)
-    assert beat({"step": 3, "loss": 0.25, "wall_s": 61.0, "x_err": 0.125}, None) is False
-    assert capsys.readouterr().err == "pdeinv train: step 3/10, loss 0.25, x_err 0.125, 61 s\n"
-    assert _Heartbeat(steps=10)({"step": 4, "loss": 0.2, "wall_s": 1.0}, None) is False
-    assert capsys.readouterr().err == ""  # within its minute: silent
+    from argparse import Namespace
+
+    from pdeinv.cli.logs import cli_logging
+
+    with cli_logging(Namespace()):  # the heartbeat speaks through logging at INFO (pdeinv.cli.logs)
+        beat = _Heartbeat(steps=10, every_s=0.0)
+        assert beat({"step": 3, "loss": 0.25, "wall_s": 61.0, "x_err": 0.125}, None) is False
+        assert capsys.readouterr().err == "pdeinv train: step 3/10, loss 0.25, x_err 0.125, 61 s\n"
+        assert _Heartbeat(steps=10)({"step": 4, "loss": 0.2, "wall_s": 1.0}, None) is False
+        assert capsys.readouterr().err == ""  # within its minute: silent

@@ -6,7 +6,8 @@ numerical failure on valid input (:mod:`pdeinv.errors`) or running out of memory
 with exit code 1 and one line that says what to change; a training run that failed its
 final check (:mod:`pdeinv.training.verdict`: worse than predicting zero) ends with exit code 3 and one
 line after writing its files, unless ``--accept-bad``; Ctrl-C ends with 130 and one
-line. Any other exception is a bug and keeps its traceback.
+line, SIGTERM the same way with 143 (:mod:`pdeinv.cli.signals`), and Ctrl-C before the command started
+(imports, parsing) with 130 and no output. Any other exception is a bug and keeps its traceback.
 """
 
 from __future__ import annotations
@@ -40,6 +41,10 @@ def build_parser() -> argparse.ArgumentParser:
     sub = p.add_subparsers(dest="command", required=True)
     for module in command_modules():
         module.add_parser(sub)
+    from .logs import add_arguments
+
+    for command in sub.choices.values():  # -q/--quiet, -v/--verbose on every subcommand (pdeinv.cli.logs)
+        add_arguments(command)
     return p
 
 
@@ -59,28 +64,52 @@ def check_common(args) -> None:
 
 
 def main(argv=None) -> int:
+    from .signals import terminate_as_interrupt
+
+    with terminate_as_interrupt():  # SIGTERM unwinds as Ctrl-C does (pdeinv.cli.signals)
+        try:
+            return _main(argv)
+        except KeyboardInterrupt as err:  # during start-up (imports, parsing): quietly
+            from .signals import exit_code
+
+            return exit_code(err)
+
+
+def _main(argv=None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
+    from .logs import cli_logging
+
     try:
         check_common(args)
-        return args.func(args)
+        with cli_logging(args):
+            return args.func(args)
+    except KeyboardInterrupt as err:  # first: the clauses below import numpy, which may be half-imported
+        from .signals import exit_code, what  # `train` reports its checkpoint itself, 130 / 143
+
+        print(f"pdeinv {args.command}: {what(err)}", file=sys.stderr)
+        return exit_code(err)
     except numerical_types() as err:  # before ValueError: numpy's LinAlgError is one
         print(f"pdeinv {args.command}: numerical failure: {err}", file=sys.stderr)
         return 1
     except (UsageError, FolderLocked, ValueError, FileNotFoundError, NotImplementedError) as err:
         print(f"pdeinv {args.command}: error: {err}", file=sys.stderr)
         return 2
+    except OSError as err:  # a folder that went away or became read-only after the checks, a full disk
+        where = f" ({err.filename})" if getattr(err, "filename", None) else ""
+        print(f"pdeinv {args.command}: error: cannot write: {err.strerror or err}{where}", file=sys.stderr)
+        return 1
     except MemoryError as err:
         print(f"pdeinv {args.command}: out of memory: {err or 'no message'}; use a coarser mesh, a smaller "
               "batch or fewer samples", file=sys.stderr)
         return 1
-    except KeyboardInterrupt:  # `train` reports its checkpoint itself and returns 130
-        print(f"pdeinv {args.command}: interrupted", file=sys.stderr)
-        return 130
     finally:
-        from ..util.threads import restore
-
-        restore()  # --threads bounded the BLAS pools for this command only
+        # --threads bounded the BLAS pools for this command only; a command that never set them (or was
+        # interrupted while torch was being imported) must not import torch here: a second import of a
+        # half-imported torch crashes the interpreter (measured: SIGSEGV after Ctrl-C at 0.6 s)
+        threads = sys.modules.get(f"{__package__.rpartition('.')[0]}.util.threads")
+        if threads is not None:
+            threads.restore()
 
 
 if __name__ == "__main__":

@@ -117,14 +117,42 @@ def read_fields(path) -> tuple:
     return points, cells, out
 
 
-def predict(model, y) -> np.ndarray:
-    """``f(y)`` as float64 numpy, evaluated without gradients in the model's dtype."""
+def predict(model, y, problem=None) -> np.ndarray:
+    """``f(y)`` as float64 numpy ``(B, N)``, evaluated without gradients in the model's dtype.
+
+    ``model`` a ``torch.nn.Module`` (``result.model`` of :func:`pdeinv.train`, or :func:`pdeinv.load_run`'s);
+    ``y`` observations ``(B, m)`` or ``(m,)`` (a numpy array or tensor; finite). With ``problem``, ``m``
+    is checked against ``problem.operator.n_out``; without, a width the network cannot take is a
+    ``ValueError`` naming ``y``'s shape.
+    """
     import torch
 
+    from ..training import arguments as _arguments
+
+    model = _arguments.model(model, optional=False)
+    if isinstance(y, torch.Tensor):
+        y = y.detach().cpu().numpy()
+    if isinstance(y, torch.nn.Module) or _arguments._is_result(y):
+        raise TypeError("y is a network; the arguments are predict(model, y): swapped?")
+    width = None if problem is None else problem.operator.n_out
+    Y = np.asarray(y)
+    if width is None and Y.ndim in (1, 2) and Y.size:
+        width = Y.shape[-1]  # the shape is checked by the network below
+    if width is None:
+        raise ValueError(f"y has shape {Y.shape}; expected observations (B, m) or (m,)")
+    Y, single = batch(Y, width, "y")
     param = next(iter(model.parameters()), None)
     dtype = param.dtype if param is not None else torch.float32
     with torch.no_grad():
-        return model(torch.as_tensor(np.asarray(y), dtype=dtype)).double().cpu().numpy()
+        try:
+            out = model(torch.as_tensor(Y, dtype=dtype, device=getattr(param, "device", None)))
+        except RuntimeError as err:  # a shape the network's layers refuse
+            first = (str(err).strip().splitlines() or [""])[0][:120]
+            raise ValueError(f"y has shape {np.shape(y)}; the network does not take {width} observations per "
+                             f"row ({first}); expected the width it was trained on (the run's "
+                             "problem.operator.n_out)") from None
+    out = out.double().cpu().numpy()
+    return out[0] if single else out
 
 
 def export_run(out, problem, model, x, y, samples: int = 3, png: bool = True) -> dict:

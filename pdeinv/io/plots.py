@@ -175,9 +175,16 @@ def save_fields_png(path, points, cells, fields: dict, samples=None, title: str 
 
 def plot_prediction(problem, x_true, x_pred, samples=None, title: str = ""):
     """:func:`plot_fields` for free-unknown fields ``(B, N)`` of ``problem`` (no file needed),
-    with the problem's sensors (``settings["sensor_points"]``) when it has any."""
+    with the problem's sensors (``settings["sensor_points"]``) when it has any. ``x_true`` and ``x_pred``
+    must have the same shape, ``(B, problem.N)`` or ``(problem.N,)``."""
+    from .._checks import batch
+
+    x_true, _ = batch(x_true, problem.N, "x_true")
+    x_pred, _ = batch(x_pred, problem.N, "x_pred")
+    if x_true.shape != x_pred.shape:
+        raise ValueError(f"x_true has shape {x_true.shape} but x_pred has {x_pred.shape}; expected the same "
+                         "samples of both")
     mesh = problem.disc.basis.mesh
-    fields = {"x_true": problem.disc.vertex_values(np.atleast_2d(x_true)),
-              "x_pred": problem.disc.vertex_values(np.atleast_2d(x_pred))}
+    fields = {"x_true": problem.disc.vertex_values(x_true), "x_pred": problem.disc.vertex_values(x_pred)}
     return plot_fields(mesh.p.T, mesh.t.T, fields, samples=samples, title=title,
                        sensors=problem.settings.get("sensor_points"))

@@ -67,23 +67,61 @@ def network(problem, spec: dict):
 
 
 def problem_spec(name_or_path: str) -> str:
-    """A problem name as given, or a module path made absolute (the run can be loaded from elsewhere)."""
+    """A problem name as given, or a module path made absolute (the run can be loaded from elsewhere).
+
+    A name found in the current folder or its ``problems/`` (:func:`pdeinv.problem.find_module`) is
+    stored as its module's absolute path: by name, ``pdeinv predict`` run from another folder said
+    "unknown problem". Built-in names and those on ``PDEINV_PROBLEMS`` stay names."""
     spec = os.fspath(name_or_path)
     if spec.endswith(".py") or os.sep in spec or "/" in spec:
         return str(Path(spec).resolve())
-    return spec
+    from ..problem.definition import find_module
+
+    try:
+        folder = find_module(spec).resolve().parent
+    except (ValueError, FileNotFoundError):
+        return spec
+    local = {Path.cwd().resolve(), (Path.cwd() / "problems").resolve()}
+    return str(find_module(spec).resolve()) if folder in local else spec
 
 
-def save_run(out, problem: str, overrides: dict, network_spec: dict, model) -> None:
-    """Write ``out/run.json`` and ``out/model.pt`` (module docstring)."""
+def save_run(out: str | os.PathLike, problem, overrides: dict | None = None, network_spec: dict | None = None,
+             model=None) -> Path:
+    """Write ``out/run.json`` and ``out/model.pt`` (module docstring); returns ``out``.
+
+    ``problem``: the name or module path the run's problem is loaded from (a :class:`~pdeinv.Problem`
+    stands for its ``name``), ``overrides`` its settings (default none), ``network_spec`` the network's
+    :data:`NETWORKS` entry (default ``{"kind": "default"}``, ``problem.model()``), ``model`` the trained
+    network (``result.model``), e.g. ``save_run("runs/a", "heat_2d", model=result.model)``. ``out`` follows
+    the output-path policy (:mod:`pdeinv.util.outpaths`): created with its parents, refused in one line when
+    it cannot be written.
+    """
     import torch
 
-    out = Path(out)
+    from ..problem.definition import Problem
+    from ..training import arguments as _arguments
+    from ..util.outpaths import output_folder
+
+    if isinstance(problem, Problem):
+        problem = problem.name
+    if not isinstance(problem, (str, os.PathLike)) or not os.fspath(problem).strip():
+        raise TypeError(f"problem={problem!r} is not allowed; expected the problem's name or module path "
+                        "(str, e.g. 'heat_2d'), or the Problem")
+    model = _arguments.model(model, optional=False)
+    overrides = {} if overrides is None else overrides
+    if not isinstance(overrides, dict):
+        raise TypeError(f"overrides={overrides!r} is not allowed; expected a dict of the problem's settings")
+    network_spec = {"kind": "default"} if network_spec is None else network_spec
+    if not isinstance(network_spec, dict) or network_spec.get("kind") not in NETWORKS:
+        raise ValueError(f"network_spec={network_spec!r} is not allowed; expected a dict with 'kind' one of "
+                         f"{', '.join(map(repr, NETWORKS))}")
+    out = output_folder(out, "out")
     record = {"format": FORMAT, "version": VERSION, "problem": problem_spec(problem),
               "overrides": {k: str(v) for k, v in overrides.items()}, "network": network_spec}
     text = json.dumps(record, indent=2).encode()
     atomic_write(out / MODEL_FILE, lambda fh: torch.save(model.state_dict(), fh))
     atomic_write(out / RUN_FILE, lambda fh: fh.write(text))
+    return out
 
 
 def load_run(run_dir):

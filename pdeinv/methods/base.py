@@ -36,6 +36,7 @@ from typing import Any, ClassVar, NamedTuple, Protocol
 
 import torch
 
+from .._checks import positive
 from ..errors import NonFiniteError  # noqa: F401  (re-exported)
 from ..util.files import plain
 from . import guard
@@ -84,11 +85,15 @@ class Resumable(Protocol):
 
 
 def adam(lr: float = 1e-3, **kw) -> OptimizerFactory:
-    return partial(torch.optim.Adam, lr=lr, **kw)
+    """``params -> torch.optim.Adam(params, lr=lr, **kw)``; ``lr`` a finite number > 0 (checked here, not
+    at the first step)."""
+    return partial(torch.optim.Adam, lr=positive(lr, "adam lr"), **kw)
 
 
 def sgd(lr: float = 1e-2, **kw) -> OptimizerFactory:
-    return partial(torch.optim.SGD, lr=lr, **kw)
+    """``params -> torch.optim.SGD(params, lr=lr, **kw)``; ``lr`` a finite number > 0 (checked here, not
+    at the first step)."""
+    return partial(torch.optim.SGD, lr=positive(lr, "sgd lr"), **kw)
 
 
 def make_optimizer(factory, params: list) -> torch.optim.Optimizer:

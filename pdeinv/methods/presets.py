@@ -1,6 +1,14 @@
-"""Named method presets for the CLI: a dict of factories and the defaults every scene shares.
+"""Named method presets, for the CLI and for Python alike: a dict of factories and the defaults every
+scene shares.
 
 ``make_rule("sip", "heat_1d", lr=3e-3)`` -> ``(SIP(...), {"lr": 3e-3, "eta": 1.0, ...})``.
+
+One table for both entry points: ``pdeinv train --method M`` and ``pdeinv.train(problem, rule)`` (or
+``pdeinv.Trainer``) take a run's ``steps``, ``batch_size`` and, for the default network,
+``rows_per_component`` from :data:`GENERIC` by the rule's ``name`` (:func:`run_defaults`), so
+``pdeinv.train(p, pdeinv.SIP())`` runs what ``pdeinv train --method sip`` runs (30 full-batch steps).
+A rule whose name is not in the table (a user's own) gets :data:`DEFAULT_STEPS` steps of
+:data:`DEFAULT_BATCH` rows.
 
 No per-scene table: every step size follows from the maths.
 
@@ -110,6 +118,39 @@ HIG_MLP_BATCH = 32
 
 #: per-problem overrides of GENERIC (none needed since the steps are normalized by the curvature)
 PER_PROBLEM: dict[str, dict[str, dict]] = {}
+
+#: the value of ``Trainer(steps=..., batch_size=...)`` that means "the rule's preset" (their default)
+PRESET = "preset"
+
+#: steps of a method whose preset names none (gd, adam, a user's rule): ``pdeinv train --steps``'s default
+DEFAULT_STEPS = 1000
+#: rows per step of a rule not in :data:`GENERIC` (a user's own)
+DEFAULT_BATCH = 32
+
+
+def preset_steps(hp: dict | None, time_budget: float | None) -> int | None:
+    """The steps of a run that did not say: none with a time budget (it ends the run), else the
+    preset's (``hp["steps"]``), else :data:`DEFAULT_STEPS`."""
+    return None if time_budget is not None else (hp or {}).get("steps") or DEFAULT_STEPS
+
+
+def run_defaults(rule, model=None) -> dict:
+    """``{"steps", "batch_size", "rows_per_component"}`` of ``rule``'s preset (looked up by
+    ``rule.name``), what :class:`pdeinv.Trainer` uses for the arguments it was not given. HIG on a
+    network that is not linear in its parameters (an MLP) takes :data:`HIG_MLP_BATCH` rows, as
+    ``pdeinv train --method hig --hidden W`` does."""
+    name = getattr(rule, "name", None)
+    hp = GENERIC.get(name) if isinstance(name, str) else None
+    if hp is None:
+        return {"steps": DEFAULT_STEPS, "batch_size": DEFAULT_BATCH, "rows_per_component": None}
+    batch = hp.get("batch_size")
+    if name == "hig" and model is not None:
+        linear = getattr(model, "linear_in_parameters", None)
+        if not callable(linear) or linear() is None:  # its stacked Jacobian grows with the batch
+            batch = HIG_MLP_BATCH
+    return {"steps": hp.get("steps") or DEFAULT_STEPS, "batch_size": batch,
+            "rows_per_component": hp.get("rows_per_component")}
+
 
 def hyperparameters(method: str, problem, noise: float = 0.0, **overrides) -> dict:
     """Defaults for ``method`` on ``problem`` (a :class:`~pdeinv.Problem` or its name) with observation

@@ -138,7 +138,19 @@ def find_module(name_or_path: str | os.PathLike) -> Path:
 
 
 def load_problem(name_or_path: str | os.PathLike, **overrides) -> Problem:
-    """Import ``problems/<name>.py`` (or a module file by path) and call ``make(**overrides)``."""
+    """Import ``problems/<name>.py`` (or a module file by path) and call ``make(**overrides)``.
+
+    ``name_or_path``: a built-in or user problem name (:func:`available` lists them; looked up as
+    :func:`find_module` says) or the path of a module file with ``make(**overrides)``; ``overrides``
+    are the problem's settings (``pdeinv problems`` lists them), strings coerced.
+    """
+    if isinstance(name_or_path, Problem):
+        raise TypeError(f"name_or_path is already a Problem ({name_or_path.name!r}); use it as it is, or "
+                        f"load_problem({name_or_path.name!r}, **overrides) for other settings")
+    if not isinstance(name_or_path, (str, os.PathLike)) or not os.fspath(name_or_path).strip():
+        raise TypeError(f"name_or_path={name_or_path!r} is not allowed; expected a problem name (str: "
+                        f"{', '.join(map(repr, available()[:4]))}, ...; pdeinv.available() lists them) or "
+                        "the path of a module file with make(**overrides)")
     path = find_module(name_or_path)
     folder = str(path.resolve().parent)
     if folder not in sys.path and path.resolve().parent != builtin_dir().resolve():

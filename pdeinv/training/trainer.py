@@ -9,6 +9,7 @@ not evaluations: runs compare at equal wall-clock time); every ``eval_every`` st
 from __future__ import annotations
 
 import math
+import os
 import time
 import warnings
 from collections.abc import Callable
@@ -19,15 +20,18 @@ import torch
 from .._checks import count, nonnegative
 from ..methods.base import NonFiniteError, UpdateRule
 from ..methods.guard import Guard
+from ..methods.presets import PRESET, run_defaults
 from ..methods.protocol import declared
 from ..nets.refine import PriorFit
 from ..physics.backends.device import placed, resolve
+from ..problem.definition import Problem
+from ..util.progress import progress
+from . import arguments as args
 from . import checkpoint as ckpts
 from .checkpoint import Checkpoint, Position
 from .data import OwnData, own_data
 from .distributed import Single
 from .evaluation import check_evaluation, evaluate, metrics
-from .progress import progress
 from .stopping import finished
 from .trainset import (
     BATCH_ORDER,
@@ -92,10 +96,24 @@ class Trainer:
     drawn
     without replacement, reshuffled every epoch (``batch_size=None``: every training row in order, each
     step).
-    ``model=None`` takes ``problem.model()`` after ``torch.manual_seed(seed)``; ``fit_scaling`` fits its
+    ``model=None`` takes ``problem.model()`` after ``torch.manual_seed(seed)`` (with the preset's
+    ``rows_per_component`` for gd and adam, as ``pdeinv train``); ``fit_scaling`` fits its
     input transform on the training observations at the problem's noise level (never on ``x``).
 
-    Stops after ``steps`` steps or ``time_budget`` seconds of training (at least one must be given),
+    **Arguments.** ``problem`` is a :class:`~pdeinv.Problem` or a name / module path (loaded with
+    :func:`~pdeinv.load_problem`); ``rule`` an update rule or a method name (``"sip"``, ``"gd"``,
+    ``"adam"``, ``"hig"``, ``"supervised"``: :func:`pdeinv.methods.presets.make_rule`, the CLI's
+    ``--method``); ``stop`` a stopping rule, ``"discrepancy"`` or ``None``; ``checkpoint`` a
+    :class:`~pdeinv.Checkpoint` or a path. Every argument is checked here: a wrong kind of object is a
+    ``TypeError``, a wrong value a ``ValueError``, each naming the argument and what is allowed.
+
+    **Presets.** ``steps`` and ``batch_size`` left at ``"preset"`` come from the rule's preset, the
+    table ``pdeinv train --method`` reads (:data:`pdeinv.methods.presets.GENERIC`,
+    :func:`~pdeinv.methods.presets.run_defaults`): sip 30 full-batch steps, hig 1000 full-batch steps
+    (batch 32 on an MLP), gd and adam 1000 steps of 32, supervised 10 full-batch steps; a rule not in
+    the table 1000 steps of 32. With ``time_budget`` and no ``steps``, the budget alone ends the run.
+
+    Stops after ``steps`` steps or ``time_budget`` seconds of training,
     when a callback returns True, or when the stopping rule ``stop`` fires (e.g.
     :class:`~pdeinv.training.stopping.DiscrepancyStop`, every ``stop.every`` accepted steps, on held-out
     observations only). ``metrics["stopped_by"]`` says which (``steps``, ``time_budget``, the rule's
@@ -136,23 +154,23 @@ class Trainer:
     rejection; only rank 0 saves checkpoints, warns and shows progress. ``metrics["world_size"]``.
     """
 
-    problem: object
-    rule: UpdateRule
+    problem: Problem | str | os.PathLike  # a name / module path is loaded (load_problem)
+    rule: UpdateRule | str  # a method name is built with its preset (methods.presets.make_rule)
     model: torch.nn.Module | None = None
-    steps: int | None = 1000
+    steps: int | None | str = "preset"  # "preset": the rule's (presets.run_defaults); None: time_budget only
     time_budget: float | None = None
     n_train: int = N_TRAIN
     n_test: int = 128
-    batch_size: int | None = 32  # None: every training row in each step (full batch)
+    batch_size: int | None | str = "preset"  # None: every training row in each step (full batch)
     seed: int = 0
     eval_every: int = 50
     fit_scaling: bool = True
-    stop: object | None = None  # a stopping rule (pdeinv.training.stopping), strategy object
+    stop: object | str | None = None  # a stopping rule (.stopping), strategy object, or "discrepancy"
     target: object = "auto"  # what P f(y) must match (pdeinv.methods.targets): "auto", None or a strategy
     callbacks: list[Callback] = field(default_factory=list)
     progress: bool | None = None
     dtype: torch.dtype | None = None  # None: the model's own parameter dtype (float32 for the default MLP)
-    checkpoint: Checkpoint | None = None
+    checkpoint: Checkpoint | str | os.PathLike | None = None  # a path: Checkpoint(path)
     resume: bool = False
     max_failures: int = 5
     step_factor: float = 0.5
@@ -171,8 +189,10 @@ class Trainer:
     _own: OwnData | None = field(default=None, init=False, repr=False)
     _saved_step: int | None = field(default=None, init=False, repr=False)
     _rule: object = field(default=None, init=False, repr=False)
+    _preset: dict = field(default_factory=dict, init=False, repr=False)
 
     def __post_init__(self):
+        self._check_arguments()
         if self.steps is None and self.time_budget is None:
             raise ValueError("give steps=, time_budget= or both; otherwise training never stops")
         self.steps = None if self.steps is None else count(self.steps, "steps")
@@ -192,8 +212,28 @@ class Trainer:
             raise ValueError("resume=True needs checkpoint=Checkpoint(path) to resume from")
         self.device = resolve(self.device)
         self.parallel.check_batch(self.batch_size)
-        self.rule = declared(self.rule)  # what it can do, checked once (pdeinv.methods.protocol)
         self._rule = self.parallel.rule(self.rule)  # the rule on this process's shard
+
+    def _check_arguments(self) -> None:
+        """The kinds of the arguments (:mod:`pdeinv.training.arguments`), names turned into objects, and the
+        rule's preset for ``steps`` / ``batch_size`` left at ``"preset"``."""
+        self.problem = args.problem(self.problem, type(self).__name__)
+        # a name or a rule object, then what it can do, declared once (pdeinv.methods.protocol)
+        self.rule = declared(args.rule(self.rule, self.problem))
+        self.model = args.model(self.model)
+        self.seed = args.seed(self.seed)
+        self.stop = args.stop(self.stop, self.problem)
+        self.checkpoint = args.checkpoint(self.checkpoint)
+        self.callbacks = args.callbacks(self.callbacks)
+        self.dtype = args.dtype(self.dtype)
+        for name in ("fit_scaling", "resume"):
+            setattr(self, name, args.flag(getattr(self, name), name))
+        self.progress = args.flag(self.progress, "progress", optional=True)
+        self._preset = run_defaults(self.rule, self.model)
+        if self.steps == PRESET:
+            self.steps = None if self.time_budget is not None else self._preset["steps"]
+        if self.batch_size == PRESET:
+            self.batch_size = self._preset["batch_size"]
 
     def _data(self):
         """``(y_train numpy, y_train torch, (x_test, y_test numpy, y_test torch))`` on ``device``."""
@@ -222,11 +262,15 @@ class Trainer:
     def _network_settings(self) -> dict:
         """``problem.model``'s settings: with own data, the linear part takes nothing from the scene's
         sampler where it can (:func:`pdeinv.nets.data_base`)."""
-        if self._own is None or self.problem.model_factory is not None:
+        if self.problem.model_factory is not None:
             return {}
+        cap = self._preset.get("rows_per_component")
+        settings = {} if cap is None else {"rows_per_component": cap}  # the preset's (presets.GENERIC)
+        if self._own is None:
+            return settings
         from ..nets import data_base
 
-        return {"base": data_base(self.problem)}
+        return {**settings, "base": data_base(self.problem)}
 
     def _guard(self) -> Guard:
         return Guard(self.max_failures, self.step_factor, self.max_loss_growth, self.min_scale,
@@ -362,6 +406,14 @@ class Trainer:
         return {**info, "prior": source}
 
 
-def train(problem, rule, model=None, **kw) -> Result:
-    """``Trainer(problem, rule, model, **kw).fit()``."""
+def train(problem: Problem | str | os.PathLike, rule: UpdateRule | str, model: torch.nn.Module | None = None,
+          **kw) -> Result:
+    """Train ``model`` (default: ``problem.model()``) on ``problem`` with ``rule``; returns a
+    :class:`Result` (``.model``, ``.history``, ``.metrics`` with the held-out ``x_err`` and ``y_err``).
+
+    ``Trainer(problem, rule, model, **kw).fit()``: every keyword and its default is :class:`Trainer`'s.
+    ``problem`` may be a name (``train("heat_1d", "sip")``) and ``rule`` a method name; ``steps`` and
+    ``batch_size`` default to the rule's preset, the one ``pdeinv train --method`` runs
+    (:mod:`pdeinv.methods.presets`).
+    """
     return Trainer(problem, rule, model, **kw).fit()

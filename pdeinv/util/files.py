@@ -26,7 +26,12 @@ import numpy as np
 def atomic_write(path, write) -> None:
     """``write(fh)`` into a temporary file beside ``path``, fsync, ``os.replace``, fsync the folder."""
     path = Path(path)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+    try:
+        fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+    except OSError as err:  # name the target and its folder, never the temporary's random name
+        why = "does not exist" if isinstance(err, FileNotFoundError) else "is not writable"
+        raise type(err)(f"cannot write {str(path)!r}: its folder {str(path.parent)!r} {why} "
+                        f"({err.strerror})") from None
     try:
         if hasattr(os, "fchmod"):
             os.fchmod(fd, 0o666 & ~_umask())

@@ -25,7 +25,7 @@ MOVED = {
     "physics.device": "physics.backends.device",
     "cache": "util.cache", "memory": "util.memory", "runlock": "util.runlock", "threads": "util.threads",
     "checkpoint": "training.checkpoint", "data": "training.data", "distributed": "training.distributed",
-    "evaluation": "training.evaluation", "progress": "training.progress", "stopping": "training.stopping",
+    "evaluation": "training.evaluation", "progress": "util.progress", "stopping": "training.stopping",
     "targets": "methods.targets", "trainer": "training.trainer", "trainset": "training.trainset",
     "unseen": "training.unseen", "verdict": "training.verdict",
     "export": "io.export", "files": "util.files", "plots": "io.plots", "runs": "io.runs",

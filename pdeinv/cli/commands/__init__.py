@@ -42,7 +42,7 @@ def build_problem(command: str, name: str, sets: list[str], after_s: float = 1.0
     takes longer than ``after_s`` seconds (one line, then its time): a large mesh or a modal basis
     can take minutes. ``steps``: the training steps the run will take, for the backend's cost
     model (:func:`pdeinv.physics.backends.compiled.expecting`; ``None``: its default)."""
-    import sys
+    import logging
     import threading
     import time
 
@@ -52,8 +52,8 @@ def build_problem(command: str, name: str, sets: list[str], after_s: float = 1.0
     overrides = parse_sets(sets)
     what = f"{name} ({', '.join(f'{k}={v}' for k, v in overrides.items())})" if overrides else name
     t0 = time.perf_counter()
-    timer = threading.Timer(after_s, lambda: print(f"pdeinv {command}: building {what}…", file=sys.stderr,
-                                                   flush=True))
+    log = logging.getLogger("pdeinv")  # INFO: progress a user waits on (pdeinv.cli.logs, --quiet)
+    timer = threading.Timer(after_s, lambda: log.info(f"pdeinv {command}: building {what}…"))
     timer.daemon = True
     timer.start()
     try:
@@ -63,8 +63,8 @@ def build_problem(command: str, name: str, sets: list[str], after_s: float = 1.0
         timer.cancel()
     took = time.perf_counter() - t0
     if took > after_s:
-        print(f"pdeinv {command}: built {problem.name} ({problem.N} unknowns) in {took:.1f} s",
-              file=sys.stderr, flush=True)
+        log.info(f"pdeinv {command}: built {problem.name} ({problem.N} unknowns) in {took:.1f} s")
+    log.debug(f"pdeinv {command}: {problem!r}; backend {getattr(problem.operator, 'choice', 'n/a')}")
     return problem
 
 
@@ -72,7 +72,8 @@ def run_parser(sub, name: str, help: str, quick: str):
     """A subcommand parser with the arguments every sweep shares: PROBLEM, ``--out DIR``, ``--quick``."""
     p = sub.add_parser(name, help=help)
     p.add_argument("problem")
-    p.add_argument("--out", required=True, metavar="DIR")
+    p.add_argument("--out", required=True, metavar="DIR",
+                   help="folder for the results (created with its parents)")
     p.add_argument("--quick", action="store_true", help=quick)
     add_memory_argument(p)
     return p
@@ -87,26 +88,19 @@ def out_path(text: str, flag: str = "--out") -> Path:
 
 def not_an_input(outputs, inputs) -> None:
     """Refuse an output path that resolves to an input file (it would be overwritten or deleted)."""
-    ins = {Path(p).resolve(): name for name, p in inputs if p}
+    from pdeinv.util.outpaths import output_file
+
     for name, p in outputs:
-        if p and Path(p).resolve() in ins:
-            raise UsageError(f"{name} {str(p)!r} is the same file as {ins[Path(p).resolve()]}: writing it "
-                             "would destroy that input; choose another path")
+        if p:
+            output_file(p, name, inputs)
 
 
 def prepare_out(out) -> None:
-    """Refuse an ``--out`` that is a file; create the folder and prove it writable before any work."""
-    import tempfile
+    """Refuse an ``--out`` that is a file; create the folder and prove it writable before any work
+    (:func:`pdeinv.util.outpaths.output_folder`, the policy of every output path)."""
+    from pdeinv.util.outpaths import output_folder
 
-    if out.exists() and not out.is_dir():
-        raise UsageError(f"--out {str(out)!r} is a file; expected a directory")
-    try:
-        out.mkdir(parents=True, exist_ok=True)
-        with tempfile.TemporaryFile(dir=out):
-            pass
-    except OSError as err:
-        raise UsageError(f"--out {str(out)!r} is not a writable directory ({err.strerror or err}); "
-                         "choose another --out") from None
+    output_folder(out, "--out")
 
 
 def set_threads(n: int) -> None:

@@ -109,9 +109,9 @@ def check_run(problem, args, hp: dict) -> None:
 def steps(args, hp: dict | None = None) -> int | None:
     """``--steps`` as given; when it is not: the method's preset (``hp["steps"]``, else 1000), or no
     step limit if ``--time-budget`` is given."""
-    if args.steps is not None:
-        return args.steps
-    return None if args.time_budget is not None else (hp or {}).get("steps") or 1000
+    from pdeinv.methods.presets import preset_steps
+
+    return args.steps if args.steps is not None else preset_steps(hp, args.time_budget)
 
 
 def add_arguments(parser) -> None:

@@ -34,7 +34,8 @@ def add_parser(sub) -> None:
                          "27 s on heat_2d)")
     b.add_argument("--budget-s", type=float, default=None, metavar="S",
                    help="training wall time per method (default 20, 1 with --quick)")
-    b.add_argument("--seed", type=int, default=0)
+    b.add_argument("--seed", type=int, default=0,
+                   help="seed of the draws, batch orders and initial weights (0 to 2^32-1; default 0)")
     b.add_argument("--no-cache", action="store_true", help="no disk cache of factorizations")
     b.add_argument("--threads", type=int, default=1,
                    help="threads of torch and of numpy/scipy's BLAS during the run (default 1: steadier "

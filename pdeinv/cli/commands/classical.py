@@ -28,7 +28,9 @@ from __future__ import annotations
 import json
 import sys
 
-from . import add_set_argument, build_problem, not_an_input, out_path, set_threads
+from pdeinv.util.outpaths import output_file
+
+from . import add_set_argument, build_problem, set_threads
 
 ORDER = 2
 
@@ -43,9 +45,8 @@ def cmd_classical(args) -> int:
     from pdeinv.training.data import model_mismatch, read_meta, read_npz
     from pdeinv.util.files import atomic_write
 
-    out = out_path(args.out) if args.out is not None else None
-    if out is not None:
-        not_an_input([("--out", args.out)], [("--data", args.data)])
+    # the one output-path policy (pdeinv.util.outpaths): folder created, never the --data file
+    out = None if args.out is None else output_file(args.out, "--out", [("--data", args.data)])
     set_threads(args.threads)
     problem = build_problem("classical", args.problem, args.set)
     y, x = read_npz(args.data, problem.operator.n_out, problem.N)

@@ -14,7 +14,9 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from . import UsageError, not_an_input, out_path, set_threads
+from pdeinv.util.outpaths import output_file
+
+from . import UsageError, set_threads
 
 ORDER = 2
 
@@ -30,17 +32,12 @@ def cmd_predict(args) -> int:
     from pdeinv.training.data import FOREIGN, against, explained, read_meta, read_npz
     from pdeinv.util.files import atomic_write
 
-    out = out_path(args.out)
-    not_an_input([("--out", args.out), ("--vtu", args.vtu)],
-                 [("--data", args.data), ("the run's model", Path(args.run) / "model.pt"),
-                  ("the run's record", Path(args.run) / "run.json")])
-    not_an_input([("--vtu", args.vtu)], [("--out", args.out)])
-    if out.suffix != ".npz":
-        raise UsageError(f"--out {args.out!r}: expected a file name ending in .npz")
-    if out.is_dir():
-        raise UsageError(f"--out {args.out!r} is a directory; expected a file name ending in .npz")
-    if args.vtu and Path(args.vtu).suffix not in (".vtu", ".xdmf"):
-        raise UsageError(f"--vtu {args.vtu!r}: expected a file name ending in .vtu or .xdmf")
+    run = Path(args.run)
+    run_files = [("the run's model", run / "model.pt"), ("the run's record", run / "run.json")]
+    out = output_file(args.out, "--out", [("--data", args.data), *run_files], suffixes=(".npz",))
+    if args.vtu is not None:  # the one output-path policy (pdeinv.util.outpaths)
+        output_file(args.vtu, "--vtu", [("--data", args.data), *run_files, ("--out", args.out)],
+                    suffixes=(".vtu", ".xdmf"))
     set_threads(args.threads)
     problem, model = load_run(args.run)
     y, x = read_npz(args.data, problem.operator.n_out, problem.N)
@@ -60,7 +57,7 @@ def cmd_predict(args) -> int:
     atomic_write(out, lambda fh: fh.write(buffer.getvalue()))
     if args.vtu:
         write_fields(args.vtu, problem, x, xhat, y, problem.operator.forward(xhat))
-    error = "" if x is None else f", x_err {float(np.mean(problem.relative_error(xhat, x))):.4f}"
+    error = "" if x is None else f", x_err {float(np.mean(problem.relative_error(xhat, x))):.3g}"
     print(f"{problem.name}: {len(xhat)} predictions{error} -> {out}" + (f", {args.vtu}" if args.vtu else ""))
     return 0
 

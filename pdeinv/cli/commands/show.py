@@ -25,6 +25,7 @@ def cmd_show(args) -> int:
     matplotlib.use("Agg")
     from pdeinv.io.export import read_fields
     from pdeinv.io.plots import save_fields_png
+    from pdeinv.util.outpaths import output_file
 
     run = Path(args.dir)
     if not run.is_dir():
@@ -33,8 +34,11 @@ def cmd_show(args) -> int:
     if not found:
         raise UsageError(f"{str(run)!r} holds no fields.vtu or fields.xdmf; "
                          "expected the --out DIR of `pdeinv train`")
+    # the one output-path policy (pdeinv.util.outpaths): never the fields file drawn, nor another of the
+    # run's files (--png RUN/training.png once replaced the run's training curves)
+    png = output_file(args.png if args.png is not None else run / "fields.png", "--png",
+                      [("the fields file drawn", found[0])], owns=("fields.png",))
     points, cells, fields = read_fields(found[0])
-    png = Path(args.png) if args.png else run / "fields.png"
     save_fields_png(png, points, cells, fields, samples=_samples(args.samples), title=run.name)
     print(f"wrote {png}")
     return 0
@@ -44,5 +48,7 @@ def add_parser(sub) -> None:
     s = sub.add_parser("show", help="PNG of true vs predicted vs error fields of a training run")
     s.add_argument("dir", metavar="DIR", help="the --out directory of `pdeinv train`")
     s.add_argument("--samples", default=None, metavar="K,K", help="which test samples (default: all written)")
-    s.add_argument("--png", default=None, help="output file (default DIR/fields.png)")
+    s.add_argument("--png", default=None, metavar="FILE.png",
+                   help="output file (default DIR/fields.png; its folder is created; never another of the "
+                        "run's files)")
     s.set_defaults(func=cmd_show)

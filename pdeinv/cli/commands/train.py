@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import logging
 import re
 import sys
 import time
@@ -109,8 +110,8 @@ class _Heartbeat:
             self.last = now
             of = f"/{self.steps}" if self.steps else ""
             errs = "".join(f", {k} {record[k]:.4g}" for k in ("x_err", "y_err") if k in record)
-            print(f"pdeinv train: step {record['step']}{of}, loss {record['loss']:.4g}{errs}, "
-                  f"{record['wall_s']:.0f} s", file=sys.stderr, flush=True)
+            logging.getLogger("pdeinv").info(f"pdeinv train: step {record['step']}{of}, loss "
+                                             f"{record['loss']:.4g}{errs}, {record['wall_s']:.0f} s")
         return False
 
 
@@ -133,8 +134,10 @@ def cmd_train(args) -> int:
         return 1
     except (UsageError, ValueError, FileNotFoundError, NotImplementedError):
         return 2
-    except KeyboardInterrupt:
-        return 130
+    except KeyboardInterrupt as err:
+        from pdeinv.cli.signals import exit_code
+
+        return exit_code(err)
 
 
 def _train(args) -> int:
@@ -274,6 +277,7 @@ def _parallel_train(args, out, ckpt, device, parallel) -> int:
     rule, hp = make_rule(args.method, problem, problem.noise, lr=args.lr, eta=args.eta, tau=args.tau,
                          batch_size=args.batch_size, hidden=hidden, optimizer=args.optimizer)
     _checks.check_run(problem, args, hp)  # memory, HIG step time, --export-samples (before allocating)
+    logging.getLogger("pdeinv").debug(f"pdeinv train: --method {args.method} with {hp}")
     stop = STOPS[args.stop](problem)
     torch.manual_seed(args.seed)
     net = _network_spec(problem, hp, args.net, bool(args.data))
@@ -284,7 +288,7 @@ def _parallel_train(args, out, ckpt, device, parallel) -> int:
                       checkpoint=FolderCheckpoint(ckpt, args.checkpoint_every, fresh) if args.checkpoint_every
                       else None,
                       resume=args.resume, stop=stop, data=y, data_x=x, device=device, parallel=parallel,
-                      prior_fit=_prior_fit(args),
+                      prior_fit=_prior_fit(args), progress=False if getattr(args, "quiet", False) else None,
                       callbacks=[] if sys.stderr.isatty() else [_Heartbeat(_checks.steps(args, hp))])
     if not parallel.is_writer:  # trains its shard; rank 0 writes everything
         failed = trainer.fit().metrics["failed"]
@@ -321,11 +325,13 @@ def _run(args, out, problem, overrides, net, hp, trainer, fresh) -> int:
             if trainer.history:
                 write_csv(trainer.history, out / "history.csv")
             raise
-        except KeyboardInterrupt:
+        except KeyboardInterrupt as err:  # Ctrl-C, or SIGTERM (pdeinv.cli.signals): 130 / 143
+            from pdeinv.cli.signals import exit_code, what
+
             fresh()
             saved = f"continue from {ckpt} with --resume" if ckpt.exists() else "no checkpoint was written"
-            print(f"pdeinv train: interrupted; {saved}", file=sys.stderr)
-            return 130
+            print(f"pdeinv train: {what(err)}; {saved}", file=sys.stderr)
+            return exit_code(err)
         fresh()
         metrics = {**result.metrics, "method": args.method, "hyperparameters": hp,
                    "settings": {k: v for k, v in problem.settings.items()},
@@ -348,9 +354,10 @@ def _run(args, out, problem, overrides, net, hp, trainer, fresh) -> int:
                                samples=min(args.export_samples, len(y_test)))
             written |= {Path(p).name for p in files.values()}
         clear_outputs(out, keep=written)  # e.g. fields.vtu of an earlier run or a resumed one
-        x_err = "n/a (no x in the data)" if metrics["x_err"] is None else f"{metrics['x_err']:.4f}"
+        # %.3g, never %.4f: "x_err 0.0000" once hid 6e-11
+        x_err = "n/a (no x in the data)" if metrics["x_err"] is None else f"{metrics['x_err']:.3g}"
         print(f"{problem.name} {args.method}: {metrics['steps']} steps ({metrics['stopped_by']}) in "
-              f"{metrics['wall_s']:.2f} s, x_err {x_err}, y_err {metrics['y_err']:.4f} -> {out}")
+              f"{metrics['wall_s']:.2f} s, x_err {x_err}, y_err {metrics['y_err']:.3g} -> {out}")
         return _verdict(metrics["failed"], args.accept_bad, out)
 
 
@@ -377,13 +384,19 @@ def add_parser(sub) -> None:
     t.add_argument("--method", choices=sorted(METHODS), default="sip",
                    help="update rule (default: sip, the most accurate; methods/presets.py)")
     t.add_argument("--steps", type=int, default=None,
-                   help="training steps (default: the method's preset: 30 full-batch steps for sip, 1000 "
-                        "(hig: full-batch) otherwise; no limit when --time-budget is given)")
+                   help="training steps, i.e. updates of the network (default: the method's preset: 30 "
+                        "full-batch steps for sip, 1000 (hig: full-batch) otherwise; no limit when "
+                        "--time-budget is given); not the physics' time steps, which are --set steps=N")
     t.add_argument("--time-budget", type=float, default=None, metavar="SECONDS",
                    help="also stop once training wall time exceeds this")
-    t.add_argument("--seed", type=int, default=0)
+    t.add_argument("--seed", type=int, default=0,
+                   help="seed of everything random: the training and test draws, the batch order, the "
+                        "network's initial weights (an integer from 0 to 2^32-1; default 0)")
     t.add_argument("--no-cache", action="store_true", help="no disk cache of factorizations")
-    t.add_argument("--out", required=True, metavar="DIR")
+    t.add_argument("--out", required=True, metavar="DIR",
+                   help="folder for the run's files (created with its parents; one that holds another run "
+                        "is refused unless --resume or --overwrite): metrics.json, history.csv, "
+                        "training.png, model.pt, run.json, checkpoint.pt, fields.vtu/png")
     add_set_argument(t)
     t.add_argument("--lr", type=float, default=None, help="optimizer learning rate (gd, adam, sip)")
     t.add_argument("--eta", type=float, default=None, help="step scale η (sip, hig)")
@@ -419,7 +432,10 @@ def add_parser(sub) -> None:
                    help=f"training samples (default {N_TRAIN}; not with --data)")
     t.add_argument("--n-test", type=int, default=128,
                    help="test samples; with --data the last N rows of the file (default 128)")
-    t.add_argument("--eval-every", type=int, default=50)
+    t.add_argument("--eval-every", type=int, default=50, metavar="K",
+                   help="compute the held-out test errors (x_err, y_err in history.csv and training.png) "
+                        "every K training steps, and after the first and the last (default 50; not counted "
+                        "as training time)")
     t.add_argument("--device", default="cpu",
                    help="torch device of the network and of dense/modal/SVD physics: cpu (default), "
                         "cuda, cuda:N (time stepping stays on the CPU). Data parallel: torchrun "

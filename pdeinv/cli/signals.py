@@ -1,0 +1,100 @@
+"""SIGTERM handled as Ctrl-C is: raised where the program is, as :class:`Terminated` (a
+``KeyboardInterrupt``), so every ``finally`` and ``except BaseException`` runs — an atomic write removes
+its temporary (:func:`pdeinv.files.atomic_write`), the run lock is released, ``pdeinv train`` names its
+last checkpoint — and the command exits with 143 (128 + SIGTERM; Ctrl-C: 130). Both are held back
+while a module is being imported (an interrupted C-extension import broke every later import of numpy
+and torch) and raised as soon as the import is done.
+
+Python's default for SIGTERM is to die on the spot: no cleanup, a stale ``.<name>.<random>.tmp`` left
+beside the file being written, and nothing said. ``kill``, ``timeout``, a batch scheduler's
+pre-emption and ``docker stop`` all send SIGTERM.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import signal
+import threading
+
+#: exit codes of a command stopped by Ctrl-C (SIGINT) and by SIGTERM: 128 + the signal's number
+INTERRUPTED, TERMINATED = 128 + signal.SIGINT, 128 + signal.SIGTERM
+
+
+class Terminated(KeyboardInterrupt):
+    """SIGTERM, raised in the main thread wherever it was."""
+
+
+#: the interruption held back while a module was being imported (None: none)
+_pending: type[BaseException] | None = None
+#: how soon a held-back interruption is tried again (seconds)
+RETRY_S = 0.02
+
+
+def _importing(frame) -> bool:
+    """Whether ``frame`` runs inside an import (an importlib frame on its stack)."""
+    while frame is not None:
+        if frame.f_code.co_filename.startswith("<frozen importlib"):
+            return True
+        frame = frame.f_back
+    return False
+
+
+def _deliver(kind: type[BaseException], frame) -> None:
+    """Raise ``kind`` here, unless a module is being imported: an exception inside a C extension's
+    import leaves it half-initialised, and the next import of numpy or torch then fails or crashes the
+    interpreter (measured: Ctrl-C 0.5 s into ``pdeinv train`` gave "cannot load module more than once
+    per process", at 0.6 s SIGSEGV). Then it is held back and tried again every :data:`RETRY_S`
+    seconds (SIGALRM) until the import is done."""
+    global _pending
+    if _importing(frame) and hasattr(signal, "setitimer"):
+        _pending = kind
+        signal.setitimer(signal.ITIMER_REAL, RETRY_S)
+        return
+    _pending = None
+    raise kind()
+
+
+def _on_interrupt(signum, frame):
+    _deliver(KeyboardInterrupt, frame)
+
+
+def _on_terminate(signum, frame):
+    _deliver(Terminated, frame)
+
+
+def _on_retry(signum, frame):
+    if _pending is not None:
+        _deliver(_pending, frame)
+
+
+@contextlib.contextmanager
+def terminate_as_interrupt():
+    """Within the block, SIGTERM raises :class:`Terminated` and Ctrl-C ``KeyboardInterrupt``, each held
+    back while a module is being imported (:func:`_deliver`); the previous handlers are put back after
+    (the test suite calls the CLI in its own process). A no-op outside the main thread."""
+    global _pending
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    handlers = {signal.SIGTERM: _on_terminate, signal.SIGINT: _on_interrupt}
+    if hasattr(signal, "SIGALRM"):
+        handlers[signal.SIGALRM] = _on_retry
+    previous = {sig: signal.signal(sig, handler) for sig, handler in handlers.items()}
+    try:
+        yield
+    finally:
+        if hasattr(signal, "setitimer"):
+            signal.setitimer(signal.ITIMER_REAL, 0)
+        _pending = None
+        for sig, handler in previous.items():
+            signal.signal(sig, handler)
+
+
+def exit_code(err: BaseException) -> int:
+    """143 for SIGTERM, 130 for Ctrl-C."""
+    return TERMINATED if isinstance(err, Terminated) else INTERRUPTED
+
+
+def what(err: BaseException) -> str:
+    """``"terminated (SIGTERM)"`` or ``"interrupted"``, for the one line a stopped command prints."""
+    return "terminated (SIGTERM)" if isinstance(err, Terminated) else "interrupted"

@@ -1,0 +1,198 @@
+"""What the public entry points accept (``pdeinv.train``, ``Trainer``, ``export.predict``, ``save_run``,
+``plots.plot_prediction``): each argument checked once, where it comes in.
+
+A wrong *kind* of object is a ``TypeError`` and a wrong *value* a ``ValueError``; both name the
+argument, the value and what is allowed, and, for the mix-ups users make (arguments swapped, the
+``Result`` instead of its model, a class instead of an instance), the fix.
+"""
+
+from __future__ import annotations
+
+import os
+import sys
+from numbers import Integral
+
+#: seeds numpy's SeedSequence and torch.manual_seed both take (the CLI's --seed range)
+SEED_MAX = 2**32 - 1
+
+
+def _short(value) -> str:
+    text = repr(value)
+    return text if len(text) <= 60 else text[:57] + "..."
+
+
+def _named(name: str, value) -> str:
+    """``name=value`` for small values, ``name`` alone where the repr would be a wall of numbers."""
+    plain = not (_is_rule(value) or isinstance(value, type) or hasattr(value, "shape") or _is_result(value))
+    return f"{name}={_short(value)}" if plain else name
+
+
+def _kind(value) -> str:
+    """What ``value`` is, in a user's words (for messages)."""
+    from ..problem.definition import Problem
+
+    if isinstance(value, Problem):
+        return "a Problem"
+    if _is_result(value):
+        return "a training Result"
+    if isinstance(value, type):
+        return f"the class {value.__name__}"
+    if _is_rule(value):
+        return f"an update rule ({type(value).__name__})"
+    if hasattr(value, "shape") and hasattr(value, "dtype"):
+        return f"an array of shape {tuple(value.shape)}"
+    return type(value).__name__
+
+
+def _is_rule(value) -> bool:
+    return not isinstance(value, type) and callable(getattr(value, "init", None)) and callable(
+        getattr(value, "update", None))
+
+
+def _is_result(value) -> bool:
+    """A :class:`pdeinv.trainer.Result` (looked up, not imported: the trainer imports this module, and
+    no Result exists before it is imported)."""
+    trainer = sys.modules.get(f"{__package__}.trainer")
+    return trainer is not None and isinstance(value, trainer.Result)
+
+
+def problem(value, where: str = "train"):
+    """A :class:`~pdeinv.Problem`, or a problem name / module path loaded with :func:`pdeinv.load_problem`
+    (``train("heat_1d", SIP())`` works)."""
+    from ..problem.definition import Problem, load_problem
+
+    if isinstance(value, Problem):
+        return value
+    if isinstance(value, (str, os.PathLike)):
+        return load_problem(value)
+    hint = ""
+    if _is_rule(value) or isinstance(value, type):
+        hint = f"; the arguments are {where}(problem, rule, model=None): swapped?"
+    raise TypeError(f"{_named('problem', value)} is {_kind(value)}; expected a pdeinv.Problem "
+                    f"(pdeinv.load_problem('heat_2d')) or a problem name such as 'heat_2d'{hint}")
+
+
+def rule(value, problem_):
+    """An update rule, or a method name (``"sip"``, ``"gd"``, ``"adam"``, ``"hig"``, ``"supervised"``)
+    built with its preset (:func:`pdeinv.methods.presets.make_rule`, what ``pdeinv train --method``
+    builds)."""
+    from ..methods.presets import METHODS, make_rule
+
+    if isinstance(value, str):
+        if value not in METHODS:
+            raise ValueError(f"rule={value!r} is not a method name; expected one of "
+                             f"{', '.join(map(repr, METHODS))} or an update rule such as pdeinv.SIP()")
+        return make_rule(value, problem_)[0]
+    if isinstance(value, type) and _is_rule_class(value):
+        raise TypeError(f"rule={value.__name__} is a class; expected an instance: pdeinv.{value.__name__}()")
+    if _is_rule(value):
+        return value
+    from ..problem.definition import Problem
+
+    swapped = isinstance(value, Problem)
+    hint = "; the arguments are train(problem, rule, model=None): swapped?" if swapped else ""
+    missing = [m for m in ("init", "update") if not callable(getattr(value, m, None))]
+    raise TypeError(f"{_named('rule', value)} is {_kind(value)}; expected an update rule (pdeinv.SIP(), "
+                    f"pdeinv.GD(), pdeinv.HIG(), ...: it has no {' or '.join(missing)} method) or a method "
+                    f"name such as 'sip'{hint}")
+
+
+def _is_rule_class(cls: type) -> bool:
+    return callable(getattr(cls, "init", None)) and callable(getattr(cls, "update", None))
+
+
+def model(value, name: str = "model", optional: bool = True):
+    """A ``torch.nn.Module`` (``None`` where ``optional``); a ``Result`` or an array says what to pass."""
+    import torch
+
+    if value is None and optional:
+        return None
+    if isinstance(value, torch.nn.Module):
+        return value
+    if _is_result(value):
+        raise TypeError(f"{name} is a training Result; expected its network: pass result.model")
+    hint = ""
+    if hasattr(value, "shape"):
+        hint = "; arguments swapped? (the network comes first)" if name == "model" else ""
+    raise TypeError(f"{_named(name, value)} is {_kind(value)}; expected a torch.nn.Module "
+                    f"(problem.model(), or result.model of a finished run){hint}")
+
+
+def seed(value, name: str = "seed") -> int:
+    """An integer in ``0 .. 2³²−1``."""
+    if isinstance(value, bool) or not isinstance(value, Integral) or not 0 <= value <= SEED_MAX:
+        raise ValueError(f"{name}={_short(value)} is not allowed; expected an integer from 0 to {SEED_MAX}")
+    return int(value)
+
+
+def stop(value, problem_):
+    """A stopping rule (``init``/``check``, ``n_val``, ``every``), ``None``, or a name: ``"discrepancy"``
+    (:class:`~pdeinv.DiscrepancyStop` as ``pdeinv train --stop discrepancy`` builds it) or ``"none"``."""
+    if value is None:
+        return None
+    if isinstance(value, str):
+        from .stopping import DiscrepancyStop
+
+        names = {"discrepancy": lambda: DiscrepancyStop(noise=None if problem_.noise else "estimate"),
+                 "none": lambda: None}
+        if value not in names:
+            raise ValueError(f"stop={value!r} is not allowed; expected one of {', '.join(map(repr, names))}, "
+                             "None or a stopping rule such as pdeinv.DiscrepancyStop()")
+        return names[value]()
+    missing = [m for m in ("init", "check", "n_val", "every") if not hasattr(value, m)]
+    if isinstance(value, type) or missing:
+        what = f"a class: call it, {value.__name__}()" if isinstance(value, type) else \
+            f"{_kind(value)} without {', '.join(missing)}"
+        raise TypeError(f"stop={_short(value)} is {what}; expected a stopping rule such as "
+                        "pdeinv.DiscrepancyStop(), 'discrepancy' or None")
+    return value
+
+
+def checkpoint(value):
+    """A :class:`~pdeinv.Checkpoint`, ``None``, or a path (``Checkpoint(path)``, its default ``every``)."""
+    if value is None:
+        return None
+    if isinstance(value, (str, os.PathLike)):
+        from .checkpoint import Checkpoint
+
+        if not os.fspath(value).strip():
+            raise ValueError("checkpoint='' is empty; expected a path or pdeinv.Checkpoint(path, every=k)")
+        return Checkpoint(value)
+    if not all(callable(getattr(value, m, None)) for m in ("save", "load", "exists")):
+        raise TypeError(f"checkpoint={_short(value)} is {_kind(value)}; expected pdeinv.Checkpoint(path, "
+                        "every=k) or a path")
+    return value
+
+
+def callbacks(value) -> list:
+    """A list of ``callback(record, model)``; one callable alone is a list of one."""
+    if callable(value):
+        return [value]
+    try:
+        items = list(value)
+    except TypeError:
+        raise TypeError(f"callbacks={_short(value)} is {_kind(value)}; expected a list of functions "
+                        "callback(record, model) -> bool | None") from None
+    bad = [i for i, c in enumerate(items) if not callable(c)]
+    if bad:
+        raise TypeError(f"callbacks[{bad[0]}]={_short(items[bad[0]])} is not callable; expected functions "
+                        "callback(record, model) -> bool | None")
+    return items
+
+
+def flag(value, name: str, optional: bool = False):
+    """``True``/``False`` (``None`` where ``optional``)."""
+    if (value is None and optional) or isinstance(value, bool):
+        return value
+    allowed = "True, False or None" if optional else "True or False"
+    raise TypeError(f"{name}={_short(value)} is {_kind(value)}; expected {allowed}")
+
+
+def dtype(value):
+    """A torch floating dtype or ``None``."""
+    import torch
+
+    if value is None or (isinstance(value, torch.dtype) and value.is_floating_point):
+        return value
+    raise TypeError(f"dtype={_short(value)} is not allowed; expected None or a torch floating dtype "
+                    "(torch.float32, torch.float64)")
