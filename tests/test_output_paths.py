@@ -121,7 +121,7 @@ def test_the_policy_functions(tmp_path):
 def test_a_problem_found_in_the_current_folder_is_stored_by_path(tmp_path, monkeypatch):
     """``pdeinv train mine`` in the folder of ``mine.py``, then ``pdeinv predict`` from elsewhere."""
     from pdeinv.io.runs import problem_spec
-    from pdeinv.problem import builtin_dir
+    from pdeinv.problem.definition import builtin_dir
 
     builtin = builtin_dir() / "heat_1d.py"
     (tmp_path / "mine.py").write_text(builtin.read_text())

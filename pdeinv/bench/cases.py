@@ -95,6 +95,12 @@ def cases(name: str, overrides: dict, quick: bool = False) -> list[Case]:
     has_n = "n" in base.settings and not base.settings.get("mesh")
     small = partial(load, n=8) if has_n else load
     n_tr, n_te = (32, 8) if quick else (256, 32)
+    return (_physics_cases(load, base, v, heat, has_n, n_tr, n_te)
+            + _training_cases(load, base, v, small, quick, n_te))
+
+
+def _physics_cases(load, base, v, heat, has_n, n_tr, n_te) -> list[Case]:
+    """κT, noise, time step, explicit schemes and mesh sweeps: the physics and its references."""
     out = []
 
     def kappa(kt):
@@ -137,7 +143,12 @@ def cases(name: str, overrides: dict, quick: bool = False) -> list[Case]:
 
     if has_n:
         out += [Case("mesh_n", n, partial(mesh, n)) for n in v["n"]]
+    return out
 
+
+def _training_cases(load, base, v, small, quick, n_te) -> list[Case]:
+    """Precision, HIG's τ, SIP's η and the Tikhonov α: short training runs and regularized solves."""
+    out = []
     steps = 5 if quick else 30
 
     def precision(kind):

@@ -125,42 +125,54 @@ def plot_fields(points, cells, fields: dict, samples=None, title: str = "", sens
     if cells.shape[1] == 4:
         fig = _plot_slices(plt, np.asarray(points, dtype=float), cells, true, pred, err, rows)
     elif one_d:
-        fig, axes = plt.subplots(len(rows), 2, figsize=(9, 2.6 * len(rows)), squeeze=False,
-                                 layout="constrained")
-        order = np.argsort(points[:, 0])
-        x = points[order, 0]
-        for r, k in enumerate(rows):
-            a, b = axes[r]
-            a.plot(x, true[k, order], "k-", lw=1.5, label="true")
-            a.plot(x, pred[k, order], "C1--", lw=1.5, label="predicted")
-            a.set(ylabel=f"sample {k}", xlabel="x")
-            a.legend(fontsize=8)
-            b.plot(x, err[k, order], "C3-", lw=1)
-            b.axhline(0, color="0.7", lw=0.5)
-            b.set(title="error" if r == 0 else "", xlabel="x")
+        fig = _plot_lines(plt, points, true, pred, err, rows)
     else:
-        from matplotlib.tri import Triangulation
-
-        tri = Triangulation(points[:, 0], points[:, 1], cells)
-        fig, axes = plt.subplots(len(rows), 3, figsize=(10, 3.1 * len(rows)), squeeze=False,
-                                 layout="constrained")
-        for r, k in enumerate(rows):
-            lim = float(np.abs(np.r_[true[k], pred[k]]).max()) or 1.0
-            elim = float(np.abs(err[k]).max()) or 1.0
-            for c, (name, v, vmax, cmap) in enumerate((("true", true[k], lim, "RdBu_r"),
-                                                       ("predicted", pred[k], lim, "RdBu_r"),
-                                                       ("error", err[k], elim, "PuOr_r"))):
-                ax = axes[r, c]
-                im = ax.tripcolor(tri, v, shading="gouraud", cmap=cmap, vmin=-vmax, vmax=vmax)
-                ax.set_aspect("equal")
-                ax.tick_params(labelsize=7)
-                if sensors is not None and len(sensors):
-                    s = np.asarray(sensors, dtype=float).reshape(len(sensors), -1)
-                    ax.plot(s[:, 0], s[:, 1], "k.", ms=3, label="sensors")
-                ax.set_title(f"sample {k}: {name}" if c == 0 else name, fontsize=9)
-                fig.colorbar(im, ax=ax, shrink=0.8)
+        fig = _plot_triangles(plt, points, cells, true, pred, err, rows, sensors)
     if title:
         fig.suptitle(title)
+    return fig
+
+
+def _plot_lines(plt, points, true, pred, err, rows):
+    """1-D: true and predicted over x, and the error, one row per sample."""
+    fig, axes = plt.subplots(len(rows), 2, figsize=(9, 2.6 * len(rows)), squeeze=False,
+                             layout="constrained")
+    order = np.argsort(points[:, 0])
+    x = points[order, 0]
+    for r, k in enumerate(rows):
+        a, b = axes[r]
+        a.plot(x, true[k, order], "k-", lw=1.5, label="true")
+        a.plot(x, pred[k, order], "C1--", lw=1.5, label="predicted")
+        a.set(ylabel=f"sample {k}", xlabel="x")
+        a.legend(fontsize=8)
+        b.plot(x, err[k, order], "C3-", lw=1)
+        b.axhline(0, color="0.7", lw=0.5)
+        b.set(title="error" if r == 0 else "", xlabel="x")
+    return fig
+
+
+def _plot_triangles(plt, points, cells, true, pred, err, rows, sensors):
+    """2-D: true | predicted | error on the triangulation, one row per sample, sensors as dots."""
+    from matplotlib.tri import Triangulation
+
+    tri = Triangulation(points[:, 0], points[:, 1], cells)
+    fig, axes = plt.subplots(len(rows), 3, figsize=(10, 3.1 * len(rows)), squeeze=False,
+                             layout="constrained")
+    for r, k in enumerate(rows):
+        lim = float(np.abs(np.r_[true[k], pred[k]]).max()) or 1.0
+        elim = float(np.abs(err[k]).max()) or 1.0
+        for c, (name, v, vmax, cmap) in enumerate((("true", true[k], lim, "RdBu_r"),
+                                                   ("predicted", pred[k], lim, "RdBu_r"),
+                                                   ("error", err[k], elim, "PuOr_r"))):
+            ax = axes[r, c]
+            im = ax.tripcolor(tri, v, shading="gouraud", cmap=cmap, vmin=-vmax, vmax=vmax)
+            ax.set_aspect("equal")
+            ax.tick_params(labelsize=7)
+            if sensors is not None and len(sensors):
+                s = np.asarray(sensors, dtype=float).reshape(len(sensors), -1)
+                ax.plot(s[:, 0], s[:, 1], "k.", ms=3, label="sensors")
+            ax.set_title(f"sample {k}: {name}" if c == 0 else name, fontsize=9)
+            fig.colorbar(im, ax=ax, shrink=0.8)
     return fig
 
 

@@ -1,6 +1,37 @@
 """The reduced network (:func:`reduced`): the whitened :class:`~pdeinv.nets.net.Net` on the leading observed
 components with a fixed decoder ``Φ``
-(:class:`Decoder`, the prior's principal components, :func:`prior_basis`)."""
+(:class:`Decoder`, the prior's principal components, :func:`prior_basis`).
+
+**Measured** with ``python benchmarks/netsize.py`` (heat_2d, noise-free, the CLI's
+defaults: SIP (Adam 1e-3), 1000 steps, 1024 training and 128 test pairs, seed 0, one
+thread; 2 shared cores at load 4–6, so compare within a row pair; x-error: mean relative
+L²(Ω) on the test set; RSS: peak of the process):
+
+====  ======  ==============  ============  ========  ========  ======
+n     N       network         trained       x-error   s/step    RSS GB
+====  ======  ==============  ============  ========  ========  ======
+32    961     whitened lin.   924 482       0.0261    0.093     0.44
+32    961     reduced         65 792        0.0307    0.045     0.39
+64    3 969   whitened lin.   15 756 930    0.0298    1.19      1.17
+64    3 969   reduced         65 792        0.0337    0.127     0.66
+128   16 129  whitened lin.   260 160 770   (5 steps) 39.8      10.8
+128   16 129  reduced         65 792        0.0379    0.344     1.67
+====  ======  ==============  ============  ========  ========  ======
+
+With Adam through the physics (``--method adam``) at n = 32: 0.262 (reduced, 0.013 s/step)
+against 0.284 (whitened linear, 0.026 s/step); reduced at n = 64: 0.289 (0.020 s/step),
+n = 128: 0.304 (0.066 s/step).
+
+At n = 64 the whitened linear map is slightly more accurate (0.030 against 0.034) for 9x the
+step time; at n = 128 it would need ~11 h for the 1000 steps (its step is ~120x the
+reduced one and the memory 6.5x). The reduced network's error grows only
+slowly with N (0.031 → 0.038; the heat problem's recoverable content does not grow
+with the mesh) and its step time is the physics'. Hence :data:`~pdeinv.nets.defaults.REDUCED_ABOVE` = 2 000:
+heat_2d at its default n = 32 keeps the whitened linear map (better by 0.005 there),
+n ≥ 46 switches. Body: ``linear`` (at n = 32, with the decoder before its ``N``
+normalization: 0.042 against 0.094 for ``mlp`` (256, 256), as for the full-size
+networks). Decoder scaling: :func:`prior_basis`.
+"""
 
 from __future__ import annotations
 
@@ -119,35 +150,7 @@ def reduced(k_in: int = REDUCED_K_IN, k_out: int = REDUCED_K, body: str = "linea
     whatever ``N``; buffers ``(m + N)·k`` grow linearly. Everything outside the span of
     ``Φ`` is out of reach: the error floor is the prior's uncaptured part.
 
-    **Measured** with ``python benchmarks/netsize.py`` (heat_2d, noise-free, the CLI's
-    defaults: SIP (Adam 1e-3), 1000 steps, 1024 training and 128 test pairs, seed 0, one
-    thread; 2 shared cores at load 4–6, so compare within a row pair; x-error: mean relative
-    L²(Ω) on the test set; RSS: peak of the process):
-
-    ====  ======  ==============  ============  ========  ========  ======
-    n     N       network         trained       x-error   s/step    RSS GB
-    ====  ======  ==============  ============  ========  ========  ======
-    32    961     whitened lin.   924 482       0.0261    0.093     0.44
-    32    961     reduced         65 792        0.0307    0.045     0.39
-    64    3 969   whitened lin.   15 756 930    0.0298    1.19      1.17
-    64    3 969   reduced         65 792        0.0337    0.127     0.66
-    128   16 129  whitened lin.   260 160 770   (5 steps) 39.8      10.8
-    128   16 129  reduced         65 792        0.0379    0.344     1.67
-    ====  ======  ==============  ============  ========  ========  ======
-
-    With Adam through the physics (``--method adam``) at n = 32: 0.262 (reduced, 0.013 s/step)
-    against 0.284 (whitened linear, 0.026 s/step); reduced at n = 64: 0.289 (0.020 s/step),
-    n = 128: 0.304 (0.066 s/step).
-
-    At n = 64 the whitened linear map is slightly more accurate (0.030 against 0.034) for 9x the
-    step time; at n = 128 it would need ~11 h for the 1000 steps (its step is ~120x the
-    reduced one and the memory 6.5x). The reduced network's error grows only
-    slowly with N (0.031 → 0.038; the heat problem's recoverable content does not grow
-    with the mesh) and its step time is the physics'. Hence :data:`REDUCED_ABOVE` = 2 000:
-    heat_2d at its default n = 32 keeps the whitened linear map (better by 0.005 there),
-    n ≥ 46 switches. Body: ``linear`` (at n = 32, with the decoder before its ``N``
-    normalization: 0.042 against 0.094 for ``mlp`` (256, 256), as for the full-size
-    networks). Decoder scaling: :func:`prior_basis`.
+    Measured against the whitened linear map: the module docstring.
     """
     if body not in BODIES:
         raise ValueError(f"body={body!r} is not allowed; expected one of {', '.join(map(repr, BODIES))}")

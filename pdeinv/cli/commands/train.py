@@ -239,7 +239,6 @@ def _parallel_train(args, out, ckpt, device, parallel) -> int:
 
     from pdeinv.io.runs import network
     from pdeinv.methods.presets import make_rule
-    from pdeinv.training.data import npz_rounding_level, read_meta, read_npz, undeclared_noise
     from pdeinv.training.trainer import Trainer
     from pdeinv.training.trainset import N_TRAIN
 
@@ -249,31 +248,7 @@ def _parallel_train(args, out, ckpt, device, parallel) -> int:
     fresh = Fresh(out, args.overwrite)
     set_threads(args.threads)
     no_cache(args)
-    overrides = parse_sets(args.set)
-    problem = build_problem("train", args.problem, args.set, steps=args.steps)  # says so when slow
-    y, x = read_npz(args.data, problem.operator.n_out, problem.N) if args.data else (None, None)
-    meta = read_meta(args.data, problem.points) if args.data else {}
-    if "noise" in meta and "noise" in overrides and float(overrides["noise"]) != meta["noise"]:
-        raise UsageError(f"--set noise={overrides['noise']} conflicts with the noise={meta['noise']:g} the "
-                         f"data file {args.data!r} declares; drop one of them")
-    if "noise" in meta and "noise" not in overrides and "noise" in problem.settings:  # the file's level
-        args.set = [*args.set, f"noise={meta['noise']:g}"]
-        overrides = parse_sets(args.set)
-        problem = build_problem("train", args.problem, args.set, steps=args.steps)
-    rounding = npz_rounding_level(args.data) if args.data else 0.0
-    # noisy data with no declared level would be fitted exactly (the noise amplified by the inverse):
-    # rounding is noise, and so is what the observations show (pdeinv.training.data.undeclared_noise)
-    level = undeclared_noise(args.data, y, problem) if args.data and "noise" not in overrides else rounding
-    if level > problem.noise and "noise" in problem.settings:  # say so, train with it
-        why = (f"is stored in lower precision than float64: its rounding is noise of relative level "
-               f"{level:.2g}" if level == rounding else f"declares no noise level; its observations show "
-               f"noise of relative level {level:.2g} (pdeinv.training.data.undeclared_noise)")
-        warnings.warn(f"--data {args.data!r} {why}, above the problem's {problem.noise:g}; training "
-                      f"with --set noise={level:.2g} (--set noise=… declares the level)", RuntimeWarning,
-                      stacklevel=2)
-        args.set = [*args.set, f"noise={level:.2g}"]  # run.json and --resume see the level trained with
-        overrides = parse_sets(args.set)
-        problem = build_problem("train", args.problem, args.set, steps=args.steps)
+    problem, overrides, y, x = _problem_and_data(args)
     rule, hp = make_rule(args.method, problem, problem.noise, lr=args.lr, eta=args.eta, tau=args.tau,
                          batch_size=args.batch_size, hidden=hidden, optimizer=args.optimizer)
     _checks.check_run(problem, args, hp)  # memory, HIG step time, --export-samples (before allocating)
@@ -303,6 +278,40 @@ def _parallel_train(args, out, ckpt, device, parallel) -> int:
         again = "; free space and continue with --resume" if (out / "checkpoint.pt").exists() else ""
         print(f"pdeinv train: cannot write: {err.strerror or err}{where}{again}", file=sys.stderr)
         return 1
+
+
+def _problem_and_data(args):
+    """``(problem, overrides, y, x)``: the problem built with the noise level the data declares or
+    shows (``args.set`` gets it, so run.json and ``--resume`` see the level trained with) and the data
+    file's rows (``None`` without ``--data``)."""
+    from pdeinv.training.data import npz_rounding_level, read_meta, read_npz, undeclared_noise
+
+    overrides = parse_sets(args.set)
+    problem = build_problem("train", args.problem, args.set, steps=args.steps)  # says so when slow
+    y, x = read_npz(args.data, problem.operator.n_out, problem.N) if args.data else (None, None)
+    meta = read_meta(args.data, problem.points) if args.data else {}
+    if "noise" in meta and "noise" in overrides and float(overrides["noise"]) != meta["noise"]:
+        raise UsageError(f"--set noise={overrides['noise']} conflicts with the noise={meta['noise']:g} the "
+                         f"data file {args.data!r} declares; drop one of them")
+    if "noise" in meta and "noise" not in overrides and "noise" in problem.settings:  # the file's level
+        args.set = [*args.set, f"noise={meta['noise']:g}"]
+        overrides = parse_sets(args.set)
+        problem = build_problem("train", args.problem, args.set, steps=args.steps)
+    rounding = npz_rounding_level(args.data) if args.data else 0.0
+    # noisy data with no declared level would be fitted exactly (the noise amplified by the inverse):
+    # rounding is noise, and so is what the observations show (pdeinv.training.data.undeclared_noise)
+    level = undeclared_noise(args.data, y, problem) if args.data and "noise" not in overrides else rounding
+    if level > problem.noise and "noise" in problem.settings:  # say so, train with it
+        why = (f"is stored in lower precision than float64: its rounding is noise of relative level "
+               f"{level:.2g}" if level == rounding else f"declares no noise level; its observations show "
+               f"noise of relative level {level:.2g} (pdeinv.training.data.undeclared_noise)")
+        warnings.warn(f"--data {args.data!r} {why}, above the problem's {problem.noise:g}; training "
+                      f"with --set noise={level:.2g} (--set noise=… declares the level)", RuntimeWarning,
+                      stacklevel=2)
+        args.set = [*args.set, f"noise={level:.2g}"]  # run.json and --resume see the level trained with
+        overrides = parse_sets(args.set)
+        problem = build_problem("train", args.problem, args.set, steps=args.steps)
+    return problem, overrides, y, x
 
 
 def _run(args, out, problem, overrides, net, hp, trainer, fresh) -> int:
@@ -377,8 +386,6 @@ def _verdict(failed: str | None, accept: bool, out: Path) -> int:
 
 def add_parser(sub) -> None:
     from pdeinv.methods.names import METHOD_NAMES as METHODS
-    from pdeinv.training.trainset import N_TRAIN
-
     t = sub.add_parser("train", help="train a network with GD, Adam, SIP or HIG; write metrics.json")
     t.add_argument("problem")
     t.add_argument("--method", choices=sorted(METHODS), default="sip",
@@ -398,6 +405,16 @@ def add_parser(sub) -> None:
                         "is refused unless --resume or --overwrite): metrics.json, history.csv, "
                         "training.png, model.pt, run.json, checkpoint.pt, fields.vtu/png")
     add_set_argument(t)
+    _rule_arguments(t)
+    _network_arguments(t)
+    _data_arguments(t)
+    _run_arguments(t)
+    _checks.add_arguments(t)  # --allow-slow, --max-memory-gb
+    t.set_defaults(func=cmd_train)
+
+
+def _rule_arguments(t) -> None:
+    """The update rule's settings (their defaults: the presets, methods/presets.py)."""
     t.add_argument("--lr", type=float, default=None, help="optimizer learning rate (gd, adam, sip)")
     t.add_argument("--eta", type=float, default=None, help="step scale η (sip, hig)")
     t.add_argument("--tau", type=float, default=None, help="relative singular-value cut (hig)")
@@ -411,6 +428,10 @@ def add_parser(sub) -> None:
                         "128 held-out observations reaches 1.1x the noise level (the problem's, or an "
                         "estimate when it has none); 'auto' (default) uses it on noisy problems the "
                         "denoised target (pdeinv.methods.targets) cannot filter (no spectral basis)")
+
+
+def _network_arguments(t) -> None:
+    """Which network, and its nonlinear correction's prior fit."""
     t.add_argument("--net", choices=NETS, default="default",
                    help="network (default: the problem's: a linear estimate (the prior decoder where the "
                         "operator is not reversible, else the whitened linear map) trained by the rule, "
@@ -422,6 +443,12 @@ def add_parser(sub) -> None:
                         "seconds (default 300, or $PDEINV_PRIOR_FIT; 0: off, the network stays the rule's "
                         "linear estimate)")
     t.add_argument("--hidden", default=None, metavar="W,W", help="MLP hidden widths, e.g. 64,64")
+
+
+def _data_arguments(t) -> None:
+    """Where the training and test rows come from, and how often the test errors are computed."""
+    from pdeinv.training.trainset import N_TRAIN
+
     t.add_argument("--data", default=None, metavar="FILE.npz",
                    help="train on your own observations: an .npz with y (B, m), optionally x (B, N) "
                         "(used only to report errors). Rows keep their order: the last --n-test rows "
@@ -436,6 +463,10 @@ def add_parser(sub) -> None:
                    help="compute the held-out test errors (x_err, y_err in history.csv and training.png) "
                         "every K training steps, and after the first and the last (default 50; not counted "
                         "as training time)")
+
+
+def _run_arguments(t) -> None:
+    """Device, threads, outputs, checkpoints, the failure budget and the final check."""
     t.add_argument("--device", default="cpu",
                    help="torch device of the network and of dense/modal/SVD physics: cpu (default), "
                         "cuda, cuda:N (time stepping stays on the CPU). Data parallel: torchrun "
@@ -466,5 +497,3 @@ def add_parser(sub) -> None:
                         "written either way, the reason in metrics.json's 'failed'): a held-out x_err >= 1, "
                         "no better than predicting zero; without x in the data, predictions with over 2x the "
                         "prior's energy where the physics cannot see (pdeinv.training.unseen)")
-    _checks.add_arguments(t)  # --allow-slow, --max-memory-gb
-    t.set_defaults(func=cmd_train)
