@@ -190,7 +190,7 @@ def test_bad_input_refused():
         inv(y0, x0[:1])
     with pytest.raises(ValueError, match="modal backend"):
         ModalTikhonov(load("heat_2d").operator, 1e-6)
-    with pytest.raises(ValueError, match="final_state"):
+    with pytest.raises(ValueError, match="time-reversible operator"):
         TimeReversal(op)
 
 

@@ -170,3 +170,31 @@ def test_sparse_eigensolver_path_matches_stepping(monkeypatch, scheme):
     ys = steps.forward(x)
     assert np.linalg.norm(modal.forward(x) - ys) / np.linalg.norm(ys) <= 1e-10
     assert dot_test(modal) <= 1e-12
+
+
+def test_reversibility_is_declared_by_the_scheme_not_found_by_name():
+    """Newmark and leapfrog are both time-reversible: each declares it, runs the final state back to
+    the initial one to rounding, and so gets the same default network and time-reversal inverse;
+    a θ-scheme and a sensor observation are not reversible, and ``reverse`` says so."""
+    from pdeinv.inverse.time_reversal import TimeReversal
+    from pdeinv.physics.capabilities import reversible
+
+    nets = {}
+    for scheme, steps in (("newmark", 50), ("leapfrog", 400)):
+        p = pdeinv.load_problem("wave_2d", n=12, scheme=scheme, steps=steps)
+        op = p.operator.stepping()
+        assert reversible(op)
+        x = p.sample(3, 0)[0]
+        uT, cT = op.final_state(x)
+        np.testing.assert_allclose(uT, op.forward(x), rtol=0, atol=1e-13 * np.abs(uT).max())
+        u0, _ = op.reverse(uT, cT)
+        assert np.abs(u0 - x).max() <= 1e-12 * np.abs(x).max()
+        inv = TimeReversal(op)
+        assert np.abs(inv(op.forward(x), x) - x).max() <= 1e-12 * np.abs(x).max()
+        nets[scheme] = type(p.model().base).__name__, p.model().decoder is None
+    assert nets["newmark"] == nets["leapfrog"]
+    heat = pdeinv.load_problem("heat_1d", n=16, steps=10).operator.stepping()
+    sensed = pdeinv.load_problem("wave_sensors_2d", n=8).operator
+    assert not reversible(heat) and not reversible(sensed)
+    with pytest.raises(ValueError, match="not time-reversible"):
+        heat.reverse(np.zeros(heat.n_in), np.zeros(heat.n_in))

@@ -104,7 +104,9 @@ def test_wave_sensors_scene_offers_leapfrog():
 
 
 def test_default_inverse_chooses_by_capability_not_class():
-    class Reversible(pdeinv.physics.Matrix):  # any operator with final_state/reverse
+    class Reversible(pdeinv.physics.Matrix):  # any operator that declares it, with final_state/reverse
+        reversible = True
+
         def final_state(self, U0, V0=None):
             return U0, U0
 
@@ -113,6 +115,11 @@ def test_default_inverse_chooses_by_capability_not_class():
 
     op = Reversible(np.eye(3))
     assert type(default_inverse(op)).__name__ == "TimeReversal"
+
+    class Undeclared(Reversible):  # the methods alone do not make it reversible: the declaration does
+        reversible = False
+
+    assert type(default_inverse(Undeclared(np.eye(3)))).__name__ == "TikhonovCG"
     assert type(default_inverse(pdeinv.physics.Matrix(np.eye(3)))).__name__ == "TikhonovCG"
 
 

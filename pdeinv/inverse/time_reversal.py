@@ -34,6 +34,7 @@ from __future__ import annotations
 import numpy as np
 
 from .._checks import batch
+from ..physics.capabilities import reversible
 from ._inputs import out, pair
 
 
@@ -41,10 +42,9 @@ class TimeReversal:
     """``P⁻¹_(x₀, Px₀)(y) = u-part of Wave.reverse(y, v_T(x₀))`` for a :class:`~pdeinv.Wave`."""
 
     def __init__(self, op):
-        for name in ("final_state", "reverse"):
-            if not callable(getattr(op, name, None)):
-                raise ValueError(f"TimeReversal needs an operator with final_state and reverse "
-                                 f"(a Wave); got {op!r}")
+        if not reversible(op):
+            raise ValueError(f"TimeReversal needs a time-reversible operator (declared by its scheme: "
+                             f"Newmark or leapfrog, final field observed); got {op!r}")
         self.op = op
 
     def __call__(self, y, x0) -> np.ndarray:

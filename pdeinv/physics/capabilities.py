@@ -7,8 +7,8 @@ without them gets the safe answer):
   it is measured with the mass matrix ``M``: ``‖y‖²_M = yᵀMy``) or ``"records"``
   (plain numbers such as sensor time series, Euclidean). Undeclared: records.
 * ``modes``: a spectral basis, i.e. a :class:`Spectral` (``P = out diag(g) Inᵀ``), or None.
-* ``final_state(u₀, v₀)`` and ``reverse(u_T, v_T)``: the full state both ways
-  (a reversible scheme: time reversal is an exact local inverse).
+* ``reversible``: ``final_state(u₀, c₀)`` and ``reverse(u_T, c_T)`` run the full state both ways
+  (declared by a time-reversible scheme, Newmark or leapfrog: time reversal is a local inverse).
 * ``symmetric``: every matrix of the scheme is symmetric (the scheme's answer, :mod:`.schemes`).
 """
 
@@ -52,5 +52,7 @@ def modal_basis(op) -> Spectral | None:
 
 
 def reversible(op) -> bool:
-    """Whether ``op`` offers ``final_state`` and ``reverse`` (a time-reversible scheme)."""
-    return all(callable(getattr(op, name, None)) for name in ("final_state", "reverse"))
+    """Whether ``op`` declares ``reversible`` (a time-reversible scheme observed at the final field:
+    ``final_state`` and ``reverse`` run the full state both ways, :class:`.propagator.Propagator`);
+    an operator that declares nothing is not."""
+    return bool(getattr(op, "reversible", False))

@@ -24,8 +24,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from .._checks import batch, count
 from .._checks import choice as one_of
-from .._checks import count
 from .base import LinearOperator
 from .capabilities import Spectral
 
@@ -150,6 +150,39 @@ class Propagator(LinearOperator):
         """The same run applied by time stepping (no compiled backend): ``self`` if it steps."""
         return self if self.backend is None else Propagator(self.scheme, self.observation, self.steps,
                                                             self.mass)._use(None, "stepping")
+
+    @property
+    def reversible(self) -> bool:
+        """Declared by the scheme (:mod:`.schemes`: Newmark, leapfrog) for the final field: the
+        full final state is run back to the initial one by :meth:`reverse`."""
+        return bool(self.scheme.reversible) and self.observation.space == "field"
+
+    def final_state(self, U0, C0=None) -> tuple[np.ndarray, np.ndarray]:
+        """``(u_T, c_T)`` from ``u₀`` (and its companion ``c₀``; default: the scheme's start from rest),
+        batch-first; the companion is the scheme's other half of the state (Newmark: the velocity
+        ``v``; leapfrog: the previous step's displacement)."""
+        return self._run(U0, C0, 1.0, ("U0", "C0"))
+
+    def reverse(self, UT, CT) -> tuple[np.ndarray, np.ndarray]:
+        """Step back from ``(u_T, c_T)`` to ``(u₀, c₀)``: the scheme's reversed step, ``steps`` times."""
+        if CT is None:
+            raise ValueError("reverse needs the final state's companion c_T (final_state gives it)")
+        return self._run(UT, CT, -1.0, ("UT", "CT"))
+
+    def _run(self, U, C, sign: float, names: tuple[str, str]):
+        if not self.reversible:
+            raise ValueError(f"{self!r} is not time-reversible: its scheme ({type(self.scheme).__name__}) "
+                             "does not declare it, or it does not observe the final field")
+        U, single = batch(U, self.n_in, names[0])
+        if C is None:
+            s = self.scheme.start(U.T)
+        else:
+            C = batch(C, self.n_in, names[1])[0]
+            if C.shape != U.shape:
+                raise ValueError(f"{names[1]} has shape {C.shape}; expected {names[0]}'s {U.shape}")
+            s = self.scheme.pack(U.T, C.T)
+        out = tuple(np.ascontiguousarray(a.T) for a in self.scheme.unpack(self._march(s, sign=sign)))
+        return tuple(a[0] for a in out) if single else out
 
     kind = property(lambda self: "steps" if self.backend is None else self.backend.name)
     modes = property(lambda self: self.backend if isinstance(self.backend, Spectral) else None)

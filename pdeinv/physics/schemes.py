@@ -32,6 +32,9 @@ from ..fem.solvers import is_symmetric
 class _Implicit:
     """Shared by the implicit schemes: factor ``A`` once, transposes only where needed."""
 
+    #: the step with ``sign=-1`` undoes it exactly (declared by the scheme: :meth:`Propagator.reverse`)
+    reversible = False
+
     def _factor(self, A, B, M, solver):
         self.A, self.B, self.M = A.tocsc(), B.tocsr(), M.tocsr()
         self.symmetric = all(is_symmetric(X) for X in (self.A, self.B, self.M))
@@ -82,10 +85,17 @@ class Theta(_Implicit):
 
 
 class Newmark(_Implicit):
-    """Newmark average-acceleration step on ``(u, v)`` for ``M u'' + c² K u = 0`` (module docstring)."""
+    """Newmark average-acceleration step on ``(u, v)`` for ``M u'' + c² K u = 0`` (module docstring).
+    Time-reversible: the step with ``−dt`` undoes it; the state's companion of ``u`` is ``v``."""
 
     width = 2
+    reversible = True
 
+    def pack(self, U, C):
+        return U, C
+
+    def unpack(self, s):
+        return s
     def __init__(self, M, K, c: float, dt: float, solver):
         self.dt, self.n = float(dt), M.shape[0]
         q = (c * dt / 2) ** 2
@@ -107,10 +117,18 @@ class Newmark(_Implicit):
 
 
 class Leapfrog:
-    """Central-difference step on ``(uⱼ₋₁, uⱼ)`` with a lumped mass (module docstring)."""
+    """Central-difference step on ``(uⱼ₋₁, uⱼ)`` with a lumped mass (module docstring).
+    Time-reversible: ``uⱼ₋₂ = 2uⱼ₋₁ − uⱼ − q M_L⁻¹K uⱼ₋₁`` undoes a step exactly (in exact
+    arithmetic; to rounding in floating point); the state's companion of ``uⱼ`` is ``uⱼ₋₁``."""
 
     width = 2
+    reversible = True
 
+    def pack(self, U, C):
+        return C, U
+
+    def unpack(self, s):
+        return s[1], s[0]
     def __init__(self, minv: np.ndarray, K, c: float, dt: float):
         self.dt, self.n = float(dt), K.shape[0]
         self.qminv = (c * dt) ** 2 * np.asarray(minv, dtype=float)[:, None]  # q M_L⁻¹, folded once
@@ -133,9 +151,11 @@ class Leapfrog:
     def zeros(self, n: int, b: int):
         return np.zeros((n, b)), np.zeros((n, b))
 
-    def step(self, s):
+    def step(self, s, sign: float = 1.0):
         P, U = s
-        return U, 2.0 * U - P - self.qminv * (self.K @ U)
+        if sign == 1.0:
+            return U, 2.0 * U - P - self.qminv * (self.K @ U)
+        return 2.0 * P - U - self.qminv * (self.K @ P), P
 
     def step_T(self, s):
         P, U = s

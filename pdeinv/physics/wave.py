@@ -2,16 +2,17 @@
 
 The trapezoidal rule on ``(u, v)`` (:class:`.schemes.Newmark` has the step and its exact
 transpose): unconditionally stable, conserves ``E = ½vᵀMv + ½c²uᵀKu`` to rounding, and
-time-reversible (the step with ``−dt`` undoes it), so the full state can be run both
-ways (:meth:`Wave.final_state`, :meth:`Wave.reverse`, used by time reversal) through the
-propagator's one time loop.
+time-reversible (the step with ``−dt`` undoes it, declared by the scheme), so the full state
+can be run both ways (:meth:`~.propagator.Propagator.final_state`,
+:meth:`~.propagator.Propagator.reverse`, used by time reversal) through the propagator's one
+time loop.
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-from .._checks import batch, count, positive
+from .._checks import count, positive
 from ..fem.solvers import SuperLU
 from .propagator import FinalField, Propagator
 from .schemes import Newmark
@@ -33,22 +34,6 @@ class Wave(Propagator):
         steps = count(steps, "steps")
         scheme = Newmark(self.M, self.K, self.c, self.t_end / steps, solver)
         super().__init__(scheme, FinalField(scheme.n, steps), steps, self.M)
-
-    def _run(self, U, V, sign: float, names: tuple[str, str]):
-        U, single = batch(U, self.n_in, names[0])
-        V = np.zeros_like(U) if V is None else batch(V, self.n_in, names[1])[0]
-        if V.shape != U.shape:
-            raise ValueError(f"{names[1]} has shape {V.shape}; expected the shape of {names[0]} {U.shape}")
-        out = tuple(np.ascontiguousarray(a.T) for a in self._march((U.T, V.T), sign=sign))
-        return tuple(a[0] for a in out) if single else out
-
-    def final_state(self, U0, V0=None) -> tuple[np.ndarray, np.ndarray]:
-        """``(u_T, v_T)`` from ``(u₀, v₀)`` (``v₀ = 0`` if omitted), batch-first."""
-        return self._run(U0, V0, 1.0, ("U0", "V0"))
-
-    def reverse(self, UT, VT) -> tuple[np.ndarray, np.ndarray]:
-        """Step back from ``(u_T, v_T)`` to ``(u₀, v₀)``: the forward scheme with ``−dt``."""
-        return self._run(UT, VT, -1.0, ("UT", "VT"))
 
     def energy(self, U, V) -> np.ndarray:
         """Discrete energy ``½vᵀMv + ½c²uᵀKu`` per sample."""
