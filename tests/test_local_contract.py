@@ -15,7 +15,6 @@ import pdeinv
 import pdeinv.inverse as inv
 from pdeinv import nets
 from pdeinv.inverse import (
-    CompiledInverse,
     Discrepancy,
     RelativeAlpha,
     ReusesForward,
@@ -104,11 +103,6 @@ def _full_state(p):
     return StateReversal(p.operator), forward
 
 
-def _compiled(p):
-    op = p.operator
-    return CompiledInverse(TimeReversal(op), op.n_out, op.n_in), op.forward
-
-
 def _decoder(p):
     model = nets.reduced(k_in=8, k_out=10)(p)
     return DecoderTikhonov(p.operator, model.linear_in_parameters().decoder), p.operator.forward
@@ -125,7 +119,6 @@ CLASSES = {
                                                                             Discrepancy(0.01)))),
     "TimeReversal": ("wave_2d-steps", _plain(lambda p: TimeReversal(p.operator))),
     "StateReversal": ("wave_2d-steps", _full_state),
-    "CompiledInverse": ("wave_2d-steps", _compiled),
     "DecoderTikhonov": ("heat_1d", _decoder),
     "DecoderTikhonov-identity": ("heat_2d", _plain(lambda p: DecoderTikhonov(p.operator, None,
                                                                              rel_alpha=1e-12))),

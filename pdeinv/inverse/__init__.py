@@ -8,8 +8,7 @@ Each is a callable object ``inverse(y, x0)`` (numpy ``(B, n_out)``, ``(B, n_in)`
 * :class:`TikhonovCG` — any linear operator: block PCG on ``(PᵀMP + αM)Δx = PᵀM(y − y₀)``;
 * :class:`TimeReversal` / :class:`StateReversal` — wave: Newmark run backwards;
 * :class:`~.decoder.DecoderTikhonov` — SIP's default for a network with a fixed decoder ``D``: the
-  Tikhonov change in ``span D``;
-* :class:`CompiledInverse` — an inverse linear in ``(y, x₀)`` as one matrix.
+  Tikhonov change in ``span D``.
 
 Those whose first act is ``y₀ = P x₀`` declare :class:`ReusesForward` (``local(y, x0, y0)``): SIP
 passes the ``P x`` it has computed for its loss.
@@ -27,7 +26,6 @@ from ..physics.capabilities import output_mass, reversible
 from ..physics.propagator import chosen
 from .alpha import Discrepancy, FixedAlpha, RelativeAlpha
 from .cg import TikhonovCG
-from .compiled import CompiledInverse
 from .modal import ModalTikhonov, SpectralTikhonov
 from .protocol import ReusesForward
 from .time_reversal import StateReversal, TimeReversal
@@ -98,6 +96,6 @@ def default_inverse(op, disc=None, noise: float = 0.0, alpha=None):
     return TikhonovCG(op, M, rule, M_out=output_mass(op, M), scale=known() if callable(known) else None)
 
 
-__all__ = ["CompiledInverse", "Discrepancy", "FixedAlpha", "ModalTikhonov", "SpectralTikhonov",
+__all__ = ["Discrepancy", "FixedAlpha", "ModalTikhonov", "SpectralTikhonov",
            "RelativeAlpha", "ReusesForward",
            "StateReversal", "TikhonovCG", "TimeReversal", "default_alpha", "default_inverse"]

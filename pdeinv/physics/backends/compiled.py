@@ -258,16 +258,16 @@ def plan(step_flops: float, n_in: int, n_out: int, reversible: bool = False,
     """``(kind, why)``: 'modal', 'steps', 'dense' or 'svd' by the flops of a training run (module
     docstring); the one backend chooser of every time-stepping operator.
 
-    Per step ``b`` columns go forward and back, and a SIP step adds a local inverse: time reversal
-    for a ``reversible`` operator (two stepping runs; with a compiled forward it is compiled too,
-    :class:`pdeinv.inverse.CompiledInverse`: an ``N × (m + N)`` product, built by ``m + N`` pairs of
-    runs); otherwise a filter in a spectral basis (SVD, modal: two applications) or, for stepping
-    and dense, a CG solve of about ``2·cg_iterations`` applications. Stepping costs ``step_flops``
-    per column, dense ``2mN``, SVD ``2r(m + N)`` with ``r ≤ min(m, N)``, modal ``2k(m + N)`` with
-    ``modal = (k, build flops)`` (:func:`.modal.estimate`; None: not offered; where it is offered the
-    SVD is not, being the same basis ``|g|``, ``Φ`` built at a higher cost) (BLAS flops discounted
-    by :data:`BLAS_ADVANTAGE`); the build runs ``N`` columns of stepping, plus ``~4 m N min(m, N)``
-    for the SVD, and costs nothing for the kinds in ``cached`` (:func:`in_cache`). Steps and batch:
+    Per step ``b`` columns go forward and back, and a SIP step adds a local inverse: the filter in a
+    spectral basis (SVD, modal: two applications), a CG solve of about ``2·cg_iterations``
+    applications (stepping, dense), and for a ``reversible`` operator time reversal (stepping: two
+    runs) or, compiled dense, the filter in its SVD (two applications of it, the SVD paid once).
+    Stepping costs ``step_flops`` per column, dense ``2mN``, SVD ``2r(m + N)`` with
+    ``r ≤ min(m, N)``, modal ``2k(m + N)`` with ``modal = (k, build flops)``
+    (:func:`.modal.estimate`; None: not offered; where it is offered the SVD is not, being the same
+    basis ``|g|``, ``Φ`` built at a higher cost) (BLAS flops discounted by :data:`BLAS_ADVANTAGE`);
+    the build runs ``N`` columns of stepping, plus ``~4 m N min(m, N)`` for the SVD, and costs
+    nothing for the kinds in ``cached`` (:func:`in_cache`). Steps and batch:
     :data:`EXPECT`, set for one block by :func:`expecting`.
     """
     e, blas = EXPECT, 1.0 / BLAS_ADVANTAGE
@@ -277,13 +277,12 @@ def plan(step_flops: float, n_in: int, n_out: int, reversible: bool = False,
     if modal is not None:  # the SVD (in M-norms) of a symmetric final-field map *is* its modal form
         apply = {"modal": 2 * modal[0] * (n_in + n_out) * blas, **{k: apply[k] for k in ("steps", "dense")}}
         build = {"modal": modal[1], **{k: build[k] for k in ("steps", "dense")}}
-    cg = 2 * e["cg_iterations"]
-    if reversible:
-        inverse = {k: 2 * step_flops if k == "steps" else 2 * n_in * (n_in + n_out) * blas for k in apply}
-        build = {k: v + (0 if k in ("steps", "modal") else 2 * (n_in + n_out) * step_flops)
-                 for k, v in build.items()}
-    else:
-        inverse = {k: (2 if k in ("svd", "modal") else cg) * a for k, a in apply.items()}
+    inverse = {k: (2 if k in ("svd", "modal") else 2 * e["cg_iterations"]) * a for k, a in apply.items()}
+    if reversible:  # time reversal steps; a compiled dense map's inverse is the filter in its SVD
+        inverse["steps"] = 2 * step_flops
+        if "dense" in build:
+            inverse["dense"] = 4 * r * (n_in + n_out) * blas
+            build["dense"] += 4 * n_in * n_out * r * blas
     build = {k: 0.0 if k in cached else v for k, v in build.items()}
     cost = {k: build[k] + cols * (2 * apply[k] + inverse[k]) for k in apply}
     fits = {k: k not in KINDS or KINDS[k].nbytes(n_in, n_out) / 1e9 <= budget_gb() for k in cost}
