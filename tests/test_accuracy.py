@@ -73,7 +73,7 @@ def test_sip_on_the_reduced_network_beats_best_alpha_tikhonov(monkeypatch):
     for noise in (0.0, 0.01):
         p = pdeinv.load_problem("heat_2d", n=24, noise=noise)  # 529 unknowns, a 256-column decoder
         res = _cli_sip(p)
-        assert isinstance(res.model.post, nets.Decoder)
+        assert isinstance(res.model.base.post, nets.Decoder)
         assert res.metrics["x_err"] < _oracle(p), (noise, res.metrics["x_err"], _oracle(p))
 
 

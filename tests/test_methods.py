@@ -29,7 +29,7 @@ def toy(n=5, m=5, seed=0):
     np.fill_diagonal(S, np.linspace(2.0, 0.5, min(m, n)))
     A = U @ S @ V.T
     exact = lambda y, x0: np.linalg.lstsq(A, y.T, rcond=None)[0].T  # noqa: E731
-    problem = SimpleNamespace(name="toy", operator=pdeinv.Matrix(A), inverse=exact)
+    problem = SimpleNamespace(name="toy", operator=pdeinv.Matrix(A), inverse=exact, noise=0.0, disc=None)
     return problem, A, rng
 
 

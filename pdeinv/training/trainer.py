@@ -256,7 +256,7 @@ class Trainer:
         return ckpts.run_identity(self.problem, self.rule, model, {
             "seed": self.seed, "n_train": self.n_train, "n_test": self.n_test, "batch_size": self.batch_size,
             "dtype": str(self.dtype),
-            "target": self.target if isinstance(self.target, str | None) else self.target.name,
+            "target": self.target if self.target is None or self.target == "auto" else self.target.name,
             **({} if self._own is None else {"data": self._own.fingerprint})})
 
     def _network_settings(self) -> dict:
