@@ -152,7 +152,7 @@ def test_the_same_rows_again_take_the_kept_part_of_the_step(case, tau):
     rule.update(state, model, Y, goal)
     perm = torch.randperm(len(Y))
     kept = rule.update(state, model, Y[perm], goal[perm])
-    assert state.context[-1][-1]["carried"].M is not None  # the kept route was taken
+    assert state.context[-1].seen["carried"].M is not None  # the kept route was taken
     direct = fresh_step(p, model, Y[perm], goal[perm], tau)
     assert kept.info["loss"] == pytest.approx(direct.info["loss"], rel=1e-9)
     assert kept.info["kept"] == direct.info["kept"]
@@ -186,7 +186,7 @@ def test_the_carried_residual_follows_the_weights(moved, float32, monkeypatch):
             q.add_(c * d)
         if moved == "edited":
             params[0][0, 0] += 0.05
-    carried = state.context[-1][-1]["carried"]
+    carried = state.context[-1].seen["carried"]
     age = carried.age
     nxt = rule.update(state, model, Y)
     assert carried.age == (0 if moved == "edited" else age + 1)
@@ -252,7 +252,7 @@ def test_dead_feature_columns_get_no_step_and_a_smaller_product():
     state = rule.init(p, model)
     rule.update(state, model, Y)
     step = rule.update(state, model, Y)
-    fixed = state.context[-1][-1]["carried"].fixed
+    fixed = state.context[-1].seen["carried"].fixed
     lin = model.linear_in_parameters()
     dead = torch.as_tensor(lin.features(Y).abs().amax(0) == 0)
     live = set(torch.nonzero(~dead).ravel().tolist()) | {lin.layer.in_features}  # and the bias
@@ -328,7 +328,7 @@ def test_a_step_below_the_weights_resolution_is_not_computed(diagonal, monkeypat
     fresh = exact.update(exact.init(p, model), model, Y)
     size = math.sqrt(sum(float(d.norm()) ** 2 for d in fresh.direction))
     weights = math.sqrt(sum(float(q.norm()) ** 2 for q in params))
-    assert (state.context[-1][-1]["carried"].fixed.A1.ndim == 1) == diagonal
+    assert (state.context[-1].seen["carried"].fixed.A1.ndim == 1) == diagonal
     floor = 64 * torch.finfo(torch.float64).eps + (hig_fixed.UNCORRELATED if diagonal else 0.0)
     assert size <= floor * weights
 

@@ -12,7 +12,9 @@ A *route* turns one batch into the HIG direction ``−η V Λ^e Uᵀ g`` (see :c
 * :class:`LastLayer` never forms ``J`` either: a dense network's last layer takes the exact step on its
   hidden features, the hidden layers none (:mod:`.hig_layers` says what is approximated).
 
-:data:`ROUTES` maps a route name to the candidates tried in order; the first
+:class:`~.kronecker.Kronecker` takes the exact step without ``J`` for a network linear in its
+parameters (:mod:`.kron`, :mod:`.fixed`). :data:`ROUTES` — the one table every step goes through —
+maps a route name to the candidates tried in order; the first
 whose memory fits ``max_jacobian_gb`` is taken (so ``"auto"`` leaves the dense Jacobian
 only when it does not fit: then a dense network takes :class:`LastLayer`, any other the
 matrix-free route). :data:`JACOBIANS` maps a Jacobian
@@ -21,6 +23,7 @@ name to its strategy; ``"auto"`` takes the one with fewer physics columns.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from typing import NamedTuple
 
@@ -68,6 +71,28 @@ class Batch(NamedTuple):
     def stack(self, jac: dict, size: int) -> torch.Tensor:
         """``(B, size, n_params)`` from a dict of per-parameter Jacobians (parameter order)."""
         return torch.cat([jac[n].reshape(self.y.shape[0], size, -1) for n in self.params], -1)
+
+
+class JacobianRoute:
+    """What the routes that form ``J`` or its factors share: the step from their :meth:`direction`."""
+
+    def step(self, rule, b: Batch, op, Q, goal: torch.Tensor, steps: int):
+        """The residual ``g`` of the batch (its part in ``range(P)``, ``Q``), the route's direction,
+        scaled by ``rule.unit``; ``(None, loss)`` for a non-finite loss."""
+        from ..base import Update, prediction, y_loss
+
+        with torch.no_grad():
+            y = apply(op, prediction(b.model(b.y)))
+        r = (y - goal).double()  # g: per-sample residuals, not divided by B (HIG's docstring)
+        loss = float(y_loss(r, torch.zeros_like(r)))
+        if not math.isfinite(loss):
+            return Update(None, {"loss": loss})
+        r = r if Q is None else r @ Q  # the residual's part in range(P); the rest no step can change
+        delta, info = self.direction(b, r.reshape(b.rows), rule, steps)
+        delta = delta * rule.unit(info)
+        sizes = [p.numel() for p in b.params.values()]
+        parts = [d.view(p.shape) for d, p in zip(torch.split(delta, sizes), b.params.values(), strict=True)]
+        return Update(tuple(parts), {**info, "loss": loss})
 
 
 # -- how J is formed ---------------------------------------------------------------------------------
@@ -191,7 +216,7 @@ def auto_decomposition(rows: int, n_params: int, cond_max: float):
 # -- routes: the whole direction -------------------------------------------------------------------
 
 @dataclass(frozen=True)
-class Dense:
+class Dense(JacobianRoute):
     """Form ``J`` with ``jacobian``, check it, decompose it with ``decomposition``."""
 
     jacobian: object
@@ -215,7 +240,7 @@ class Dense:
 
 
 @dataclass(frozen=True)
-class MatrixFree:
+class MatrixFree(JacobianRoute):
     """Rank-``probes`` randomized SVD from jvp/vjp products, probes from ``SeedSequence([seed, step])``."""
 
     probes: int
@@ -237,7 +262,7 @@ class MatrixFree:
 
 
 @dataclass(frozen=True)
-class LastLayer:
+class LastLayer(JacobianRoute):
     """The exact HIG step of a dense network's last layer on its hidden features; the hidden layers take
     no step (:mod:`.hig_layers` says why). ``lin``, ``names``: :func:`.hig_layers.last_layer`."""
 
@@ -275,7 +300,7 @@ def _last_layer_if_dense(b: Batch) -> list:
 
 
 @dataclass(frozen=True)
-class Structured:
+class Structured(JacobianRoute):
     """The dense routes' exact step with ``J`` (or only ``J Jᵀ``) built from a dense network's layer
     structure (:mod:`.hig_structured`) instead of ``torch.func``; ``decomposition``: :class:`SVD`,
     :class:`Gram` or :class:`GramOrSVD`, whose ``info`` it gives."""
@@ -374,11 +399,14 @@ def _matrix_free(rule) -> MatrixFree:
 
 #: route name -> (rule, batch) -> candidate routes, in order of preference
 ROUTES = {
-    # a dense network whose J does not fit: the last layer's exact step beat the matrix-free route at
-    # equal steps and at equal wall time (heat_2d, wave_2d, MLP (64, 64); pdeinv.methods.hig.layers)
-    "auto": lambda rule, b: [_dense(rule, b), *_last_layer_if_dense(b), _matrix_free(rule)],
-    "svd": lambda rule, b: [_dense(rule, b)],
-    "gram": lambda rule, b: [_dense(rule, b)],
-    "randomized": lambda rule, b: [_matrix_free(rule)],
-    "last_layer": lambda rule, b: [_last_layer(b)],
+    # a network linear in its parameters takes the exact Kronecker step (kron: its route, built once per
+    # run by the rule); a dense network whose J does not fit: the last layer's exact step beat the
+    # matrix-free route at equal steps and wall time (heat_2d, wave_2d, MLP (64, 64); .layers)
+    "auto": lambda rule, b, kron: [kron] if kron is not None else [
+        _dense(rule, b), *_last_layer_if_dense(b), _matrix_free(rule)],
+    "kronecker": lambda rule, b, kron: [kron],
+    "svd": lambda rule, b, kron: [_dense(rule, b)],
+    "gram": lambda rule, b, kron: [_dense(rule, b)],
+    "randomized": lambda rule, b, kron: [_matrix_free(rule)],
+    "last_layer": lambda rule, b, kron: [_last_layer(b)],
 }

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import math
 import warnings
 from collections.abc import Callable
 from dataclasses import dataclass, field, replace
@@ -11,17 +10,14 @@ import numpy as np
 import torch
 
 from ..._checks import choice, count, nonnegative, positive
-from ...errors import NonFiniteError
 from ...inverse.decoder import decoded_svd
 from ...nets.protocol import declared
 from ...physics.base import Matrix
-from ...physics.bridge import apply
 from ...physics.capabilities import modal_basis
 from ...util.memory import HIG_JACOBIAN_GB
-from ..base import Rule, State, Update, prediction, y_loss
+from ..base import Rule, State, Update
 from ..transforms import Add
-from . import fixed as hig_fixed
-from . import kron as hig_kron
+from .kronecker import Kronecker
 from .routes import JACOBIANS, ROUTES, Batch
 
 SETTINGS = ("eta", "tau", "exponent", "route", "jacobian", "max_jacobian_gb", "gram_cond_max", "probes",
@@ -134,7 +130,7 @@ class HIG(Rule):
         if not self.tau < 1:
             raise ValueError(f"tau={self.tau!r} is not allowed; expected 0 <= tau < 1 "
                              "(relative to the largest singular value)")
-        choice(self.route, "route", (*ROUTES, "kronecker"))
+        choice(self.route, "route", tuple(ROUTES))
         count(self.probes, "probes")
         count(self.power_iters, "power_iters", minimum=0)
         choice(self.jacobian, "jacobian", tuple(JACOBIANS))
@@ -166,7 +162,7 @@ class HIG(Rule):
             raise ValueError("HIG(route='kronecker') needs a network linear in its parameters after a fixed "
                              "feature map (model.linear_in_parameters(), e.g. pdeinv.whitened('linear') or "
                              f"pdeinv.reduced()); {type(model).__name__} does not declare one")
-        kron = None if lin is None else (lin, decoded_svd(op, lin.decoder), hig_kron.InputGram(), {})
+        kron = None if lin is None else Kronecker(lin, decoded_svd(op, lin.decoder))
         device = next(iter(model.parameters()), torch.empty(0)).device
         if kron is None and device.type != "cpu":
             raise ValueError(f"HIG's Jacobian routes decompose J with numpy on the CPU; the model is on "
@@ -178,90 +174,21 @@ class HIG(Rule):
                target: torch.Tensor | None = None) -> Update:
         op, small, Q, kron = state.context
         goal = y_target if target is None else target
-        if kron is not None:
-            return self._kronecker(op, kron, y_target, goal)
-        b = Batch.of(model, small, y_target)  # refuse a route over the memory budget before computing
-        route = self._route(b)
-        with torch.no_grad():
-            y = apply(op, prediction(model(y_target)))
-        r = (y - goal).double()  # g: per-sample residuals, not divided by B (class docstring)
-        loss = float(y_loss(r, torch.zeros_like(r)))
-        if not math.isfinite(loss):
-            return Update(None, {"loss": loss})
-        r = r if Q is None else r @ Q  # the residual's part in range(P); the rest no step can change
-        delta, info = route.direction(b, r.reshape(b.rows), self, state.steps)
-        delta = delta * self._unit(info)
-        sizes = [p.numel() for p in b.params.values()]
-        parts = [d.view(p.shape) for d, p in zip(torch.split(delta, sizes), b.params.values(), strict=True)]
-        return Update(tuple(parts), {**info, "loss": loss})
+        b = Batch.of(model, small, y_target)
+        route = self._route(b, kron)  # the first of ROUTES' candidates within the memory budget
+        return route.step(self, b, op, Q, goal, state.steps)
 
-    def _kronecker(self, op, kron, y_target: torch.Tensor, goal: torch.Tensor) -> Update:
-        """The exact step without ``J`` (:mod:`.hig_kron`); one pass of the feature map gives ``x`` and
-        the features, and rows taken before need neither (:meth:`_fixed`). Data-parallel
-        (``sum_over``): every rank joins the one sum of the moments, NaN where its shard failed, so all
-        ranks take or refuse the same step."""
-        lin, fac, gram, seen = kron
-        key = None if self.sum_over is not None else gram.key_of(y_target, None if goal is y_target else goal)
-        if key is not None and key == gram.seen:  # the same rows again (the full batch): hig_fixed
-            return self._fixed(lin, fac, gram, seen, key, y_target, goal)
-        gram.seen = key
-        x, Z = hig_kron.forward(lin, y_target)
-        try:
-            with torch.no_grad():
-                r = (apply(op, prediction(x)) - goal).double()
-        except NonFiniteError:
-            if self.sum_over is None:
-                raise
-            r = torch.full((len(Z), op.n_out), math.nan, dtype=torch.float64)
-        loss, rows = float(y_loss(r, torch.zeros_like(r))), len(Z)
-        R = r.cpu().numpy()
-        if self.sum_over is None and rows < Z.shape[1]:
-            # new rows, fewer than features (a minibatch): A = Z̃Z̃ᵀ is the smaller Gram; as many rows as
-            # features or more: G = Z̃ᵀZ̃, whose eigenpairs are kept should the same rows come again.
-            if not math.isfinite(loss):
-                return Update(None, {"loss": loss})
-            delta, info = hig_kron.direction_rows(fac, Z, R, self.eta, self.tau, self.exponent)
-        else:
-            G, N = hig_kron.moments(fac, Z, R, gram.kept(key))
-            if self.sum_over is not None:  # the whole batch's moments and mean loss on every rank
-                G, N, totals = self.sum_over([G, N, np.array([loss * rows, rows])])
-                loss, rows = float(totals[0] / totals[1]), int(totals[1])
-            if not (math.isfinite(loss) and np.isfinite(N).all()):
-                return Update(None, {"loss": loss})
-            delta, info = hig_kron.direction(fac, G, N, rows, self.eta, self.tau, self.exponent, gram, key)
-        return Update(hig_kron.split(lin, delta * self._unit(info), lin.layer.weight), {**info, "loss": loss})
-
-    def _fixed(self, lin, fac, gram, seen: dict, key: tuple, y_target, goal) -> Update:
-        """The step on rows taken before, from what they gave once (:mod:`.hig_fixed`): ``seen`` holds
-        the :class:`~.hig_fixed.Carried` state of the last such rows."""
-        if seen.get("key") != key:
-            _, Z = hig_kron.forward(lin, y_target)
-            a, W = gram(gram.kept(key) if gram.kept(key) is not None else Z.T @ Z, key)
-            fixed = hig_fixed.FixedRows.of(fac, Z, goal.detach().cpu().double().numpy(), a, W,
-                                           self.tau, self.exponent)
-            seen.update(key=key, carried=hig_fixed.Carried(fixed))
-        carried, layer = seen["carried"], lin.layer
-        weight = layer.weight.detach().clone() if layer.bias is None else \
-            torch.cat([layer.weight.detach(), layer.bias.detach()[:, None]], 1)  # a fresh copy it keeps
-        info = carried.fixed.info
-        delta, loss = carried.step(weight.cpu().numpy(), self.eta, self._unit(info))
-        if not math.isfinite(loss):
-            return Update(None, {"loss": loss})
-        if delta is None:  # below the weights' resolution: nothing to apply (hig_fixed)
-            return Update((None,) * len(list(layer.parameters())), {**info, "loss": loss})
-        return Update(hig_kron.split(lin, delta, layer.weight, contiguous=False), {**info, "loss": loss})
-
-    def _unit(self, info: dict) -> float:
+    def unit(self, info: dict) -> float:
         """``σ_max^-(1+e)`` with ``normalize`` (class docstring), else 1."""
         smax = info.get("sigma_max", 0.0)
         return smax ** -(1.0 + self.exponent) if self.normalize and smax > 0 else 1.0
 
-    def _route(self, b: Batch):
+    def _route(self, b: Batch, kron: Kronecker | None):
         """The first candidate route within ``max_jacobian_gb``; a ``ValueError`` naming them if none fits.
         A route other than the first is taken with a warning that names it (never silently: the
         last-layer route trains the last layer only)."""
         budget = self.max_jacobian_gb * 2**30
-        first, *others = ROUTES[self.route](self, b)
+        first, *others = ROUTES[self.route](self, b, kron)
         for route in (first, *others):
             if route.memory(b) <= budget:
                 if route is not first:
