@@ -33,6 +33,30 @@ def test_the_verdict_is_the_zero_prediction_and_without_x_the_unseen_test():
     assert failure(None, {**record, "prediction": 2.0}, 10) is None and failure(None, None, 10) is None
 
 
+def test_the_physics_of_the_data_is_judged_with_and_without_x():
+    """y_err ≥ 1 (the zero prediction's) fails with or without x; without x, predictions over 100×
+    the prior's rms amplitude fail (no field of the prior explains the data); x_err is named first."""
+    assert "y_err is 1.45" in failure(0.5, None, 10, y_err=1.45) and failure(None, None, 10, math.nan)
+    assert failure(0.5, None, 10, y_err=0.999) is None
+    assert "x_err" in failure(2.0, None, 10, y_err=1.5)
+    assert "100× the prior" not in (failure(None, None, 10, 0.01, 99.0) or "")
+    assert failure(None, None, 10, 0.01, 99.0) is None
+    assert "1.6e+08× the prior's rms amplitude" in failure(None, None, 10, 0.01, 1.6e8)
+
+
+def test_cli_data_of_another_physics_without_x_fails(tmp_path, capsys):
+    """wave_1d observations fed to heat_1d: SIP fits them (y_err 0.006) with fields 1e8 times the
+    prior's size; the run ends with exit 3 naming the amplitude, not exit 0 with garbage."""
+    x, y = pdeinv.load_problem("wave_1d", n=16).sample(200, 3)
+    np.savez(tmp_path / "wave.npz", y=y)
+    assert main(["train", "heat_1d", "--set", "n=16", "--data", str(tmp_path / "wave.npz"), "--n-test", "32",
+                 "--export-samples", "0", "--out", str(tmp_path / "run")]) == 3
+    err = capsys.readouterr().err
+    assert "the prior's rms amplitude" in err and "another physics" in err
+    m = json.loads((tmp_path / "run" / "metrics.json").read_text())
+    assert m["amplitude"] > 1e6 and "amplitude" in m["failed"]
+
+
 def test_cli_a_run_worse_than_zero_ends_with_exit_3_and_keeps_its_files(tmp_path, capsys):
     """One line on stderr naming the figure and the way out, no traceback; every file written and the
     verdict in metrics.json. With --accept-bad: exit 0, a warning, the verdict still recorded."""

@@ -21,7 +21,7 @@ import torch
 from ..errors import NonFiniteError
 from ..methods.guard import ADVICE
 from ..physics.capabilities import observes_field
-from .unseen import of_predictions
+from .unseen import amplitude, of_predictions
 from .verdict import FailedRun, failure
 
 
@@ -84,7 +84,10 @@ def metrics(trainer, run) -> dict:
     # also records under "unseen_energy" (computed twice then: cheap beside training)
     scored = last.get("x_err") is not None
     unseen = None if scored else of_predictions(trainer.problem, run.model, run.test, trainer.seed)[0]
-    metrics["failed"] = failure(metrics["x_err"], unseen, trainer.problem.N)
+    if not scored:
+        metrics["amplitude"] = amplitude(trainer.problem, run.model, run.test, trainer.seed)
+    metrics["failed"] = failure(metrics["x_err"], unseen, trainer.problem.N, metrics["y_err"],
+                                metrics.get("amplitude"))
     if metrics["failed"] and trainer.parallel.is_writer:
         warnings.warn(f"the run failed: {metrics['failed']} (metrics['failed'])", FailedRun, stacklevel=3)
     return metrics

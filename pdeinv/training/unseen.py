@@ -63,6 +63,20 @@ def unseen_energy(problem, xhat: np.ndarray, xref: np.ndarray) -> tuple[dict | N
 
 
 @torch.no_grad()
+def amplitude(problem, model, test: tuple, seed: int) -> float:
+    """``√(mean ‖x̂‖² / mean ‖x_ref‖²)``: the predictions' rms amplitude in units of the prior's (the
+    reference as in :func:`of_predictions`), for any operator."""
+    from .trainset import TEST_DATA, seed_stream
+
+    x, _, y_t = test
+    if x is None:
+        x = problem.sample(len(y_t), seed_stream(seed, TEST_DATA))[0]
+    xhat = model(y_t).double().cpu().numpy()
+    ref = float(np.mean(np.sum(np.asarray(x, dtype=float) ** 2, axis=1)))
+    return float(np.sqrt(np.mean(np.sum(xhat**2, axis=1)) / max(ref, np.finfo(float).tiny)))
+
+
+@torch.no_grad()
 def of_predictions(problem, model, test: tuple, seed: int) -> tuple[dict | None, str | None]:
     """:func:`unseen_energy` of ``model``'s predictions on a trainer's ``test = (x or None, y, y
     tensor)``; without ``x`` the reference is as many prior samples (the test stream of ``seed``)."""
