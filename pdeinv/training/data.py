@@ -257,6 +257,19 @@ class OwnData:
                          "the last n_test rows test"}
 
 
+def _no_repeats(y: np.ndarray) -> None:
+    """Refuse observations that are one row repeated; warn when rows repeat (a row in both the training
+    and the test set makes the test errors optimistic)."""
+    distinct = len(np.unique(y, axis=0))
+    if distinct == 1 and len(y) > 1:
+        raise ValueError(f"data: all {len(y)} rows are the same observation; expected distinct samples (a "
+                         "network trained on one observation learns nothing about the others)")
+    if distinct < len(y):
+        warnings.warn(f"data: {len(y) - distinct} of {len(y)} rows repeat an earlier row; a row both in the "
+                      "training and in the test set makes the test errors optimistic: drop the repeats",
+                      RuntimeWarning, stacklevel=4)
+
+
 def own_data(problem, data, data_x, n_test: int, n_val: int = 0, warn: bool = True) -> OwnData:
     """``data`` (``(B, m)`` observations) and ``data_x`` (their fields or None) checked against ``problem``
     and split by :func:`split`; ``warn``: say when the mismatch exceeds the noise, and what the default
@@ -271,6 +284,7 @@ def own_data(problem, data, data_x, n_test: int, n_val: int = 0, warn: bool = Tr
                       f"‖P x − y‖/‖y‖ over the file's rows), more than its noise level "
                       f"{problem.noise:g} explains: another simulator, grid or column order? "
                       "(--set noise=… declares noisy data)", RuntimeWarning, stacklevel=3)
+    _no_repeats(y)
     train, val, test = split(len(y), n_test, n_val)
     held = len(y) - train.stop
     if train.stop < held and warn:  # say what the default splits took

@@ -32,6 +32,9 @@ from pdeinv.util.outpaths import output_file
 
 from . import add_set_argument, build_problem, set_threads
 
+#: the exit code of solves that cannot be right (as ``pdeinv train``'s failed run)
+FAILED = 3
+
 ORDER = 2
 
 
@@ -57,10 +60,10 @@ def cmd_classical(args) -> int:
         source += " (noise-free)"
 
     def err(xh) -> dict:
-        """x-error (with x) and the relative residual ``mean ‖P x̂ − y‖/‖y‖`` (always)."""
+        """x-error (with x), the relative residual ``mean ‖P x̂ − y‖/‖y‖`` and the rms amplitude."""
         res = np.linalg.norm(problem.operator.forward(xh) - y, axis=1) / np.linalg.norm(y, axis=1)
         return {"x_err": None if x is None else float(np.mean(problem.relative_error(xh, x))),
-                "residual": float(np.mean(res))}
+                "residual": float(np.mean(res)), "amplitude": float(np.sqrt(np.mean(np.sum(xh**2, axis=1))))}
 
     zeros = np.zeros((len(y), problem.N))
     rows = {"noise": {"level": noise, "source": source}}
@@ -87,11 +90,48 @@ def cmd_classical(args) -> int:
         rows["model_mismatch"] = model_mismatch(problem.operator, x, y)
     for name, value in rows.items():
         print(f"{problem.name} {name}: {json.dumps(value)}")
+    rows["failed"] = _failed(problem, rows, x, y, noise)
     if out is not None:
         text = json.dumps({"problem": problem.name, "data": str(args.data), "rows": len(y), **rows}, indent=2)
         atomic_write(out, lambda fh: fh.write(text.encode()))
     sys.stdout.flush()
+    if rows["failed"]:
+        kind = "warning" if args.accept_bad else "error"
+        print(f"pdeinv classical: {kind}: {rows['failed']}" + ("" if args.accept_bad else
+              "; --accept-bad ends with exit code 0"), file=sys.stderr)
+        return 0 if args.accept_bad else FAILED
     return 0
+
+
+#: model mismatch ``mean ‖P x − y‖/‖y‖`` above this many times the noise level (and above
+#: :data:`MISMATCH_FLOOR`) means the file's y are not this problem's P x
+MISMATCH_FACTOR = 5.0
+MISMATCH_FLOOR = 0.05
+
+
+def _failed(problem, rows: dict, x, y, noise: float) -> str | None:
+    """Why the classical solves cannot be right, or None: with x, a model mismatch far above the noise
+    (another physics or other settings, e.g. κ) or every estimate no better than zero (x_err ≥ 1);
+    without x, estimates over :data:`pdeinv.training.verdict.AMPLITUDE` times the prior's rms amplitude."""
+    import numpy as np
+
+    from pdeinv.training.verdict import AMPLITUDE, WORSE_THAN_ZERO
+
+    mismatch = rows.get("model_mismatch")
+    if mismatch is not None and mismatch > max(MISMATCH_FACTOR * noise, MISMATCH_FLOOR):
+        return (f"the file's y differ from this problem's P x by {mismatch:.3g} (mean ‖P x − y‖/‖y‖), far "
+                f"above its noise level {noise:g}: the data come from another physics or other settings (κ, "
+                "T, the mesh?), so no estimate here means anything")
+    errs = {k: v["x_err"] for k, v in rows.items() if isinstance(v, dict) and v.get("x_err") is not None}
+    if errs and min(errs.values()) >= WORSE_THAN_ZERO:
+        return f"every classical estimate is no better than zero: x_err {min(errs.values()):.3g} at best"
+    if x is None and problem.sampler is not None:
+        ref = float(np.sqrt(np.mean(np.sum(problem.sample(len(y), 0)[0] ** 2, axis=1))))
+        worst = max((v.get("amplitude", 0.0) for v in rows.values() if isinstance(v, dict)), default=0.0)
+        if worst / max(ref, 1e-300) >= AMPLITUDE:
+            return (f"the estimates reach {worst / ref:.3g}× the prior's rms amplitude: no field of this "
+                    "problem's prior explains these observations (another physics or settings?)")
+    return None
 
 
 def add_parser(sub) -> None:
@@ -103,4 +143,9 @@ def add_parser(sub) -> None:
     c.add_argument("--out", default=None, metavar="FILE.json", help="also write the numbers as JSON")
     add_set_argument(c)
     c.add_argument("--threads", type=int, default=1, help="threads of torch and of numpy/scipy's BLAS")
+    c.add_argument("--accept-bad", action="store_true",
+                   help="exit 0 even when the solves cannot be right (else exit code 3 and one line: a model "
+                        "mismatch far above the noise, every estimate no better than zero, or estimates over "
+                        "100x the prior's amplitude without x); the numbers are printed and written either "
+                        "way")
     c.set_defaults(func=cmd_classical)

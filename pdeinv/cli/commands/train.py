@@ -91,6 +91,9 @@ def _check_flags(args, out) -> None:
                          "fits a covariance)")
     if args.n_test is not None and args.n_test < 1:
         raise UsageError(f"--n-test {args.n_test} is not allowed; expected an integer >= 1")
+    if args.data is not None and not str(args.data).strip():
+        raise UsageError("--data '' names no file; expected an .npz with y (B, m) (or drop --data to train "
+                         "on the problem's own draws)")
     if args.data and args.n_train is not None:
         raise UsageError("--n-train does not apply with --data: the file's rows train, except the last "
                          "--n-test (and the stopping rule's) rows, which are held out")
