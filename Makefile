@@ -14,7 +14,7 @@ $(BIN)/.installed: pyproject.toml
 	$(BIN)/pip install -q -e '.[test,fast]'
 	touch $@
 
-.PHONY: install demo test
+.PHONY: install demo test docs
 install: $(BIN)/.installed
 
 # the main job: SIP training on heat_2d (under a minute on 2 cores); outputs in runs/demo
@@ -24,3 +24,7 @@ demo: install
 test: install
 	$(BIN)/ruff check pdeinv problems tests benchmarks
 	$(BIN)/python -m pytest -q
+
+# the API reference from the docstrings (pdoc; in the test extra): docs/api/index.html
+docs: install
+	$(BIN)/python -m pdeinv.util.apidocs docs/api
