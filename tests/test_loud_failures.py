@@ -54,3 +54,20 @@ def test_one_observation_repeated_is_refused_and_repeats_are_named():
     with warnings.catch_warnings():
         warnings.simplefilter("error")
         own_data(p, y, None, 8, warn=False)
+
+
+def test_a_picture_of_many_samples_is_capped(tmp_path):
+    """fields.png draws at most PNG_SAMPLES rows (100 000 exported samples once made a 35 712 px tall
+    picture in 148 s); the title names the cap."""
+    import matplotlib.image as mpimg
+
+    from pdeinv.io.plots import PNG_SAMPLES, save_fields_png
+
+    p = pdeinv.load_problem("heat_1d", n=16)
+    x = p.sample(40, 0)[0]
+    v = p.disc.vertex_values(x)
+    mesh = p.disc.basis.mesh
+    few = save_fields_png(tmp_path / "few.png", mesh.p.T, mesh.t.T, {"x_true": v[:PNG_SAMPLES],
+                                                                    "x_pred": v[:PNG_SAMPLES]})
+    many = save_fields_png(tmp_path / "many.png", mesh.p.T, mesh.t.T, {"x_true": v, "x_pred": v})
+    assert mpimg.imread(many).shape[0] <= 1.2 * mpimg.imread(few).shape[0]

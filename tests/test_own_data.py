@@ -312,18 +312,18 @@ def test_cli_classical_solves_a_data_file(tmp_path, capsys):
     res = json.loads((tmp_path / "c.json").read_text())
     assert res["rows"] == 200 and res["noise"]["source"] == "estimated from the file"
     assert 0.007 < res["noise"]["level"] < 0.013
-    oracle = res["tikhonov_best_alpha"]["x_err"]
+    oracle = res["tikhonov_best_common_alpha"]["x_err"]
     assert res["tikhonov_morozov"]["x_err"] < 1.5 * oracle and res["wiener_target"]["x_err"] < 1.1 * oracle
     assert 0.005 < res["model_mismatch"] < 0.011  # the noise itself
     assert 0.005 < res["wiener_target"]["residual"] < 0.02
     assert res["prior_wiener"]["x_err"] < res["wiener_target"]["x_err"]  # the prior fills unseen modes
-    assert res["mmse_oracle"]["x_err"] <= 1.02 * min(oracle, res["prior_wiener"]["x_err"])  # the best linear
+    assert res["mmse_file_x"]["x_err"] <= 1.02 * min(oracle, res["prior_wiener"]["x_err"])  # the best linear
     assert "heat_1d tikhonov_morozov" in capsys.readouterr().out
     np.savez(tmp_path / "y.npz", y=y)
     assert main(["classical", "heat_1d", "--data", str(tmp_path / "y.npz"), "--set", "n=16",
                  "--set", "noise=0.01"]) == 0
     printed = capsys.readouterr().out
-    assert "tikhonov_best_alpha" not in printed and "mmse" not in printed
+    assert "tikhonov_best_common_alpha" not in printed and "mmse" not in printed
 
 
 def test_cli_classical_reads_a_clean_file_as_noise_free(tmp_path):

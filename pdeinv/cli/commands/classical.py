@@ -13,10 +13,13 @@ reconstructs every row with what needs no training:
 * **the prior Wiener estimate** (x-free): the same filter in the basis of ``P D``, ``D`` the prior's
   principal components (:func:`pdeinv.training.references.prior_wiener`): what the default network converges
   to where the operator is not reversible; it assumes the problem's prior describes the data;
-* with ``x``: **best-α Tikhonov** (the oracle α, chosen with the file's x), the **linear MMSE**
-  fitted on the file's own x (:func:`pdeinv.training.references.mmse`, noise variance from the level above:
-  an oracle too, the best linear estimate for data distributed as the file) and the data's
-  **model mismatch** ``mean ‖P x − y‖/‖y‖`` (:func:`pdeinv.training.data.model_mismatch`).
+* with ``x``: **Tikhonov with the best common α** (``tikhonov_best_common_alpha``: one α for every
+  row, chosen with the file's x on a grid; Morozov's α, chosen per row, can beat it), the **linear
+  MMSE fitted on the file's x** (``mmse_file_x``, :func:`pdeinv.training.references.mmse`, noise
+  variance from the level above: the best linear estimate for data distributed as the file's rows,
+  up to the sampling error of their covariance, so the prior Wiener estimate can beat it on few
+  rows) and the data's **model mismatch** ``mean ‖P x − y‖/‖y‖``
+  (:func:`pdeinv.training.data.model_mismatch`).
 
 Prints one line per solve (x-error with x, and the relative residual ``mean ‖P x̂ − y‖/‖y‖``) and
 writes them to ``--out`` (JSON) if given; x-errors are relative L²(Ω) over all the file's rows
@@ -82,11 +85,11 @@ def cmd_classical(args) -> int:
         rows["prior_wiener"] = {**err(estimate(y)), **info}
     if x is not None:
         best = references.tikhonov_best(problem, y, x)
-        rows["tikhonov_best_alpha"] = {"x_err": best["x_err"], "alpha_rel": best["alpha_rel"]}
+        rows["tikhonov_best_common_alpha"] = {"x_err": best["x_err"], "alpha_rel": best["alpha_rel"]}
         if len(x) >= 2:  # the linear MMSE with the file's own x as the prior: an oracle like the α above
             sigma2 = noise**2 * float(np.mean(problem.operator.forward(x) ** 2))
             estimate, info = references.mmse(problem, x, sigma2)
-            rows["mmse_oracle"] = {**err(estimate(y)), "sigma2_rule": info["sigma2_rule"]}
+            rows["mmse_file_x"] = {**err(estimate(y)), "sigma2_rule": info["sigma2_rule"]}
         rows["model_mismatch"] = model_mismatch(problem.operator, x, y)
     for name, value in rows.items():
         print(f"{problem.name} {name}: {json.dumps(value)}")
