@@ -165,6 +165,10 @@ class Trainer:
     _own: OwnData | None = field(default=None, init=False, repr=False)
     _saved_step: int | None = field(default=None, init=False, repr=False)
     _rule: object = field(default=None, init=False, repr=False)
+    #: seconds of each set-up phase of the last :meth:`fit` (``metrics["setup"]``): network (when built
+    #: here), samples (training and test draws), fit (input transform and target), rule (its state and
+    #: calibration), stop (the stopping rule's held-out draws)
+    setup: dict = field(default_factory=dict, init=False)
 
     def __post_init__(self):
         if self.steps is None and self.time_budget is None:
@@ -225,19 +229,31 @@ class Trainer:
 
     def _start(self) -> _Run:
         """Model on ``device``, data, preconditioning, rule and stopping states, batch order; resumed."""
+        clock, self.setup = time.perf_counter(), {}
+
+        def lap(phase):
+            nonlocal clock
+            now = time.perf_counter()
+            self.setup[phase] = self.setup.get(phase, 0.0) + now - clock
+            clock = now
+
         if self.model is None:
             torch.manual_seed(self.seed)
             self.model = self.problem.model(**self._network_settings())
+            lap("network")
         self.dtype = self.dtype or getattr(next(iter(self.model.parameters()), None), "dtype", torch.float32)
         model = self.model.to(device=self.device, dtype=self.dtype)
         if self.checkpoint is not None:
             ckpts.check_resumable(self.rule)
         y_np, y_train, test = self._data()
+        lap("samples")
         fields = lambda: training_fields(self.problem, self._own, self.n_train, self.seed)  # noqa: E731
         t_train, self._target_info = fit_inputs(self.problem, self.rule, self.target, model, y_np, y_train,
                                                 self.fit_scaling, fields)
+        lap("fit")
         stop_state = None if self.stop is None else self.stop.init(
             self.problem, y_np, stop_rows(self.problem, self._own, self.stop.n_val, self.seed))
+        lap("stop")
         self.parallel.check_same("run", lambda: {
             **self.identity(model), "steps": self.steps, "time_budget": self.time_budget,
             "eval_every": self.eval_every, "resume": self.resume, "stop": getattr(self.stop, "name", None)})
@@ -247,6 +263,7 @@ class Trainer:
         calibrate = getattr(self._rule, "calibrate", None)  # e.g. SIP's proxy curvature, on the first batch
         if callable(calibrate):
             run.state = calibrate(run.state, model, y_train[run.at.order[:self.batch_size]])
+        lap("rule")
         self.history = []
         if self.resume:
             saved = ckpts.load_to_resume(self.checkpoint, self.identity(model), self.steps)
@@ -255,6 +272,7 @@ class Trainer:
         if run.at.y_err0 is None:  # a fresh run (a resumed one keeps its starting point's)
             start = self.evaluate(model, test)["y_err"]
             run.at.y_err0 = start if math.isfinite(start) else 1.0
+        lap("evaluate")
         return run
 
     def _reject(self, run: _Run, err: NonFiniteError, bar, failed: int) -> None:
@@ -323,6 +341,7 @@ class Trainer:
         bar.close()
         prior = self._fit_prior(run)
         record = metrics(self, run)
+        record["setup"] = {k: round(v, 3) for k, v in self.setup.items()}
         if prior is not None:
             record["prior_fit"] = prior
         record["unseen_energy"], warning = of_predictions(self.problem, run.model, run.test, self.seed)
