@@ -25,9 +25,10 @@ Without any of these (other systems) nothing is refused.
   :data:`pdeinv.solvers.AMG_CROSSOVER` the heat operators use AMG-CG, whose hierarchy is
   ~0.3 kB per node (2-D and 3-D).
 * sensors: the observation vector of one sample (records × sensors) and the sensor matrix.
-* training: the training and test sets (x and y in float64, y again in float32), the
-  network (parameters, gradients and two Adam moments: 16 bytes each in float32) and the
-  activations of one batch.
+* training (:func:`run_bytes`): the data sets and the prior fit's draws, the network that ``--net`` /
+  ``--hidden`` actually builds (value, gradient and two Adam moments per parameter in its dtype, its
+  buffers, and what building it needs on top), one batch through network and physics, the
+  generic Tikhonov CG inverse's ``(B, N)`` arrays and bounded history, and HIG's stacked Jacobian.
 """
 
 from __future__ import annotations
@@ -120,22 +121,59 @@ def training_bytes(n_obs: int, n_unknowns: int, n_train: int, n_test: int, n_par
     return data + 16 * n_params + 16 * batch * widest
 
 
-def check_training(problem, n_train: int, n_test: int, batch: int, hidden=None) -> None:
-    """Refuse a training run whose data sets and network would not fit.
+#: bytes per trained parameter beyond its value: its gradient and two Adam moments (an upper bound for
+#: SGD), in the parameter's dtype: value + gradient + 2 moments = 4 × dtype bytes
+STATE_COPIES = 4
 
-    ``hidden``: the widths of the MLP the run builds; ``None``: the problem's default
-    network (:func:`pdeinv.nets.default_size`: ``n_obs² + n_obs · n_unknowns`` for the whitened
-    linear map, ``O(k²) + (n_obs + n_unknowns)·k`` for the reduced network on large meshes).
+
+def run_bytes(problem, n_train: int, n_test: int, batch: int, hidden=None, net: str = "default",
+              method: str | None = None, n_val: int = 0, prior_draws: int = 0) -> dict:
+    """What a training run will allocate, by part (bytes; each an upper bound to a small factor):
+
+    * ``data``: training, test and stopping rows (``x``, ``y`` in float64, ``y`` again in the network's
+      dtype) and the prior fit's draws (``x``, ``y``);
+    * ``network``: the network ``--net`` / ``--hidden`` builds (:func:`pdeinv.nets.network_size`): its
+      buffers, and per trained parameter its value, gradient and two optimizer moments;
+    * ``network build``: what building it needs on top (the prior decoder's draws and Gram matrix);
+    * ``batch``: one batch's activations (×4 for the backward pass) and its fields and observations
+      through the physics (``x``, ``y``, residual, the local inverse's result: float64);
+    * ``inverse``: the generic Tikhonov CG inverse (:class:`pdeinv.inverse.TikhonovCG`, where the operator
+      has no spectral basis): its ten ``(B, N)`` work arrays and its bounded reorthogonalization history;
+    * ``HIG Jacobian``: HIG's stacked Jacobian on a network that is not linear in its parameters, at most
+      its budget (:data:`HIG_JACOBIAN_GB`; HIG refuses or goes matrix-free above it).
     """
-    m, n = problem.operator.n_out, problem.operator.n_in
-    if hidden:
-        params = network_parameters(m, n, hidden)
-        widest = max(m, n, *hidden)
-    else:  # the default network's own count (whitened linear map, or the reduced network on big meshes)
-        from .nets import default_size
+    from .inverse import TikhonovCG
+    from .nets import network_size
 
-        params, widest = default_size(problem)
-    need = training_bytes(m, n, n_train, n_test, params, batch, widest)
-    check(need, f"training {problem.name} ({n_train} + {n_test} samples of {m} observations and {n} "
-                f"unknowns, a network of {params:.3g} parameters)",
-          "use a smaller --n-train / --n-test, --hidden or --batch-size, or a coarser mesh")
+    m, n = problem.operator.n_out, problem.operator.n_in
+    size = network_size(problem, "mlp" if hidden else net, hidden)
+    d = size["dtype_bytes"]
+    rows = n_train + n_test + n_val
+    parts = {
+        "data": rows * (8 * (m + n) + d * m) + prior_draws * 8 * (m + n),
+        "network": STATE_COPIES * d * size["params"] + d * size["buffers"],
+        "network build": size["build"],
+        "batch": 4 * d * batch * size["widest"] + 8 * batch * (3 * n + 2 * m),
+    }
+    inverse = getattr(problem, "inverse_simulator", None)
+    if method in (None, "sip") and isinstance(inverse, TikhonovCG):
+        parts["inverse"] = inverse.memory_bytes(batch)
+    linear_net = not hidden and getattr(problem, "model_factory", None) is None
+    if method == "hig" and not linear_net:  # the default networks take the Kronecker route: no J
+        parts["HIG Jacobian"] = min(8.0 * batch * m * size["params"], HIG_JACOBIAN_GB * 2**30)
+    return parts
+
+
+def check_training(problem, n_train: int, n_test: int, batch: int, hidden=None, net: str = "default",
+                   method: str | None = None, n_val: int = 0, prior_draws: int = 0) -> dict:
+    """Refuse a training run whose parts (:func:`run_bytes`) would not fit, before any of them is
+    allocated, with the estimate, its largest parts and the budget in one line; returns the parts."""
+    parts = run_bytes(problem, n_train, n_test, batch, hidden, net, method, n_val, prior_draws)
+    m, n = problem.operator.n_out, problem.operator.n_in
+    top = sorted(parts.items(), key=lambda kv: -kv[1])[:3]
+    what = ", ".join(f"{k} {v / GB:.3g}" for k, v in top)
+    size_net = f"--hidden {','.join(map(str, hidden))}" if hidden else f"--net {net}"
+    check(sum(parts.values()), f"training {problem.name} ({n_train} + {n_test} samples of {m} observations "
+                               f"and {n} unknowns, {size_net}; GB: {what})",
+          "use a smaller --n-train / --n-test or --batch-size, another --net or --hidden, or a coarser mesh")
+    return parts
