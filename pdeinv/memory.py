@@ -7,8 +7,9 @@ check estimates the bytes a step will need and raises :class:`MemoryBudgetError`
 what to change when the estimate exceeds the budget.
 
 **Budget:** ``set_budget(gb)`` (the CLI's ``--max-memory-gb``) or the environment variable
-``PDEINV_MAX_MEMORY_GB``; otherwise half of the memory available now (``MemAvailable`` in
-``/proc/meminfo``, else ``os.sysconf``), leaving the rest to the OS and other programs.
+``PDEINV_MAX_MEMORY_GB``; otherwise 90 % of the memory available now (``MemAvailable`` in
+``/proc/meminfo``, else ``os.sysconf``; :data:`AVAILABLE_SHARE`): the estimates are upper bounds, so
+the machine's free memory itself is the limit (it was half of it, which refused runs that fit).
 Without any of these (other systems) nothing is refused.
 
 **Estimates** are rough upper bounds, good to a small factor, not exact accounting:
@@ -43,6 +44,10 @@ HIG_JACOBIAN_GB = 4.0
 
 #: bytes per mesh node (P1) for the mesh, matrices, factorization and modal basis, by dimension
 BYTES_PER_NODE = {1: 2_000, 2: 20_000, 3: 60_000}
+
+#: the default budget's share of the memory available now (``MemAvailable``): the machine's free memory
+#: (issue 35), less a margin for what the estimates do not count (Python, torch, the OS's caches)
+AVAILABLE_SHARE = 0.9
 
 _budget_gb: float | None = None
 
@@ -91,7 +96,8 @@ def budget() -> tuple[float, str]:
     avail = available_bytes()
     if avail is None:
         return math.inf, "unknown available memory"
-    return avail / 2, f"half of the {avail / GB:.3g} GB available; raise it with --max-memory-gb"
+    return AVAILABLE_SHARE * avail, (f"{AVAILABLE_SHARE:.0%} of the {avail / GB:.3g} GB available; "
+                                     "set it with --max-memory-gb")
 
 
 def check(nbytes: float, what: str, fix: str) -> None:
@@ -168,12 +174,16 @@ def check_training(problem, n_train: int, n_test: int, batch: int, hidden=None, 
                    method: str | None = None, n_val: int = 0, prior_draws: int = 0) -> dict:
     """Refuse a training run whose parts (:func:`run_bytes`) would not fit, before any of them is
     allocated, with the estimate, its largest parts and the budget in one line; returns the parts."""
+    from .nets import network_size
+
     parts = run_bytes(problem, n_train, n_test, batch, hidden, net, method, n_val, prior_draws)
     m, n = problem.operator.n_out, problem.operator.n_in
     top = sorted(parts.items(), key=lambda kv: -kv[1])[:3]
     what = ", ".join(f"{k} {v / GB:.3g}" for k, v in top)
+    params = network_size(problem, "mlp" if hidden else net, hidden)["params"]
     size_net = f"--hidden {','.join(map(str, hidden))}" if hidden else f"--net {net}"
     check(sum(parts.values()), f"training {problem.name} ({n_train} + {n_test} samples of {m} observations "
-                               f"and {n} unknowns, {size_net}; GB: {what})",
+                               f"and {n} unknowns, {size_net}: a network of {params:.3g} parameters; "
+                               f"GB: {what})",
           "use a smaller --n-train / --n-test or --batch-size, another --net or --hidden, or a coarser mesh")
     return parts

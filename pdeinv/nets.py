@@ -386,12 +386,12 @@ def network_size(problem, kind: str = "default", hidden=None) -> dict:
     itemsize = torch.finfo(DTYPE).bits // 8
 
     def whitened_size(k):
-        return {"params": k * n + n, "buffers": m * k + k + m, "build": 8 * (m + k) * min(m, 4096)}
+        return {"params": k * n + n, "buffers": m * k + k + m + 1, "build": 8 * (m + k) * min(m, 4096)}
 
     def reduced_size():
         k_in, k_out = min(REDUCED_K_IN, m), min(REDUCED_K, n)
         draws = 4 * k_out  # prior_basis: 4k draws of the prior, their Gram matrix, QR of N × k
-        return {"params": k_in * k_out + k_out, "buffers": m * k_in + k_in + m + n * k_out,
+        return {"params": k_in * k_out + k_out, "buffers": m * k_in + k_in + m + 1 + n * k_out,
                 "build": 8 * (draws * n + draws**2 + 2 * n * k_out)}
 
     if hidden:

@@ -67,8 +67,9 @@ def check_run(problem, args, hp: dict) -> None:
     from pdeinv.trainset import N_TRAIN
 
     n_train = args.n_train or N_TRAIN
-    memory.check_training(problem, n_train, args.n_test, hp["batch_size"] or n_train,
-                          hp["hidden"])
+    memory.check_training(problem, n_train, args.n_test, hp["batch_size"] or n_train, hp["hidden"],
+                          net=getattr(args, "net", "default"), method=args.method, n_val=128,
+                          prior_draws=_prior_draws(problem, args))
     # the default networks (no --hidden, no network of the problem's own) are linear in θ: HIG takes
     # its Kronecker route there, which never forms J (pdeinv.methods.hig_kron): nothing to estimate
     default_net = not hp["hidden"] and getattr(problem, "model_factory", None) is None
@@ -104,6 +105,23 @@ def check_run(problem, args, hp: dict) -> None:
     if args.export_samples > args.n_test:
         print(f"pdeinv train: warning: --export-samples {args.export_samples} is more than the "
               f"{args.n_test} test samples (--n-test); exporting {args.n_test}", file=sys.stderr)
+
+
+def _prior_draws(problem, args) -> int:
+    """The prior draws the trainer will hold for the default network's prior fit (0 without one):
+    ``Trainer._fit_prior``'s ``min(prior_draws, max(256, PRIOR_ENTRIES // N))``."""
+    import os
+
+    from pdeinv.trainer import PRIOR_ENTRIES, Trainer
+
+    seconds = args.prior_fit if args.prior_fit is not None else os.environ.get("PDEINV_PRIOR_FIT", "300")
+    try:
+        on = float(seconds) > 0
+    except ValueError:
+        on = True  # the trainer's own check refuses it with its message
+    if not on or getattr(args, "net", "default") != "default" or args.hidden:
+        return 0
+    return min(Trainer.prior_draws, max(256, PRIOR_ENTRIES // max(problem.N, 1)))
 
 
 def steps(args, hp: dict | None = None) -> int | None:
