@@ -18,7 +18,6 @@ import numpy as np
 
 from .._checks import choice, count, positive
 from ..solvers import default_solver, solver_for
-from . import modes
 from .modal import weyl_count
 from .modes import largest_eigenvalue
 from .propagator import FinalField, Propagator
@@ -68,12 +67,8 @@ class Heat(Propagator):
         count of the Laplacian's eigenvalues below ``μ/κ`` (an over-count, on the safe side).
         Weyl's law, a continuum count, over-counts coarse 3-D meshes by 2-3x (heat_3d n=24: 3 963
         against 1 875), which made the modal basis look unaffordable or sized its eigensolve 2x."""
-        if self.symmetric and self.n_in > modes.DENSE_MAX:
-            counted = self.__dict__.setdefault("_counts", {})
-            if mu not in counted:
-                counted[mu] = float(modes.count_below(self.scheme.M, self.scheme.L, mu))
-            return counted[mu]
-        return weyl_count(self, mu / self.kappa)
+        exact = self.exact_count(mu)
+        return weyl_count(self, mu / self.kappa) if exact is None else float(exact)
 
     def max_gain_squared(self) -> float | None:
         """``λ_max(P*P) = max g²`` over all modes (``|r(dt μ)|ⁿ`` is extremal at the lowest or the

@@ -114,14 +114,17 @@ class Modal(Spectral):
                 raise ValueError(f"Crank–Nicolson barely damps the highest mode (|r|ⁿ = "
                                  f"{np.exp(log_g(top)):.1e} ≥ tol={op.tol}): the modal backend would need "
                                  "all modes; use backend='steps' or scheme='be'")
-        k_guess = math.ceil(1.1 * op.count_modes(cutoff(op)) + 10)  # Weyl's count, plus 10% and 10
+        k_guess = math.ceil(1.1 * op.count_modes(cutoff(op)) + 10)  # the count, plus 10% and 10
+        # with the exact count of eigenvalues below the absolute cut-off (gain ≥ tol), the Krylov method
+        # keeps at least those (the relative cut, gain ≥ tol·max gain, keeps as many or more)
+        at_least = op.exact_count(cutoff(op)) or 0
         N = sc.M.shape[0]
         dense = _modes.route(N, k_guess) == "dense"
         settings = {"dt": sc.dt, "theta": sc.theta, "steps": n, "tol": op.tol, "dense": dense, "k": k_guess,
-                    "method": "block-krylov/1"}
+                    "method": "block-krylov/2"}
 
         def build():  # the lowest mode is the least damped one (|r| decreases on the damped branch)
-            lam, Phi = lowest_modes(sc.M, sc.L, log_g, log_tol, k=k_guess)
+            lam, Phi = lowest_modes(sc.M, sc.L, log_g, log_tol, k=k_guess, at_least=at_least)
             return {"lam": lam, "Phi": Phi}
 
         def verify(a):
