@@ -127,26 +127,32 @@ def training_bytes(n_obs: int, n_unknowns: int, n_train: int, n_test: int, n_par
     return data + 16 * n_params + 16 * batch * widest
 
 
-#: bytes per trained parameter beyond its value: its gradient and two Adam moments (an upper bound for
-#: SGD), in the parameter's dtype: value + gradient + 2 moments = 4 × dtype bytes
-STATE_COPIES = 4
+#: copies per trained parameter in its dtype: value, gradient and, with Adam, two moments
+STATE_COPIES = {"adam": 4, "sgd": 2}
 
 
 def run_bytes(problem, n_train: int, n_test: int, batch: int, hidden=None, net: str = "default",
-              method: str | None = None, n_val: int = 0, prior_draws: int = 0) -> dict:
-    """What a training run will allocate, by part (bytes; each an upper bound to a small factor):
+              method: str | None = None, n_val: int = 0, prior_draws: int = 0,
+              optimizer: str = "adam") -> dict:
+    """What a training run will hold at its peak, by part (bytes; each an upper bound to a small factor):
 
     * ``data``: training, test and stopping rows (``x``, ``y`` in float64, ``y`` again in the network's
-      dtype) and the prior fit's draws (``x``, ``y``);
-    * ``network``: the network ``--net`` / ``--hidden`` builds (:func:`pdeinv.nets.network_size`): its
-      buffers, and per trained parameter its value, gradient and two optimizer moments;
-    * ``network build``: what building it needs on top (the prior decoder's draws and Gram matrix);
-    * ``batch``: one batch's activations (×4 for the backward pass) and its fields and observations
-      through the physics (``x``, ``y``, residual, the local inverse's result: float64);
+      dtype) and the prior fit's draws (``x``, ``y``), all alive at the prior fit;
+    * ``network``: the network ``--net`` / ``--hidden`` builds (:func:`pdeinv.nets.network_size`; the
+      default's decoder-or-fallback counted as the larger): its buffers, and per trained parameter its
+      value, gradient and, with Adam (``optimizer``; GD and Adam rules: Adam), two moments;
+    * ``batch``: one batch through network and physics: the output and its gradient at the widest layer,
+      and ``x``, ``y``, the residual and the local inverse's result (float64);
+    * ``set-up``: the larger of what building the network needs on top (the prior decoder's draws and Gram
+      matrix) and the whitening fit's SVD of the training observations (three ``(n, m)`` arrays): they
+      come one after the other and are freed before training;
     * ``inverse``: the generic Tikhonov CG inverse (:class:`pdeinv.inverse.TikhonovCG`, where the operator
       has no spectral basis): its ten ``(B, N)`` work arrays and its bounded reorthogonalization history;
     * ``HIG Jacobian``: HIG's stacked Jacobian on a network that is not linear in its parameters, at most
       its budget (:data:`HIG_JACOBIAN_GB`; HIG refuses or goes matrix-free above it).
+
+    Measured against the peak RSS of ``pdeinv train heat_2d --set n=256`` (one SIP step, the reduced
+    default network): 7.2 GB, this estimate 11 GB (docs/scaling.md).
     """
     from .inverse import TikhonovCG
     from .nets import network_size
@@ -154,12 +160,12 @@ def run_bytes(problem, n_train: int, n_test: int, batch: int, hidden=None, net: 
     m, n = problem.operator.n_out, problem.operator.n_in
     size = network_size(problem, "mlp" if hidden else net, hidden)
     d = size["dtype_bytes"]
-    rows = n_train + n_test + n_val
+    copies = STATE_COPIES["sgd" if method == "sip" and optimizer == "sgd" else "adam"]
     parts = {
-        "data": rows * (8 * (m + n) + d * m) + prior_draws * 8 * (m + n),
-        "network": STATE_COPIES * d * size["params"] + d * size["buffers"],
-        "network build": size["build"],
-        "batch": 4 * d * batch * size["widest"] + 8 * batch * (3 * n + 2 * m),
+        "data": (n_train + n_test + n_val) * (8 * (m + n) + d * m) + prior_draws * 8 * (m + n),
+        "network": copies * d * size["params"] + d * size["buffers"],
+        "batch": 2 * d * batch * size["widest"] + 8 * batch * (n + 2 * m),
+        "set-up": max(size["build"], 3 * 8 * n_train * m),
     }
     inverse = getattr(problem, "inverse_simulator", None)
     if method in (None, "sip") and isinstance(inverse, TikhonovCG):
@@ -171,12 +177,13 @@ def run_bytes(problem, n_train: int, n_test: int, batch: int, hidden=None, net: 
 
 
 def check_training(problem, n_train: int, n_test: int, batch: int, hidden=None, net: str = "default",
-                   method: str | None = None, n_val: int = 0, prior_draws: int = 0) -> dict:
+                   method: str | None = None, n_val: int = 0, prior_draws: int = 0,
+                   optimizer: str = "adam") -> dict:
     """Refuse a training run whose parts (:func:`run_bytes`) would not fit, before any of them is
     allocated, with the estimate, its largest parts and the budget in one line; returns the parts."""
     from .nets import network_size
 
-    parts = run_bytes(problem, n_train, n_test, batch, hidden, net, method, n_val, prior_draws)
+    parts = run_bytes(problem, n_train, n_test, batch, hidden, net, method, n_val, prior_draws, optimizer)
     m, n = problem.operator.n_out, problem.operator.n_in
     top = sorted(parts.items(), key=lambda kv: -kv[1])[:3]
     what = ", ".join(f"{k} {v / GB:.3g}" for k, v in top)

@@ -385,8 +385,8 @@ def network_size(problem, kind: str = "default", hidden=None) -> dict:
     m, n = problem.operator.n_out, problem.operator.n_in
     itemsize = torch.finfo(DTYPE).bits // 8
 
-    def whitened_size(k):
-        return {"params": k * n + n, "buffers": m * k + k + m + 1, "build": 8 * (m + k) * min(m, 4096)}
+    def whitened_size(k):  # built as an identity basis and a linear layer: nothing on top
+        return {"params": k * n + n, "buffers": m * k + k + m + 1, "build": 0}
 
     def reduced_size():
         k_in, k_out = min(REDUCED_K_IN, m), min(REDUCED_K, n)
@@ -411,7 +411,7 @@ def network_size(problem, kind: str = "default", hidden=None) -> dict:
             red, fall = reduced_size(), whitened_size(min(m, n, FALLBACK_COMPONENTS))
             # the decoder is built first; a decoder that misses the prior falls back to the whitened map
             size = {k: max(red[k], fall[k]) for k in ("params", "buffers")}
-            size["build"] = red["build"] + 8 * (red["params"] + red["buffers"]) + fall["build"]
+            size["build"] = red["build"]
         else:
             size = whitened_size(min(m, n))
         if kind == "default":  # the correction (pdeinv.refine): U-Net parameters (trained) and grid maps

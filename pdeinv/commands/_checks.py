@@ -69,7 +69,7 @@ def check_run(problem, args, hp: dict) -> None:
     n_train = args.n_train or N_TRAIN
     memory.check_training(problem, n_train, args.n_test, hp["batch_size"] or n_train, hp["hidden"],
                           net=getattr(args, "net", "default"), method=args.method, n_val=128,
-                          prior_draws=_prior_draws(problem, args))
+                          prior_draws=_prior_draws(problem, args), optimizer=hp.get("optimizer") or "adam")
     # the default networks (no --hidden, no network of the problem's own) are linear in θ: HIG takes
     # its Kronecker route there, which never forms J (pdeinv.methods.hig_kron): nothing to estimate
     default_net = not hp["hidden"] and getattr(problem, "model_factory", None) is None
