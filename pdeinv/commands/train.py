@@ -246,7 +246,7 @@ def _parallel_train(args, out, ckpt, device, parallel) -> int:
     set_threads(args.threads)
     no_cache(args)
     overrides = parse_sets(args.set)
-    t_build = time.perf_counter()
+    t_build, c_build = time.perf_counter(), time.process_time()
     problem = build_problem("train", args.problem, args.set, steps=args.steps)  # says so when slow
     y, x = read_npz(args.data, problem.operator.n_out, problem.N) if args.data else (None, None)
     meta = read_meta(args.data, problem.points) if args.data else {}
@@ -271,16 +271,18 @@ def _parallel_train(args, out, ckpt, device, parallel) -> int:
         args.set = [*args.set, f"noise={level:.2g}"]  # run.json and --resume see the level trained with
         overrides = parse_sets(args.set)
         problem = build_problem("train", args.problem, args.set, steps=args.steps)
-    setup = {"build": time.perf_counter() - t_build}  # metrics.json "setup", with the trainer's phases
+    # metrics.json "setup" (wall seconds) and "setup_cpu" (CPU seconds), with the trainer's phases
+    setup = {"build": time.perf_counter() - t_build}
+    setup_cpu = {"build": time.process_time() - c_build}
     rule, hp = make_rule(args.method, problem, problem.noise, lr=args.lr, eta=args.eta, tau=args.tau,
                          batch_size=args.batch_size, hidden=hidden, optimizer=args.optimizer)
     _checks.check_run(problem, args, hp)  # memory, HIG step time, --export-samples (before allocating)
     stop = STOPS[args.stop](problem)
     torch.manual_seed(args.seed)
     net = _network_spec(problem, hp, args.net, bool(args.data))
-    t_net = time.perf_counter()
+    t_net, c_net = time.perf_counter(), time.process_time()
     model = network(problem, net)
-    setup["network"] = time.perf_counter() - t_net
+    setup["network"], setup_cpu["network"] = time.perf_counter() - t_net, time.process_time() - c_net
     trainer = Trainer(problem, rule, model, steps=_checks.steps(args, hp),
                       time_budget=args.time_budget,
                       n_train=args.n_train or N_TRAIN, n_test=args.n_test, batch_size=hp["batch_size"],
@@ -295,7 +297,7 @@ def _parallel_train(args, out, ckpt, device, parallel) -> int:
         return FAILED if failed and not args.accept_bad else 0
     prepare_out(out)
     try:
-        return _run(args, out, problem, overrides, net, hp, trainer, fresh, setup)
+        return _run(args, out, problem, overrides, net, hp, trainer, fresh, (setup, setup_cpu))
     except FileNotFoundError:  # e.g. --resume without a checkpoint: bad input (exit 2)
         raise
     except OSError as err:  # a full disk, no permission: not the input's fault, not numerical
@@ -331,10 +333,14 @@ def _run(args, out, problem, overrides, net, hp, trainer, fresh, setup=None) -> 
             print(f"pdeinv train: interrupted; {saved}", file=sys.stderr)
             return 130
         fresh()
-        phases = {k: round(v, 3) for k, v in (setup or {}).items()}
-        phases.update({k: v + phases.get(k, 0.0) for k, v in result.metrics.get("setup", {}).items()})
-        phases["total"] = round(sum(phases.values()), 3)  # build + samples + network fitting, seconds
-        metrics = {**result.metrics, "setup": phases, "method": args.method, "hyperparameters": hp,
+        timed = {}
+        for key, mine in zip(("setup", "setup_cpu"), setup or ({}, {})):
+            phases = {k: round(v, 3) for k, v in mine.items()}
+            theirs = result.metrics.get(key, {})
+            phases.update({k: round(v + phases.get(k, 0.0), 3) for k, v in theirs.items()})
+            phases["total"] = round(sum(phases.values()), 3)  # build + samples + network fitting, seconds
+            timed[key] = phases
+        metrics = {**result.metrics, **timed, "method": args.method, "hyperparameters": hp,
                    "settings": {k: v for k, v in problem.settings.items()},
                    "route": result.history[-1].get("route"), "torch_threads": torch.get_num_threads()}
         if args.data:
