@@ -77,3 +77,56 @@ def test_a_rank_deficient_block_keeps_its_range():
     assert np.allclose(V @ B, W, atol=1e-12)
     assert np.abs(V.T @ d.M @ V - np.eye(4)).max() <= 1e-12
     assert np.abs(basis.MQ[:, :basis.m].T @ V).max() <= 1e-12
+
+
+def test_count_below_is_the_exact_eigenvalue_count_and_weyl_overcounts_3d():
+    """Sylvester's inertia of ``K − λM`` (one sparse LU) counts the discrete eigenvalues below ``λ``
+    exactly; on a coarse 3-D mesh Weyl's continuum count is 2-3x more, so the heat operator sizes its
+    modal eigensolve by the inertia count beyond ``DENSE_MAX``."""
+    import scipy.linalg as la
+
+    from pdeinv.physics.backends.modal import weyl_count
+
+    d = pdeinv.discretize(pdeinv.fem.mesh.unit_cube(10))  # 729 unknowns
+    lam = la.eigh(d.K.toarray(), d.M.toarray(), eigvals_only=True)
+    for cut in (50.0, 700.0, 3800.0):
+        assert modes.count_below(d.M, d.K, cut) == int((lam < cut).sum())
+    heat = Heat(d.M, d.K, backend="steps", measure=d.measure, dim=3)
+    assert weyl_count(heat, 3800.0) > 2 * int((lam < 3800.0).sum())
+
+
+def test_count_modes_uses_the_inertia_count_beyond_the_dense_size(monkeypatch):
+    d = pdeinv.discretize(pdeinv.fem.mesh.unit_cube(8))
+    heat = Heat(d.M, d.K, backend="steps", measure=d.measure, dim=3, kappa=0.01)
+    weyl = heat.count_modes(38.0)
+    monkeypatch.setattr(modes, "DENSE_MAX", 10)
+    lam = np.linalg.eigvalsh(np.linalg.solve(np.linalg.cholesky(d.M.toarray()),
+                                             np.linalg.solve(np.linalg.cholesky(d.M.toarray()),
+                                                             heat.scheme.L.toarray()).T))
+    exact = heat.count_modes(38.0)
+    assert exact == int((lam < 38.0).sum()) < weyl
+
+
+def test_route_takes_the_dense_eigh_where_the_krylov_basis_would_be_most_of_the_space():
+    """Dense up to DENSE_MAX; between it and DENSE_EIGH_MAX by cost; no Krylov for k > N/2."""
+    assert modes.route(1000, 900) == "dense"
+    assert modes.route(3969, 300) == "krylov"  # heat_2d n=64: a few hundred of 3 969
+    assert modes.route(3375, 1417) == "dense"  # heat_3d n=16: 4N(3k)² > 9N³
+    assert modes.route(modes.DENSE_EIGH_MAX + 1, modes.DENSE_EIGH_MAX) is None
+    assert modes.route(12167, 2000) == "krylov"
+
+
+def test_the_geometric_checks_give_the_same_modes_on_a_3d_mesh(monkeypatch):
+    """The block Krylov method (checks at geometrically growing bases, started from the exact count)
+    against the dense eigh on a 3-D mesh where Weyl over-counts: the same operator to 1e-10."""
+    d = pdeinv.discretize(pdeinv.fem.mesh.unit_cube(12))  # 1331 unknowns
+    heat = Heat(d.M, d.K, backend="steps", measure=d.measure, dim=3, kappa=0.01, tol=1e-8)
+    monkeypatch.setenv("PDEINV_NO_CACHE", "1")
+    dense = Modal(heat)
+    monkeypatch.setattr(modes, "DENSE_MAX", 10)
+    heat._counts = {}
+    sparse = Modal(heat)
+    assert dense.k - 3 <= sparse.k <= dense.k and sparse.k > 100
+    x = np.random.default_rng(2).standard_normal((3, heat.n_in))
+    ys = dense.forward(x)
+    assert np.linalg.norm(sparse.forward(x) - ys) / np.linalg.norm(ys) <= 1e-10

@@ -168,14 +168,16 @@ def test_the_reduced_network_is_selectable_by_name_in_a_run_record():
 @pytest.mark.parametrize("n", [8, 200])
 def test_whitening_with_k_components_keeps_the_leading_directions(n):
     """components=k: basis (m, k) with orthonormal columns, the k leading PCA directions first;
-    with fewer samples than k the unvisited directions are completed and dropped (gain 0)."""
+    with fewer samples than k the unvisited directions are zero columns and dropped (gain 0)."""
     rng = np.random.default_rng(0)
     m, k = 40, 12
     scales = np.logspace(0, -3, m)
     y = rng.standard_normal((n, m)) * scales
     w = Whitening(m, components=k).double().fit(y)
     U, g = w.basis.numpy(), w.gain.numpy()
-    assert U.shape == (m, k) and np.allclose(U.T @ U, np.eye(k), atol=1e-10)
+    visited = min(k, n)  # the thin SVD's directions; the rest are zero columns (gain 0, never seen)
+    assert U.shape == (m, k) and np.allclose(U[:, :visited].T @ U[:, :visited], np.eye(visited), atol=1e-10)
+    assert np.all(U[:, visited:] == 0)
     full = Whitening(m).double().fit(y)
     lead = min(k, n - 1)
     assert np.allclose(np.abs(U[:, :lead].T @ full.basis.numpy()[:, :lead]), np.eye(lead), atol=1e-8)

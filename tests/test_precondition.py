@@ -90,7 +90,9 @@ def test_rank_deficient_data_drops_the_unvisited_directions():
     w = Whitening(30).double().fit(y)
     assert w.info["kept"] == 9  # centred: rank n − 1
     assert w.basis.shape == (30, 30)
-    assert np.allclose(w.basis.numpy().T @ w.basis.numpy(), np.eye(30), atol=1e-12)
+    B = w.basis.numpy()[:, :10]  # the n data directions (the centred rank n − 1, and one more)
+    assert np.allclose(B.T @ B, np.eye(10), atol=1e-12)
+    assert np.all(w.gain.numpy()[9:] == 0)  # the unvisited directions are never seen: zero columns
     z = w(torch.as_tensor(np.random.default_rng(0).standard_normal((5, 30)))).numpy()
     assert np.isfinite(z).all() and np.all(z[:, 9:] == 0)
 

@@ -1,4 +1,4 @@
-"""The energy a trained network puts where the physics cannot see (pdeinv.training.unseen), against the
+"""The energy a trained network puts where the physics cannot see (pdeinv.training.verdict), against the
 prior's."""
 
 from __future__ import annotations
@@ -10,7 +10,7 @@ import torch
 import pdeinv
 from pdeinv import nets
 from pdeinv.methods import GD, sgd
-from pdeinv.training.unseen import FACTOR, SLACK, unseen_energy
+from pdeinv.training.verdict import FACTOR, SLACK, unseen_energy
 
 pytestmark = pytest.mark.usefixtures("one_thread")
 

@@ -37,6 +37,12 @@ from ..physics.capabilities import output_mass
 from ._inputs import given_forward, mass_norms, mass_trace, out, pair
 from .alpha import Fit, as_rule
 
+#: memory the reorthogonalization history may take, in GB: each iteration keeps ``r`` and ``M⁻¹r`` of the
+#: batch, two ``(B, N)`` float64 arrays (SIP's full batch of 1024 at N = 3·10⁴: 0.5 GB per iteration, ~35
+#: GB over 70 iterations unbounded); beyond the cap only the most recent iterations are kept (local
+#: reorthogonalization: the oldest residuals, whose directions CG resolved first, are dropped first)
+REORTH_GB = 1.0
+
 
 class TikhonovCG:
     """``P⁻¹_(x₀, Px₀)(y) = x₀ + Δx`` with Δx from block PCG (module docstring).
@@ -50,8 +56,9 @@ class TikhonovCG:
     """
 
     def __init__(self, op, M=None, alpha=1e-8, M_out="auto", rtol=1e-10, maxiter=1000,
-                 scale=None, mass_solver=SuperLU, reorth=True):
+                 scale=None, mass_solver=SuperLU, reorth=True, reorth_gb: float = REORTH_GB):
         self.reorth = reorth
+        self.reorth_gb = positive(reorth_gb, "reorth_gb")
         self.op, self.M = op, M
         self.M_out = output_mass(op, M) if isinstance(M_out, str) else M_out
         self.rule = as_rule(alpha)
@@ -61,6 +68,18 @@ class TikhonovCG:
         self._Minv = None if M is None else mass_solver(M)
         self._inside = False
         self.last_info: dict = {}
+
+    def history_length(self, B: int) -> int:
+        """How many iterations of the reorthogonalization history fit in ``reorth_gb`` for ``B`` rows
+        (at least 2: reorthogonalizing against the last two residuals keeps most of its benefit)."""
+        return max(2, int(self.reorth_gb * 1e9 // (16 * B * self.op.n_in))) if self.reorth else 0
+
+    def memory_bytes(self, B: int) -> float:
+        """Bytes a solve of ``B`` rows allocates: about ten ``(B, N)`` / ``(B, m)`` float64 work arrays
+        (``X``, ``PX``, ``b``, residual, search direction, ``M⁻¹r``, products, the caller's ``x₀, y, y₀``)
+        and the bounded reorthogonalization history (:meth:`history_length`)."""
+        n, m = self.op.n_in, self.op.n_out
+        return 8.0 * B * (7 * n + 4 * m) + 16.0 * B * n * min(self.history_length(B), self.maxiter + 1)
 
     # -- linear algebra on batch-first rows ------------------------------------------
     def _mass(self, M, X):
@@ -108,6 +127,7 @@ class TikhonovCG:
         active = np.sqrt(np.abs(rz)) > goal
         D, it = Z, np.zeros(len(b), dtype=int)
         hist = [_snapshot(Res, Z, np.arange(len(b)))] if self.reorth else []
+        keep = self.history_length(len(b))
         for _ in range(self.maxiter):
             idx = np.flatnonzero(active)
             if idx.size == 0:
@@ -122,6 +142,7 @@ class TikhonovCG:
             Zi = self._precond(Res[idx])
             if self.reorth:
                 hist.append(_snapshot(Res, Zi, idx))
+                del hist[:-keep]  # bounded memory (REORTH_GB): the oldest iterations go first
             rz_new = np.einsum("bi,bi->b", Res[idx], Zi)
             D[idx] = Zi + (rz_new / rz[idx])[:, None] * D[idx]
             rz[idx] = rz_new

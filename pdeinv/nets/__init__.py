@@ -46,6 +46,7 @@ from .defaults import (
            default_model,
            default_size,
            linear_default,
+           network_size,
            refined,
            refined_size,
 )
@@ -56,5 +57,5 @@ from .reduced import REDUCED_K, REDUCED_K_IN, REDUCED_UNCAPTURED, Decoder, prior
 __all__ = ["BODIES", "DECODER_MAX_UNCAPTURED", "DTYPE", "FALLBACK_COMPONENTS", "MLP", "REDUCED_ABOVE",
            "REDUCED_K", "REDUCED_K_IN", "REDUCED_UNCAPTURED", "Decoder", "LinearInParameters", "Net",
            "Residual", "data_base", "default_model", "default_size", "dense", "fit_preconditioning",
-           "linear_default", "mlp", "prior_basis", "reduced", "refined", "refined_size", "whitened",
-           "zero_last_layer"]
+           "linear_default", "mlp", "network_size", "prior_basis", "reduced", "refined", "refined_size",
+           "whitened", "zero_last_layer"]

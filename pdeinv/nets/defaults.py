@@ -4,9 +4,10 @@ the linear part (prior decoder, whitened map or its capped fallback) and the non
 
 from __future__ import annotations
 
+import torch
 from torch import nn
 
-from .net import whitened
+from .net import DTYPE, whitened
 from .reduced import REDUCED_K, REDUCED_K_IN, reduced
 
 #: the largest fraction of the prior's energy a decoder may leave out before :func:`linear_default`
@@ -126,7 +127,7 @@ def _prior_decoded(problem, rows_per_component) -> bool:
 
 def default_size(problem) -> tuple[int, int]:
     """``(parameters + buffers, widest layer)`` of :func:`default_model`'s network for ``problem``,
-    without building it (the memory guard, :func:`pdeinv.util.memory.check_training`; an upper bound:
+    without building it (the memory guard, :func:`pdeinv.training.budget.check_training`; an upper bound:
     the decoder may keep fewer than :data:`REDUCED_K` columns); a problem
     with its own ``model_factory`` gets the dense bound ``m² + m n + n`` (an upper bound for
     the scenes' MLP)."""
@@ -142,6 +143,54 @@ def default_size(problem) -> tuple[int, int]:
         kf = min(m, n, FALLBACK_COMPONENTS)
         dense = max(size, m * kf + kf * n + n)
     return dense + refined_size(problem), max(m, n)
+
+
+def network_size(problem, kind: str = "default", hidden=None) -> dict:
+    """What the network of ``--net kind`` (or the MLP of ``--hidden``) for ``problem`` will hold, without
+    building it: ``params`` (trained), ``buffers`` (fixed arrays: whitening basis, decoder, grid maps),
+    ``build`` (bytes its construction needs on top: the prior draws and Gram matrix of
+    :func:`prior_basis`), ``widest`` (its widest layer) and ``dtype_bytes``. Upper bounds (a decoder may
+    keep fewer columns); the memory guard (:func:`pdeinv.training.budget.check_training`) adds the
+    training state per parameter. ``kind``: 'default', 'linear', 'whitened', 'reduced' or 'mlp'
+    (``hidden`` given)."""
+    m, n = problem.operator.n_out, problem.operator.n_in
+    itemsize = torch.finfo(DTYPE).bits // 8
+
+    def whitened_size(k):  # built as an identity basis and a linear layer: nothing on top
+        return {"params": k * n + n, "buffers": m * k + k + m + 1, "build": 0}
+
+    def reduced_size():
+        k_in, k_out = min(REDUCED_K_IN, m), min(REDUCED_K, n)
+        draws = 4 * k_out  # prior_basis: 4k draws of the prior, their Gram matrix, QR of N × k
+        return {"params": k_in * k_out + k_out, "buffers": m * k_in + k_in + m + 1 + n * k_out,
+                "build": 8 * (draws * n + draws**2 + 2 * n * k_out)}
+
+    if hidden:
+        from ..util.memory import network_parameters
+
+        size = {"params": network_parameters(m, n, hidden), "buffers": 2 * m, "build": 0}
+        return {**size, "widest": max(m, n, *hidden), "dtype_bytes": 4}
+    if kind == "whitened":
+        size = whitened_size(min(m, n))
+    elif kind == "reduced":
+        size = reduced_size()
+    elif kind in ("default", "linear"):
+        if problem.model_factory is not None:
+            k = min(m, n)
+            size = {"params": m * k + k * n + n, "buffers": 0, "build": 0}
+        elif max(m, n) > REDUCED_ABOVE or _prior_decoded(problem, None):
+            red, fall = reduced_size(), whitened_size(min(m, n, FALLBACK_COMPONENTS))
+            # the decoder is built first; a decoder that misses the prior falls back to the whitened map
+            size = {k: max(red[k], fall[k]) for k in ("params", "buffers")}
+            size["build"] = red["build"]
+        else:
+            size = whitened_size(min(m, n))
+        if kind == "default":  # the correction (.refine): U-Net parameters (trained) and grid maps
+            size["params"] += refined_size(problem)
+    else:
+        raise ValueError(f"kind={kind!r} is not allowed; expected 'default', 'linear', 'whitened' or "
+                         "'reduced' (or hidden widths for the MLP)")
+    return {**size, "widest": max(m, n), "dtype_bytes": itemsize}
 
 
 def refined_size(problem) -> int:

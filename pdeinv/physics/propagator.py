@@ -142,9 +142,26 @@ class Propagator(LinearOperator):
         return self.steps * (solve + products)
 
     def count_modes(self, mu: float) -> float:
-        """About how many eigenvalues of the scheme's ``L φ = λ M φ`` lie below ``mu`` (sizes the
-        modal eigensolve); without knowledge of the domain: all ``N``. :class:`~pdeinv.Heat`: Weyl."""
-        return float(self.n_in)
+        """How many eigenvalues of the scheme's ``L φ = λ M φ`` lie below ``mu`` (sizes the modal
+        eigensolve): exact for a symmetric θ-scheme beyond ``modes.DENSE_MAX`` unknowns
+        (:meth:`exact_count`), else all ``N`` (:class:`~pdeinv.Heat`: Weyl's law there)."""
+        exact = self.exact_count(mu)
+        return float(self.n_in) if exact is None else float(exact)
+
+    def exact_count(self, mu: float) -> int | None:
+        """The number of eigenvalues of ``L φ = λ M φ`` below ``mu`` by Sylvester's inertia
+        (:func:`.modes.count_below`, one sparse LU, cached per ``mu``) for a symmetric θ-scheme beyond
+        ``modes.DENSE_MAX`` unknowns (where the dense eigh, which needs no count, is not used); else
+        None."""
+        from . import modes
+        from .schemes import Theta
+
+        if not (isinstance(self.scheme, Theta) and self.symmetric and self.n_in > modes.DENSE_MAX):
+            return None
+        counted = self.__dict__.setdefault("_counts", {})
+        if mu not in counted:
+            counted[mu] = modes.count_below(self.scheme.M, self.scheme.L, mu)
+        return counted[mu]
 
     def stepping(self) -> Propagator:
         """The same run applied by time stepping (no compiled backend): ``self`` if it steps."""

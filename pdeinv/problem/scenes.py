@@ -36,7 +36,9 @@ def prior(points, cfg: dict):
     return partial(PRIORS[cfg.get("prior", "bumps")], points)
 
 HEAT = {**COMMON, "kappa": (0.01, s.positive), "scheme": ("be", s.one_of("be", "cn")),
-        "backend": ("auto", s.one_of("auto", "steps", "modal", "dense", "svd"))}
+        "backend": ("auto", s.one_of("auto", "steps", "modal", "dense", "svd")),
+        # the modal form's relative cut: modes amplified by less than tol·max gain are dropped
+        "tol": (1e-14, s.positive)}
 
 #: how a time-stepping operator is applied (pdeinv.physics.backends.compiled): 'auto' by the cost of a run
 COMPILED = {"backend": ("auto", s.one_of("auto", "steps", "dense", "svd"))}
@@ -69,7 +71,8 @@ def heat(name: str, mesh, cfg: dict) -> Problem:
     disc = discretize(mesh, cfg["element"])
     C = cfg["reaction"] * disc.M if cfg.get("reaction") else None
     op = Heat(disc.M, disc.K, kappa=cfg["kappa"], T=cfg["T"], steps=cfg["steps"],
-              scheme=cfg["scheme"], backend=cfg["backend"], measure=disc.measure, dim=disc.dim, C=C)
+              scheme=cfg["scheme"], backend=cfg["backend"], measure=disc.measure, dim=disc.dim, C=C,
+              tol=cfg["tol"])
     return Problem(name, disc, op, prior(disc.points, cfg), settings=cfg,
                    noise=cfg["noise"],
                    inverse_simulator=default_inverse(op, disc, noise=cfg["noise"]))

@@ -1,5 +1,5 @@
-"""The one trainer and what it needs: the loop (:mod:`.trainer`), training rows and their seed
-streams (:mod:`.trainset`, :mod:`.data`), targets (:mod:`.targets`), stopping rules
-(:mod:`.stopping`), evaluation and the final verdict (:mod:`.evaluation`, :mod:`.unseen`,
-:mod:`.verdict`), checkpoints (:mod:`.checkpoint`), ``torchrun`` (:mod:`.distributed`) and the
-progress display (:mod:`.progress`)."""
+"""The one trainer and what it needs: the loop (:mod:`.trainer`), checked entry-point arguments
+(:mod:`.arguments`), training rows and their seed streams (:mod:`.trainset`, :mod:`.data`), stopping
+rules (:mod:`.stopping`), evaluation and the final verdict (:mod:`.evaluation`, :mod:`.verdict`),
+the memory a run will hold (:mod:`.budget`), checkpoints (:mod:`.checkpoint`), ``torchrun``
+(:mod:`.distributed`) and the classical references a run is compared with (:mod:`.references`)."""

@@ -21,8 +21,7 @@ import torch
 from ..errors import NonFiniteError
 from ..methods.guard import ADVICE
 from ..physics.capabilities import observes_field
-from .unseen import amplitude, of_predictions
-from .verdict import FailedRun, failure
+from .verdict import FailedRun, amplitude, failure, of_predictions
 
 
 @torch.no_grad()

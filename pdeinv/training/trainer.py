@@ -44,7 +44,7 @@ from .trainset import (
     training_fields,
     training_rows,
 )
-from .unseen import of_predictions
+from .verdict import of_predictions
 
 __all__ = ["Callback", "Result", "Trainer", "seed_stream", "train"]
 
@@ -190,6 +190,11 @@ class Trainer:
     _saved_step: int | None = field(default=None, init=False, repr=False)
     _rule: object = field(default=None, init=False, repr=False)
     _preset: dict = field(default_factory=dict, init=False, repr=False)
+    #: seconds of each set-up phase of the last :meth:`fit` (``metrics["setup"]``): network (when built
+    #: here), samples (training and test draws), fit (input transform and target), rule (its state and
+    #: calibration), stop (the stopping rule's held-out draws)
+    setup: dict = field(default_factory=dict, init=False)
+    setup_cpu: dict = field(default_factory=dict, init=False)  # the same phases in CPU seconds
 
     def __post_init__(self):
         self._check_arguments()
@@ -278,20 +283,33 @@ class Trainer:
 
     def _start(self) -> _Run:
         """Model on ``device``, data, preconditioning, rule and stopping states, batch order; resumed."""
+        clock, cpu, self.setup, self.setup_cpu = time.perf_counter(), time.process_time(), {}, {}
+
+        def lap(phase):  # wall and CPU seconds: on a shared machine the wall clock counts the others' jobs
+            nonlocal clock, cpu
+            now, now_cpu = time.perf_counter(), time.process_time()
+            self.setup[phase] = self.setup.get(phase, 0.0) + now - clock
+            self.setup_cpu[phase] = self.setup_cpu.get(phase, 0.0) + now_cpu - cpu
+            clock, cpu = now, now_cpu
+
         if self.model is None:
             torch.manual_seed(self.seed)
             self.model = self.problem.model(**self._network_settings())
+            lap("network")
         first = next(iter(self.model.parameters()), None)
         self.dtype = self.dtype or (torch.float32 if first is None else first.dtype)
         model = self.model.to(device=self.device, dtype=self.dtype)
         if self.checkpoint is not None:
             ckpts.check_resumable(self.rule)
         y_np, y_train, test = self._data()
+        lap("samples")
         fields = lambda: training_fields(self.problem, self._own, self.n_train, self.seed)  # noqa: E731
         t_train, self._target_info = fit_inputs(self.problem, self.rule, self.target, model, y_np, y_train,
                                                 self.fit_scaling, fields)
+        lap("fit")
         stop_state = None if self.stop is None else self.stop.init(
             self.problem, y_np, stop_rows(self.problem, self._own, self.stop.n_val, self.seed))
+        lap("stop")
         self.parallel.check_same("run", lambda: {
             **self.identity(model), "steps": self.steps, "time_budget": self.time_budget,
             "eval_every": self.eval_every, "resume": self.resume,
@@ -301,6 +319,7 @@ class Trainer:
                    stop_state, Position(gen, torch.randperm(self.n_train, generator=gen)), self._guard())
         # e.g. SIP's proxy curvature, on the first batch (a no-op for a rule that measures nothing)
         run.state = self._rule.calibrate(run.state, model, y_train[run.at.order[:self.batch_size]])
+        lap("rule")
         self.history = []
         if self.resume:
             saved = ckpts.load_to_resume(self.checkpoint, self.identity(model), self.steps)
@@ -309,6 +328,7 @@ class Trainer:
         if run.at.y_err0 is None:  # a fresh run (a resumed one keeps its starting point's)
             start = self.evaluate(model, test)["y_err"]
             run.at.y_err0 = start if math.isfinite(start) else 1.0
+        lap("evaluate")
         return run
 
     def _reject(self, run: _Run, err: NonFiniteError, bar, failed: int) -> None:
@@ -377,10 +397,12 @@ class Trainer:
         bar.close()
         prior = self._fit_prior(run)
         record = metrics(self, run)
+        record["setup"] = {k: round(v, 3) for k, v in self.setup.items()}
+        record["setup_cpu"] = {k: round(v, 3) for k, v in self.setup_cpu.items()}
         if prior is not None:
             record["prior_fit"] = prior
         record["unseen_energy"], warning = of_predictions(self.problem, run.model, run.test, self.seed)
-        if warning and self.parallel.is_writer:  # energy where the physics cannot see (.unseen)
+        if warning and self.parallel.is_writer:  # energy where the physics cannot see (.verdict)
             warnings.warn(warning, RuntimeWarning, stacklevel=2)
         return Result(run.model, self.history, record, run.state)
 

@@ -7,8 +7,9 @@ check estimates the bytes a step will need and raises :class:`MemoryBudgetError`
 what to change when the estimate exceeds the budget.
 
 **Budget:** ``set_budget(gb)`` (the CLI's ``--max-memory-gb``) or the environment variable
-``PDEINV_MAX_MEMORY_GB``; otherwise half of the memory available now (``MemAvailable`` in
-``/proc/meminfo``, else ``os.sysconf``), leaving the rest to the OS and other programs.
+``PDEINV_MAX_MEMORY_GB``; otherwise 90 % of the memory available now (``MemAvailable`` in
+``/proc/meminfo``, else ``os.sysconf``; :data:`AVAILABLE_SHARE`): the estimates are upper bounds, so
+the machine's free memory itself is the limit (it was half of it, which refused runs that fit).
 Without any of these (other systems) nothing is refused.
 
 **Estimates** are rough upper bounds, good to a small factor, not exact accounting:
@@ -22,12 +23,13 @@ Without any of these (other systems) nothing is refused.
   ``nnz(L + U)``; cholespy needs about half): 2-D 0.8–1.9 kB per node up to 10⁶ nodes,
   3-D 6 kB at 12 167 nodes, 10 kB at 29 791, 14 kB at 59 319 (fill grows like N^{1/3} per
   node), so the per-node constants stay upper bounds up to ~10⁵ 3-D nodes; above
-  :data:`pdeinv.fem.solvers.AMG_CROSSOVER` the heat operators use AMG-CG, whose hierarchy is
+  :data:`pdeinv.solvers.AMG_CROSSOVER` the heat operators use AMG-CG, whose hierarchy is
   ~0.3 kB per node (2-D and 3-D).
 * sensors: the observation vector of one sample (records × sensors) and the sensor matrix.
-* training: the training and test sets (x and y in float64, y again in float32), the
-  network (parameters, gradients and two Adam moments: 16 bytes each in float32) and the
-  activations of one batch.
+* training (:func:`run_bytes`): the data sets and the prior fit's draws, the network that ``--net`` /
+  ``--hidden`` actually builds (value, gradient and two Adam moments per parameter in its dtype, its
+  buffers, and what building it needs on top), one batch through network and physics, the
+  generic Tikhonov CG inverse's ``(B, N)`` arrays and bounded history, and HIG's stacked Jacobian.
 """
 
 from __future__ import annotations
@@ -42,6 +44,10 @@ HIG_JACOBIAN_GB = 4.0
 
 #: bytes per mesh node (P1) for the mesh, matrices, factorization and modal basis, by dimension
 BYTES_PER_NODE = {1: 2_000, 2: 20_000, 3: 60_000}
+
+#: the default budget's share of the memory available now (``MemAvailable``): the machine's free memory
+#: (issue 35), less a margin for what the estimates do not count (Python, torch, the OS's caches)
+AVAILABLE_SHARE = 0.9
 
 _budget_gb: float | None = None
 
@@ -90,7 +96,8 @@ def budget() -> tuple[float, str]:
     avail = available_bytes()
     if avail is None:
         return math.inf, "unknown available memory"
-    return avail / 2, f"half of the {avail / GB:.3g} GB available; raise it with --max-memory-gb"
+    return AVAILABLE_SHARE * avail, (f"{AVAILABLE_SHARE:.0%} of the {avail / GB:.3g} GB available; "
+                                     "set it with --max-memory-gb")
 
 
 def check(nbytes: float, what: str, fix: str) -> None:
@@ -118,24 +125,3 @@ def training_bytes(n_obs: int, n_unknowns: int, n_train: int, n_test: int, n_par
     activations (``widest`` values per sample, ×4 for the backward pass)."""
     data = (n_train + n_test) * (8 * (n_obs + n_unknowns) + 4 * n_obs)
     return data + 16 * n_params + 16 * batch * widest
-
-
-def check_training(problem, n_train: int, n_test: int, batch: int, hidden=None) -> None:
-    """Refuse a training run whose data sets and network would not fit.
-
-    ``hidden``: the widths of the MLP the run builds; ``None``: the problem's default
-    network (:func:`pdeinv.nets.default_size`: ``n_obs² + n_obs · n_unknowns`` for the whitened
-    linear map, ``O(k²) + (n_obs + n_unknowns)·k`` for the reduced network on large meshes).
-    """
-    m, n = problem.operator.n_out, problem.operator.n_in
-    if hidden:
-        params = network_parameters(m, n, hidden)
-        widest = max(m, n, *hidden)
-    else:  # the default network's own count (whitened linear map, or the reduced network on big meshes)
-        from ..nets import default_size
-
-        params, widest = default_size(problem)
-    need = training_bytes(m, n, n_train, n_test, params, batch, widest)
-    check(need, f"training {problem.name} ({n_train} + {n_test} samples of {m} observations and {n} "
-                f"unknowns, a network of {params:.3g} parameters)",
-          "use a smaller --n-train / --n-test, --hidden or --batch-size, or a coarser mesh")

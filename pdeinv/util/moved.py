@@ -27,7 +27,7 @@ MOVED = {
     "checkpoint": "training.checkpoint", "data": "training.data", "distributed": "training.distributed",
     "evaluation": "training.evaluation", "progress": "util.progress", "stopping": "training.stopping",
     "targets": "methods.targets", "trainer": "training.trainer", "trainset": "training.trainset",
-    "unseen": "training.unseen", "verdict": "training.verdict",
+    "unseen": "training.verdict", "verdict": "training.verdict",
     "export": "io.export", "files": "util.files", "plots": "io.plots", "runs": "io.runs",
     "noise": "inverse.noise", "sampling": "problem.sampling", "scenes": "problem.scenes",
     "settings": "problem.settings", "references": "training.references",

@@ -33,7 +33,7 @@ def add_set_argument(parser) -> None:
 
 def add_memory_argument(parser) -> None:
     parser.add_argument("--max-memory-gb", type=float, default=None, metavar="GB",
-                        help="refuse a run whose estimated memory exceeds GB (default: half of the "
+                        help="refuse a run whose estimated memory exceeds GB (default: 90%% of the "
                              "available memory; see pdeinv/util/memory.py)")
 
 

@@ -60,18 +60,19 @@ def n_parameters(problem, hidden) -> int:
 
 
 def check_run(problem, args, hp: dict) -> None:
-    """Refuse a run that would not fit in memory (:func:`pdeinv.util.memory.check_training`) or a HIG
+    """Refuse a run that would not fit in memory (:func:`pdeinv.training.budget.check_training`) or a HIG
     run whose step would take longer than :data:`HIG_MAX_STEP_S` (unless ``--allow-slow``);
     warn when ``--export-samples`` is above ``--n-test``."""
+    from pdeinv.training.budget import check_training
     from pdeinv.training.trainset import N_TRAIN
-    from pdeinv.util import memory
 
     n_train = args.n_train or N_TRAIN
-    memory.check_training(problem, n_train, args.n_test, hp["batch_size"] or n_train,
-                          hp["hidden"])
+    check_training(problem, n_train, args.n_test, hp["batch_size"] or n_train, hp["hidden"],
+                          net=getattr(args, "net", "default"), method=args.method, n_val=128,
+                          prior_draws=_prior_draws(problem, args), optimizer=hp.get("optimizer") or "adam")
     # the default networks (no --hidden, no network of the problem's own) are linear in θ: HIG takes
     # its Kronecker route there, which never forms J (pdeinv.methods.hig.kron): nothing to estimate
-    default_net = not hp["hidden"] and getattr(problem, "model_factory", None) is None
+    default_net = not hp["hidden"] and problem.model_factory is None
     if args.method == "hig" and not default_net and not getattr(args, "allow_slow", False):
         from pdeinv.physics.capabilities import modal_basis
 
@@ -83,8 +84,9 @@ def check_run(problem, args, hp: dict) -> None:
         from pdeinv.methods.hig.randomized import memory_bytes
         from pdeinv.methods.hig.routes import SVD
         from pdeinv.methods.hig.rule import HIG
+        from pdeinv.util.memory import HIG_JACOBIAN_GB
 
-        budget = memory.HIG_JACOBIAN_GB * 2**30
+        budget = HIG_JACOBIAN_GB * 2**30
         if SVD.bytes_per_entry * rows * cols <= budget:  # the dense routes (as HIG budgets them)
             est, route = hig_step_seconds(per_sample, cols, batch), f"Jacobian {rows} x {cols}"
         elif hp["hidden"]:  # the MLP takes its last layer's exact step (pdeinv.methods.hig.layers): ms
@@ -104,6 +106,23 @@ def check_run(problem, args, hp: dict) -> None:
     if args.export_samples > args.n_test:
         print(f"pdeinv train: warning: --export-samples {args.export_samples} is more than the "
               f"{args.n_test} test samples (--n-test); exporting {args.n_test}", file=sys.stderr)
+
+
+def _prior_draws(problem, args) -> int:
+    """The prior draws the trainer will hold for the default network's prior fit (0 without one):
+    ``Trainer._fit_prior``'s ``min(prior_draws, max(256, PRIOR_ENTRIES // N))``."""
+    import os
+
+    from pdeinv.training.trainer import PRIOR_ENTRIES, Trainer
+
+    seconds = args.prior_fit if args.prior_fit is not None else os.environ.get("PDEINV_PRIOR_FIT", "300")
+    try:
+        on = float(seconds) > 0
+    except ValueError:
+        on = True  # the trainer's own check refuses it with its message
+    if not on or getattr(args, "net", "default") != "default" or args.hidden:
+        return 0
+    return min(Trainer.prior_draws, max(256, PRIOR_ENTRIES // max(problem.N, 1)))
 
 
 def steps(args, hp: dict | None = None) -> int | None:

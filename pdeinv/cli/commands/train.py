@@ -251,7 +251,11 @@ def _parallel_train(args, out, ckpt, device, parallel) -> int:
     fresh = Fresh(out, args.overwrite)
     set_threads(args.threads)
     no_cache(args)
-    problem, overrides, y, x = _problem_and_data(args)
+    t_build, c_build = time.perf_counter(), time.process_time()
+    problem, overrides, y, x = _problem_and_data(args)  # says so when the build is slow
+    # metrics.json "setup" (wall seconds) and "setup_cpu" (CPU seconds), with the trainer's phases
+    setup = {"build": time.perf_counter() - t_build}
+    setup_cpu = {"build": time.process_time() - c_build}
     rule, hp = make_rule(args.method, problem, problem.noise, lr=args.lr, eta=args.eta, tau=args.tau,
                          batch_size=args.batch_size, hidden=hidden, optimizer=args.optimizer)
     _checks.check_run(problem, args, hp)  # memory, HIG step time, --export-samples (before allocating)
@@ -259,7 +263,10 @@ def _parallel_train(args, out, ckpt, device, parallel) -> int:
     stop = STOPS[args.stop](problem)
     torch.manual_seed(args.seed)
     net = _network_spec(problem, hp, args.net, bool(args.data))
-    trainer = Trainer(problem, rule, network(problem, net), steps=_checks.steps(args, hp),
+    t_net, c_net = time.perf_counter(), time.process_time()
+    model = network(problem, net)
+    setup["network"], setup_cpu["network"] = time.perf_counter() - t_net, time.process_time() - c_net
+    trainer = Trainer(problem, rule, model, steps=_checks.steps(args, hp),
                       time_budget=args.time_budget,
                       n_train=args.n_train or N_TRAIN, n_test=args.n_test, batch_size=hp["batch_size"],
                       seed=args.seed, eval_every=args.eval_every, max_failures=args.max_failures,
@@ -273,7 +280,7 @@ def _parallel_train(args, out, ckpt, device, parallel) -> int:
         return FAILED if failed and not args.accept_bad else 0
     prepare_out(out)
     try:
-        return _run(args, out, problem, overrides, net, hp, trainer, fresh)
+        return _run(args, out, problem, overrides, net, hp, trainer, fresh, (setup, setup_cpu))
     except FileNotFoundError:  # e.g. --resume without a checkpoint: bad input (exit 2)
         raise
     except OSError as err:  # a full disk, no permission: not the input's fault, not numerical
@@ -317,7 +324,7 @@ def _problem_and_data(args):
     return problem, overrides, y, x
 
 
-def _run(args, out, problem, overrides, net, hp, trainer, fresh) -> int:
+def _run(args, out, problem, overrides, net, hp, trainer, fresh, setup=None) -> int:
     """Train under the folder's lock and write every output; see :data:`pdeinv.io.runs.OUTPUTS`."""
     import torch
 
@@ -345,7 +352,14 @@ def _run(args, out, problem, overrides, net, hp, trainer, fresh) -> int:
             print(f"pdeinv train: {what(err)}; {saved}", file=sys.stderr)
             return exit_code(err)
         fresh()
-        metrics = {**result.metrics, "method": args.method, "hyperparameters": hp,
+        timed = {}
+        for key, mine in zip(("setup", "setup_cpu"), setup or ({}, {})):
+            phases = {k: round(v, 3) for k, v in mine.items()}
+            theirs = result.metrics.get(key, {})
+            phases.update({k: round(v + phases.get(k, 0.0), 3) for k, v in theirs.items()})
+            phases["total"] = round(sum(phases.values()), 3)  # build + samples + network fitting, seconds
+            timed[key] = phases
+        metrics = {**result.metrics, **timed, "method": args.method, "hyperparameters": hp,
                    "settings": {k: v for k, v in problem.settings.items()},
                    "route": result.history[-1].get("route"), "torch_threads": torch.get_num_threads()}
         if args.data:
@@ -499,4 +513,4 @@ def _run_arguments(t) -> None:
                    help="exit 0 even when the run fails its final check (else exit code 3; the files are "
                         "written either way, the reason in metrics.json's 'failed'): a held-out x_err >= 1, "
                         "no better than predicting zero; without x in the data, predictions with over 2x the "
-                        "prior's energy where the physics cannot see (pdeinv.training.unseen)")
+                        "prior's energy where the physics cannot see (pdeinv.training.verdict)")

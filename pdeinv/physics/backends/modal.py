@@ -66,20 +66,24 @@ def estimate(op) -> tuple[float, float] | None:
     """``(k, build flops)`` of the modal kind for ``op``, or None where it is not offered.
 
     ``k``: the modes expected below the cut-off (``op.count_modes``: Weyl's law for heat), at most
-    ``N``. Build: a dense generalized eigendecomposition (about ``9N³`` BLAS flops) up to
-    ``modes.DENSE_MAX`` unknowns, else the block Krylov eigensolve (about ``3k`` shift-invert
-    solves, one step's flops each, and ``4N(3k)²`` BLAS flops of reorthogonalization), offered
-    only for ``k ≤ N/2`` (it refuses more, :class:`~pdeinv.errors.TooManyModes`).
+    ``N``. Build (:func:`.modes.route`): a dense generalized eigendecomposition (about ``9N³`` BLAS
+    flops) up to ``modes.DENSE_MAX`` unknowns, and up to ``modes.DENSE_EIGH_MAX`` where it is the
+    cheaper one; else the block Krylov eigensolve (about ``2k`` shift-invert solves, one step's
+    flops each, and :func:`.modes.krylov_flops` BLAS flops), offered only for ``k ≤ N/2`` (it
+    refuses more, :class:`~pdeinv.errors.TooManyModes`). ``k`` is exact beyond ``modes.DENSE_MAX``
+    (:meth:`pdeinv.physics.Heat.count_modes`: Sylvester's inertia).
     """
     if refused(op):
         return None
     N = op.n_in
     k = min(op.count_modes(cutoff(op)), N)
-    if N <= _modes.DENSE_MAX:
+    guess = math.ceil(1.1 * k + 10)  # the eigensolve's own (Modal)
+    how = _modes.route(N, guess)
+    if how == "dense":
         return k, 9 * N**3 / BLAS_ADVANTAGE
-    if k > N / 2:
+    if how is None:
         return None
-    return k, 3 * k * op.step_flops() / op.steps + 4 * N * (3 * k) ** 2 / BLAS_ADVANTAGE
+    return k, 2 * guess * op.step_flops() / op.steps + _modes.krylov_flops(N, guess) / BLAS_ADVANTAGE
 
 
 class Modal(Spectral):
@@ -110,13 +114,17 @@ class Modal(Spectral):
                 raise ValueError(f"Crank–Nicolson barely damps the highest mode (|r|ⁿ = "
                                  f"{np.exp(log_g(top)):.1e} ≥ tol={op.tol}): the modal backend would need "
                                  "all modes; use backend='steps' or scheme='be'")
-        k_guess = math.ceil(1.1 * op.count_modes(cutoff(op)) + 10)  # Weyl's count, plus 10% and 10
+        k_guess = math.ceil(1.1 * op.count_modes(cutoff(op)) + 10)  # the count, plus 10% and 10
+        # with the exact count of eigenvalues below the absolute cut-off (gain ≥ tol), the Krylov method
+        # keeps at least those (the relative cut, gain ≥ tol·max gain, keeps as many or more)
+        at_least = op.exact_count(cutoff(op)) or 0
         N = sc.M.shape[0]
-        settings = {"dt": sc.dt, "theta": sc.theta, "steps": n, "tol": op.tol, "dense": N <= _modes.DENSE_MAX,
-                    "k": k_guess, "method": "block-krylov/1"}
+        dense = _modes.route(N, k_guess) == "dense"
+        settings = {"dt": sc.dt, "theta": sc.theta, "steps": n, "tol": op.tol, "dense": dense, "k": k_guess,
+                    "method": "block-krylov/2"}
 
         def build():  # the lowest mode is the least damped one (|r| decreases on the damped branch)
-            lam, Phi = lowest_modes(sc.M, sc.L, log_g, log_tol, k=k_guess)
+            lam, Phi = lowest_modes(sc.M, sc.L, log_g, log_tol, k=k_guess, at_least=at_least)
             return {"lam": lam, "Phi": Phi}
 
         def verify(a):
