@@ -72,3 +72,11 @@ def test_no_folder_holds_more_than_twelve_modules():
     big = {str(d.relative_to(ROOT)): n for d in [ROOT, *ROOT.rglob("*")] if d.is_dir()
            and (n := len(list(d.glob("*.py")))) > 12}
     assert not big, big
+
+
+def test_no_function_is_longer_than_sixty_lines():
+    """Functions with their docstrings; a longer one does more than one thing (issue 33)."""
+    long = [f"{p.relative_to(ROOT)}:{n.lineno} {n.name} ({n.end_lineno - n.lineno + 1} lines)"
+            for p in ROOT.rglob("*.py") for n in ast.walk(ast.parse(p.read_text()))
+            if isinstance(n, ast.FunctionDef | ast.AsyncFunctionDef) and n.end_lineno - n.lineno >= 60]
+    assert not long, long

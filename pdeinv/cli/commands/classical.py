@@ -44,11 +44,8 @@ ORDER = 2
 def cmd_classical(args) -> int:
     import numpy as np
 
-    from pdeinv.inverse import NOISE_FREE_REL_ALPHA, Discrepancy, default_alpha, default_inverse
     from pdeinv.inverse.noise import estimate_noise
-    from pdeinv.methods.targets import SpectralWiener
-    from pdeinv.training import references
-    from pdeinv.training.data import model_mismatch, read_meta, read_npz
+    from pdeinv.training.data import read_meta, read_npz
     from pdeinv.util.files import atomic_write
 
     # the one output-path policy (pdeinv.util.outpaths): folder created, never the --data file
@@ -67,6 +64,31 @@ def cmd_classical(args) -> int:
         res = np.linalg.norm(problem.operator.forward(xh) - y, axis=1) / np.linalg.norm(y, axis=1)
         return {"x_err": None if x is None else float(np.mean(problem.relative_error(xh, x))),
                 "residual": float(np.mean(res)), "amplitude": float(np.sqrt(np.mean(np.sum(xh**2, axis=1))))}
+
+    rows = _solves(problem, y, x, noise, source, err)
+    for name, value in rows.items():
+        print(f"{problem.name} {name}: {json.dumps(value)}")
+    rows["failed"] = _failed(problem, rows, x, y, noise)
+    if out is not None:
+        text = json.dumps({"problem": problem.name, "data": str(args.data), "rows": len(y), **rows}, indent=2)
+        atomic_write(out, lambda fh: fh.write(text.encode()))
+    sys.stdout.flush()
+    if rows["failed"]:
+        kind = "warning" if args.accept_bad else "error"
+        print(f"pdeinv classical: {kind}: {rows['failed']}" + ("" if args.accept_bad else
+              "; --accept-bad ends with exit code 0"), file=sys.stderr)
+        return 0 if args.accept_bad else FAILED
+    return 0
+
+
+def _solves(problem, y, x, noise: float, source: str, err) -> dict:
+    """The classical solves of ``y`` (module docstring), each row measured by ``err``."""
+    import numpy as np
+
+    from pdeinv.inverse import NOISE_FREE_REL_ALPHA, Discrepancy, default_alpha, default_inverse
+    from pdeinv.methods.targets import SpectralWiener
+    from pdeinv.training import references
+    from pdeinv.training.data import model_mismatch
 
     zeros = np.zeros((len(y), problem.N))
     rows = {"noise": {"level": noise, "source": source}}
@@ -91,19 +113,7 @@ def cmd_classical(args) -> int:
             estimate, info = references.mmse(problem, x, sigma2)
             rows["mmse_file_x"] = {**err(estimate(y)), "sigma2_rule": info["sigma2_rule"]}
         rows["model_mismatch"] = model_mismatch(problem.operator, x, y)
-    for name, value in rows.items():
-        print(f"{problem.name} {name}: {json.dumps(value)}")
-    rows["failed"] = _failed(problem, rows, x, y, noise)
-    if out is not None:
-        text = json.dumps({"problem": problem.name, "data": str(args.data), "rows": len(y), **rows}, indent=2)
-        atomic_write(out, lambda fh: fh.write(text.encode()))
-    sys.stdout.flush()
-    if rows["failed"]:
-        kind = "warning" if args.accept_bad else "error"
-        print(f"pdeinv classical: {kind}: {rows['failed']}" + ("" if args.accept_bad else
-              "; --accept-bad ends with exit code 0"), file=sys.stderr)
-        return 0 if args.accept_bad else FAILED
-    return 0
+    return rows
 
 
 #: model mismatch ``mean ‖P x − y‖/‖y‖`` above this many times the noise level (and above

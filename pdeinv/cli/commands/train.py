@@ -352,15 +352,8 @@ def _run(args, out, problem, overrides, net, hp, trainer, fresh, setup=None) -> 
             print(f"pdeinv train: {what(err)}; {saved}", file=sys.stderr)
             return exit_code(err)
         fresh()
-        timed = {}
-        for key, mine in zip(("setup", "setup_cpu"), setup or ({}, {})):
-            phases = {k: round(v, 3) for k, v in mine.items()}
-            theirs = result.metrics.get(key, {})
-            phases.update({k: round(v + phases.get(k, 0.0), 3) for k, v in theirs.items()})
-            phases["total"] = round(sum(phases.values()), 3)  # build + samples + network fitting, seconds
-            timed[key] = phases
-        metrics = {**result.metrics, **timed, "method": args.method, "hyperparameters": hp,
-                   "settings": {k: v for k, v in problem.settings.items()},
+        metrics = {**result.metrics, **_setup_phases(result.metrics, setup), "method": args.method,
+                   "hyperparameters": hp, "settings": {k: v for k, v in problem.settings.items()},
                    "route": result.history[-1].get("route"), "torch_threads": torch.get_num_threads()}
         if args.data:
             metrics["data"] = {"file": str(args.data), **metrics["data"]}
@@ -385,6 +378,18 @@ def _run(args, out, problem, overrides, net, hp, trainer, fresh, setup=None) -> 
         print(f"{problem.name} {args.method}: {metrics['steps']} steps ({metrics['stopped_by']}) in "
               f"{metrics['wall_s']:.2f} s, x_err {x_err}, y_err {metrics['y_err']:.3g} -> {out}")
         return _verdict(metrics["failed"], args.accept_bad, out)
+
+
+def _setup_phases(metrics: dict, setup) -> dict:
+    """``{"setup": …, "setup_cpu": …}``: the command's phases (the build, the network) and the trainer's,
+    in wall and CPU seconds, with their ``total`` (build + samples + network fitting)."""
+    timed = {}
+    for key, mine in zip(("setup", "setup_cpu"), setup or ({}, {})):
+        phases = {k: round(v, 3) for k, v in mine.items()}
+        phases.update({k: round(v + phases.get(k, 0.0), 3) for k, v in metrics.get(key, {}).items()})
+        phases["total"] = round(sum(phases.values()), 3)
+        timed[key] = phases
+    return timed
 
 
 def _verdict(failed: str | None, accept: bool, out: Path) -> int:
