@@ -84,7 +84,7 @@ def default_inverse(op, disc=None, noise: float = 0.0, alpha=None):
     only regularization of each step, and it defaults to :func:`default_alpha` ``(noise)`` (the
     iteration then semi-converges: a stopping rule ends it, :mod:`pdeinv.training.stopping`).
     """
-    M = getattr(op, "mass", None) if disc is None else disc.M
+    M = op.mass if disc is None else disc.M
     chosen(op, M)  # an operator no one chose a backend for: compiled by auto, as training will use it
     modes = spectral_basis(op, M)  # a compiled dense forward: its SVD, computed on the first call
     if modes is not None:
@@ -92,8 +92,8 @@ def default_inverse(op, disc=None, noise: float = 0.0, alpha=None):
     rule = default_alpha(noise) if alpha is None else alpha
     if reversible(op):
         return TimeReversal(op)
-    known = getattr(op, "max_gain_squared", None)
-    return TikhonovCG(op, M, rule, M_out=output_mass(op, M), scale=known() if callable(known) else None)
+    known = op.max_gain_squared  # declared (a callable) or None
+    return TikhonovCG(op, M, rule, M_out=output_mass(op, M), scale=None if known is None else known())
 
 
 __all__ = ["Discrepancy", "FixedAlpha", "ModalTikhonov", "SpectralTikhonov",

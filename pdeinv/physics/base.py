@@ -19,11 +19,26 @@ from .._checks import batch
 
 
 class LinearOperator:
-    """Base class: input checks and the transposed view ``.T``."""
+    """Base class: input checks, the transposed view ``.T``, and what an operator declares
+    (:mod:`.capabilities`), here with the defaults of a plain map whose observations are records."""
 
     #: number of unknowns and of observed values per sample
     n_in: int
     n_out: int
+    #: ``"field"``: observations are fields on the mesh, measured with its mass; ``"records"``: numbers
+    output_space = "records"
+    #: a spectral basis (:class:`.capabilities.Spectral`) or None
+    modes = None
+    #: the mass matrix of the unknowns, or None (Euclidean)
+    mass = None
+    #: a compiled backend (dense, SVD, modal) or None (time stepping, or no compiled form)
+    backend = None
+    #: ``final_state`` / ``reverse`` run the full state both ways (a time-reversible scheme)
+    reversible = False
+    #: ``P X`` in torch on a device (:class:`.backends.device.Placed`), or None (numpy on the CPU)
+    torch_forward = None
+    #: ``λ_max(PᵀP)`` in closed form (a zero-argument callable), or None (power iteration on use)
+    max_gain_squared = None
 
     def forward(self, X) -> np.ndarray:
         """``P X``, row-wise: ``(B, n_in) -> (B, n_out)``."""

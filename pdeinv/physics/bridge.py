@@ -27,7 +27,7 @@ def _run(op, x: torch.Tensor) -> torch.Tensor:
     """``P x`` for a tensor of any leading shape: ``op.torch_forward`` on its device if it has one,
     else the numpy ``op.forward`` on the CPU."""
     lead = x.shape[:-1]
-    on_device = getattr(op, "torch_forward", None)
+    on_device = op.torch_forward  # declared by a placed operator (None: numpy on the CPU)
     if on_device is not None:
         flat = x.detach().reshape(-1, x.shape[-1]).to(device=op.device, dtype=torch.float64)
         out = on_device(flat)

@@ -1,7 +1,7 @@
 """What an operator can do, asked by capability, never by concrete class.
 
-Operators declare (all optional; a user's own :class:`~pdeinv.LinearOperator`
-without them gets the safe answer):
+Operators declare (on :class:`~pdeinv.LinearOperator`, whose defaults a user's own operator
+inherits: the safe answer):
 
 * ``output_space``: ``"field"`` when an observation is a field on the mesh (then
   it is measured with the mass matrix ``M``: ``‖y‖²_M = yᵀMy``) or ``"records"``
@@ -36,7 +36,7 @@ class Spectral:
 
 def observes_field(op) -> bool:
     """Whether ``op``'s observations are fields on the mesh (declared ``output_space == "field"``)."""
-    return getattr(op, "output_space", "records") == "field"
+    return op.output_space == "field"
 
 
 def output_mass(op, M):
@@ -47,12 +47,10 @@ def output_mass(op, M):
 def modal_basis(op) -> Spectral | None:
     """``op.modes`` if it is a :class:`Spectral` basis (``g``, ``In``, ``out``, ``proj``, ``synth``),
     else ``None``."""
-    modes = getattr(op, "modes", None)
-    return modes if isinstance(modes, Spectral) else None
+    return op.modes if isinstance(op.modes, Spectral) else None
 
 
 def reversible(op) -> bool:
     """Whether ``op`` declares ``reversible`` (a time-reversible scheme observed at the final field:
-    ``final_state`` and ``reverse`` run the full state both ways, :class:`.propagator.Propagator`);
-    an operator that declares nothing is not."""
-    return bool(getattr(op, "reversible", False))
+    ``final_state`` and ``reverse`` run the full state both ways, :class:`.propagator.Propagator`)."""
+    return bool(op.reversible)

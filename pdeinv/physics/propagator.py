@@ -29,9 +29,6 @@ from .._checks import choice as one_of
 from .base import LinearOperator
 from .capabilities import Spectral
 
-#: solve flops per nonzero of ``A`` when the solver does not report its factor's fill (AMG-CG)
-FILL_FALLBACK = 10
-
 
 class Records:
     """``O u`` after every ``every``-th of ``steps`` steps; ``O = S`` (``n_s × n``) or the identity."""
@@ -132,14 +129,9 @@ class Propagator(LinearOperator):
         return self
 
     def step_flops(self) -> float:
-        """Flops of one column through the whole run (the one step-cost model): per step
-        ``2·fill(LU)`` (or ``10·nnz(A)``) and ``2·nnz`` of every matrix the step multiplies by."""
-        sc = self.scheme
-        lu = getattr(sc, "lu", None)
-        solve = 2 * getattr(lu, "fill", FILL_FALLBACK * sc.A.nnz) if lu is not None else 0
-        products = sum(2 * getattr(sc, a).nnz for a in ("B", "M", "K")
-                       if hasattr(getattr(sc, a, None), "nnz"))
-        return self.steps * (solve + products)
+        """Flops of one column through the whole run (the one step-cost model): ``steps`` times the
+        scheme's declared cost of a step (``scheme.flops()``, :mod:`.schemes`)."""
+        return self.steps * self.scheme.flops()
 
     def count_modes(self, mu: float) -> float:
         """How many eigenvalues of the scheme's ``L φ = λ M φ`` lie below ``mu`` (sizes the modal
@@ -153,7 +145,7 @@ class Propagator(LinearOperator):
         (:func:`.modes.count_below`, one sparse LU, cached per ``mu``) for a symmetric θ-scheme beyond
         ``modes.DENSE_MAX`` unknowns (where the dense eigh, which needs no count, is not used); else
         None."""
-        from . import modes
+        from .backends import modes
         from .schemes import Theta
 
         if not (isinstance(self.scheme, Theta) and self.symmetric and self.n_in > modes.DENSE_MAX):
@@ -258,8 +250,8 @@ class Propagator(LinearOperator):
 
 
 def sensors(op, S, record_every: int = 1) -> Propagator:
-    """``op``'s run (Heat, Wave, Leapfrog: anything with ``sensors``) observed through ``S``."""
-    if not callable(getattr(op, "sensors", None)):
+    """``op``'s run (Heat, Wave, Leapfrog: any :class:`Propagator`) observed through ``S``."""
+    if not isinstance(op, Propagator):
         raise ValueError(f"{op!r} is not a time-stepping operator; sensors need Heat, Wave or Leapfrog")
     return op.sensors(S, record_every)
 
@@ -269,6 +261,6 @@ def chosen(op, M=None):
     time-stepping operator no one chose a backend for (``choice`` None), else as it is. Called by
     :class:`pdeinv.Problem` and :func:`pdeinv.inverse.default_inverse`, so that an operator built
     by hand (``Heat(...).sensors(S, k)``, ``Wave(...)``) runs at the speed the scenes do."""
-    if getattr(op, "choice", "") is None and callable(getattr(op, "compile", None)):
+    if isinstance(op, Propagator) and op.choice is None:
         op.compile("auto", M)
     return op

@@ -28,6 +28,9 @@ import scipy.sparse as sp
 
 from ..fem.solvers import is_symmetric
 
+#: solve flops per nonzero of ``A`` when the solver does not report its factor's fill (AMG-CG)
+FILL_FALLBACK = 10
+
 
 class _Implicit:
     """Shared by the implicit schemes: factor ``A`` once, transposes only where needed."""
@@ -44,6 +47,12 @@ class _Implicit:
         if self.solve_T is None:
             raise ValueError(f"solver {type(self.lu).__name__} has no solve_T and the matrix is not "
                              "symmetric; use solver=pdeinv.SuperLU")
+
+    def flops(self) -> float:
+        """One column's step: the solve, ``2·fill(LU)`` (``FILL_FALLBACK·nnz(A)`` for a solver that reports
+        no fill, e.g. AMG-CG), and the products by ``B`` and ``M``, ``2·nnz`` each."""
+        fill = getattr(self.lu, "fill", None)  # an optional attribute of the solver object
+        return 2 * (fill if fill is not None else FILL_FALLBACK * self.A.nnz) + 2 * (self.B.nnz + self.M.nnz)
 
     def start(self, U, V=None):
         return (U,) if self.width == 1 else (U, np.zeros_like(U) if V is None else V)
@@ -135,6 +144,10 @@ class Leapfrog:
         self.K = sp.csr_matrix(K)
         self.symmetric = is_symmetric(self.K)
         self.KT = self.K if self.symmetric else self.K.T.tocsr()
+
+    def flops(self) -> float:
+        """One column's step: the product by ``K``, ``2·nnz``."""
+        return 2.0 * self.K.nnz
 
     def start(self, U):
         return U - 0.5 * (self.qminv * (self.K @ U)), U

@@ -48,6 +48,10 @@ class Problem:
     model_factory: Callable | None = None
 
     def __post_init__(self):
+        if not isinstance(self.operator, LinearOperator):
+            raise TypeError(f"operator={type(self.operator).__name__} is not allowed; expected a "
+                            "pdeinv.LinearOperator (derive your operator from it: it declares what the "
+                            "rules may use, pdeinv.physics.capabilities), e.g. pdeinv.Matrix(A) or Heat(...)")
         # an operator built by hand goes through the backend chooser as the scenes' do
         chosen(self.operator, None if self.disc is None else self.disc.M)
 

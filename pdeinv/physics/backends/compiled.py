@@ -157,12 +157,16 @@ class LazySVD(Spectral):
     def __init__(self, P: np.ndarray, M=None, M_out=None):
         self.P, self.M, self.mass_out, self._svd = P, M, M_out, None
 
-    def __getattr__(self, name):
-        if name not in LazySVD.ARRAYS:
-            raise AttributeError(name)
-        if self.__dict__.get("_svd") is None:
+    def _arrays(self) -> SVD:
+        if self._svd is None:
             self._svd = SVD(self.P, self.M, self.mass_out)
-        return getattr(self._svd, name)
+        return self._svd
+
+    g = property(lambda self: self._arrays().g)
+    In = property(lambda self: self._arrays().In)
+    out = property(lambda self: self._arrays().out)
+    proj = property(lambda self: self._arrays().proj)
+    synth = property(lambda self: self._arrays().synth)
 
 
 def spectral_basis(op, M=None):
@@ -172,7 +176,7 @@ def spectral_basis(op, M=None):
     modes = modal_basis(op)
     if modes is not None:
         return modes
-    backend = getattr(op, "backend", None)
+    backend = op.backend
     if not isinstance(backend, Dense):
         return None
     P = backend.P
@@ -231,7 +235,7 @@ def build(kind: str, run, n_in: int, n_out: int, M=None, M_out=None, parts: dict
         if kind == "dense":
             return {"P": P}
         svd = SVD(P, M, M_out)
-        return {a: getattr(svd, a) for a in SVD.ARRAYS}
+        return {a: vars(svd)[a] for a in SVD.ARRAYS}
 
     if parts is None:
         arrays = make()

@@ -90,7 +90,7 @@ class _Spectral:
 
 def _kind(op):
     """The torch applier class for ``op``'s compiled backend (dense or spectral), or None (stepping)."""
-    backend = getattr(op, "backend", None)
+    backend = op.backend
     return _Dense if isinstance(backend, Dense) else _Spectral if isinstance(backend, Spectral) else None
 
 
@@ -99,9 +99,10 @@ def factors(op, device) -> _Dense | _Spectral | None:
     kind = _kind(op)
     if kind is None:
         return None
-    names = ("P", "PT") if kind is _Dense else ("In", "g", "out")
-    return kind(*(torch.as_tensor(np.ascontiguousarray(getattr(op.backend, a)), dtype=torch.float64,
-                                  device=device) for a in names))
+    b = op.backend
+    arrays = (b.P, b.PT) if kind is _Dense else (b.In, b.g, b.out)
+    return kind(*(torch.as_tensor(np.ascontiguousarray(a), dtype=torch.float64, device=device)
+                  for a in arrays))
 
 
 class Placed(LinearOperator):
@@ -130,10 +131,20 @@ class Placed(LinearOperator):
     def T(self) -> Placed:
         return Placed(self.op.T, self.device, self.apply.T)
 
-    def __getattr__(self, name):  # capabilities (modes, output_space, mass, …) are the operator's
-        if name == "op":
-            raise AttributeError(name)
-        return getattr(self.op, name)
+    # the declared capabilities (pdeinv.physics.capabilities) are the operator's own
+    output_space = property(lambda self: self.op.output_space)
+    modes = property(lambda self: self.op.modes)
+    mass = property(lambda self: self.op.mass)
+    backend = property(lambda self: self.op.backend)
+    reversible = property(lambda self: self.op.reversible)
+    max_gain_squared = property(lambda self: self.op.max_gain_squared)
+    kind = property(lambda self: self.op.kind)
+
+    def final_state(self, U0, C0=None):
+        return self.op.final_state(U0, C0)
+
+    def reverse(self, UT, CT):
+        return self.op.reverse(UT, CT)
 
     def __repr__(self):
         return f"Placed({self.op!r}, {str(self.device)!r})"

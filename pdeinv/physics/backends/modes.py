@@ -91,7 +91,7 @@ class _Basis:
             cap = 2 * self.Q.shape[1] + b
             for name in ("Q", "MQ"):
                 grown = np.empty((self.Q.shape[0], cap), order="F")
-                grown[:, :self.m] = getattr(self, name)[:, :self.m]
+                grown[:, :self.m] = vars(self)[name][:, :self.m]
                 setattr(self, name, grown)
         self.Q[:, self.m:self.m + b], self.MQ[:, self.m:self.m + b] = V, MV
         self.m += b
