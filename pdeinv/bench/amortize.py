@@ -39,7 +39,8 @@ def classical_solvers(problem) -> dict:
             solver = make()
         except ValueError:  # the operator lacks what this solve needs
             continue
-        getattr(solver, "scale", None)  # a one-off setup (TikhonovCG's λ_max estimate), not per sample
+        if isinstance(solver, TikhonovCG):
+            solver.scale  # noqa: B018  a one-off setup (its λ_max estimate), not per sample
         out[name] = lambda Y, s=solver: s(Y, np.zeros((len(Y), op.n_in)))
     return out
 

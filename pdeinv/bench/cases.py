@@ -152,7 +152,7 @@ def _training_cases(load, base, v, small, quick, n_te) -> list[Case]:
     steps = 5 if quick else 30
 
     def precision(kind):
-        dtype = getattr(torch, kind)
+        dtype = {"float32": torch.float32, "float64": torch.float64}[kind]
         p = small()
         x = torch.tensor(p.sample(4, 0)[0], dtype=dtype)
         ref = p.operator.forward(x.double().numpy())

@@ -21,7 +21,7 @@ from ..errors import TooManyModes
 from ..problem.definition import load_problem
 from .timing import best
 
-_COMMON = {"element", "T", "steps", "noise", "n", "mesh", "scheme", "backend", "prior"}
+_COMMON = {"element", "T", "steps", "noise", "n", "mesh", "scheme", "backend", "prior", "tol"}
 #: physics (named by its defining setting) -> (the settings it may have, {rung: (scheme, backend)}, u(T)/u₀)
 LADDERS = {
     "kappa": (_COMMON | {"kappa", "reaction"},

@@ -30,10 +30,10 @@ def operator_ratios(problem, batch: int = 64, repeats: int = 5, seed: int = 0) -
     """
     op, rng = problem.operator, np.random.default_rng(seed)
     X, R = rng.standard_normal((batch, op.n_in)), rng.standard_normal((batch, op.n_out))
-    run = stepping(op)
-    out, run = {"batch": batch, "N": op.n_in}, op if run is None else run
+    stepped = stepping(op)
+    out, run = {"batch": batch, "N": op.n_in}, op if stepped is None else stepped
     fns = {"fwd": lambda: run.forward(X), "adj": lambda: run.adjoint(R)}
-    sc = getattr(run, "scheme", None)  # None: no time stepping, forward and adjoint only
+    sc = None if stepped is None else stepped.scheme  # None: forward and adjoint only
 
     def own():  # the scheme's step in a plain loop
         s = sc.start(X.T)
@@ -43,7 +43,7 @@ def operator_ratios(problem, batch: int = 64, repeats: int = 5, seed: int = 0) -
 
     if sc is not None:
         fns["own"] = own
-    lu = getattr(sc, "lu", None)  # an implicit scheme: a factorized A
+    lu = None if sc is None else sc.lu  # an implicit scheme: a factorized A (explicit ones declare None)
     if lu is not None:
         bare_lu = sla.splu(sc.A.tocsc())
 

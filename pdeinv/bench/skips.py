@@ -76,7 +76,7 @@ def no_grad(op, X, repeats) -> dict:
 def factorization(op, X, repeats) -> dict:
     """The stepping forward vs it plus ``steps`` factorizations of ``A`` by the same solver type."""
     run = stepping(op)
-    lu = getattr(run.scheme, "lu", None) if run is not None else None
+    lu = None if run is None else run.scheme.lu  # explicit schemes declare None
     if lu is None:
         return {"skipped": "no implicit time-stepping operator"}
     t_ours = best(lambda: run.forward(X), repeats)

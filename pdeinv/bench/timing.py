@@ -60,7 +60,7 @@ def machine() -> dict:
 def stepping(op):
     """``op`` applied by time stepping (:meth:`pdeinv.physics.Propagator.stepping`), or ``None`` for an
     operator that does not step through time (a :class:`~pdeinv.physics.Matrix`, a user's own)."""
-    return op.stepping() if callable(getattr(op, "stepping", None)) else None
+    return op.stepping()  # declared: None for an operator with no time-stepping form
 
 
 def compiled(op, kind: str, M=None):

@@ -87,7 +87,7 @@ def decoded_svd(op, decoder) -> DecodedSVD:
     """``P̂``'s thin SVD from ``k`` forward calls; ``decoder``: the rows ``Dᵀ`` (``(k, N)``, numpy or
     torch), ``None`` for the identity (``N`` calls). Computed once per operator and decoder object (the
     trainer's target, SIP's inverse and HIG's step all ask for it)."""
-    cache = op.__dict__.setdefault("_decoded_svd", {}) if hasattr(op, "__dict__") else {}
+    cache = vars(op).setdefault("_decoded_svd", {})
     key = id(decoder)
     if key not in cache:  # the entry keeps the decoder alive: its id stays unique
         cache[key] = (decoder, _decoded_svd(op, decoder))

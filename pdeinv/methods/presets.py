@@ -71,10 +71,12 @@ the same 128 test pairs: see ``docs/results.md``.
 from __future__ import annotations
 
 from .._checks import positive
+from ..nets.protocol import declared as nets_declared
 from .base import adam, sgd
 from .gd import GD, GD_LR
 from .hig.rule import HIG
 from .names import METHOD_NAMES
+from .protocol import declared
 from .sip import SIP
 from .supervised import Supervised
 
@@ -139,14 +141,13 @@ def run_defaults(rule, model=None) -> dict:
     ``rule.name``), what :class:`pdeinv.Trainer` uses for the arguments it was not given. HIG on a
     network that is not linear in its parameters (an MLP) takes :data:`HIG_MLP_BATCH` rows, as
     ``pdeinv train --method hig --hidden W`` does."""
-    name = getattr(rule, "name", None)
-    hp = GENERIC.get(name) if isinstance(name, str) else None
+    name = declared(rule).name
+    hp = GENERIC.get(name)
     if hp is None:
         return {"steps": DEFAULT_STEPS, "batch_size": DEFAULT_BATCH, "rows_per_component": None}
     batch = hp.get("batch_size")
     if name == "hig" and model is not None:
-        linear = getattr(model, "linear_in_parameters", None)
-        if not callable(linear) or linear() is None:  # its stacked Jacobian grows with the batch
+        if nets_declared(model).linear_in_parameters() is None:  # its stacked Jacobian grows with the batch
             batch = HIG_MLP_BATCH
     return {"steps": hp.get("steps") or DEFAULT_STEPS, "batch_size": batch,
             "rows_per_component": hp.get("rows_per_component")}
@@ -158,7 +159,7 @@ def hyperparameters(method: str, problem, noise: float = 0.0, **overrides) -> di
     if method not in METHODS:
         raise ValueError(f"method={method!r} is not allowed; expected one of "
                          f"{', '.join(map(repr, METHODS))}")
-    name = getattr(problem, "name", problem)
+    name = problem if isinstance(problem, str) else problem.name
     hp = {**GENERIC[method], **PER_PROBLEM.get(name, {}).get(method, {})}
     hp.setdefault("hidden", None)
     hp.setdefault("rows_per_component", None)

@@ -40,6 +40,11 @@ class LinearOperator:
     #: ``λ_max(PᵀP)`` in closed form (a zero-argument callable), or None (power iteration on use)
     max_gain_squared = None
 
+    def stepping(self):
+        """The same map applied by time stepping (a :class:`.propagator.Propagator`), or None: this
+        operator has no time-stepping form."""
+        return None
+
     def forward(self, X) -> np.ndarray:
         """``P X``, row-wise: ``(B, n_in) -> (B, n_out)``."""
         A, single = batch(X, self.n_in, "X")

@@ -32,7 +32,7 @@ from ..fem.solvers import is_symmetric
 FILL_FALLBACK = 10
 
 
-class _Implicit:
+class Implicit:
     """Shared by the implicit schemes: factor ``A`` once, transposes only where needed."""
 
     #: the step with ``sign=-1`` undoes it exactly (declared by the scheme: :meth:`Propagator.reverse`)
@@ -70,7 +70,7 @@ class _Implicit:
         return tuple(np.zeros((n, b)) for _ in range(self.width))
 
 
-class Theta(_Implicit):
+class Theta(Implicit):
     """θ-scheme step for ``M u' + L u = 0`` (θ = 1 backward Euler, ½ Crank–Nicolson)."""
 
     width = 1
@@ -93,7 +93,7 @@ class Theta(_Implicit):
         return (self.BT @ self.solve_T(s[0]),)
 
 
-class Newmark(_Implicit):
+class Newmark(Implicit):
     """Newmark average-acceleration step on ``(u, v)`` for ``M u'' + c² K u = 0`` (module docstring).
     Time-reversible: the step with ``−dt`` undoes it; the state's companion of ``u`` is ``v``."""
 
@@ -132,6 +132,7 @@ class Leapfrog:
 
     width = 2
     reversible = True
+    lu = None  # explicit: no factorization
 
     def pack(self, U, C):
         return C, U

@@ -88,7 +88,7 @@ def dense_operator(problem, chunk: int = 256) -> np.ndarray:
     (:mod:`pdeinv.physics.backends.compiled`), from its spectral basis ``out diag(g) Inᵀ`` (modal or SVD,
     exact to the basis' tolerance), else from forward runs on identity columns."""
     op = problem.operator
-    backend, basis = getattr(op, "backend", None), modal_basis(op)
+    backend, basis = op.backend, modal_basis(op)
     if isinstance(backend, Dense):
         return backend.P
     if basis is not None:

@@ -231,8 +231,8 @@ class Trainer:
         self.checkpoint = args.checkpoint(self.checkpoint)
         self.callbacks = args.callbacks(self.callbacks)
         self.dtype = args.dtype(self.dtype)
-        for name in ("fit_scaling", "resume"):
-            setattr(self, name, args.flag(getattr(self, name), name))
+        self.fit_scaling = args.flag(self.fit_scaling, "fit_scaling")
+        self.resume = args.flag(self.resume, "resume")
         self.progress = args.flag(self.progress, "progress", optional=True)
         self._preset = run_defaults(self.rule, self.model)
         if self.steps == PRESET:

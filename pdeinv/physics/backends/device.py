@@ -140,6 +140,9 @@ class Placed(LinearOperator):
     max_gain_squared = property(lambda self: self.op.max_gain_squared)
     kind = property(lambda self: self.op.kind)
 
+    def stepping(self):
+        return self.op.stepping()
+
     def final_state(self, U0, C0=None):
         return self.op.final_state(U0, C0)
 
