@@ -25,14 +25,11 @@ from types import MappingProxyType
 from torch import nn
 
 
-class Network(nn.Module):
-    """A module with declared capabilities (module docstring); subclasses override what they offer."""
+class _Nothing:
+    """The declarations' defaults shared by :class:`Network` and :class:`Undeclared`: nothing."""
 
     #: how the decoder was chosen (``reduced`` sets it on the instance)
     decoder_info = MappingProxyType({})
-
-    def fit_observations(self, y, noise: float | None = None, **settings) -> Network:
-        return self
 
     def linear_in_parameters(self):
         return None
@@ -42,32 +39,29 @@ class Network(nn.Module):
 
     def gauss_newton_max(self, y):
         return None
+
+
+class Network(_Nothing, nn.Module):
+    """A module with declared capabilities (module docstring); subclasses override what they offer."""
+
+    def fit_observations(self, y, noise: float | None = None, **settings) -> Network:
+        return self
 
     @property
     def decoder(self):
         return None
 
 
-class Undeclared:
+class Undeclared(_Nothing):
     """A plain ``nn.Module`` as a :class:`Network` that declares nothing (module docstring)."""
 
     decoder = None
-    decoder_info = MappingProxyType({})
 
     def __init__(self, model: nn.Module):
         self.model = model
 
     def fit_observations(self, y, noise: float | None = None, **settings) -> nn.Module:
         return self.model
-
-    def linear_in_parameters(self):
-        return None
-
-    def gauss_newton_diagonal(self, y):
-        return None
-
-    def gauss_newton_max(self, y):
-        return None
 
 
 def declared(model: nn.Module | None) -> Network | Undeclared:
