@@ -19,6 +19,7 @@ import numpy as np
 from ._checks import batch, count
 from .forms import Discretization
 from .physics.base import LinearOperator
+from .physics.nonlinear import is_linear
 from .physics.propagator import chosen
 from .sampling import add_noise
 
@@ -48,8 +49,10 @@ class Problem:
     model_factory: Callable | None = None
 
     def __post_init__(self):
-        # an operator built by hand goes through the backend chooser as the scenes' do
-        chosen(self.operator, getattr(self.disc, "M", None))
+        # an operator built by hand goes through the backend chooser as the scenes' do; a nonlinear
+        # one (declared linear=False) has no matrix to compile
+        if is_linear(self.operator):
+            chosen(self.operator, getattr(self.disc, "M", None))
 
     @property
     def points(self) -> np.ndarray:

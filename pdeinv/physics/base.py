@@ -16,14 +16,23 @@ from __future__ import annotations
 import numpy as np
 
 from .._checks import batch
+from .nonlinear import Physics
 
 
-class LinearOperator:
-    """Base class: input checks and the transposed view ``.T``."""
+class LinearOperator(Physics):
+    """Base class: input checks and the transposed view ``.T``; a :class:`~.nonlinear.Physics` whose
+    tangent is itself (``jvp(X, V) = P V``, ``vjp(X, R) = Pᵀ R``, ``X`` unused)."""
 
+    linear = True
     #: number of unknowns and of observed values per sample
     n_in: int
     n_out: int
+
+    def _jvp(self, X, V):
+        return self._forward(V)
+
+    def _vjp(self, X, R):
+        return self._adjoint(R)
 
     def forward(self, X) -> np.ndarray:
         """``P X``, row-wise: ``(B, n_in) -> (B, n_out)``."""
