@@ -104,8 +104,8 @@ class ReactionHeat(Physics):
         if self.theta * self.dt * self.strength >= 1.0:
             need = math.floor(self.theta * self.t_end * self.strength) + 1
             raise ValueError(f"θ·dt·strength = {self.theta * self.dt * self.strength:.3g} >= 1: a Newton "
-                             f"step may have several solutions; allowed: steps >= {need} for T={self.t_end:g}, "
-                             f"strength={self.strength:g}")
+                             f"step may have several solutions; allowed: steps >= {need} "
+                             f"for T={self.t_end:g}, strength={self.strength:g}")
         self.k = count(checkpoint_every, "checkpoint_every") if checkpoint_every else math.ceil(
             math.sqrt(self.steps))
         self.rtol, self.max_newton = positive(rtol, "rtol"), count(max_newton, "max_newton")

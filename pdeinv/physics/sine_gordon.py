@@ -124,7 +124,8 @@ class SineGordon(Physics):
         U, V = np.atleast_2d(U), np.atleast_2d(V)
         m = self.mass.diagonal()
         return (0.5 * np.einsum("bi,i,bi->b", V, m, V)
-                + 0.5 * self.c**2 * np.einsum("bi,bi->b", U, (self.K @ U.T).T) + self.strength * (1.0 - np.cos(U)) @ m)
+                + 0.5 * self.c**2 * np.einsum("bi,bi->b", U, (self.K @ U.T).T)
+                + self.strength * (1.0 - np.cos(U)) @ m)
 
     # -- Physics ------------------------------------------------------------------------------------
     def _forward(self, X):
