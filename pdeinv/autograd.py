@@ -79,6 +79,32 @@ def _numpy_pair(fn, x: torch.Tensor, z: torch.Tensor) -> torch.Tensor:
     return torch.from_numpy(out).to(device=z.device, dtype=z.dtype).reshape(*lead, out.shape[-1])
 
 
+class _Derivative(torch.autograd.Function):
+    """``op.jvp(x, z)`` (``which='jvp'``) or ``op.vjp(x, z)``: a product with the tangent at ``x``,
+    itself not differentiable (second derivatives of a nonlinear solver are not offered)."""
+
+    @staticmethod
+    def forward(x, z, op, which):
+        return _numpy_pair(getattr(op, which), x, z)
+
+    @staticmethod
+    def setup_context(ctx, inputs, output):
+        ctx.op = inputs[2]
+
+    @staticmethod
+    def backward(ctx, *_):
+        raise NotImplementedError(f"second derivatives through the nonlinear {ctx.op!r} are not offered "
+                                  "(its vjp/jvp are not differentiated again); use a first-order method")
+
+    @staticmethod
+    def vmap(info, in_dims, x, z, op, which):
+        x = x if in_dims[0] is None else x.movedim(in_dims[0], 0)
+        z = z if in_dims[1] is None else z.movedim(in_dims[1], 0)
+        if in_dims[1] is None:  # only x is batched: z is broadcast over it
+            z = z.expand(x.shape[0], *z.shape)
+        return _Derivative.apply(x, z, op, which), 0
+
+
 class _Nonlinear(torch.autograd.Function):
     """``P(x)`` for a nonlinear Physics: saves ``x``; backward ``op.vjp``, forward mode ``op.jvp``."""
 
@@ -93,14 +119,20 @@ class _Nonlinear(torch.autograd.Function):
         ctx.x = inputs[0]  # forward mode reads it (save_for_forward would need a dual tensor)
 
     @staticmethod
-    @torch.autograd.function.once_differentiable
     def backward(ctx, grad):
         (x,) = ctx.saved_tensors
-        return _numpy_pair(ctx.op.vjp, x, grad), None
+        return _Derivative.apply(x, grad, ctx.op, "vjp"), None
 
     @staticmethod
     def jvp(ctx, x_dot, _):
-        return _numpy_pair(ctx.op.jvp, ctx.x, x_dot)
+        return _Derivative.apply(ctx.x, x_dot, ctx.op, "jvp")
+
+    @staticmethod
+    def vmap(info, in_dims, x, op):
+        d = in_dims[0]
+        if d is None:
+            return _Nonlinear.apply(x, op), None
+        return _Nonlinear.apply(x.movedim(d, 0), op), 0
 
 
 def apply(op: Physics, x: torch.Tensor) -> torch.Tensor:

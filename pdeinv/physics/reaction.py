@@ -15,8 +15,9 @@ block-diagonal ``J`` of the columns not yet converged, per Newton iteration. **S
 to rounding**: a column stops when its Newton update ``‖δ_k‖∞ ≤ rtol·‖w‖∞`` (``rtol = 1e-14``,
 45 ulp), or when the quadratic model predicts the next error below that, ``‖δ_k‖³/‖δ_{k−1}‖² ≤
 rtol·‖w‖∞`` (the update ``δ_k`` is then applied and nothing is factorized again).
-The step is uniquely solvable while ``θ dt r < 1`` (then ``J`` is positive definite: ``f' ≥ −r``);
-a larger ``dt·r`` is refused with the number of steps that would do.
+``θ dt r ≥ 1`` is refused with the number of steps that would do: since ``f' ≥ −r``, the step's
+Jacobian is ``(1 − θ dt r) M + θ dt κK`` plus a non-negative reaction term, which may become
+singular (several solutions of one step) when ``θ dt r ≥ 1`` (exactly so with a lumped mass).
 
 **Exact discrete adjoint.** The tangent of a step is ``δw = J(w)⁻¹ C(u) δu`` with
 ``C(u) = B − (1−θ) dt M diag(f'(u))``; its transpose ``ū = C(u)ᵀ J(w)⁻ᵀ w̄`` needs the states
