@@ -83,6 +83,7 @@ from scipy import stats
 from ._checks import positive
 from .noise import noise_variance
 from .physics.compiled import spectral_basis
+from .physics.nonlinear import is_linear
 
 #: the chance that any pure-noise mode counts as clearly detected (module docstring)
 FAMILY_P = 1e-3
@@ -141,7 +142,7 @@ class SpectralWiener:
     @staticmethod
     def _basis(problem, model=None):
         decoder = getattr(model, "decoder", None)
-        if decoder is not None:  # the physics as the network sees it: P̂ = P D = Q diag(s) Vᵀ
+        if decoder is not None and is_linear(problem.operator):  # the physics as the network sees it: P̂ = P D
             from .inverse.decoder import decoded_svd
 
             Q, s, _ = decoded_svd(problem.operator, decoder)

@@ -16,6 +16,7 @@ from ..inverse.decoder import decoded_svd
 from ..memory import HIG_JACOBIAN_GB
 from ..physics.base import Matrix
 from ..physics.capabilities import modal_basis
+from ..physics.nonlinear import is_linear, require_linear
 from . import hig_fixed, hig_kron
 from .base import Rule, State, Update, prediction, y_loss
 from .hig_routes import JACOBIANS, ROUTES, Batch
@@ -154,7 +155,9 @@ class HIG(Rule):
     def context(self, problem, model):
         op = problem.operator
         lin = getattr(model, "linear_in_parameters", None)
-        lin = lin() if callable(lin) and self.route in ("auto", "kronecker") else None
+        if self.route == "kronecker":
+            require_linear(op, "HIG(route='kronecker') (it factors P D once for the run)")
+        lin = lin() if callable(lin) and self.route in ("auto", "kronecker") and is_linear(op) else None
         if lin is None and self.sum_over is not None:
             raise ValueError(f"rule 'hig' cannot run on several processes with {type(model).__name__}: "
                              "only its Kronecker route is data-parallel, and that needs a network linear in "

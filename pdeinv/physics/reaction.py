@@ -218,6 +218,39 @@ class ReactionHeat(Physics):
         self.peak_fields = peak
         return np.ascontiguousarray(Ub.T)
 
+    def linearize(self, X) -> tuple[np.ndarray, Tangent]:
+        """``(P(X), P'(X))`` with the tangent kept for many products (a local inverse's CG): the whole
+        trajectory and every step's Jacobian factorization are stored, O(steps) fields and factors —
+        memory traded for products at the cost of two block solves per step and no Newton."""
+        U, states, lus = np.ascontiguousarray(np.atleast_2d(X).T), [], []
+        self.newton_iterations = []
+        for _ in range(self.steps):
+            W = self.step(U)
+            states.append(U)
+            lus.append(self._tangent_factor(W))
+            U = W
+        return np.ascontiguousarray(U.T), Tangent(self, states, lus)
+
     def __repr__(self):
         return (f"ReactionHeat(N={self.n_in}, kappa={self.kappa}, T={self.t_end}, steps={self.steps}, "
                 f"strength={self.strength}, scheme={self.scheme_name!r}, checkpoint_every={self.k})")
+
+
+class Tangent:
+    """``P'(X)`` of a :class:`ReactionHeat` run at fixed ``X`` (:meth:`ReactionHeat.linearize`):
+    ``jvp(V)``, ``vjp(R)`` on ``(B, N)`` rows, the same products as ``op.jvp(X, ·)``/``op.vjp(X, ·)``."""
+
+    def __init__(self, op: ReactionHeat, states: list, lus: list):
+        self.op, self.states, self.lus = op, states, lus
+
+    def jvp(self, V):
+        op, Vc = self.op, np.ascontiguousarray(V.T)
+        for U, lu in zip(self.states, self.lus, strict=True):
+            Vc = _unvec(lu.solve(_vec(op._C(U, Vc))), op.n_in)
+        return np.ascontiguousarray(Vc.T)
+
+    def vjp(self, R):
+        op, Ub = self.op, np.ascontiguousarray(R.T)
+        for U, lu in zip(reversed(self.states), reversed(self.lus), strict=True):
+            Ub = op._C_T(U, _unvec(lu.solve(_vec(Ub), trans="T"), op.n_in))
+        return np.ascontiguousarray(Ub.T)
