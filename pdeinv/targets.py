@@ -161,7 +161,8 @@ class SpectralWiener:
         ``model`` that has a fixed decoder ``D`` (``model.decoder``, :func:`pdeinv.nets.reduced`) the
         basis is the SVD of ``P D`` (module docstring: the MMSE in ``span D``)."""
         if not noise and getattr(model, "decoder", None) is not None:
-            return self.rounding(problem, model)
+            # a nonlinear map has no fixed P D to filter in: the rows' own y is the target
+            return self.rounding(problem, model) if is_linear(problem.operator) else None
         if not self.applies(problem, noise, model):
             return None
         return self.fit_basis(self._basis(problem, model), y, noise)
