@@ -100,9 +100,14 @@ class _Derivative(torch.autograd.Function):
     def vmap(info, in_dims, x, z, op, which):
         x = x if in_dims[0] is None else x.movedim(in_dims[0], 0)
         z = z if in_dims[1] is None else z.movedim(in_dims[1], 0)
-        if in_dims[1] is None:  # only x is batched: z is broadcast over it
-            z = z.expand(x.shape[0], *z.shape)
-        return _Derivative.apply(x, z, op, which), 0
+        size = info.batch_size
+        x = x.expand(size, *x.shape) if in_dims[0] is None else x
+        z = z.expand(size, *z.shape) if in_dims[1] is None else z
+        # below the vmapped dimension the rows broadcast (jacrev: one x against many cotangents)
+        x = x.reshape(size, *[1] * (z.ndim - x.ndim), *x.shape[1:])
+        z = z.reshape(size, *[1] * (x.ndim - z.ndim), *z.shape[1:])
+        lead = torch.broadcast_shapes(x.shape[:-1], z.shape[:-1])
+        return _Derivative.apply(x.expand(*lead, x.shape[-1]), z.expand(*lead, z.shape[-1]), op, which), 0
 
 
 class _Nonlinear(torch.autograd.Function):

@@ -187,3 +187,15 @@ def test_linearity_is_declared():
         is_linear(sp.identity(3))
     p = pdeinv.load_problem("allen_cahn_1d", steps=5)
     assert not hasattr(p.operator, "choice")  # the Problem compiled nothing
+
+
+def test_per_sample_jacobians_through_vmap():
+    """HIG's route: ``vmap(jacrev(P))`` over samples gives each sample's tangent ``P'(x_b)``."""
+    d = discretize(pdeinv.mesh.interval(8))
+    op = SineGordon(lumped_mass(d), d.K, T=0.2, strength=50.0)
+    x = torch.tensor(_draw(op, b=3), dtype=torch.float64)
+    J = torch.func.vmap(torch.func.jacrev(lambda t: pdeinv.apply(op, t)))(x).numpy()
+    eye = np.eye(op.n_in)
+    for b in range(3):
+        ref = op.jvp(np.repeat(x[b : b + 1].numpy(), op.n_in, axis=0), eye).T  # columns P'(x_b) e_i
+        assert np.allclose(J[b], ref, rtol=0, atol=1e-13)
