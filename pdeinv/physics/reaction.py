@@ -37,6 +37,7 @@ import math
 import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.linalg as sla
+from scipy.sparse.csgraph import reverse_cuthill_mckee
 
 from .._checks import choice, count, nonnegative, positive
 from .nonlinear import Physics
@@ -54,25 +55,53 @@ def allen_cahn(r: float):
 
 
 class _Blocks:
-    """``I_b ⊗ A`` and ``I_b ⊗ M`` (CSC) for ``b`` columns, with the column of every stored entry."""
+    """The block-diagonal Jacobians ``I_b ⊗ A + s (I_b ⊗ M) diag(vec D)`` of ``b`` columns, assembled
+    straight into CSC arrays on the pattern of ``A + M``, each block in the reverse Cuthill–McKee order
+    of that pattern and factorized without reordering (``permc_spec='NATURAL'``): the blocks stay
+    banded, and the generic orderings spent most of the time ordering (1-D, 32 columns: 3 ms per
+    factorization with MMD against under 1 ms)."""
 
     def __init__(self, A, M):
-        self.A, self.M, self._cache = A.tocsc(), M.tocsc(), {}
+        pattern = (abs(A) + abs(M)).tocsr()
+        self.perm = reverse_cuthill_mckee(pattern, symmetric_mode=True)
+        P = pattern[self.perm][:, self.perm].tocsc()
+        P.sort_indices()
+        self.n, self.nnz, self.indptr, self.indices = P.shape[0], P.nnz, P.indptr, P.indices
+        self.col = np.repeat(np.arange(self.n), np.diff(P.indptr))
+        rows_orig, cols_orig = self.perm[self.indices], self.perm[self.col]
+        self.a = np.asarray(A.tocsr()[rows_orig, cols_orig]).ravel()
+        self.m = np.asarray(M.tocsr()[rows_orig, cols_orig]).ravel()
+        self._struct = {}
 
-    def get(self, b: int):
-        if b not in self._cache:
-            eye = sp.identity(b, format="csc")
-            KA, KM = sp.kron(eye, self.A, format="csc"), sp.kron(eye, self.M, format="csc")
-            col = np.repeat(np.arange(KM.shape[1]), np.diff(KM.indptr))
-            self._cache = {b: (KA, KM, col)}  # one size at a time: the active set shrinks monotonically
-        return self._cache[b]
+    def _structure(self, b: int):
+        if b not in self._struct:
+            starts = (np.arange(b)[:, None] * self.nnz + self.indptr[None, :-1]).ravel()
+            indptr = np.append(starts, b * self.nnz)
+            indices = (self.indices[None, :] + self.n * np.arange(b)[:, None]).ravel()
+            self._struct = {b: (indptr, indices)}  # the last size: the active set changes rarely
+        return self._struct[b]
 
     def jacobian(self, scale, D):
         """LU of ``I ⊗ A + scale · (I ⊗ M) diag(vec D)``, ``D`` ``(N, b)`` (column-stacked)."""
-        KA, KM, col = self.get(D.shape[1])
-        d = np.ascontiguousarray(D.T).ravel()
-        J = KA + sp.csc_matrix((KM.data * (scale * d[col]), KM.indices, KM.indptr), shape=KM.shape)
-        return sla.splu(J.tocsc(), permc_spec="MMD_AT_PLUS_A")
+        b = D.shape[1]
+        indptr, indices = self._structure(b)
+        data = (self.a[None, :] + scale * self.m[None, :] * D[self.perm].T[:, self.col]).ravel()
+        J = sp.csc_matrix((data, indices, indptr), shape=(self.n * b, self.n * b))
+        return _Factor(sla.splu(J, permc_spec="NATURAL"), self.perm, self.n)
+
+
+class _Factor:
+    """A block factorization in the blocks' order, solved on column-stacked vectors in the original."""
+
+    def __init__(self, lu, perm, n):
+        self.lu, self.perm, self.n = lu, perm, n
+
+    def solve(self, v, trans: str = "N"):
+        V = v.reshape(-1, self.n)
+        out = np.empty_like(V)
+        out[:, self.perm] = self.lu.solve(np.ascontiguousarray(V[:, self.perm]).ravel(),
+                                          trans=trans).reshape(V.shape)
+        return out.ravel()
 
 
 def _vec(U):
