@@ -16,8 +16,7 @@ from skfem.models.poisson import mass
 
 from . import settings as s
 from .forms import discretize
-from .inverse import TimeReversal
-from .inverse.gauss_newton import GaussNewtonInverse
+from .inverse import default_inverse
 from .physics.reaction import ReactionHeat
 from .physics.sine_gordon import SineGordon
 from .problem import Problem
@@ -52,9 +51,8 @@ def allen_cahn(name: str, mesh, cfg: dict) -> Problem:
     op = ReactionHeat(disc.M, disc.K, kappa=cfg["kappa"], T=cfg["T"], steps=cfg["steps"],
                       strength=cfg["strength"], scheme=cfg["scheme"],
                       checkpoint_every=cfg["checkpoint_every"])
-    inverse = GaussNewtonInverse(op, disc.M, rel_alpha=max(cfg["noise"], 1e-2) ** 2)
     return Problem(name, disc, op, _scaled(prior(disc.points, cfg), cfg["amplitude"]), settings=cfg,
-                   noise=cfg["noise"], inverse_simulator=inverse)
+                   noise=cfg["noise"], inverse_simulator=default_inverse(op, disc, noise=cfg["noise"]))
 
 
 def lumped_mass(disc):
@@ -73,4 +71,4 @@ def sine_gordon(name: str, mesh, cfg: dict) -> Problem:
     op = SineGordon(lumped_mass(disc), disc.K, c=cfg["c"], T=cfg["T"], steps=cfg["steps"],
                     strength=cfg["strength"], cfl=cfg["cfl"])
     return Problem(name, disc, op, _scaled(prior(disc.points, cfg), cfg["amplitude"]), settings=cfg,
-                   noise=cfg["noise"], inverse_simulator=TimeReversal(op))
+                   noise=cfg["noise"], inverse_simulator=default_inverse(op, disc, noise=cfg["noise"]))

@@ -66,3 +66,15 @@ def test_gradient_methods_train_on_allen_cahn(method):
     res = pdeinv.Trainer(p, rule, steps=60, seed=0, batch_size=16, n_train=64, n_test=16, eval_every=60,
                          progress=False).fit()
     assert res.metrics["x_err"] < 0.95
+
+
+def test_linear_references_refuse_a_nonlinear_map_and_the_default_inverse_asks_the_capability():
+    from pdeinv import references
+    from pdeinv.inverse import TimeReversal, default_inverse
+
+    p = _small()
+    with pytest.raises(NotImplementedError, match="a dense matrix of P"):
+        references.dense_operator(p)
+    assert isinstance(default_inverse(p.operator, p.disc), GaussNewtonInverse)
+    sg = pdeinv.load_problem("sine_gordon_1d", n=16)
+    assert isinstance(sg.inverse_simulator, TimeReversal)  # reversible: reverse stepping
