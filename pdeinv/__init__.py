@@ -31,7 +31,7 @@ _WHERE = {
     **dict.fromkeys(["Net", "mlp", "reduced", "whitened", "zero_last_layer"], "nets"),
     "estimate_noise": "noise", "sensor_matrix": "observe",
     **dict.fromkeys(["Heat", "Leapfrog", "LinearOperator", "Matrix", "Modal", "Stepping", "Wave",
-                     "Propagator"], "physics"),
+                     "Propagator", "Physics", "ReactionHeat", "SineGordon"], "physics"),
     "Whitening": "precondition",
     **dict.fromkeys(["Problem", "available", "load_problem"], "problem"),
     **dict.fromkeys(["AMGCG", "Cholesky", "SuperLU", "amg_cg", "default_solver", "solver_for"], "solvers"),
