@@ -111,7 +111,7 @@ def test_checkpointed_adjoint_equals_the_stored_trajectory():
     R = np.random.default_rng(2).standard_normal(X.shape)
     store = ReactionHeat(d.M, d.K, steps=64, strength=2.0, checkpoint_every=1)
     ref = store.vjp(X, R)
-    assert store.peak_fields == 65
+    assert store.peak_fields == 65  # the trajectory, stored
     for k in (None, 7):
         op = ReactionHeat(d.M, d.K, steps=64, strength=2.0, checkpoint_every=k)
         assert np.max(np.abs(op.vjp(X, R) - ref)) <= 1e-14 * np.max(np.abs(ref))
@@ -199,3 +199,21 @@ def test_per_sample_jacobians_through_vmap():
     for b in range(3):
         ref = op.jvp(np.repeat(x[b : b + 1].numpy(), op.n_in, axis=0), eye).T  # columns P'(x_b) e_i
         assert np.allclose(J[b], ref, rtol=0, atol=1e-13)
+
+
+def test_a_vjp_after_a_forward_at_the_same_point_reuses_its_checkpoints():
+    d = _disc(16)
+    op = ReactionHeat(d.M, d.K, steps=16, strength=2.0)
+    X = _draw(op, b=2)
+    R = np.random.default_rng(0).standard_normal(X.shape)
+    fresh = op.vjp(X, R)
+    op.forward(X)
+    calls = []
+    op.step = (lambda step: lambda *a, **k: calls.append(1) or step(*a, **k))(op.step)
+    assert np.array_equal(op.vjp(X, R), fresh)
+    assert len(calls) == 16  # the segments only: no checkpoint run
+    X2 = X.copy()
+    X2[0, 0] += 1e-3  # another point: recomputed
+    calls.clear()
+    op.vjp(X2, R)
+    assert len(calls) == 32
