@@ -29,6 +29,10 @@ from pdeinv.problem.definition import available
 #: every built-in scene, small (default backend unless the key says otherwise)
 SCENES = {
     "advection_diffusion_2d": dict(n=6, steps=5),
+    "allen_cahn_1d": dict(n=16, steps=10),
+    "allen_cahn_2d": dict(n=6, steps=5),
+    "sine_gordon_1d": dict(n=16),
+    "sine_gordon_2d": dict(n=6),
     "heat_1d": dict(n=16, steps=10),
     "heat_1d-modal": dict(n=16, steps=10, backend="modal"),
     "heat_2d": dict(n=6, steps=5),

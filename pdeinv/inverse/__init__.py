@@ -23,9 +23,11 @@ import numpy as np
 
 from ..physics.backends.compiled import spectral_basis
 from ..physics.capabilities import output_mass, reversible
+from ..physics.nonlinear import is_linear
 from ..physics.propagator import chosen
 from .alpha import Discrepancy, FixedAlpha, RelativeAlpha
 from .cg import TikhonovCG
+from .gauss_newton import GaussNewtonInverse
 from .modal import ModalTikhonov, SpectralTikhonov
 from .protocol import ReusesForward
 from .time_reversal import StateReversal, TimeReversal
@@ -71,6 +73,8 @@ def default_inverse(op, disc=None, noise: float = 0.0, alpha=None):
     whitened linear network): 0.13 with time reversal, 0.0014 with the filter (float32 network),
     6e-4 with the filter, the float64 network and batch 128. Time reversal stays the inverse of
     a time-stepping wave forward (``backend='steps'``), where an SVD would need the dense map;
+    * a nonlinear operator (declared ``linear = False``) → :class:`~.gauss_newton.GaussNewtonInverse`,
+      ``rel_alpha = max(noise, 0.01)²`` (:func:`pdeinv.nonlinear_scenes.allen_cahn` says why);
     * anything else → :class:`TikhonovCG` with the input mass ``disc.M`` (``op.mass``, or
       the identity, if ``disc`` is None), the observation mass ``disc.M`` when ``op`` declares field
       observations (else Euclidean), and ``λ_max(P*P)`` from ``op.max_gain_squared()``
@@ -92,6 +96,8 @@ def default_inverse(op, disc=None, noise: float = 0.0, alpha=None):
     rule = default_alpha(noise) if alpha is None else alpha
     if reversible(op):
         return TimeReversal(op)
+    if not is_linear(op):  # no matrix to solve with: a regularized Gauss–Newton step through jvp/vjp
+        return GaussNewtonInverse(op, M, rel_alpha=max(float(noise), 1e-2) ** 2)
     known = op.max_gain_squared  # declared (a callable) or None
     return TikhonovCG(op, M, rule, M_out=output_mass(op, M), scale=None if known is None else known())
 

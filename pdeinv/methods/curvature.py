@@ -78,12 +78,16 @@ def gauss_newton_max(model: torch.nn.Module, y: torch.Tensor, iters: int = 30, s
 def operator_norm2(op, iters: int = 30, seed: int = 0) -> float:
     """``λ_max(PᵀP)`` of a linear operator (Euclidean, as GD's loss): ``max g²`` of a spectral basis in
     Euclidean coordinates is not that (its norms are the mass matrices'), so always by power
-    iteration on ``forward``/``adjoint`` (numpy, one column), a lower bound within a few percent."""
+    iteration on ``forward``/``adjoint`` (numpy, one column), a lower bound within a few percent.
+    Through ``jvp``/``vjp`` at ``x = 0``, which for a linear operator are ``forward``/``adjoint``; for a
+    nonlinear one it is ``λ_max`` of the tangent at 0, the output of a network whose last layer
+    starts at zero (the first batch's curvature, as for the network's factor)."""
     v = np.random.default_rng(seed).standard_normal((1, op.n_in))
+    x = np.zeros_like(v)
     lam = 0.0
     for _ in range(iters):
         v /= np.linalg.norm(v)
-        w = op.adjoint(op.forward(v))
+        w = op.vjp(x, op.jvp(x, v))
         lam = float((w * v).sum())
         v = w
     return lam

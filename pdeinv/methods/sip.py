@@ -14,6 +14,7 @@ from .._checks import positive
 from ..inverse.protocol import ReusesForward
 from ..nets.protocol import declared
 from ..physics.base import LinearOperator
+from ..physics.nonlinear import is_linear
 from ..problem.definition import Problem
 from .base import OptimizerFactory, Rule, State, Update, check_finite, gradient, prediction, sgd, y_loss
 from .curvature import checked, gauss_newton_max
@@ -47,6 +48,8 @@ def decoder_inverse(problem, model):
     lin = declared(model).linear_in_parameters()
     noise = problem.noise or 0.0
     if lin is None or lin.decoder is None or (noise and not SpectralWiener().applies(problem, noise, model)):
+        return None
+    if not is_linear(problem.operator):  # the solve in span D needs a fixed P D: the problem's own inverse
         return None
     return DecoderTikhonov(problem.operator, lin.decoder)
 

@@ -90,6 +90,7 @@ from .._checks import positive
 from ..inverse.noise import noise_variance
 from ..nets.protocol import declared
 from ..physics.backends.compiled import spectral_basis
+from ..physics.nonlinear import is_linear
 
 #: the chance that any pure-noise mode counts as clearly detected (module docstring)
 FAMILY_P = 1e-3
@@ -148,7 +149,7 @@ class SpectralWiener:
     @staticmethod
     def _basis(problem, model=None):
         decoder = declared(model).decoder
-        if decoder is not None:  # the physics as the network sees it: P̂ = P D = Q diag(s) Vᵀ
+        if decoder is not None and is_linear(problem.operator):  # the physics as the network sees it: P̂ = P D
             from ..inverse.decoder import decoded_svd
 
             Q, s, _ = decoded_svd(problem.operator, decoder)
@@ -166,7 +167,8 @@ class SpectralWiener:
         ``model`` that has a fixed decoder ``D`` (``model.decoder``, :func:`pdeinv.nets.reduced`) the
         basis is the SVD of ``P D`` (module docstring: the MMSE in ``span D``)."""
         if not noise and declared(model).decoder is not None:
-            return self.rounding(problem, model)
+            # a nonlinear map has no fixed P D to filter in: the rows' own y is the target
+            return self.rounding(problem, model) if is_linear(problem.operator) else None
         if not self.applies(problem, noise, model):
             return None
         return self.fit_basis(self._basis(problem, model), y, noise)

@@ -4,7 +4,10 @@ from .backends.modal import Modal
 from .base import LinearOperator, Matrix, Transposed
 from .heat import Heat
 from .leapfrog import Leapfrog
+from .nonlinear import Physics
 from .propagator import FinalField, Propagator, Records, sensors
+from .reaction import ReactionHeat
+from .sine_gordon import SineGordon
 from .wave import Wave
 
 #: the names the sensor scenes used before the one propagator (same call; public in ``pdeinv``)
@@ -16,4 +19,4 @@ def Stepping(op) -> Propagator:  # noqa: N802 - the name of the former stepping 
 
 
 __all__ = ["LinearOperator", "Matrix", "Transposed", "Heat", "Leapfrog", "Modal", "Stepping", "Wave",
-           "FinalField", "Propagator", "Records", "sensors"]
+           "FinalField", "Propagator", "Records", "sensors", "Physics", "ReactionHeat", "SineGordon"]

@@ -16,34 +16,23 @@ from __future__ import annotations
 import numpy as np
 
 from .._checks import batch
+from .nonlinear import Physics
 
 
-class LinearOperator:
-    """Base class: input checks, the transposed view ``.T``, and what an operator declares
-    (:mod:`.capabilities`), here with the defaults of a plain map whose observations are records."""
+class LinearOperator(Physics):
+    """Base class: input checks, the transposed view ``.T``; a :class:`~.nonlinear.Physics` whose
+    tangent is itself (``jvp(X, V) = P V``, ``vjp(X, R) = Pᵀ R``, ``X`` unused)."""
 
+    linear = True
     #: number of unknowns and of observed values per sample
     n_in: int
     n_out: int
-    #: ``"field"``: observations are fields on the mesh, measured with its mass; ``"records"``: numbers
-    output_space = "records"
-    #: a spectral basis (:class:`.capabilities.Spectral`) or None
-    modes = None
-    #: the mass matrix of the unknowns, or None (Euclidean)
-    mass = None
-    #: a compiled backend (dense, SVD, modal) or None (time stepping, or no compiled form)
-    backend = None
-    #: ``final_state`` / ``reverse`` run the full state both ways (a time-reversible scheme)
-    reversible = False
-    #: ``P X`` in torch on a device (:class:`.backends.device.Placed`), or None (numpy on the CPU)
-    torch_forward = None
-    #: ``λ_max(PᵀP)`` in closed form (a zero-argument callable), or None (power iteration on use)
-    max_gain_squared = None
 
-    def stepping(self):
-        """The same map applied by time stepping (a :class:`.propagator.Propagator`), or None: this
-        operator has no time-stepping form."""
-        return None
+    def _jvp(self, X, V):
+        return self._forward(V)
+
+    def _vjp(self, X, R):
+        return self._adjoint(R)
 
     def forward(self, X) -> np.ndarray:
         """``P X``, row-wise: ``(B, n_in) -> (B, n_out)``."""

@@ -14,13 +14,19 @@ Derivatives, all exact for the discrete map:
 * forward mode (``torch.func.jvp``): ``ẏ = P ẋ`` (P is linear);
 * ``torch.func.vmap``: extra batch dimensions are folded into the row batch, so
   per-sample Jacobians with ``jacrev``/``vmap`` cost one multi-column physics call.
+
+A nonlinear :class:`~pdeinv.physics.nonlinear.Physics` (declared ``linear = False``) goes through
+:class:`_Nonlinear` instead, chosen by that declaration: the input ``x`` is saved, reverse mode is
+``x̄ = op.vjp(x, ȳ)`` (the exact transposed tangent at ``x``) and forward mode ``ẏ = op.jvp(x, ẋ)``.
+The derivative products are not differentiated again (no double back-propagation through a
+nonlinear solver: an error says so).
 """
 
 from __future__ import annotations
 
 import torch
 
-from .base import LinearOperator
+from .nonlinear import Physics, is_linear
 
 
 def _run(op, x: torch.Tensor) -> torch.Tensor:
@@ -62,12 +68,84 @@ class _Physics(torch.autograd.Function):
         return _Physics.apply(x.movedim(d, 0), op), 0
 
 
-def apply(op: LinearOperator, x: torch.Tensor) -> torch.Tensor:
-    """``P x`` for a batch-first tensor, differentiable in reverse and forward mode."""
+def _numpy_pair(fn, x: torch.Tensor, z: torch.Tensor) -> torch.Tensor:
+    """``fn(x, z)`` on float64 numpy rows (``x`` and ``z`` share their leading shape), back in ``z``'s
+    dtype and device."""
+    lead = z.shape[:-1]
+    x = x.detach().expand(*lead, x.shape[-1]).reshape(-1, x.shape[-1])
+    flat = z.detach().reshape(-1, z.shape[-1])
+    x, flat = (a.to(device="cpu", dtype=torch.float64).numpy() for a in (x, flat))
+    out = fn(x, flat)
+    return torch.from_numpy(out).to(device=z.device, dtype=z.dtype).reshape(*lead, out.shape[-1])
+
+
+class _Derivative(torch.autograd.Function):
+    """``op.jvp(x, z)`` (``which='jvp'``) or ``op.vjp(x, z)``: a product with the tangent at ``x``,
+    itself not differentiable (second derivatives of a nonlinear solver are not offered)."""
+
+    @staticmethod
+    def forward(x, z, op, which):
+        return _numpy_pair(op.jvp if which == "jvp" else op.vjp, x, z)
+
+    @staticmethod
+    def setup_context(ctx, inputs, output):
+        ctx.op = inputs[2]
+
+    @staticmethod
+    def backward(ctx, *_):
+        raise NotImplementedError(f"second derivatives through the nonlinear {ctx.op!r} are not offered "
+                                  "(its vjp/jvp are not differentiated again); use a first-order method")
+
+    @staticmethod
+    def vmap(info, in_dims, x, z, op, which):
+        x = x if in_dims[0] is None else x.movedim(in_dims[0], 0)
+        z = z if in_dims[1] is None else z.movedim(in_dims[1], 0)
+        size = info.batch_size
+        x = x.expand(size, *x.shape) if in_dims[0] is None else x
+        z = z.expand(size, *z.shape) if in_dims[1] is None else z
+        # below the vmapped dimension the rows broadcast (jacrev: one x against many cotangents)
+        x = x.reshape(size, *[1] * (z.ndim - x.ndim), *x.shape[1:])
+        z = z.reshape(size, *[1] * (x.ndim - z.ndim), *z.shape[1:])
+        lead = torch.broadcast_shapes(x.shape[:-1], z.shape[:-1])
+        return _Derivative.apply(x.expand(*lead, x.shape[-1]), z.expand(*lead, z.shape[-1]), op, which), 0
+
+
+class _Nonlinear(torch.autograd.Function):
+    """``P(x)`` for a nonlinear Physics: saves ``x``; backward ``op.vjp``, forward mode ``op.jvp``."""
+
+    @staticmethod
+    def forward(x, op):
+        return _run(op, x)
+
+    @staticmethod
+    def setup_context(ctx, inputs, output):
+        ctx.op = inputs[1]
+        ctx.save_for_backward(inputs[0])
+        ctx.x = inputs[0]  # forward mode reads it (save_for_forward would need a dual tensor)
+
+    @staticmethod
+    def backward(ctx, grad):
+        (x,) = ctx.saved_tensors
+        return _Derivative.apply(x, grad, ctx.op, "vjp"), None
+
+    @staticmethod
+    def jvp(ctx, x_dot, _):
+        return _Derivative.apply(ctx.x, x_dot, ctx.op, "jvp")
+
+    @staticmethod
+    def vmap(info, in_dims, x, op):
+        d = in_dims[0]
+        if d is None:
+            return _Nonlinear.apply(x, op), None
+        return _Nonlinear.apply(x.movedim(d, 0), op), 0
+
+
+def apply(op: Physics, x: torch.Tensor) -> torch.Tensor:
+    """``P x`` (or ``P(x)``) for a batch-first tensor, differentiable in reverse and forward mode."""
     if not isinstance(x, torch.Tensor):
         raise ValueError(f"x is a {type(x).__name__}; expected a torch.Tensor (use op.forward for numpy)")
     if x.ndim == 0 or x.shape[-1] != op.n_in:
         raise ValueError(f"x has shape {tuple(x.shape)}; expected (B, {op.n_in}) or ({op.n_in},)")
     if not x.is_floating_point():
         raise ValueError(f"x has dtype {x.dtype}; expected a floating-point tensor")
-    return _Physics.apply(x, op)
+    return _Physics.apply(x, op) if is_linear(op) else _Nonlinear.apply(x, op)

@@ -19,6 +19,7 @@ import numpy as np
 from .._checks import batch, count
 from ..fem.forms import Discretization
 from ..physics.base import LinearOperator
+from ..physics.nonlinear import Physics, is_linear
 from ..physics.propagator import chosen
 from .sampling import add_noise
 
@@ -48,12 +49,14 @@ class Problem:
     model_factory: Callable | None = None
 
     def __post_init__(self):
-        if not isinstance(self.operator, LinearOperator):
+        if not isinstance(self.operator, Physics):
             raise TypeError(f"operator={type(self.operator).__name__} is not allowed; expected a "
-                            "pdeinv.LinearOperator (derive your operator from it: it declares what the "
-                            "rules may use, pdeinv.physics.capabilities), e.g. pdeinv.Matrix(A) or Heat(...)")
-        # an operator built by hand goes through the backend chooser as the scenes' do
-        chosen(self.operator, None if self.disc is None else self.disc.M)
+                            "pdeinv.LinearOperator (e.g. pdeinv.Matrix(A) or Heat(...)) or a nonlinear "
+                            "pdeinv.Physics (with jvp and vjp): they declare what the rules may use")
+        # an operator built by hand goes through the backend chooser as the scenes' do; a nonlinear
+        # one (declared linear=False) has no matrix to compile
+        if is_linear(self.operator):
+            chosen(self.operator, None if self.disc is None else self.disc.M)
 
     @property
     def points(self) -> np.ndarray:

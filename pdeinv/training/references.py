@@ -47,6 +47,7 @@ import scipy.linalg as sla
 
 from ..physics.backends.compiled import Dense, matrix
 from ..physics.capabilities import modal_basis, observes_field
+from ..physics.nonlinear import require_linear
 
 #: σ / s_max used when the problem is noise-free (see the module docstring)
 TINY_SIGMA = 1e-8
@@ -88,6 +89,7 @@ def dense_operator(problem, chunk: int = 256) -> np.ndarray:
     (:mod:`pdeinv.physics.backends.compiled`), from its spectral basis ``out diag(g) Inᵀ`` (modal or SVD,
     exact to the basis' tolerance), else from forward runs on identity columns."""
     op = problem.operator
+    require_linear(op, "a dense matrix of P (the linear references: Tikhonov, MMSE, Wiener)")
     backend, basis = op.backend, modal_basis(op)
     if isinstance(backend, Dense):
         return backend.P

@@ -14,6 +14,7 @@ from ...inverse.decoder import decoded_svd
 from ...nets.protocol import declared
 from ...physics.base import Matrix
 from ...physics.capabilities import modal_basis
+from ...physics.nonlinear import is_linear, require_linear
 from ...util.memory import HIG_JACOBIAN_GB
 from ..base import Rule, State, Update
 from ..transforms import Add
@@ -152,7 +153,10 @@ class HIG(Rule):
 
     def context(self, problem, model):
         op = problem.operator
-        lin = declared(model).linear_in_parameters() if self.route in ("auto", "kronecker") else None
+        if self.route == "kronecker":
+            require_linear(op, "HIG(route='kronecker') (it factors P D once for the run)")
+        kron_route = self.route in ("auto", "kronecker") and is_linear(op)
+        lin = declared(model).linear_in_parameters() if kron_route else None
         if lin is None and self.sum_over is not None:
             raise ValueError(f"rule 'hig' cannot run on several processes with {type(model).__name__}: "
                              "only its Kronecker route is data-parallel, and that needs a network linear in "
