@@ -14,9 +14,10 @@ Supervised) declares the rest, with these defaults:
 ========================  ===================================================================
 
 A rule written to the minimal protocol only (a user's own object, not a :class:`~.base.Rule`) is
-wrapped by :func:`declared` into :class:`Foreign`, which declares for it: no target (unless the
-object says ``accepts_target = True``), not resumable, no calibration, no own target, and no
-data-parallel form. An object without ``init``/``update``/``transform`` is refused there with a
+wrapped by :func:`declared` into :class:`Foreign`, which declares for it: no target and not
+resumable (unless the object says ``accepts_target = True`` / ``resumable = True``, the latter with
+its own ``state_dict``, ``load_state_dict`` and ``hyperparameters``), no calibration, no own target,
+and no data-parallel form. An object without ``init``/``update``/``transform`` is refused there with a
 ``TypeError`` naming what is missing.
 """
 
@@ -33,8 +34,6 @@ REQUIRED = ("init", "update", "transform")
 class Foreign(Rule):
     """A rule of the minimal protocol, with the declarations it does not make (module docstring)."""
 
-    resumable = False
-
     def __init__(self, rule):
         missing = [m for m in REQUIRED if not hasattr(rule, m)]
         if missing:
@@ -45,6 +44,7 @@ class Foreign(Rule):
         self.inner = rule
         self.name = str(getattr(rule, "name", type(rule).__name__))  # optional, as the two below
         self.accepts_target = bool(getattr(rule, "accepts_target", False))
+        self.resumable = bool(getattr(rule, "resumable", False))  # then its own state_dict & co.
         self.transform = rule.transform
 
     def init(self, problem, model: torch.nn.Module) -> State:
@@ -58,6 +58,15 @@ class Foreign(Rule):
 
     def settings(self) -> dict:
         return {}
+
+    def state_dict(self, state: State) -> dict:
+        return self.inner.state_dict(state)
+
+    def load_state_dict(self, state: State, sd: dict) -> State:
+        return self.inner.load_state_dict(state, sd)
+
+    def hyperparameters(self) -> dict:
+        return self.inner.hyperparameters()
 
     def data_parallel(self, sum_over, processes: int) -> None:
         return None
