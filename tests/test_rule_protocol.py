@@ -18,7 +18,7 @@ class Minimal:
     name = "minimal"
 
     def __init__(self):
-        self.gd = pdeinv.GD(normalize=False)
+        self.gd = pdeinv.GD(optimizer=pdeinv.sgd(1e-4), normalize=False)
         self.transform = self.gd.transform
 
     def init(self, problem, model):
