@@ -336,7 +336,7 @@ def _run(args, out, problem, overrides, net, hp, trainer, fresh, setup=None) -> 
         timed = {}
         for key, mine in zip(("setup", "setup_cpu"), setup or ({}, {})):
             phases = {k: round(v, 3) for k, v in mine.items()}
-            theirs = result.metrics.get(key, {})
+            theirs = getattr(trainer, key)  # the trainer's phases (wall, CPU): timings, not results
             phases.update({k: round(v + phases.get(k, 0.0), 3) for k, v in theirs.items()})
             phases["total"] = round(sum(phases.values()), 3)  # build + samples + network fitting, seconds
             timed[key] = phases
