@@ -184,8 +184,8 @@ def _block_krylov(M, K, log_gain, log_tol, k, eps, block, max_fraction, seed, at
             check_at = min(N, max(int(1.25 * basis.m), basis.m + b))
             Hm = np.triu(H[:basis.m, :basis.m])
             Hm += np.triu(Hm, 1).T  # the computed half: QᵢᵀMSQⱼ, i ≤ j
-            # Ritz values first (a third of the eigh's cost): most checks fail on them (too few kept, or
-            # the basis's last Ritz value still kept); vectors only for the kept ones, when they pass
+            # Ritz values first (about half the cost of the kept vectors): most checks fail on them (too
+            # few kept, or the basis's last Ritz value still kept); the kept vectors only when they pass
             mu = la.eigh(Hm, eigvals_only=True)[::-1]
             lam = sigma + 1.0 / mu
             lg = log_gain(lam)
