@@ -152,7 +152,13 @@ class Propagator(LinearOperator):
             return None
         counted = self.__dict__.setdefault("_counts", {})
         if mu not in counted:
-            counted[mu] = modes.count_below(self.scheme.M, self.scheme.L, mu)
+            counted[mu] = None  # no exact count (the callers fall back to theirs) if both tries fail
+            for shift in (1.0, 1.0 + 1e-9):  # an exactly zero pivot (mu an eigenvalue): move mu off it
+                try:
+                    counted[mu] = modes.count_below(self.scheme.M, self.scheme.L, mu * shift)
+                    break
+                except RuntimeError:  # SuperLU: "Factor is exactly singular"
+                    continue
         return counted[mu]
 
     def stepping(self) -> Propagator:

@@ -397,8 +397,6 @@ class Trainer:
         bar.close()
         prior = self._fit_prior(run)
         record = metrics(self, run)
-        record["setup"] = {k: round(v, 3) for k, v in self.setup.items()}
-        record["setup_cpu"] = {k: round(v, 3) for k, v in self.setup_cpu.items()}
         if prior is not None:
             record["prior_fit"] = prior
         record["unseen_energy"], warning = of_predictions(self.problem, run.model, run.test, self.seed)

@@ -352,7 +352,7 @@ def _run(args, out, problem, overrides, net, hp, trainer, fresh, setup=None) -> 
             print(f"pdeinv train: {what(err)}; {saved}", file=sys.stderr)
             return exit_code(err)
         fresh()
-        metrics = {**result.metrics, **_setup_phases(result.metrics, setup), "method": args.method,
+        metrics = {**result.metrics, **_setup_phases(trainer, setup), "method": args.method,
                    "hyperparameters": hp, "settings": {k: v for k, v in problem.settings.items()},
                    "route": result.history[-1].get("route"), "torch_threads": torch.get_num_threads()}
         if args.data:
@@ -380,13 +380,15 @@ def _run(args, out, problem, overrides, net, hp, trainer, fresh, setup=None) -> 
         return _verdict(metrics["failed"], args.accept_bad, out)
 
 
-def _setup_phases(metrics: dict, setup) -> dict:
-    """``{"setup": …, "setup_cpu": …}``: the command's phases (the build, the network) and the trainer's,
-    in wall and CPU seconds, with their ``total`` (build + samples + network fitting)."""
+def _setup_phases(trainer, setup) -> dict:
+    """``{"setup": …, "setup_cpu": …}``: the command's phases (the build, the network) and the trainer's
+    (``trainer.setup``, ``trainer.setup_cpu``: timings, not results), in wall and CPU seconds, with
+    their ``total`` (build + samples + network fitting)."""
     timed = {}
-    for key, mine in zip(("setup", "setup_cpu"), setup or ({}, {})):
+    trainers = (trainer.setup, trainer.setup_cpu)
+    for key, mine, theirs in zip(("setup", "setup_cpu"), setup or ({}, {}), trainers):
         phases = {k: round(v, 3) for k, v in mine.items()}
-        phases.update({k: round(v + phases.get(k, 0.0), 3) for k, v in metrics.get(key, {}).items()})
+        phases.update({k: round(v + phases.get(k, 0.0), 3) for k, v in theirs.items()})
         phases["total"] = round(sum(phases.values()), 3)
         timed[key] = phases
     return timed
