@@ -182,32 +182,43 @@ def _block_krylov(M, K, log_gain, log_tol, k, eps, block, max_fraction, seed, at
                 V, B = _rank_revealing(W, M, basis, rng)
         if basis.m >= check_at:
             check_at = min(N, max(int(1.25 * basis.m), basis.m + b))
-            Hm = np.triu(H[:basis.m, :basis.m])
-            Hm += np.triu(Hm, 1).T  # the computed half: QᵢᵀMSQⱼ, i ≤ j
-            # Ritz values first (about half the cost of the kept vectors): most checks fail on them (too
-            # few kept, or the basis's last Ritz value still kept); the kept vectors only when they pass
-            mu = la.eigh(Hm, eigvals_only=True)[::-1]
-            lam = sigma + 1.0 / mu
-            lg = log_gain(lam)
-            kept = lg >= lg.max() + log_tol
-            if kept.sum() > max_fraction * N:
-                raise TooManyModes(f"the modal backend would need more than {kept.sum()} of {N} modes "
-                                   f"(> {max_fraction:.0%}); use backend='steps'")
-            q = int(kept.sum())
-            if q >= min(at_least, N) and not kept[-1]:
-                prefix = bool(kept[:q].all())  # a gain monotone in λ (backward Euler) keeps the lowest q
-                mq, Y = la.eigh(Hm, subset_by_index=[basis.m - q, basis.m - 1]) if prefix else la.eigh(Hm)
-                mq, Y = mq[::-1], Y[:, ::-1]  # largest μ first: the kept modes, lowest λ first
-                if not prefix:
-                    mq, Y = mq[kept], Y[:, kept]
-                lq = log_gain(sigma + 1.0 / mq)
-                res = np.linalg.norm(B @ Y[-b:, :], axis=0)  # S Q = Q H + V B Eᵀ
-                if np.all(np.exp(lq - lg.max()) * res / mq <= eps):
-                    return sigma + 1.0 / mq, basis.Q[:, :basis.m] @ Y
+            found = _ritz(H, basis, B, sigma, log_gain, log_tol, max_fraction, at_least, eps)
+            if found is not None:
+                return found
         if basis.m == N:  # only reached with max_fraction ≥ 1 and every mode kept
             raise TooManyModes(f"every one of the {N} modes would be kept; use backend='steps'")
         if N - basis.m < 2 * b:  # finish with the whole complement of the basis (≤ 2 blocks)
             V, _ = _rank_revealing(np.zeros((N, N - basis.m)), M, basis, rng)
+
+
+def _ritz(H, basis, B, sigma, log_gain, log_tol, max_fraction, at_least, eps):
+    """Rayleigh–Ritz on the basis so far: ``(λ, vectors)`` of the kept modes once they have converged
+    (the residual ``‖B Yₗₐₛₜ‖`` of each, weighted by its gain, below ``eps``), else None;
+    :class:`TooManyModes` past ``max_fraction`` of ``N``."""
+    N = basis.Q.shape[0]
+    Hm = np.triu(H[:basis.m, :basis.m])
+    Hm += np.triu(Hm, 1).T  # the computed half: QᵢᵀMSQⱼ, i ≤ j
+    # Ritz values first (about half the cost of the kept vectors): most checks fail on them (too
+    # few kept, or the basis's last Ritz value still kept); the kept vectors only when they pass
+    mu = la.eigh(Hm, eigvals_only=True)[::-1]
+    lam = sigma + 1.0 / mu
+    lg = log_gain(lam)
+    kept = lg >= lg.max() + log_tol
+    if kept.sum() > max_fraction * N:
+        raise TooManyModes(f"the modal backend would need more than {kept.sum()} of {N} modes "
+                           f"(> {max_fraction:.0%}); use backend='steps'")
+    q = int(kept.sum())
+    if q >= min(at_least, N) and not kept[-1]:
+        prefix = bool(kept[:q].all())  # a gain monotone in λ (backward Euler) keeps the lowest q
+        mq, Y = la.eigh(Hm, subset_by_index=[basis.m - q, basis.m - 1]) if prefix else la.eigh(Hm)
+        mq, Y = mq[::-1], Y[:, ::-1]  # largest μ first: the kept modes, lowest λ first
+        if not prefix:
+            mq, Y = mq[kept], Y[:, kept]
+        lq = log_gain(sigma + 1.0 / mq)
+        res = np.linalg.norm(B @ Y[-B.shape[0]:, :], axis=0)  # S Q = Q H + V B Eᵀ
+        if np.all(np.exp(lq - lg.max()) * res / mq <= eps):
+            return sigma + 1.0 / mq, basis.Q[:, :basis.m] @ Y
+    return None
 
 
 def largest_eigenvalue(M, K) -> float:
