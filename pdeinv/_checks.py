@@ -7,6 +7,7 @@ what is allowed, so a user can act on it without reading a traceback.
 from __future__ import annotations
 
 import math
+import sys
 from numbers import Integral, Real
 
 import numpy as np
@@ -18,7 +19,8 @@ def batch(X, n: int, name: str = "X") -> tuple[np.ndarray, bool]:
     A 1-D ``(n,)`` input is accepted as a batch of one; the caller squeezes the
     result back with the returned flag.
     """
-    if hasattr(X, "detach"):  # a torch tensor slipped in: say what to use instead
+    torch = sys.modules.get("torch")  # looked up, not imported: no tensor exists before torch is
+    if torch is not None and isinstance(X, torch.Tensor):  # a tensor slipped in: say what to use instead
         raise ValueError(
             f"{name} is a torch tensor; operators take numpy arrays "
             "(use pdeinv.apply(operator, x) for torch)"

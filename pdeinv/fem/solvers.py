@@ -256,8 +256,9 @@ class AMGCG:
         self._coarse = sla.splu(sp.csc_matrix(self.ml.levels[-1].A))
         self.levels = len(self.ml.levels)
         self.operator_complexity = float(self.ml.operator_complexity())
-        self.nbytes = sum(_sparse_bytes(getattr(lvl, name)) for lvl in self.ml.levels
-                          for name in ("A", "P", "R") if hasattr(lvl, name))
+        # pyamg's levels hold A, and P and R except the coarsest (instance attributes)
+        self.nbytes = sum(_sparse_bytes(m) for lvl in self.ml.levels
+                          for name, m in vars(lvl).items() if name in ("A", "P", "R"))
         self.iterations = 0
 
     def _vcycle(self, B: np.ndarray, level: int = 0) -> np.ndarray:

@@ -132,7 +132,7 @@ def copied(buffer, value):
     if isinstance(value, dict):
         old = buffer if isinstance(buffer, dict) else {}
         return {k: copied(old.get(k), v) for k, v in value.items()}
-    if isinstance(value, (list, tuple)) and not hasattr(value, "_fields"):
+    if type(value) in (list, tuple):  # plain sequences (a namedtuple or a torch.Size is deep-copied whole)
         fits = isinstance(buffer, (list, tuple)) and len(buffer) == len(value)
         old = buffer if fits else [None] * len(value)
         return type(value)(copied(b, v) for b, v in zip(old, value, strict=True))

@@ -23,6 +23,8 @@ and no data-parallel form. An object without ``init``/``update``/``transform`` i
 
 from __future__ import annotations
 
+from typing import Protocol, runtime_checkable
+
 import torch
 
 from .base import Rule, State, Update
@@ -31,12 +33,21 @@ from .base import Rule, State, Update
 REQUIRED = ("init", "update", "transform")
 
 
+@runtime_checkable
+class Steps(Protocol):
+    """The methods of the minimal protocol (``transform`` is its data member)."""
+
+    def init(self, problem, model): ...
+
+    def update(self, state, model, y): ...
+
+
 class Foreign(Rule):
     """A rule of the minimal protocol, with the declarations it does not make (module docstring)."""
 
     def __init__(self, rule):
-        missing = [m for m in REQUIRED if not hasattr(rule, m)]
-        if missing:
+        missing = [m for m in REQUIRED if m not in dir(rule)]
+        if missing or not isinstance(rule, Steps):
             raise TypeError(f"rule={rule!r} is not an update rule: it has no {', '.join(missing)}; expected "
                             "pdeinv.GD(), pdeinv.SIP(), pdeinv.HIG(), pdeinv.Supervised(), a method name "
                             "('gd', 'adam', 'sip', 'hig', 'supervised') or an object with init(problem, "

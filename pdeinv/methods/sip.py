@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+import types
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import NamedTuple
@@ -114,8 +115,8 @@ class SIP(Rule):
         return OptimizerStep(self.optimizer)
 
     def settings(self) -> dict:
-        inverse = "problem" if self.inverse is None else getattr(self.inverse, "__qualname__",
-                                                                  type(self.inverse).__qualname__)
+        inverse = "problem" if self.inverse is None else self.inverse.__qualname__ \
+            if isinstance(self.inverse, types.FunctionType) else type(self.inverse).__qualname__
         return {"eta": self.eta, "inverse": inverse, "normalize": self.normalize}
 
     def context(self, problem, model) -> SIPContext:

@@ -23,7 +23,7 @@ def _short(value) -> str:
 
 def _named(name: str, value) -> str:
     """``name=value`` for small values, ``name`` alone where the repr would be a wall of numbers."""
-    plain = not (_is_rule(value) or isinstance(value, type) or hasattr(value, "shape") or _is_result(value))
+    plain = not (_is_rule(value) or isinstance(value, type) or _is_array(value) or _is_result(value))
     return f"{name}={_short(value)}" if plain else name
 
 
@@ -39,14 +39,23 @@ def _kind(value) -> str:
         return f"the class {value.__name__}"
     if _is_rule(value):
         return f"an update rule ({type(value).__name__})"
-    if hasattr(value, "shape") and hasattr(value, "dtype"):
+    if _is_array(value):
         return f"an array of shape {tuple(value.shape)}"
     return type(value).__name__
 
 
 def _is_rule(value) -> bool:
-    return not isinstance(value, type) and callable(getattr(value, "init", None)) and callable(
-        getattr(value, "update", None))
+    from ..methods.protocol import Steps
+
+    return not isinstance(value, type) and isinstance(value, Steps)
+
+
+def _is_array(value) -> bool:
+    """A numpy array or a torch tensor (torch looked up, not imported: no tensor exists before it is)."""
+    import numpy as np
+
+    torch = sys.modules.get("torch")
+    return isinstance(value, np.ndarray) or (torch is not None and isinstance(value, torch.Tensor))
 
 
 def _is_result(value) -> bool:
@@ -91,14 +100,16 @@ def rule(value, problem_):
 
     swapped = isinstance(value, Problem)
     hint = "; the arguments are train(problem, rule, model=None): swapped?" if swapped else ""
-    missing = [m for m in ("init", "update") if not callable(getattr(value, m, None))]
+    missing = [m for m in ("init", "update") if m not in dir(value)]
     raise TypeError(f"{_named('rule', value)} is {_kind(value)}; expected an update rule (pdeinv.SIP(), "
-                    f"pdeinv.GD(), pdeinv.HIG(), ...: it has no {' or '.join(missing)} method) or a method "
-                    f"name such as 'sip'{hint}")
+                    f"pdeinv.GD(), pdeinv.HIG(), ...: it has no {' or '.join(missing) or 'init/update'} "
+                    f"method) or a method name such as 'sip'{hint}")
 
 
 def _is_rule_class(cls: type) -> bool:
-    return callable(getattr(cls, "init", None)) and callable(getattr(cls, "update", None))
+    from ..methods.protocol import Steps
+
+    return issubclass(cls, Steps)
 
 
 def model(value, name: str = "model", optional: bool = True):
@@ -112,7 +123,7 @@ def model(value, name: str = "model", optional: bool = True):
     if _is_result(value):
         raise TypeError(f"{name} is a training Result; expected its network: pass result.model")
     hint = ""
-    if hasattr(value, "shape"):
+    if _is_array(value):
         hint = "; arguments swapped? (the network comes first)" if name == "model" else ""
     raise TypeError(f"{_named(name, value)} is {_kind(value)}; expected a torch.nn.Module "
                     f"(problem.model(), or result.model of a finished run){hint}")
@@ -139,8 +150,10 @@ def stop(value, problem_):
             raise ValueError(f"stop={value!r} is not allowed; expected one of {', '.join(map(repr, names))}, "
                              "None or a stopping rule such as pdeinv.DiscrepancyStop()")
         return names[value]()
-    missing = [m for m in ("init", "check", "n_val", "every") if not hasattr(value, m)]
-    if isinstance(value, type) or missing:
+    from .stopping import StopRule
+
+    missing = [m for m in ("init", "check", "n_val", "every") if m not in dir(value)]
+    if isinstance(value, type) or not isinstance(value, StopRule):
         what = f"a class: call it, {value.__name__}()" if isinstance(value, type) else \
             f"{_kind(value)} without {', '.join(missing)}"
         raise TypeError(f"stop={_short(value)} is {what}; expected a stopping rule such as "
@@ -158,7 +171,9 @@ def checkpoint(value):
         if not os.fspath(value).strip():
             raise ValueError("checkpoint='' is empty; expected a path or pdeinv.Checkpoint(path, every=k)")
         return Checkpoint(value)
-    if not all(callable(getattr(value, m, None)) for m in ("save", "load", "exists")):
+    from .checkpoint import Checkpointing
+
+    if not isinstance(value, Checkpointing):
         raise TypeError(f"checkpoint={_short(value)} is {_kind(value)}; expected pdeinv.Checkpoint(path, "
                         "every=k) or a path")
     return value

@@ -36,6 +36,7 @@ import os
 import random
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Protocol, runtime_checkable
 
 import numpy as np
 import torch
@@ -49,6 +50,17 @@ __all__ = ["Checkpoint", "atomic_write", "check_identity", "network_identity", "
 
 FORMAT = "pdeinv-checkpoint"
 VERSION = 2  # 2: rule state = transformation + steps; identity with hyper-parameters
+
+
+@runtime_checkable
+class Checkpointing(Protocol):
+    """What the trainer asks of a checkpoint: ``save``, ``load`` and ``exists``."""
+
+    def save(self, *args, **kwargs): ...
+
+    def load(self, *args, **kwargs): ...
+
+    def exists(self) -> bool: ...
 
 
 @dataclass

@@ -30,7 +30,7 @@ their ``x`` is discarded). ``info`` is merged into the history row.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import NamedTuple
+from typing import NamedTuple, Protocol, runtime_checkable
 
 import numpy as np
 import torch
@@ -53,6 +53,19 @@ class DiscrepancyState(NamedTuple):
     noise_sq: float  # Σ_i m σ_i²
     noise: float  # the relative level δ used
     noise_source: str  # "problem" or "estimate"
+
+
+@runtime_checkable
+class StopRule(Protocol):
+    """What the trainer asks of a stopping rule: its held-out rows ``n_val``, how often it checks
+    (``every``), ``init(problem, y, rows) -> state`` and ``check(state, ...)``."""
+
+    n_val: int
+    every: int
+
+    def init(self, problem, y, rows): ...
+
+    def check(self, *args, **kwargs): ...
 
 
 @dataclass(frozen=True)

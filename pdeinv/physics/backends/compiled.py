@@ -107,7 +107,7 @@ class Dense:
 
 
 def _chol(M, n: int):
-    return np.eye(n) if M is None else la.cholesky(M.toarray() if hasattr(M, "toarray") else M, lower=True)
+    return np.eye(n) if M is None else la.cholesky(M.toarray() if sp.issparse(M) else M, lower=True)
 
 
 class SVD(Spectral):
