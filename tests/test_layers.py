@@ -80,3 +80,16 @@ def test_no_function_is_longer_than_sixty_lines():
             for p in ROOT.rglob("*.py") for n in ast.walk(ast.parse(p.read_text()))
             if isinstance(n, ast.FunctionDef | ast.AsyncFunctionDef) and n.end_lineno - n.lineno >= 60]
     assert not long, long
+
+
+def test_capabilities_are_declared_not_probed():
+    """At most 15 lines of ``getattr``/``hasattr``/``inspect.signature`` outside ``cli/`` and ``io/``
+    (issue 33: 111 before): the PEP 562 lazy-import hooks and optional attributes of objects pdeinv
+    does not own (``os``, solvers, a user's rule or problem module); everything else is declared."""
+    import re
+
+    probe = re.compile(r"getattr|hasattr|inspect\.signature")
+    hits = [f"{p.relative_to(ROOT)}:{i}" for p in ROOT.rglob("*.py")
+            if p.relative_to(ROOT).parts[0] not in ("cli", "io")
+            for i, line in enumerate(p.read_text().splitlines(), 1) if probe.search(line)]
+    assert len(hits) <= 15, hits
