@@ -6,7 +6,7 @@ import pytest
 import torch
 
 import pdeinv
-from pdeinv.inverse.gauss_newton import GaussNewtonInverse
+from pdeinv.inverse.gauss_newton import GaussNewtonInverse, _AtX
 from pdeinv.methods.sip import decoder_inverse
 
 
@@ -26,17 +26,6 @@ def test_gauss_newton_inverse_keeps_the_contract_and_reduces_the_residual():
     plain = GaussNewtonInverse(p.operator, p.disc.M, rel_alpha=1e-4)
     plain._tangent = lambda X0: (p.operator.forward(X0), _AtX(p.operator, X0))
     assert np.allclose(plain(y, x0), p.inverse(y, x0), rtol=0, atol=1e-10)
-
-
-class _AtX:
-    def __init__(self, op, X0):
-        self.op, self.X0 = op, X0
-
-    def jvp(self, V):
-        return self.op.jvp(self.X0, V)
-
-    def vjp(self, R):
-        return self.op.vjp(self.X0, R)
 
 
 def test_sip_does_not_solve_in_a_decoder_span_of_a_nonlinear_map():

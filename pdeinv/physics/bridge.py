@@ -43,6 +43,14 @@ def _run(op, x: torch.Tensor) -> torch.Tensor:
     return torch.from_numpy(out).to(device=x.device, dtype=x.dtype).reshape(*lead, out.shape[-1])
 
 
+def _rows_first(fn, in_dims, x, op):
+    """A vmap rule: extra batch dimensions are folded into the row batch (one physics call)."""
+    d = in_dims[0]
+    if d is None:
+        return fn.apply(x, op), None
+    return fn.apply(x.movedim(d, 0), op), 0
+
+
 class _Physics(torch.autograd.Function):
     @staticmethod
     def forward(x, op):
@@ -62,10 +70,7 @@ class _Physics(torch.autograd.Function):
 
     @staticmethod
     def vmap(info, in_dims, x, op):
-        d = in_dims[0]
-        if d is None:
-            return _Physics.apply(x, op), None
-        return _Physics.apply(x.movedim(d, 0), op), 0
+        return _rows_first(_Physics, in_dims, x, op)
 
 
 def _numpy_pair(fn, x: torch.Tensor, z: torch.Tensor) -> torch.Tensor:
@@ -134,10 +139,7 @@ class _Nonlinear(torch.autograd.Function):
 
     @staticmethod
     def vmap(info, in_dims, x, op):
-        d = in_dims[0]
-        if d is None:
-            return _Nonlinear.apply(x, op), None
-        return _Nonlinear.apply(x.movedim(d, 0), op), 0
+        return _rows_first(_Nonlinear, in_dims, x, op)
 
 
 def apply(op: Physics, x: torch.Tensor) -> torch.Tensor:
