@@ -68,4 +68,6 @@ def test_a_signal_during_start_up_exits_quietly(tmp_path, sig, code):
         _, err = proc.communicate(timeout=60)
         err = err.decode()
         assert proc.returncode in (code, 0), (delay, proc.returncode, err)  # 0: it finished first
-        assert "Traceback" not in err and len(err.strip().splitlines()) <= 1, (delay, err)
+        # at most one line of its own (the run's guard may already have warned on an idle machine)
+        own = [line for line in err.strip().splitlines() if ": warning: " not in line]
+        assert "Traceback" not in err and len(own) <= 1, (delay, err)
