@@ -101,7 +101,7 @@ def test_the_memory_estimate_follows_the_default_network(monkeypatch):
     wave = pdeinv.load_problem("wave_2d", n=8)
     full, _ = nets.default_size(wave)
     model = nets.default_model(wave)
-    buffers = model.base.pre.basis.numel() + sum(b.numel() for b in model.grid.buffers())
+    buffers = model.base.pre.basis.numel() + sum(b.numel() for b in model.correction.grid.buffers())
     assert full - nets.refined_size(wave) == sum(x.numel() for x in model.base.parameters()) + \
         model.base.pre.basis.numel()
     assert sum(x.numel() for x in model.parameters()) + buffers <= full
@@ -132,7 +132,7 @@ def test_a_run_with_the_reduced_default_resumes_and_predicts(tmp_path, monkeypat
             "--threads", "1", "--export-samples", "0", "--checkpoint-every", "2", "--accept-bad",
             "--out", str(out)]
     assert main([*args, "--steps", "4"]) == 0
-    assert json.loads((out / "run.json").read_text())["network"] == {"kind": "default"}
+    assert json.loads((out / "run.json").read_text())["network"] == {"kind": "default", "correction": "grid"}
     problem, model = load_run(out)
     assert isinstance(model.base.post, nets.Decoder) and bool(model.base.pre.fitted)
     x, y = problem.sample(4, seed=9)

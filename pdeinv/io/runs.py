@@ -57,6 +57,23 @@ NETWORKS = {
 }
 
 
+def _with_correction(spec: dict, model) -> dict:
+    """``spec`` with the kind of ``model``'s nonlinear correction (:mod:`pdeinv.nets.corrections`), which
+    a reloaded default network must be built with."""
+    from ..nets.refine import Refined
+
+    if spec.get("kind") != "default" or not isinstance(model, Refined):
+        return spec
+    return {**spec, "correction": model.correction_kind}
+
+
+def _legacy_correction(problem, spec: dict) -> dict:
+    """A default network written before the dense correction existed (no ``correction``) had the U-Net."""
+    if spec.get("kind") != "default" or "correction" in spec or problem.model_factory is not None:
+        return spec
+    return {**spec, "correction": "grid"}
+
+
 def network(problem, spec: dict):
     """A fresh network of ``spec`` (``{"kind": ..., **settings}``) for ``problem``."""
     spec = dict(spec)
@@ -115,6 +132,7 @@ def save_run(out: str | os.PathLike, problem, overrides: dict | None = None, net
     if not isinstance(network_spec, dict) or network_spec.get("kind") not in NETWORKS:
         raise ValueError(f"network_spec={network_spec!r} is not allowed; expected a dict with 'kind' one of "
                          f"{', '.join(map(repr, NETWORKS))}")
+    network_spec = _with_correction(network_spec, model)
     out = output_folder(out, "out")
     record = {"format": FORMAT, "version": VERSION, "problem": problem_spec(problem),
               "overrides": {k: str(v) for k, v in overrides.items()}, "network": network_spec}
@@ -148,7 +166,7 @@ def load_run(run_dir):
     except (ValueError, AssertionError, AttributeError):
         raise ValueError(f"{where}: {RUN_FILE} is not a pdeinv run record; rerun `pdeinv train`") from None
     problem = load_problem(record["problem"], **record["overrides"])
-    model = network(problem, record["network"])
+    model = network(problem, _legacy_correction(problem, record["network"]))
     try:
         state = torch.load(run / MODEL_FILE, map_location="cpu", weights_only=True)
         model.load_state_dict(state)

@@ -110,10 +110,10 @@ def check_run(problem, args, hp: dict) -> None:
 
 def _prior_draws(problem, args) -> int:
     """The prior draws the trainer will hold for the default network's prior fit (0 without one):
-    ``Trainer._fit_prior``'s ``min(prior_draws, max(256, PRIOR_ENTRIES // N))``."""
+    the most ``Trainer._fit_prior`` may draw (:func:`pdeinv.training.trainer.prior_draw_counts`)."""
     import os
 
-    from pdeinv.training.trainer import PRIOR_ENTRIES, Trainer
+    from pdeinv.training.trainer import Trainer, prior_draw_counts
 
     seconds = args.prior_fit if args.prior_fit is not None else os.environ.get("PDEINV_PRIOR_FIT", "300")
     try:
@@ -122,7 +122,7 @@ def _prior_draws(problem, args) -> int:
         on = True  # the trainer's own check refuses it with its message
     if not on or getattr(args, "net", "default") != "default" or args.hidden:
         return 0
-    return min(Trainer.prior_draws, max(256, PRIOR_ENTRIES // max(problem.N, 1)))
+    return prior_draw_counts(problem.N, Trainer.prior_draws)[1]
 
 
 def steps(args, hp: dict | None = None) -> int | None:
