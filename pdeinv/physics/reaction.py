@@ -125,10 +125,12 @@ def _contract(update, X, rtol: float, max_iterations: int, max_ratio: float, his
     after ``max_iterations``. Returns (iterations, failed column indices)."""
     active, prev, failed, its = np.arange(X.shape[1]), np.full(X.shape[1], np.inf), [], 0
     while active.size and its < max_iterations:
-        Xa = X[:, active]
-        delta = update(Xa, active)
+        every = active.size == X.shape[1]  # then views, no copies
+        Xa = X if every else X[:, active]
+        delta = update(Xa, slice(None) if every else active)
         Xa += delta
-        X[:, active] = Xa
+        if Xa is not X:
+            X[:, active] = Xa
         its += 1
         size = np.abs(delta).max(axis=0)
         scale = rtol * np.maximum(np.abs(Xa).max(axis=0), _TINY)
@@ -212,12 +214,13 @@ class _FrozenTangent:
         op, s = self.op, self.op.theta * self.op.dt
         if trans == "N":
             return op.A @ X + s * (op.M @ (self.D[:, a] * X))
-        return op.A.T @ X + s * (self.D[:, a] * (op.M.T @ X))
+        return op.A @ X + s * (self.D[:, a] * (op.M @ X))  # A, M symmetric
 
     def solve(self, Rhs, trans: str = "N"):
         op, lu, chord = self.op, self.lu, self.chord
-        X = lu.solve(np.asarray(Rhs, float), trans=trans)
-        _, failed = _contract(lambda Xa, a: lu.solve(Rhs[:, a] - self._apply(Xa, a, trans), trans=trans),
+        # A_c is symmetric (so is A_c⁻ᵀ = A_c⁻¹): SuperLU's transposed solve took three times as long
+        X = np.ascontiguousarray(lu.solve(np.asarray(Rhs, float)))
+        _, failed = _contract(lambda Xa, a: lu.solve(Rhs[:, a] - self._apply(Xa, a, trans)),
                               X, op.rtol, chord.max_iterations, chord.max_ratio)
         if failed.size:
             op.fallback_columns += failed.size
@@ -237,6 +240,7 @@ class Chord(Newton):
 
     def step(self, op, U, FU, W, history=None):
         th, dt = op.theta, op.dt
+        W = np.ascontiguousarray(W)  # the solves return Fortran order: matvecs would copy each time
         W0 = W.copy()
         G = op.B @ U - (1.0 - th) * dt * (op.M @ FU)
         lu = op.frozen(op.df(W))
