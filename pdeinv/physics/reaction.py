@@ -8,16 +8,41 @@ this is exactly :class:`~pdeinv.physics.heat.Heat`'s scheme. θ-scheme (θ = 1 b
 
     R(w; u) = A w + θ dt M f(w) − B u + (1−θ) dt M f(u) = 0,   A = M + θ dt κK,  B = M − (1−θ) dt κK,
 
-by Newton's method, ``J(w) = A + θ dt M diag(f'(w))``, from the semi-implicit predictor
-``w₀ = A⁻¹(B u − dt M f(u))`` (one multi-column solve with the factorization of ``A``). Each
-column of the batch has its own Jacobian: one sparse LU (``scipy.sparse.linalg.splu``) of the
-block-diagonal ``J`` of the columns not yet converged, per Newton iteration. **Stopping, relative
-to rounding**: a column stops when its Newton update ``‖δ_k‖∞ ≤ rtol·‖w‖∞`` (``rtol = 1e-14``,
-45 ulp), or when the quadratic model predicts the next error below that, ``‖δ_k‖³/‖δ_{k−1}‖² ≤
-rtol·‖w‖∞`` (the update ``δ_k`` is then applied and nothing is factorized again).
-``θ dt r ≥ 1`` is refused with the number of steps that would do: since ``f' ≥ −r``, the step's
-Jacobian is ``(1 − θ dt r) M + θ dt κK`` plus a non-negative reaction term, which may become
-singular (several solutions of one step) when ``θ dt r ≥ 1`` (exactly so with a lumped mass).
+with ``J(w) = A + θ dt M diag(f'(w))``, from the semi-implicit predictor ``w₀ = A⁻¹(B u − dt M f(u))``
+(one multi-column solve with the factorization of ``A``). ``θ dt r ≥ 1`` is refused with the number
+of steps that would do: since ``f' ≥ −r``, the step's Jacobian is ``(1 − θ dt r) M + θ dt κK`` plus a
+non-negative reaction term, which may become singular (several solutions of one step) when
+``θ dt r ≥ 1`` (exactly so with a lumped mass).
+
+**The chord solver** (``solver="chord"``, the default). One frozen matrix ``A_c = A + θ dt c M``
+(symmetric positive definite, as ``1 + θ dt c > 0``) carries every solve: the step by the chord
+(modified Newton) iteration ``w ← w − A_c⁻¹ R(w)``, all columns at once as one multi-column solve;
+the tangent ``J(w) δ = rhs`` and its transpose ``J(w)ᵀ z = rhs`` by Richardson iteration
+``δ ← δ + A_c⁻¹(rhs − J δ)`` from ``δ₀ = A_c⁻¹ rhs``. All three have the error map
+``e ← −θ dt A_c⁻¹ M diag(f'(ξ) − c) e``, contraction factor
+``ρ ≤ θ dt · max|f' − c| · ‖A_c⁻¹ M‖ ≈ θ dt · max|f' − c| / (1 + θ dt c)`` (``‖A_c⁻¹M‖_M =
+1/(1 + θ dt (c + κλ₁))``). Over ``c ∈ [f'_min, f'_max]`` the bound decreases up to the midpoint and
+increases after it (its derivative there has the sign of ``1 + θ dt f'_min > 0``): ``c`` is the
+midpoint of ``f'`` over the batch's current values, ``ρ ≈ θ dt (f'_max − f'_min)/2 / (1 + θ dt c)``,
+rounded to the grid ``−r + (r/2)ℤ`` so that a run factorizes a handful of ``A_c`` (sparse LU of one
+``N × N`` matrix each, cached). allen_cahn_1d (``θ dt r = 0.01``): ``ρ ≈ 0.02``, 7–8 chord
+iterations per step; r = 5, 40 steps: ``ρ ≈ 0.2``, 15–20. **Stopping, relative to rounding**: a
+column stops when its update ``‖δ_k‖∞ ≤ rtol·‖w‖∞`` (``rtol = 1e-14``, 45 ulp; the error left is
+``≈ ρ·rtol``). **Fallback**: a column whose measured contraction ``‖δ_k‖∞/‖δ_{k−1}‖∞`` exceeds ½,
+whose update is not finite, or which is not done after 30 iterations, is solved by block-LU Newton
+(from the predictor; a tangent solve: by its block LU) — large amplitudes at strong reactions
+(``f'_max ≈ 3 r max u²``, ``ρ → 1``). ``newton_iterations`` (per step: block-LU Newton iterations,
+0 when the chord solved every column), ``chord_iterations`` (per step: the most any column needed)
+and ``fallback_columns`` (columns of steps and tangent solves handed to the block LU) describe the
+last call.
+
+**The Newton solver** (``solver="newton"``): Newton's method per step; each column of the batch has
+its own Jacobian: one sparse LU (``scipy.sparse.linalg.splu``) of the block-diagonal ``J`` of the
+columns not yet converged, per Newton iteration. A column stops when its Newton update
+``‖δ_k‖∞ ≤ rtol·‖w‖∞``, or when the quadratic model predicts the next error below that,
+``‖δ_k‖³/‖δ_{k−1}‖² ≤ rtol·‖w‖∞`` (the update ``δ_k`` is then applied and nothing is factorized
+again). The tangent solves factorize ``J`` once per step. Quadratic convergence, but a block LU
+per iteration: 7–9× slower than the chord on the scenes (docs/nonlinear.md).
 
 **Exact discrete adjoint.** The tangent of a step is ``δw = J(w)⁻¹ C(u) δu`` with
 ``C(u) = B − (1−θ) dt M diag(f'(u))``; its transpose ``ū = C(u)ᵀ J(w)⁻ᵀ w̄`` needs the states
@@ -25,10 +50,11 @@ singular (several solutions of one step) when ``θ dt r ≥ 1`` (exactly so with
 ``k``-th state (``k = ⌈√steps⌉`` by default), the reverse sweep recomputes one segment of ``k``
 states at a time, so at most ``⌈steps/k⌉ + k + 1 ≈ 2√steps`` fields per column are held
 (``peak_fields`` after each call). ``checkpoint_every=1`` stores the whole trajectory (the
-reference the tests compare against). The adjoint factors ``J`` once per step at the converged
-state (no Newton), so ``vjp`` ≈ 2 forward runs (checkpoints, then segment recomputation) plus one
-factorization per step; after a forward run at bitwise the same ``X`` (the torch bridge: forward,
-then backward) its checkpoints are reused, and ``vjp`` costs one run plus the factorizations.
+reference the tests compare against). The adjoint solves ``J(w)ᵀ z = w̄`` at the converged state
+(no nonlinear iteration), so ``vjp`` ≈ 2 forward runs (checkpoints, then segment recomputation) plus
+one transposed tangent solve per step; after a forward run at bitwise the same ``X`` (the torch
+bridge: forward, then backward) its checkpoints are reused, and ``vjp`` costs one run plus the
+solves.
 """
 
 from __future__ import annotations
@@ -263,9 +289,11 @@ SOLVERS = {"chord": Chord, "newton": Newton}
 
 
 class ReactionHeat(Physics):
-    """Final field of ``M u' + κ K u + M f(u) = 0`` after ``steps`` θ-steps with Newton (module
-    docstring). ``strength`` is ``r`` in ``f(u) = r (u³ − u)``; ``checkpoint_every``: ``k`` (default
-    ``⌈√steps⌉``; 1 stores everything)."""
+    """Final field of ``M u' + κ K u + M f(u) = 0`` after ``steps`` θ-steps (module docstring).
+    ``strength`` is ``r`` in ``f(u) = r (u³ − u)``; ``checkpoint_every``: ``k`` (default ``⌈√steps⌉``;
+    1 stores everything); ``solver``: ``"chord"`` (one frozen ``A_c``, Newton fallback), ``"newton"``
+    (block LU per iteration), or a strategy object with ``step(op, U, FU, W, history)`` and
+    ``tangent(op, W).solve(rhs, trans)`` (:class:`Chord`, :class:`Newton`)."""
 
     linear = False
     output_space = "field"
@@ -397,8 +425,9 @@ class ReactionHeat(Physics):
 
     def linearize(self, X) -> tuple[np.ndarray, Tangent]:
         """``(P(X), P'(X))`` with the tangent kept for many products (a local inverse's CG): the whole
-        trajectory and every step's Jacobian factorization are stored, O(steps) fields and factors —
-        memory traded for products at the cost of two block solves per step and no Newton."""
+        trajectory and every step's tangent solver are stored, O(steps) fields (chord: ``f'(w)`` of
+        each step and the shared ``A_c`` factors; Newton: a block LU per step) — memory traded for
+        products at the cost of one tangent solve per step and no nonlinear iteration."""
         U, states, lus = np.ascontiguousarray(np.atleast_2d(X).T), [], []
         self._reset_counts()
         for _ in range(self.steps):
