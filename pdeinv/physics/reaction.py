@@ -17,24 +17,23 @@ non-negative reaction term, which may become singular (several solutions of one 
 **The chord solver** (``solver="chord"``, the default). One frozen matrix ``A_c = A + θ dt c M``
 (symmetric positive definite, as ``1 + θ dt c > 0``) carries every solve: the step by the chord
 (modified Newton) iteration ``w ← w − A_c⁻¹ R(w)``, all columns at once as one multi-column solve;
-the tangent ``J(w) δ = rhs`` and its transpose ``J(w)ᵀ z = rhs`` by Richardson iteration
-``δ ← δ + A_c⁻¹(rhs − J δ)`` from ``δ₀ = A_c⁻¹ rhs``. All three have the error map
-``e ← −θ dt A_c⁻¹ M diag(f'(ξ) − c) e``, contraction factor
-``ρ ≤ θ dt · max|f' − c| · ‖A_c⁻¹ M‖ ≈ θ dt · max|f' − c| / (1 + θ dt c)`` (``‖A_c⁻¹M‖_M =
-1/(1 + θ dt (c + κλ₁))``). Over ``c ∈ [f'_min, f'_max]`` the bound decreases up to the midpoint and
-increases after it (its derivative there has the sign of ``1 + θ dt f'_min > 0``): ``c`` is the
-midpoint of ``f'`` over the batch's current values, ``ρ ≈ θ dt (f'_max − f'_min)/2 / (1 + θ dt c)``,
-rounded to the grid ``−r + (r/2)ℤ`` so that a run factorizes a handful of ``A_c`` (sparse LU of one
-``N × N`` matrix each, cached). allen_cahn_1d (``θ dt r = 0.01``): ``ρ ≈ 0.02``, 7–8 chord
-iterations per step; r = 5, 40 steps: ``ρ ≈ 0.2``, 15–20. **Stopping, relative to rounding**: a
-column stops when its update ``‖δ_k‖∞ ≤ rtol·‖w‖∞`` (``rtol = 1e-14``, 45 ulp; the error left is
-``≈ ρ·rtol``). **Fallback**: a column whose measured contraction ``‖δ_k‖∞/‖δ_{k−1}‖∞`` exceeds ½,
-whose update is not finite, or which is not done after 30 iterations, is solved by block-LU Newton
-(from the predictor; a tangent solve: by its block LU) — large amplitudes at strong reactions
-(``f'_max ≈ 3 r max u²``, ``ρ → 1``). ``newton_iterations`` (per step: block-LU Newton iterations,
-0 when the chord solved every column), ``chord_iterations`` (per step: the most any column needed)
-and ``fallback_columns`` (columns of steps and tangent solves handed to the block LU) describe the
-last call.
+the tangent ``J(w) δ = rhs`` and its transpose ``J(w)ᵀ z = rhs`` by Richardson iteration ``δ ← δ +
+A_c⁻¹(rhs − J δ)`` from ``δ₀ = A_c⁻¹ rhs``. All three have the error map ``e ← −θ dt A_c⁻¹ M
+diag(f'(ξ) − c) e``, contraction factor ``ρ ≤ θ dt · max|f' − c| · ‖A_c⁻¹ M‖ ≈ θ dt · max|f' − c| /
+(1 + θ dt c)`` (``‖A_c⁻¹M‖_M = 1/(1 + θ dt (c + κλ₁))``). Over ``c ∈ [f'_min, f'_max]`` the bound
+decreases up to the midpoint and increases after it (its derivative there has the sign of ``1 + θ dt
+f'_min > 0``): ``c`` is the midpoint of ``f'`` over the batch's current values, ``ρ ≈ θ dt (f'_max −
+f'_min)/2 / (1 + θ dt c)``, rounded to the grid ``−r + (r/2)ℤ`` so that a run factorizes a handful
+of ``A_c`` (sparse LU of one ``N × N`` matrix each, cached). allen_cahn_1d (``θ dt r = 0.01``):
+measured ``ρ ≈ 0.025``, 7–11 chord iterations per step (mean 7.6); r = 5, 40 steps: ``ρ ≈ 0.2``,
+16–30 (mean 18). **Stopping, relative to rounding**: a column stops when its update ``‖δ_k‖∞ ≤
+rtol·‖w‖∞`` (``rtol = 1e-14``, 45 ulp; the error left is ``≈ ρ·rtol``). **Fallback**: a column whose
+measured contraction ``‖δ_k‖∞/‖δ_{k−1}‖∞`` exceeds ½, whose update is not finite, or which is not
+done after 30 iterations, is solved by block-LU Newton (from the predictor; a tangent solve: by its
+block LU) — large amplitudes at strong reactions (``f'_max ≈ 3 r max u²``, ``ρ → 1``).
+``newton_iterations`` (per step: block-LU Newton iterations, 0 when the chord solved every column),
+``chord_iterations`` (per step: the most any column needed) and ``fallback_columns`` (columns of
+steps and tangent solves handed to the block LU) describe the last call.
 
 **The Newton solver** (``solver="newton"``): Newton's method per step; each column of the batch has
 its own Jacobian: one sparse LU (``scipy.sparse.linalg.splu``) of the block-diagonal ``J`` of the
@@ -42,7 +41,7 @@ columns not yet converged, per Newton iteration. A column stops when its Newton 
 ``‖δ_k‖∞ ≤ rtol·‖w‖∞``, or when the quadratic model predicts the next error below that,
 ``‖δ_k‖³/‖δ_{k−1}‖² ≤ rtol·‖w‖∞`` (the update ``δ_k`` is then applied and nothing is factorized
 again). The tangent solves factorize ``J`` once per step. Quadratic convergence, but a block LU
-per iteration: 7–9× slower than the chord on the scenes (docs/nonlinear.md).
+per iteration: 6–9× slower than the chord on the scenes (docs/nonlinear.md).
 
 **Exact discrete adjoint.** The tangent of a step is ``δw = J(w)⁻¹ C(u) δu`` with
 ``C(u) = B − (1−θ) dt M diag(f'(u))``; its transpose ``ū = C(u)ᵀ J(w)⁻ᵀ w̄`` needs the states
