@@ -76,7 +76,7 @@ def test_newton_converges_quadratically():
     """From the poor guess w₀ = u (no change), with a large dt·r: the Newton updates fall like
     δ_{k+1} ≈ C δ_k² until rounding (the log-ratio of consecutive updates approaches 2)."""
     d = _disc(32)
-    op = ReactionHeat(d.M, d.K, kappa=0.01, T=1.0, steps=4, strength=3.0)  # dt·r = 0.75
+    op = ReactionHeat(d.M, d.K, kappa=0.01, T=1.0, steps=4, strength=3.0, solver="newton")  # dt·r = 0.75
     U = _draw(op, b=3).T
     history = []
     W = op.step(U, history=history, guess=U)
@@ -89,7 +89,7 @@ def test_newton_converges_quadratically():
     assert pairs, h
     assert all(np.log(b) / np.log(a) >= 1.8 for a, b in pairs), h
     # the default predictor needs two or three iterations at the scene's defaults
-    op = ReactionHeat(d.M, d.K, kappa=0.01, T=1.0, steps=100, strength=1.0)
+    op = ReactionHeat(d.M, d.K, kappa=0.01, T=1.0, steps=100, strength=1.0, solver="newton")
     op.forward(_draw(op, b=8))
     assert max(op.newton_iterations) <= 3
 
@@ -98,7 +98,7 @@ def test_newton_refuses_steps_where_the_step_is_not_unique():
     d = _disc(8)
     with pytest.raises(ValueError, match="steps >= 11"):
         ReactionHeat(d.M, d.K, T=1.0, steps=10, strength=10.0)
-    op = ReactionHeat(d.M, d.K, T=1.0, steps=40, strength=10.0, max_newton=1)
+    op = ReactionHeat(d.M, d.K, T=1.0, steps=40, strength=10.0, max_newton=1, solver="newton")
     with pytest.raises(NewtonFailed, match="more steps"):
         op.step(_draw(op, b=1).T, guess=np.zeros((op.n_in, 1)))
 
@@ -217,3 +217,64 @@ def test_a_vjp_after_a_forward_at_the_same_point_reuses_its_checkpoints():
     calls.clear()
     op.vjp(X2, R)
     assert len(calls) == 32
+
+
+# -- the chord solver (one frozen factorization) against block-LU Newton --------------------------------
+
+def _pair(n=32, **kw):
+    d = _disc(n)
+    return (ReactionHeat(d.M, d.K, solver="chord", **kw), ReactionHeat(d.M, d.K, solver="newton", **kw))
+
+
+@pytest.mark.parametrize("kw,amp", [({}, 1.0), ({"strength": 5.0, "steps": 40}, 2.0),
+                                    ({"strength": 5.0, "steps": 40, "scheme": "cn"}, 2.0)])
+def test_chord_equals_newton_forward_jvp_and_vjp(kw, amp):
+    """The chord iteration (frozen ``A_c``) and the Richardson tangent solves reach the block-LU
+    Newton answers to 1e-12 relative, at the scene's defaults and at r = 5 (amplitude 2: the first
+    steps' largest columns fall back to Newton, the others are the chord's)."""
+    chord, newton = _pair(**kw)
+    X = _draw(chord, b=6, amp=amp)
+    rng = np.random.default_rng(4)
+    V, R = rng.standard_normal(X.shape), rng.standard_normal(X.shape)
+    assert _rel(chord.forward(X), newton.forward(X)) <= 1e-12
+    assert max(chord.chord_iterations) >= 2 and not any(chord.newton_iterations[3:])
+    assert _rel(chord.jvp(X, V), newton.jvp(X, V)) <= 1e-12
+    assert _rel(chord.vjp(X, R), newton.vjp(X, R)) <= 1e-12
+    ref, tangent = newton.linearize(X)
+    out, frozen = chord.linearize(X)
+    assert _rel(out, ref) <= 1e-12
+    assert _rel(frozen.jvp(V), tangent.jvp(V)) <= 1e-12 and _rel(frozen.vjp(R), tangent.vjp(R)) <= 1e-12
+
+
+def test_chord_equals_newton_on_the_scene_defaults():
+    p = pdeinv.load_problem("allen_cahn_1d")
+    op = p.operator
+    assert op.solver.name == "chord"  # the default: the faster one, as measured (docs/nonlinear.md)
+    newton = ReactionHeat(op.M, op.K, kappa=op.kappa, T=op.t_end, steps=op.steps, strength=op.strength,
+                          solver="newton")
+    X = p.sampler(16, np.random.default_rng(3))
+    assert _rel(op.forward(X), newton.forward(X)) <= 1e-12
+    assert max(op.chord_iterations) <= 8 and op.fallback_columns == 0
+
+
+def test_chord_falls_back_to_newton_where_it_does_not_contract():
+    """r = 10 and amplitude 3: ``θ dt max|f' − c| ‖A_c⁻¹M‖`` is near 1, the chord's update ratio
+    exceeds ½, and those columns (steps and tangent solves) are solved by block-LU Newton: the same
+    answers; a mixed batch falls back for the large column only."""
+    chord, newton = _pair(strength=10.0, steps=40)
+    X = _draw(chord, b=3, amp=3.0)
+    X[1] *= 0.1  # a small column: contracts
+    R = np.random.default_rng(6).standard_normal(X.shape)
+    assert _rel(chord.forward(X), newton.forward(X)) <= 1e-12
+    assert any(chord.newton_iterations) and 1 <= chord.fallback_columns < 3 * chord.steps
+    assert _rel(chord.vjp(X, R), newton.vjp(X, R)) <= 1e-12
+    assert _rel(chord.jvp(X, R), newton.jvp(X, R)) <= 1e-12
+    chord.fallback_columns = 0
+    chord.solver.tangent(chord, 3.0 * X.T.copy()).solve(R.T.copy())  # f'(3x) far from any c
+    assert chord.fallback_columns >= 1
+
+
+def test_chord_refuses_an_unknown_solver():
+    d = _disc(8)
+    with pytest.raises(ValueError, match="solver"):
+        ReactionHeat(d.M, d.K, steps=5, solver="jacobi")

@@ -8,16 +8,40 @@ this is exactly :class:`~pdeinv.physics.heat.Heat`'s scheme. θ-scheme (θ = 1 b
 
     R(w; u) = A w + θ dt M f(w) − B u + (1−θ) dt M f(u) = 0,   A = M + θ dt κK,  B = M − (1−θ) dt κK,
 
-by Newton's method, ``J(w) = A + θ dt M diag(f'(w))``, from the semi-implicit predictor
-``w₀ = A⁻¹(B u − dt M f(u))`` (one multi-column solve with the factorization of ``A``). Each
-column of the batch has its own Jacobian: one sparse LU (``scipy.sparse.linalg.splu``) of the
-block-diagonal ``J`` of the columns not yet converged, per Newton iteration. **Stopping, relative
-to rounding**: a column stops when its Newton update ``‖δ_k‖∞ ≤ rtol·‖w‖∞`` (``rtol = 1e-14``,
-45 ulp), or when the quadratic model predicts the next error below that, ``‖δ_k‖³/‖δ_{k−1}‖² ≤
-rtol·‖w‖∞`` (the update ``δ_k`` is then applied and nothing is factorized again).
-``θ dt r ≥ 1`` is refused with the number of steps that would do: since ``f' ≥ −r``, the step's
-Jacobian is ``(1 − θ dt r) M + θ dt κK`` plus a non-negative reaction term, which may become
-singular (several solutions of one step) when ``θ dt r ≥ 1`` (exactly so with a lumped mass).
+with ``J(w) = A + θ dt M diag(f'(w))``, from the semi-implicit predictor ``w₀ = A⁻¹(B u − dt M f(u))``
+(one multi-column solve with the factorization of ``A``). ``θ dt r ≥ 1`` is refused with the number
+of steps that would do: since ``f' ≥ −r``, the step's Jacobian is ``(1 − θ dt r) M + θ dt κK`` plus a
+non-negative reaction term, which may become singular (several solutions of one step) when
+``θ dt r ≥ 1`` (exactly so with a lumped mass).
+
+**The chord solver** (``solver="chord"``, the default). One frozen matrix ``A_c = A + θ dt c M``
+(symmetric positive definite, as ``1 + θ dt c > 0``) carries every solve: the step by the chord
+(modified Newton) iteration ``w ← w − A_c⁻¹ R(w)``, all columns at once as one multi-column solve;
+the tangent ``J(w) δ = rhs`` and its transpose ``J(w)ᵀ z = rhs`` by Richardson iteration ``δ ← δ +
+A_c⁻¹(rhs − J δ)`` from ``δ₀ = A_c⁻¹ rhs``. All three have the error map ``e ← −θ dt A_c⁻¹ M
+diag(f'(ξ) − c) e``, contraction factor ``ρ ≤ θ dt · max|f' − c| · ‖A_c⁻¹ M‖ ≈ θ dt · max|f' − c| /
+(1 + θ dt c)`` (``‖A_c⁻¹M‖_M = 1/(1 + θ dt (c + κλ₁))``). Over ``c ∈ [f'_min, f'_max]`` the bound
+decreases up to the midpoint and increases after it (its derivative there has the sign of ``1 + θ dt
+f'_min > 0``): ``c`` is the midpoint of ``f'`` over the batch's current values, ``ρ ≈ θ dt (f'_max −
+f'_min)/2 / (1 + θ dt c)``, rounded to the grid ``−r + (r/2)ℤ`` so that a run factorizes a handful
+of ``A_c`` (sparse LU of one ``N × N`` matrix each, cached). allen_cahn_1d (``θ dt r = 0.01``):
+measured ``ρ ≈ 0.025``, 7–11 chord iterations per step (mean 7.6); r = 5, 40 steps: ``ρ ≈ 0.2``,
+16–30 (mean 18). **Stopping, relative to rounding**: a column stops when its update ``‖δ_k‖∞ ≤
+rtol·‖w‖∞`` (``rtol = 1e-14``, 45 ulp; the error left is ``≈ ρ·rtol``). **Fallback**: a column whose
+measured contraction ``‖δ_k‖∞/‖δ_{k−1}‖∞`` exceeds ½, whose update is not finite, or which is not
+done after 30 iterations, is solved by block-LU Newton (from the predictor; a tangent solve: by its
+block LU) — large amplitudes at strong reactions (``f'_max ≈ 3 r max u²``, ``ρ → 1``).
+``newton_iterations`` (per step: block-LU Newton iterations, 0 when the chord solved every column),
+``chord_iterations`` (per step: the most any column needed) and ``fallback_columns`` (columns of
+steps and tangent solves handed to the block LU) describe the last call.
+
+**The Newton solver** (``solver="newton"``): Newton's method per step; each column of the batch has
+its own Jacobian: one sparse LU (``scipy.sparse.linalg.splu``) of the block-diagonal ``J`` of the
+columns not yet converged, per Newton iteration. A column stops when its Newton update
+``‖δ_k‖∞ ≤ rtol·‖w‖∞``, or when the quadratic model predicts the next error below that,
+``‖δ_k‖³/‖δ_{k−1}‖² ≤ rtol·‖w‖∞`` (the update ``δ_k`` is then applied and nothing is factorized
+again). The tangent solves factorize ``J`` once per step. Quadratic convergence, but a block LU
+per iteration: 6–9× slower than the chord on the scenes (docs/nonlinear.md).
 
 **Exact discrete adjoint.** The tangent of a step is ``δw = J(w)⁻¹ C(u) δu`` with
 ``C(u) = B − (1−θ) dt M diag(f'(u))``; its transpose ``ū = C(u)ᵀ J(w)⁻ᵀ w̄`` needs the states
@@ -25,10 +49,11 @@ singular (several solutions of one step) when ``θ dt r ≥ 1`` (exactly so with
 ``k``-th state (``k = ⌈√steps⌉`` by default), the reverse sweep recomputes one segment of ``k``
 states at a time, so at most ``⌈steps/k⌉ + k + 1 ≈ 2√steps`` fields per column are held
 (``peak_fields`` after each call). ``checkpoint_every=1`` stores the whole trajectory (the
-reference the tests compare against). The adjoint factors ``J`` once per step at the converged
-state (no Newton), so ``vjp`` ≈ 2 forward runs (checkpoints, then segment recomputation) plus one
-factorization per step; after a forward run at bitwise the same ``X`` (the torch bridge: forward,
-then backward) its checkpoints are reused, and ``vjp`` costs one run plus the factorizations.
+reference the tests compare against). The adjoint solves ``J(w)ᵀ z = w̄`` at the converged state
+(no nonlinear iteration), so ``vjp`` ≈ 2 forward runs (checkpoints, then segment recomputation) plus
+one transposed tangent solve per step; after a forward run at bitwise the same ``X`` (the torch
+bridge: forward, then backward) its checkpoints are reused, and ``vjp`` costs one run plus the
+solves.
 """
 
 from __future__ import annotations
@@ -113,17 +138,168 @@ def _unvec(u, n):
     return u.reshape(-1, n).T
 
 
+_TINY = np.finfo(float).tiny
+
+
+def _contract(update, X, rtol: float, max_iterations: int, max_ratio: float, history=None):
+    """The fixed-point iteration ``X[:, a] += update(X[:, a], a)`` on the columns ``a`` not yet done,
+    in place. A column is done when its update ``‖δ_k‖∞ ≤ rtol·‖x‖∞`` (the error left is then about
+    ``q·rtol·‖x‖∞``; stopping earlier on the predicted error ``q/(1−q)·‖δ_k‖∞`` saved one iteration
+    in seven but left 1e-12 between chord and Newton tangents at r = 5); it *fails* when the measured
+    contraction ``q_k = ‖δ_k‖∞/‖δ_{k−1}‖∞ > max_ratio``, its update is not finite, or it is not done
+    after ``max_iterations``. Returns (iterations, failed column indices)."""
+    active, prev, failed, its = np.arange(X.shape[1]), np.full(X.shape[1], np.inf), [], 0
+    while active.size and its < max_iterations:
+        every = active.size == X.shape[1]  # then views, no copies
+        Xa = X if every else X[:, active]
+        delta = update(Xa, slice(None) if every else active)
+        Xa += delta
+        if Xa is not X:
+            X[:, active] = Xa
+        its += 1
+        size = np.abs(delta).max(axis=0)
+        scale = rtol * np.maximum(np.abs(Xa).max(axis=0), _TINY)
+        if history is not None:
+            history.append(float((size / (scale / rtol)).max()))
+        with np.errstate(divide="ignore", invalid="ignore"):
+            q = np.where(np.isfinite(prev[active]), size / prev[active], np.nan)
+        done = size <= scale
+        bad = ~done & ((q > max_ratio) | ~np.isfinite(size))
+        prev[active] = size
+        failed.append(active[bad])
+        active = active[~done & ~bad]
+    return its, np.concatenate([*failed, active])
+
+
+def _newton(op, U, FU, W, history=None):
+    """Newton's method for ``R(w; u) = 0`` from ``W`` (in place), one block-LU of the Jacobians of the
+    columns not yet converged per iteration; returns ``(W, iterations)``."""
+    n, dt, th = op.n_in, op.dt, op.theta
+    G = op.B @ U - (1.0 - th) * dt * (op.M @ FU)
+    active = np.arange(U.shape[1])
+    prev = np.full(U.shape[1], np.inf)
+    its = 0
+    while active.size:
+        if its == op.max_newton:
+            raise NewtonFailed(f"Newton did not converge in {op.max_newton} iterations (dt={dt:.3g}, "
+                               f"strength={op.strength:g}); use more steps")
+        Wa = W[:, active]
+        Rb = op.A @ Wa + th * dt * (op.M @ op.f(Wa)) - G[:, active]
+        lu = op.blocks.jacobian(th * dt, op.df(Wa))
+        delta = -_unvec(lu.solve(_vec(Rb)), n)
+        W[:, active] = Wa + delta
+        its += 1
+        size = np.abs(delta).max(axis=0)
+        scale = op.rtol * np.maximum(np.abs(W[:, active]).max(axis=0), _TINY)
+        if history is not None:
+            history.append(float((size / (scale / op.rtol)).max()))
+        quadratic = np.isfinite(prev[active]) & (size**3 <= scale * prev[active] ** 2)
+        done = (size <= scale) | quadratic
+        prev[active] = size
+        active = active[~done]
+    return W, its
+
+
+class _BlockTangent:
+    """``J(w)⁻¹`` (or ``J(w)⁻ᵀ``) of every column by its block LU, on ``(N, b)`` columns."""
+
+    def __init__(self, op, D):
+        self.lu, self.n = op.blocks.jacobian(op.theta * op.dt, D), op.n_in
+
+    def solve(self, Rhs, trans: str = "N"):
+        return _unvec(self.lu.solve(_vec(Rhs), trans=trans), self.n)
+
+
+class Newton:
+    """Block-LU Newton per step, one block LU per step for the tangent (quadratic convergence; the
+    reference the chord solver is tested against)."""
+
+    name = "newton"
+
+    def step(self, op, U, FU, W, history=None):
+        W, its = _newton(op, U, FU, W, history)
+        op.newton_iterations.append(its)
+        op.chord_iterations.append(0)
+        return W
+
+    def tangent(self, op, W):
+        return _BlockTangent(op, op.df(W))
+
+
+class _FrozenTangent:
+    """``J(w) x = rhs`` (``trans='T'``: ``J(w)ᵀ z = rhs``) by Richardson iteration preconditioned with
+    the frozen ``A_c``: ``x ← x + A_c⁻¹(rhs − J x)`` from ``x₀ = A_c⁻¹ rhs``; columns that do not
+    contract are solved by their block LU."""
+
+    def __init__(self, op, chord, W):
+        self.op, self.chord, self.D = op, chord, op.df(W)
+        self.lu = op.frozen(self.D)
+
+    def _apply(self, X, a, trans):
+        op, s = self.op, self.op.theta * self.op.dt
+        if trans == "N":
+            return op.A @ X + s * (op.M @ (self.D[:, a] * X))
+        return op.A @ X + s * (self.D[:, a] * (op.M @ X))  # A, M symmetric
+
+    def solve(self, Rhs, trans: str = "N"):
+        op, lu, chord = self.op, self.lu, self.chord
+        # A_c is symmetric (so is A_c⁻ᵀ = A_c⁻¹): SuperLU's transposed solve took three times as long
+        X = np.ascontiguousarray(lu.solve(np.asarray(Rhs, float)))
+        _, failed = _contract(lambda Xa, a: lu.solve(Rhs[:, a] - self._apply(Xa, a, trans)),
+                              X, op.rtol, chord.max_iterations, chord.max_ratio)
+        if failed.size:
+            op.fallback_columns += failed.size
+            X[:, failed] = _BlockTangent(op, self.D[:, failed]).solve(Rhs[:, failed], trans)
+        return X
+
+
+class Chord(Newton):
+    """The chord (modified Newton) iteration with the frozen ``A_c = A + θ dt c M`` of the whole batch
+    (module docstring); columns whose updates do not contract by ``max_ratio`` per iteration, or are
+    not done after ``max_iterations``, fall back to :class:`Newton` from the predictor."""
+
+    name = "chord"
+
+    def __init__(self, max_iterations: int = 30, max_ratio: float = 0.5):
+        self.max_iterations, self.max_ratio = count(max_iterations, "max_iterations"), max_ratio
+
+    def step(self, op, U, FU, W, history=None):
+        th, dt = op.theta, op.dt
+        W = np.ascontiguousarray(W)  # the solves return Fortran order: matvecs would copy each time
+        W0 = W.copy()
+        G = op.B @ U - (1.0 - th) * dt * (op.M @ FU)
+        lu = op.frozen(op.df(W))
+        its, failed = _contract(
+            lambda Wa, a: -lu.solve(op.A @ Wa + th * dt * (op.M @ op.f(Wa)) - G[:, a]),
+            W, op.rtol, self.max_iterations, self.max_ratio, history)
+        newton_its = 0
+        if failed.size:
+            op.fallback_columns += failed.size
+            W[:, failed], newton_its = _newton(op, U[:, failed], FU[:, failed], W0[:, failed])
+        op.chord_iterations.append(its)
+        op.newton_iterations.append(newton_its)
+        return W
+
+    def tangent(self, op, W):
+        return _FrozenTangent(op, self, W)
+
+
+SOLVERS = {"chord": Chord, "newton": Newton}
+
+
 class ReactionHeat(Physics):
-    """Final field of ``M u' + κ K u + M f(u) = 0`` after ``steps`` θ-steps with Newton (module
-    docstring). ``strength`` is ``r`` in ``f(u) = r (u³ − u)``; ``checkpoint_every``: ``k`` (default
-    ``⌈√steps⌉``; 1 stores everything)."""
+    """Final field of ``M u' + κ K u + M f(u) = 0`` after ``steps`` θ-steps (module docstring).
+    ``strength`` is ``r`` in ``f(u) = r (u³ − u)``; ``checkpoint_every``: ``k`` (default ``⌈√steps⌉``;
+    1 stores everything); ``solver``: ``"chord"`` (one frozen ``A_c``, Newton fallback), ``"newton"``
+    (block LU per iteration), or a strategy object with ``step(op, U, FU, W, history)`` and
+    ``tangent(op, W).solve(rhs, trans)`` (:class:`Chord`, :class:`Newton`)."""
 
     linear = False
     output_space = "field"
     _last = None  # (X, kept states) of the last forward run
 
     def __init__(self, M, K, kappa=0.01, T=1.0, steps=100, strength=1.0, scheme="be",
-                 checkpoint_every=None, rtol=1e-14, max_newton=30):
+                 checkpoint_every=None, rtol=1e-14, max_newton=30, solver="chord"):
         self.M, self.K = sp.csr_matrix(M), sp.csr_matrix(K)
         self.mass = self.M
         self.kappa = positive(kappa, "kappa")
@@ -148,47 +324,34 @@ class ReactionHeat(Physics):
         self.B = (self.M - (1.0 - th) * dt * self.kappa * self.K).tocsr()
         self.A_lu = sla.splu(self.A)
         self.blocks = _Blocks(self.A, self.M)
-        self.newton_iterations: list[int] = []  # per step of the last forward run: max over columns
+        self.solver = SOLVERS[choice(solver, "solver", tuple(SOLVERS))]() if isinstance(solver, str) \
+            else solver
+        self._frozen: dict[int, object] = {}
+        self.newton_iterations: list[int] = []  # per step of the last run: block-LU Newton iterations
+        self.chord_iterations: list[int] = []  # per step of the last run: chord iterations
+        self.fallback_columns = 0  # columns (of steps and tangent solves) the chord handed to Newton
         self.peak_fields = 0
 
     # -- one step ---------------------------------------------------------------------------------
-    def _residual(self, W, U, FU):
-        return self.A @ W + self.theta * self.dt * (self.M @ self.f(W)) - self.B @ U \
-            + (1.0 - self.theta) * self.dt * (self.M @ FU)
-
     def step(self, U, history: list | None = None, guess=None):
-        """``w`` with ``R(w; u) = 0`` for every column of ``U`` ``(N, b)`` (Newton, module docstring).
-        ``history``: a list that receives ``max_b ‖δ_k‖∞ / ‖w‖∞`` per iteration; ``guess``: the
-        initial iterate (default: the semi-implicit predictor)."""
-        n, dt, th = self.n_in, self.dt, self.theta
+        """``w`` with ``R(w; u) = 0`` for every column of ``U`` ``(N, b)`` (by ``self.solver``, module
+        docstring). ``history``: a list that receives ``max_b ‖δ_k‖∞ / ‖w‖∞`` per iteration; ``guess``:
+        the initial iterate (default: the semi-implicit predictor)."""
         FU = self.f(U)
-        W = self.A_lu.solve(self.B @ U - dt * (self.M @ FU)) if guess is None else np.array(guess, float)
-        active = np.arange(U.shape[1])
-        prev = np.full(U.shape[1], np.inf)
-        its = 0
-        while active.size:
-            if its == self.max_newton:
-                raise NewtonFailed(f"Newton did not converge in {self.max_newton} iterations (dt={dt:.3g}, "
-                                   f"strength={self.strength:g}); use more steps")
-            Wa = W[:, active]
-            Rb = self._residual(Wa, U[:, active], FU[:, active])
-            lu = self.blocks.jacobian(th * dt, self.df(Wa))
-            delta = -_unvec(lu.solve(_vec(Rb)), n)
-            W[:, active] = Wa + delta
-            its += 1
-            size = np.abs(delta).max(axis=0)
-            scale = self.rtol * np.maximum(np.abs(W[:, active]).max(axis=0), np.finfo(float).tiny)
-            if history is not None:
-                history.append(float((size / (scale / self.rtol)).max()))
-            quadratic = np.isfinite(prev[active]) & (size**3 <= scale * prev[active] ** 2)
-            done = (size <= scale) | quadratic
-            prev[active] = size
-            active = active[~done]
-        self.newton_iterations.append(its)
-        return W
+        W = self.A_lu.solve(self.B @ U - self.dt * (self.M @ FU)) if guess is None else np.array(guess, float)
+        return self.solver.step(self, U, FU, W, history)
 
-    def _tangent_factor(self, W):
-        return self.blocks.jacobian(self.theta * self.dt, self.df(W))
+    def frozen(self, D):
+        """The LU of ``A_c = A + θ dt c M`` with ``c`` the midpoint of the values ``D`` of ``f'``,
+        rounded to the grid ``−r + (r/2)ℤ`` (cached per grid point: a run factorizes a handful)."""
+        r = self.strength
+        key = 0 if r == 0 else int(np.rint((D.min() + D.max() + 2.0 * r) / r))
+        if key not in self._frozen:
+            if len(self._frozen) >= 64:
+                self._frozen.clear()
+            c = -r + 0.5 * r * key
+            self._frozen[key] = sla.splu((self.A + self.theta * self.dt * c * self.M).tocsc())
+        return self._frozen[key]
 
     def _C(self, U, V):
         """``C(u) v = B v − (1−θ) dt M (f'(u) ∘ v)``."""
@@ -204,6 +367,9 @@ class ReactionHeat(Physics):
             out -= (1.0 - self.theta) * self.dt * (self.df(U) * (self.M @ Z))
         return out
 
+    def _reset_counts(self):
+        self.newton_iterations, self.chord_iterations, self.fallback_columns = [], [], 0
+
     # -- the run ------------------------------------------------------------------------------------
     def _forward(self, X):
         kept, U = self._run_keeping(X)
@@ -212,17 +378,17 @@ class ReactionHeat(Physics):
         return np.ascontiguousarray(U.T)
 
     def _jvp(self, X, V):
-        U, Vc, n = np.ascontiguousarray(X.T), np.ascontiguousarray(V.T), self.n_in
-        self.newton_iterations = []
+        U, Vc = np.ascontiguousarray(X.T), np.ascontiguousarray(V.T)
+        self._reset_counts()
         for _ in range(self.steps):
             W = self.step(U)
-            Vc = _unvec(self._tangent_factor(W).solve(_vec(self._C(U, Vc))), n)
+            Vc = self.solver.tangent(self, W).solve(self._C(U, Vc))
             U = W
         return np.ascontiguousarray(Vc.T)
 
     def _run_keeping(self, X):
         U, kept = np.ascontiguousarray(X.T), {}
-        self.newton_iterations = []
+        self._reset_counts()
         for j in range(self.steps):
             if j % self.k == 0:
                 kept[j] = U
@@ -239,7 +405,8 @@ class ReactionHeat(Physics):
         return self._run_keeping(X)[0]
 
     def _vjp(self, X, R):
-        n, kept = self.n_in, self.checkpoints(X)
+        self._reset_counts()
+        kept = self.checkpoints(X)
         Ub = np.ascontiguousarray(R.T)
         peak = len(kept)
         for s in sorted(kept, reverse=True):
@@ -249,7 +416,7 @@ class ReactionHeat(Physics):
                 seg.append(self.step(seg[-1]))
             peak = max(peak, len(kept) + len(seg) - 1)
             for j in range(e, s, -1):  # transpose of step j: u_{j-1} -> u_j
-                Z = _unvec(self._tangent_factor(seg[j - s]).solve(_vec(Ub), trans="T"), n)
+                Z = self.solver.tangent(self, seg[j - s]).solve(Ub, "T")
                 Ub = self._C_T(seg[j - s - 1], Z)
             del seg
         self.peak_fields = peak
@@ -257,14 +424,15 @@ class ReactionHeat(Physics):
 
     def linearize(self, X) -> tuple[np.ndarray, Tangent]:
         """``(P(X), P'(X))`` with the tangent kept for many products (a local inverse's CG): the whole
-        trajectory and every step's Jacobian factorization are stored, O(steps) fields and factors —
-        memory traded for products at the cost of two block solves per step and no Newton."""
+        trajectory and every step's tangent solver are stored, O(steps) fields (chord: ``f'(w)`` of
+        each step and the shared ``A_c`` factors; Newton: a block LU per step) — memory traded for
+        products at the cost of one tangent solve per step and no nonlinear iteration."""
         U, states, lus = np.ascontiguousarray(np.atleast_2d(X).T), [], []
-        self.newton_iterations = []
+        self._reset_counts()
         for _ in range(self.steps):
             W = self.step(U)
             states.append(U)
-            lus.append(self._tangent_factor(W))
+            lus.append(self.solver.tangent(self, W))
             U = W
         return np.ascontiguousarray(U.T), Tangent(self, states, lus)
 
@@ -283,11 +451,11 @@ class Tangent:
     def jvp(self, V):
         op, Vc = self.op, np.ascontiguousarray(V.T)
         for U, lu in zip(self.states, self.lus, strict=True):
-            Vc = _unvec(lu.solve(_vec(op._C(U, Vc))), op.n_in)
+            Vc = lu.solve(op._C(U, Vc))
         return np.ascontiguousarray(Vc.T)
 
     def vjp(self, R):
         op, Ub = self.op, np.ascontiguousarray(R.T)
         for U, lu in zip(reversed(self.states), reversed(self.lus), strict=True):
-            Ub = op._C_T(U, _unvec(lu.solve(_vec(Ub), trans="T"), op.n_in))
+            Ub = op._C_T(U, lu.solve(Ub, "T"))
         return np.ascontiguousarray(Ub.T)
