@@ -40,8 +40,8 @@ linear map wins there too (SIP on wave_2d: 5e-9, 1000× below the 0.2–0.3 of t
 
 from .defaults import (
            DECODER_MAX_UNCAPTURED,
-           FALLBACK_COMPONENTS,
            DENSE_MAX_UNKNOWNS,
+           FALLBACK_COMPONENTS,
            REDUCED_ABOVE,
            correction_kind,
            data_base,
@@ -56,8 +56,10 @@ from .mlp import MLP, Residual, dense, mlp, zero_last_layer
 from .net import BODIES, DTYPE, LinearInParameters, Net, fit_preconditioning, whitened
 from .reduced import REDUCED_K, REDUCED_K_IN, REDUCED_UNCAPTURED, Decoder, prior_basis, reduced
 
-__all__ = ["BODIES", "DECODER_MAX_UNCAPTURED", "DENSE_MAX_UNKNOWNS", "DTYPE", "FALLBACK_COMPONENTS", "MLP", "REDUCED_ABOVE",
+__all__ = ["BODIES", "DECODER_MAX_UNCAPTURED", "DENSE_MAX_UNKNOWNS", "DTYPE", "FALLBACK_COMPONENTS", "MLP",
+           "REDUCED_ABOVE",
            "REDUCED_K", "REDUCED_K_IN", "REDUCED_UNCAPTURED", "Decoder", "LinearInParameters", "Net",
-           "Residual", "correction_kind", "data_base", "default_model", "default_size", "dense", "fit_preconditioning",
+           "Residual", "correction_kind", "data_base", "default_model", "default_size", "dense",
+           "fit_preconditioning",
            "linear_default", "mlp", "network_size", "prior_basis", "reduced", "refined", "refined_size",
            "whitened", "zero_last_layer"]

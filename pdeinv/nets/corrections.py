@@ -95,7 +95,8 @@ class GridCorrection(nn.Module):
 
     fit_batch = 32
 
-    def __init__(self, grid, channels: int = 16, dim: int | None = None, physics: SpectralFilter | None = None):
+    def __init__(self, grid, channels: int = 16, dim: int | None = None,
+                 physics: SpectralFilter | None = None):
         super().__init__()
         self.grid, self.physics = grid, physics
         self.unet = UNet(dim or len(grid.shape), channels, 1 if physics is None else 2)

@@ -38,7 +38,8 @@ def default_model(problem, rows_per_component: float | None = None, refine: bool
                   base: str = "auto", correction: str = "auto") -> nn.Module:
     """The problem's default network: a linear estimate (below; ``base='whitened'`` forces the whitened
     map, what a user's data file gets, :func:`data_base`) and, with ``refine``, the nonlinear correction
-    fitted on prior draws (:func:`refined`, :mod:`pdeinv.nets.refine`; ``correction`` its kind). The linear part is chosen by what the
+    fitted on prior draws (:func:`refined`, :mod:`pdeinv.nets.refine`; ``correction`` its kind). The
+    linear part is chosen by what the
     operator is (:func:`pdeinv.physics.capabilities.reversible`):
 
     * a **reversible** operator (the wave scenes' final state: an energy-conserving, time-reversible

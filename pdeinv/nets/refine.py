@@ -42,7 +42,8 @@ from ..fem.grid import GridMap
 from .corrections import DenseCorrection, GridCorrection, SpectralFilter, UNet
 from .protocol import Network, declared
 
-__all__ = ["DenseCorrection", "GridCorrection", "PriorFit", "PriorFitted", "Refined", "SpectralFilter", "UNet"]
+__all__ = ["DenseCorrection", "GridCorrection", "PriorFit", "PriorFitted", "Refined", "SpectralFilter",
+           "UNet"]
 
 
 @dataclass(frozen=True)
@@ -88,8 +89,9 @@ class Refined(Network):
     declared structure (linear in its parameters, decoder, Gauss–Newton diagonal) is the network's: the
     rules train ``b`` as they would alone."""
 
-    def __init__(self, base: nn.Module, grid: GridMap | None = None, channels: int = 16, dim: int | None = None,
-                 physics: SpectralFilter | None = None, correction: nn.Module | None = None):
+    def __init__(self, base: nn.Module, grid: GridMap | None = None, channels: int = 16,
+                 dim: int | None = None, physics: SpectralFilter | None = None,
+                 correction: nn.Module | None = None):
         super().__init__()
         if (correction is None) == (grid is None):
             raise ValueError("Refined takes a grid (the U-Net correction) or a correction, exactly one")
@@ -143,9 +145,12 @@ class Refined(Network):
         if not any(k.startswith(("base.", "correction.", "grid.")) for k in state_dict):
             return self.base.load_state_dict(state_dict, strict, assign)
         if any(k.startswith("grid.") for k in state_dict):
-            state_dict = {("correction." + k if k.startswith("grid.") else
-                           k.replace("correction.", "correction.unet.", 1) if k.startswith("correction.") else k): v
-                          for k, v in state_dict.items()}
+            def moved(k):
+                if k.startswith("grid."):
+                    return "correction." + k
+                return k.replace("correction.", "correction.unet.", 1) if k.startswith("correction.") else k
+
+            state_dict = {moved(k): v for k, v in state_dict.items()}
         return super().load_state_dict(state_dict, strict, assign)
 
     def _apply(self, fn, recurse=True):
