@@ -193,6 +193,6 @@ def test_gd_defaults_do_not_blow_up_on_the_sensor_scene(tmp_path):
     losses = np.loadtxt(out / "history.csv", delimiter=",", skiprows=1, usecols=2)
     assert losses[-1] < 0.95 * losses[0]
     network = json.loads((out / "run.json").read_text())["network"]
-    assert network == {"kind": "default", "rows_per_component": 8}
+    assert network == {"kind": "default", "rows_per_component": 8, "correction": "grid"}
     _, model = pdeinv.load_run(out)
     assert int((model.base.pre.gain > 0).sum()) == 1024 // 8  # the fitted cap travels with model.pt
