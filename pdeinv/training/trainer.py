@@ -248,7 +248,7 @@ class Trainer:
         self.fit_scaling = args.flag(self.fit_scaling, "fit_scaling")
         self.resume = args.flag(self.resume, "resume")
         self.progress = args.flag(self.progress, "progress", optional=True)
-        self._preset = run_defaults(self.rule, self.model)
+        self._preset = run_defaults(self.rule, self.model, self.problem)
         if self.steps == PRESET:
             self.steps = None if self.time_budget is not None else self._preset["steps"]
         if self.batch_size == PRESET:
