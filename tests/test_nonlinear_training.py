@@ -88,3 +88,31 @@ def test_classical_gives_the_gauss_newton_references_of_a_nonlinear_map(tmp_path
     free, best = rows["gauss_newton"], rows["gauss_newton_best_common_alpha"]
     assert best["x_err"] <= free["x_err"] + 1e-12 and best["x_err"] < 0.5
     assert free["s_per_sample"] > 0 and rows["failed"] is None
+
+
+def test_hig_preset_on_nonlinear_physics_takes_minibatches():
+    """No Kronecker route without a fixed P: HIG's stacked Jacobian grows with the batch, so its preset on
+    nonlinear physics is HIG_MLP_BATCH rows and HIG_NONLINEAR_STEPS steps (the full batch took 88 s for one
+    step on sine_gordon_1d); on linear physics the full batch stays."""
+    from pdeinv.methods.presets import HIG_MLP_BATCH, HIG_NONLINEAR_STEPS, hyperparameters, run_defaults
+
+    p, lin = _small(), pdeinv.load_problem("heat_1d", n=16)
+    model = pdeinv.nets.default_model(p, refine=False)
+    assert run_defaults(pdeinv.HIG(), model, p) == {"steps": HIG_NONLINEAR_STEPS, "batch_size": HIG_MLP_BATCH,
+                                                   "rows_per_component": None}
+    hp = hyperparameters("hig", p)
+    assert (hp["steps"], hp["batch_size"]) == (HIG_NONLINEAR_STEPS, HIG_MLP_BATCH)
+    assert run_defaults(pdeinv.HIG(), pdeinv.nets.default_model(lin, refine=False), lin)["batch_size"] is None
+
+
+def test_the_nonlinear_inverse_is_an_inexact_gauss_newton_step_that_keeps_the_contract():
+    """CG to GN_RTOL (0.1): fewer products, the contract exact (zero right-hand side: no iteration)."""
+    from pdeinv.inverse import GN_RTOL
+
+    p = _small()
+    assert p.inverse_simulator.rtol == GN_RTOL == 0.1
+    x, y = p.sample(4, seed=1)
+    x0 = 0.3 * x
+    assert np.array_equal(p.inverse(p.operator.forward(x0), x0), x0)
+    p.inverse(y, x0)
+    assert p.inverse_simulator.last_info["relative_residual"] <= GN_RTOL
