@@ -1,8 +1,9 @@
 """Allen–Cahn heat on the unit square, u = 0 on the boundary: recover u(0) from u(T).
 
-As allen_cahn_1d on 16×16×2 P1 triangles (225 unknowns) with 50 backward-Euler steps: each
-Newton iteration factorizes one block-diagonal Jacobian per batch (one block per sample), so the
-cost grows like batch × unknowns; ``--set n=32`` for 961 unknowns. ``strength`` (default 1) is r in
+As allen_cahn_1d on 16×16×2 P1 triangles (225 unknowns) with 50 backward-Euler steps, each solved
+by the chord iteration with one frozen, once-factorized matrix for the whole batch (block-LU Newton
+only for columns where it does not contract: :class:`pdeinv.physics.reaction.ReactionHeat`);
+``--set n=32`` for 961 unknowns, ``n=128`` for 16 129. ``strength`` (default 1) is r in
 ``f(u) = r (u³ − u)``; ``mesh=path`` reads a triangle mesh instead.
 """
 
