@@ -139,3 +139,36 @@ def test_the_default_network_beats_gauss_newton_on_sine_gordon_1d():
     gn = {a: float(np.mean(p.relative_error(levenberg_marquardt(p, yt, a)[0], xt))) for a in (1e-1, 1e-2)}
     assert res.metrics["prior_fit"]["kept"]
     assert res.metrics["x_err"] < 0.75 * gn[1e-2] and res.metrics["x_err"] < 1.05 * min(gn.values())
+
+
+def test_noisy_data_on_a_nonlinear_map_fit_no_spectral_target():
+    """At 1 % the default network of allen_cahn_1d has a prior decoder, but no fixed P D exists to filter in:
+    no denoised target (it raised AttributeError before), and SIP trains on the rows' own y."""
+    from pdeinv.methods.presets import make_rule
+    from pdeinv.methods.targets import SpectralWiener
+
+    p = pdeinv.load_problem("allen_cahn_1d", n=16, steps=20, noise=0.01)
+    model = pdeinv.nets.default_model(p, refine=False)
+    assert model.decoder is not None and not SpectralWiener().applies(p, 0.01, model)
+    rule, hp = make_rule("sip", p, p.noise)
+    res = pdeinv.Trainer(p, rule, steps=3, batch_size=hp["batch_size"], seed=0, n_train=64, n_test=16,
+                         progress=False).fit()
+    assert res.metrics["x_err"] < 0.95
+
+
+def test_a_physics_solve_that_fails_at_the_networks_output_is_a_rejected_step():
+    from pdeinv.errors import ConvergenceError
+    from pdeinv.methods.guard import Diverged, apply_if_finite
+    from pdeinv.physics.reaction import NewtonFailed
+
+    assert issubclass(NewtonFailed, ConvergenceError)
+
+    class Failing(pdeinv.GD):
+        def update(self, state, model, y, target=None):
+            raise NewtonFailed("Newton did not converge in 30 iterations")
+
+    p = _small()
+    model = pdeinv.nets.default_model(p, refine=False)
+    rule = Failing()
+    with pytest.raises(Diverged, match="physics did not converge"):
+        apply_if_finite(rule, rule.init(p, model), model, torch.zeros(2, p.N, dtype=torch.float64))

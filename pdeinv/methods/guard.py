@@ -8,7 +8,10 @@ transformation apply it with the step-size multiplier ``scale``. It *rejects* (r
 * a non-finite loss or direction (NaN/Inf);
 * a finite loss above ``max_loss`` (:class:`Diverged`): the :class:`Guard` passes ``max_loss_growth``
   (default 1e3) times the lowest accepted loss so far. A loss is measured *before* its update, so a
-  huge loss says the previous update blew up.
+  huge loss says the previous update blew up;
+* a nonlinear solve of the physics that did not converge at the network's output
+  (:class:`~pdeinv.errors.ConvergenceError`, e.g. Newton on allen_cahn_1d after a HIG step that sent
+  the output far out): also :class:`Diverged`, for the same reason.
 
 **Last good state.** The loss of step k is that of the parameters left by step k − 1: once it passes,
 those parameters are known to be good. Every ``snapshot_every`` accepted steps (10) a :class:`Snapshot`
@@ -45,7 +48,7 @@ from dataclasses import dataclass, field
 import torch
 
 from .._checks import count, positive
-from ..errors import NonFiniteError
+from ..errors import ConvergenceError, NonFiniteError
 
 ADVICE = "lower the learning rate / eta, or raise tau for HIG"
 
@@ -85,8 +88,12 @@ def apply_if_finite(rule, state, model: torch.nn.Module, y: torch.Tensor, scale:
     ``(state,
     info)``; refuses a non-finite loss or update, or a loss above ``max_loss``; ``snapshot`` keeps the
     verified pre-step state (module docstring)."""
-    direction, info = rule.update(state, model, y) if target is None else \
-        rule.update(state, model, y, target=target)
+    try:
+        direction, info = rule.update(state, model, y) if target is None else \
+            rule.update(state, model, y, target=target)
+    except ConvergenceError as err:  # the physics failed where the last update left the network
+        raise Diverged(f"the physics did not converge at the network's output ({err}): the previous "
+                       f"update blew up; it is undone ({ADVICE})") from err
     params = trainable(model)
     check_update(info, direction, model)
     loss = info["loss"]

@@ -158,8 +158,8 @@ class SpectralWiener:
 
     def applies(self, problem, noise: float | None, model=None) -> bool:
         """Whether :meth:`fit` will fit a filter: a noise level and a spectral basis to filter in."""
-        return bool(noise) and (declared(model).decoder is not None or
-                                self._basis(problem) is not None)
+        decoded = declared(model).decoder is not None and is_linear(problem.operator)  # P D exists
+        return bool(noise) and (decoded or self._basis(problem) is not None)
 
     def fit(self, problem, y: np.ndarray, noise: float | None, model=None, fields=None) -> Filtered | None:
         """The filter fitted on observations ``y`` ``(n, m)`` with relative noise ``noise``; ``None``

@@ -66,13 +66,15 @@ import scipy.sparse.linalg as sla
 from scipy.sparse.csgraph import reverse_cuthill_mckee
 
 from .._checks import choice, count, nonnegative, positive
+from ..errors import ConvergenceError
 from .nonlinear import Physics
 
 SCHEMES = {"be": 1.0, "cn": 0.5}
 
 
-class NewtonFailed(RuntimeError):
-    """Newton's method did not converge within ``max_newton`` iterations."""
+class NewtonFailed(ConvergenceError):
+    """Newton's method did not converge within ``max_newton`` iterations (a numerical failure: the
+    training guard rejects the update that led there, :func:`pdeinv.methods.guard.apply_if_finite`)."""
 
 
 def allen_cahn(r: float):
