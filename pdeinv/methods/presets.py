@@ -130,6 +130,7 @@ def _nonlinear(problem) -> bool:
 
     return problem is not None and not isinstance(problem, str) and not is_linear(problem.operator)
 
+
 #: per-problem overrides of GENERIC (none needed since the steps are normalized by the curvature)
 PER_PROBLEM: dict[str, dict[str, dict]] = {}
 

@@ -66,6 +66,7 @@ def prior_draw_counts(N: int, prior_draws: int) -> tuple[int, int]:
     n = min(prior_draws, max(256, PRIOR_ENTRIES // max(N, 1)))
     return n, max(n, min(PRIOR_MOST, PRIOR_EXTRA_ENTRIES // max(N, 1)))
 
+
 #: ``callback(record, model) -> bool | None``; returning True stops training after this step
 Callback = Callable[[dict, torch.nn.Module], "bool | None"]
 
