@@ -88,7 +88,6 @@ class SpectralFilter(nn.Module):
         return ((y @ self.proj) * self.filt) @ self.synth.T
 
 
-
 class GridCorrection(nn.Module):
     """``g = E U(Ê b(y) [, Ê x_T(y)])`` (module docstring): ``grid`` a
     :class:`~pdeinv.fem.grid.GridMap`, ``physics`` an optional :class:`SpectralFilter` (a second channel)."""
