@@ -278,3 +278,14 @@ def test_chord_refuses_an_unknown_solver():
     d = _disc(8)
     with pytest.raises(ValueError, match="solver"):
         ReactionHeat(d.M, d.K, steps=5, solver="jacobi")
+
+
+def test_newton_reaches_the_answer_from_far_out():
+    """A network's output may be far out (a bad training step): Newton on the cubic reduces a large
+    error by about a third per iteration before its quadratic phase, so amplitude 1000 takes ~50
+    iterations (max_newton = 100; with 30, HIG on allen_cahn_1d stopped at step 21). The step's answer
+    is then in the reaction's range."""
+    p = pdeinv.load_problem("allen_cahn_1d")
+    X = 1000.0 * np.random.default_rng(0).standard_normal((4, p.N))
+    Y = p.operator.forward(X)
+    assert np.all(np.isfinite(Y)) and np.abs(Y).max() < 1.5 and max(p.operator.newton_iterations) > 30

@@ -301,7 +301,7 @@ class ReactionHeat(Physics):
     _last = None  # (X, kept states) of the last forward run
 
     def __init__(self, M, K, kappa=0.01, T=1.0, steps=100, strength=1.0, scheme="be",
-                 checkpoint_every=None, rtol=1e-14, max_newton=30, solver="chord"):
+                 checkpoint_every=None, rtol=1e-14, max_newton=100, solver="chord"):
         self.M, self.K = sp.csr_matrix(M), sp.csr_matrix(K)
         self.mass = self.M
         self.kappa = positive(kappa, "kappa")
