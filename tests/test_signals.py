@@ -61,7 +61,8 @@ def test_sigterm_during_a_checkpoint_save_cleans_up_and_resumes(tmp_path):
 def test_a_signal_during_start_up_exits_quietly(tmp_path, sig, code):
     """Signalled at moments spread over the start-up (the imports of torch and scipy take ~1-3 s)."""
     for delay in (0.3, 0.5, 0.6, 1.0):  # 0.5-0.6 s: inside the import of numpy, on this machine
-        proc = subprocess.Popen([sys.executable, "-m", "pdeinv", *ARGS, "--out", str(tmp_path / "run")],
+        out = tmp_path / f"run_{delay}"  # one folder each: a run that finished first must not refuse the next
+        proc = subprocess.Popen([sys.executable, "-m", "pdeinv", *ARGS, "--out", str(out)],
                                 cwd=tmp_path, stdout=subprocess.PIPE, stderr=subprocess.PIPE, env=_env())
         time.sleep(delay)
         proc.send_signal(sig)
