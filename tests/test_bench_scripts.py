@@ -18,6 +18,7 @@ ROOT = Path(__file__).resolve().parents[1] / "benchmarks"
     ("hig_step.py", ["--scenes", "heat_1d", "--steps", "4", "--repeats", "1"], "heat_1d: 4 steps x 1"),
     ("nonlinear_references.py", ["sine_gordon_1d", "--set", "n=16", "--n-test", "4", "--alphas", "0.1"],
      "sine_gordon_1d n=16 oracle: x_err"),
+    ("forward_bare.py", ["--n", "12", "--batch", "4", "--repeats", "1"], "relative difference"),
 ])
 def test_developer_benchmark_runs_on_its_smallest_setting(script, args, expect):
     run = subprocess.run([sys.executable, str(ROOT / script), *args], capture_output=True, text=True,
@@ -27,7 +28,7 @@ def test_developer_benchmark_runs_on_its_smallest_setting(script, args, expect):
 
 
 @pytest.mark.parametrize("script", ["crossover.py", "scaling.py", "netsize.py", "ddp.py", "hig_step.py",
-                                    "overhead.py", "nonlinear_references.py"])
+                                    "overhead.py", "nonlinear_references.py", "forward_bare.py"])
 def test_developer_benchmark_says_how_to_run_it(script):
     doc = (ROOT / script).read_text().split('"""')[1]
     assert f"python benchmarks/{script}" in doc and "pdeinv.bench" not in (ROOT / script).read_text()

@@ -130,3 +130,44 @@ def test_the_geometric_checks_give_the_same_modes_on_a_3d_mesh(monkeypatch):
     x = np.random.default_rng(2).standard_normal((3, heat.n_in))
     ys = dense.forward(x)
     assert np.linalg.norm(sparse.forward(x) - ys) / np.linalg.norm(ys) <= 1e-10
+
+
+def test_band_values_are_the_ritz_values_of_the_banded_block_lanczos_matrix():
+    """``_band_values`` reads the upper band of ``H`` (the block tridiagonal of block Lanczos, upper
+    triangle stored): the eigenvalues of the dense symmetric matrix to rounding; what lies off the band
+    (reorthogonalization coefficients at the rounding level) moves them by no more than its norm."""
+    rng = np.random.default_rng(3)
+    m, band = 90, 6
+    A = rng.standard_normal((m, m))
+    A = np.triu(np.tril(A + A.T, band), -band)
+    off = 1e-15 * np.triu(rng.standard_normal((m, m)), band + 1)
+    H = np.triu(A) + off  # only the upper triangle is read
+    got = modes._band_values(H, m, band)
+    assert np.abs(got - np.linalg.eigvalsh(A)).max() <= 1e-12 * np.abs(got).max()
+    assert np.abs(modes._band_values(H, m, band - 1) - got).max() > 1e-3  # the band width matters
+
+
+def test_one_full_pass_after_the_local_one_leaves_the_block_orthogonal_to_the_basis():
+    """``orthogonalize(W, local)``: against the last ``local`` columns, then once against all; the block
+    is M-orthogonal to the whole basis to rounding and ``W = Q C + W_after``."""
+    d = pdeinv.discretize(pdeinv.fem.mesh.unit_square(20))
+    rng = np.random.default_rng(4)
+    basis = modes._Basis(d.N, 64)
+    for _ in range(4):
+        V = rng.standard_normal((d.N, 8))
+        basis.orthogonalize(V)
+        V = modes._cholqr(V, d.M)[0]
+        basis.append(V, d.M @ V)
+    W0 = basis.Q[:, 16:32] @ rng.standard_normal((16, 8)) + 1e-6 * rng.standard_normal((d.N, 8))
+    W = W0.copy()
+    C = basis.orthogonalize(W, local=16)
+    assert np.abs(basis.MQ[:, :basis.m].T @ W).max() <= 1e-15 * np.abs(W0).max() * d.N
+    assert np.allclose(basis.Q[:, :basis.m] @ C + W, W0, atol=1e-13)
+    assert np.abs(C[:16]).max() < 1e-5 < np.abs(C[16:]).max()  # the local pass took the large part
+
+
+def test_the_next_check_is_extrapolated_from_the_ritz_counts():
+    assert modes._next_check(3000, 1700, (2800, 1600), 1877, 64) == 3354  # (177 / 100) * 200 = 354
+    assert modes._next_check(3000, 1700, None, 1877, 64) == 3180  # 6 % without two checks
+    assert modes._next_check(3000, 1876, (2900, 1800), 1877, 64) == 3064  # at least a block
+    assert modes._next_check(3000, 1000, (2990, 999), 1877, 64) == 3750  # at most 25 %
