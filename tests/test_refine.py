@@ -175,15 +175,17 @@ def test_the_physics_channel_is_the_tikhonov_solve_from_zero():
 
 
 def test_a_small_1d_mesh_gets_the_dense_correction_and_others_the_grid():
-    """The correction's kind follows the mesh: a dense MLP on (y, b(y)) on 1-D meshes up to
-    DENSE_MAX_UNKNOWNS unknowns (a 1-D U-Net sees ~20 neighbours; waves and reactions move information
-    further), the U-Net on a grid otherwise."""
+    """The correction's kind follows the mesh and the physics: a dense MLP on (y, b(y)) up to
+    DENSE_MAX_UNKNOWNS unknowns on 1-D meshes (a 1-D U-Net sees ~20 neighbours; waves and reactions move
+    information further) and on any mesh with nonlinear physics, the U-Net on a grid otherwise."""
     from pdeinv.nets import DENSE_MAX_UNKNOWNS, correction_kind, refined_size
     from pdeinv.nets.refine import DenseCorrection, GridCorrection
 
     sg, flat = pdeinv.load_problem("sine_gordon_1d"), pdeinv.load_problem("heat_2d", n=8)
     big = pdeinv.load_problem("heat_1d", n=DENSE_MAX_UNKNOWNS + 2)
-    assert [correction_kind(p) for p in (sg, big, flat)] == ["dense", "grid", "grid"]
+    sg2, ac2 = pdeinv.load_problem("sine_gordon_2d", n=8), pdeinv.load_problem("allen_cahn_2d", n=8)
+    kinds = [correction_kind(p) for p in (sg, big, flat, sg2, ac2)]
+    assert kinds == ["dense", "grid", "grid", "dense", "dense"]
     net = sg.model()
     assert isinstance(net.correction, DenseCorrection) and net.correction_kind == "dense"
     assert isinstance(flat.model().correction, GridCorrection)
