@@ -42,6 +42,7 @@ _WHERE = {
     **dict.fromkeys(["AMGCG", "Cholesky", "SuperLU", "amg_cg", "default_solver", "solver_for"],
                     "fem.solvers"),
     "DiscrepancyStop": "training.stopping",
+    "PlateauStop": "training.stopping",
     **dict.fromkeys(["Result", "Trainer", "train"], "training.trainer"),
 }
 

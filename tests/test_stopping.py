@@ -138,3 +138,50 @@ def test_cli_refuses_an_unknown_stopping_rule(tmp_path, capsys):
     with pytest.raises(SystemExit) as exc:
         main(["train", "heat_1d", "--stop", "maybe", "--out", str(tmp_path / "o")])
     assert exc.value.code == 2 and "invalid choice: 'maybe'" in capsys.readouterr().err
+
+
+class _Fixed(torch.nn.Module):
+    """x̂ = s·y₀-like output: a scalar times a fixed field, the scalar set from outside."""
+
+    def __init__(self, x):
+        super().__init__()
+        self.s = torch.nn.Parameter(torch.zeros((), dtype=torch.float64))
+        self.register_buffer("x", torch.as_tensor(x))
+
+    def forward(self, y):
+        return self.s * self.x[: y.shape[0]]
+
+
+def test_plateau_stop_fires_after_patience_checks_without_a_gain():
+    """The held-out residual is checked at each call: it fires at the ``patience``-th check in a row whose
+    residual is not below ``(1 − min_gain)`` of the best, and a gain resets the count."""
+    from pdeinv.training.stopping import PlateauStop
+
+    p = pdeinv.load_problem("heat_1d", n=16, steps=10)
+    x, y = p.sample(8, 0)
+    rule, model = PlateauStop(patience=2, min_gain=0.01), _Fixed(x)
+    state = rule.init(p, y, y)
+    fired = []
+    for s in (0.0, 0.5, 0.9, 0.9, 0.95, 0.999, 0.999, 0.999):  # the residual falls by (1 − s)²
+        model.s.data.fill_(s)
+        state, info, stop = rule.check(state, model)
+        fired.append(stop)
+        assert info["plateau"] >= state.best
+    # 0.9 → 0.9: no gain (1st); 0.95 gains; 0.999 gains; then two without: fires at the second
+    assert fired == [False, False, False, False, False, False, False, True]
+    with pytest.raises(ValueError, match="patience"):
+        PlateauStop(patience=0)
+
+
+def test_cli_auto_stops_nonlinear_runs_on_the_plateau():
+    """`--stop auto`: nonlinear physics gets the plateau stop, checked ~30 times a run; linear noise-free
+    runs none; `pdeinv.train(..., stop="plateau")` builds it by name."""
+    from pdeinv.cli.commands.train import STOPS
+    from pdeinv.training.stopping import PlateauStop
+
+    ac = pdeinv.load_problem("allen_cahn_1d", n=16, steps=10)
+    assert STOPS["auto"](ac, 30) == PlateauStop(every=1) and STOPS["auto"](ac, 1000).every == 33
+    assert STOPS["auto"](pdeinv.load_problem("heat_1d", n=16), 30) is None
+    res = pdeinv.Trainer(ac, "sip", steps=30, n_train=64, n_test=8, seed=0, progress=False,
+                         stop="plateau").fit()
+    assert res.metrics["stopped_by"] == "plateau" and res.metrics["steps"] < 30

@@ -138,14 +138,15 @@ def seed(value, name: str = "seed") -> int:
 
 def stop(value, problem_):
     """A stopping rule (``init``/``check``, ``n_val``, ``every``), ``None``, or a name: ``"discrepancy"``
-    (:class:`~pdeinv.DiscrepancyStop` as ``pdeinv train --stop discrepancy`` builds it) or ``"none"``."""
+    (:class:`~pdeinv.DiscrepancyStop` as ``pdeinv train --stop discrepancy`` builds it), ``"plateau"``
+    (:class:`~pdeinv.PlateauStop`) or ``"none"``."""
     if value is None:
         return None
     if isinstance(value, str):
-        from .stopping import DiscrepancyStop
+        from .stopping import DiscrepancyStop, PlateauStop
 
         names = {"discrepancy": lambda: DiscrepancyStop(noise=None if problem_.noise else "estimate"),
-                 "none": lambda: None}
+                 "plateau": PlateauStop, "none": lambda: None}
         if value not in names:
             raise ValueError(f"stop={value!r} is not allowed; expected one of {', '.join(map(repr, names))}, "
                              "None or a stopping rule such as pdeinv.DiscrepancyStop()")

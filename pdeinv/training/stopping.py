@@ -121,3 +121,54 @@ class DiscrepancyStop:
         r2 = float(np.sum((state.operator.forward(xhat) - state.y_val) ** 2))
         ratio = float(np.sqrt(r2 / state.noise_sq))
         return state, {"discrepancy": ratio}, bool(ratio <= self.tau)
+
+
+class PlateauState(NamedTuple):
+    operator: object
+    y_val: np.ndarray
+    best: float  # the lowest held-out residual ‖P f(y) − y‖² so far
+    bad: int  # checks in a row without a relative gain of min_gain over it
+
+
+@dataclass(frozen=True)
+class PlateauStop:
+    """Stop once the held-out residual ``r = Σ_i ‖P f(y_i) − y_i‖²`` has not fallen below
+    ``(1 − min_gain)`` of its lowest value for ``patience`` checks in a row (every ``every`` accepted
+    steps, on ``n_val`` held-out observations; never looks at ``x``).
+
+    For rules whose steps are expensive and converge in a few (SIP on nonlinear physics: every step
+    linearizes the physics and solves for every training row). allen_cahn_2d, SIP's 30 full-batch steps
+    (one thread, loaded): the loss fell 8.9, 0.20, 0.020 in the first three steps and then stayed at
+    0.027–0.029 for 27 more, 75 s each, 1 900 s of a 2 583-s run. On noisy data the held-out residual
+    stops falling once the network fits the training rows' noise (it cannot fit the held-out noise): an
+    early stop on held-out data, as the discrepancy principle is. The state restarts on a resumed run."""
+
+    min_gain: float = 0.01
+    patience: int = 3
+    every: int = 1
+    n_val: int = 128
+    name: str = "plateau"
+
+    def __post_init__(self):
+        positive(self.min_gain, "min_gain")
+        count(self.patience, "patience")
+        count(self.every, "every")
+        count(self.n_val, "n_val")
+
+    def init(self, problem, y_train: np.ndarray, y_val: np.ndarray) -> PlateauState:
+        return PlateauState(problem.operator, np.asarray(y_val, dtype=float), np.inf, 0)
+
+    def describe(self, state: PlateauState) -> dict:
+        return {"min_gain": self.min_gain, "patience": self.patience, "every": self.every}
+
+    @torch.no_grad()
+    def check(self, state: PlateauState, model: torch.nn.Module):
+        param = next(iter(model.parameters()), None)
+        dtype = param.dtype if param is not None else torch.float32
+        device = param.device if param is not None else None
+        xhat = model(torch.as_tensor(state.y_val, dtype=dtype, device=device)).double().cpu().numpy()
+        r2 = float(np.sum((state.operator.forward(xhat) - state.y_val) ** 2)) if np.isfinite(xhat).all() \
+            else np.inf
+        gained = r2 < (1 - self.min_gain) * state.best
+        state = state._replace(best=min(r2, state.best), bad=0 if gained else state.bad + 1)
+        return state, {"plateau": r2}, state.bad >= self.patience

@@ -27,30 +27,44 @@ ORDER = 1
 FAILED = 3
 
 
-def _discrepancy(problem):
+def _discrepancy(problem, steps=None):
     from pdeinv.training.stopping import DiscrepancyStop
 
     return DiscrepancyStop(noise=None if problem.noise else "estimate")
 
 
-def _auto(problem):
-    """Noisy data: the trainer's denoised target (pdeinv.methods.targets) when it can fit one — its fixed
-    point
-    is regularized, and a discrepancy stop would only end slower rules (HIG: 0.141 at step 10 against
-    0.12 at step 100 on heat_2d at 1 %) before they reach it —, else the discrepancy stop."""
-    from pdeinv.methods.targets import SpectralWiener
+def _plateau(problem, steps=None):
+    """The held-out residual's plateau, checked about 30 times a run (every step of SIP's 30)."""
+    from pdeinv.training.stopping import PlateauStop
 
+    return PlateauStop(every=max(1, (steps or 30) // 30))
+
+
+def _auto(problem, steps=None):
+    """Nonlinear physics (declared): the plateau stop (:class:`pdeinv.training.stopping.PlateauStop`; the
+    discrepancy stop never fired in the nonlinear runs of docs/nonlinear.md, and SIP's steps there cost
+    75 s each after the third had converged). Noisy data: the trainer's denoised target
+    (pdeinv.methods.targets) when it can fit one — its fixed point is regularized, and a discrepancy stop
+    would only end slower rules (HIG: 0.141 at step 10 against 0.12 at step 100 on heat_2d at 1 %) before
+    they reach it —, else the discrepancy stop."""
+    from pdeinv.methods.targets import SpectralWiener
+    from pdeinv.physics.nonlinear import is_linear
+
+    if not is_linear(problem.operator):
+        return _plateau(problem, steps)
     if not problem.noise or SpectralWiener().applies(problem, problem.noise):
         return None
     return _discrepancy(problem)
 
 
-#: --stop: name -> problem -> stopping rule (or None). 'auto' stops noisy data by the discrepancy
-#: principle where no denoised target regularizes it, and leaves other runs to --steps / --time-budget.
+#: --stop: name -> (problem, steps) -> stopping rule (or None). 'auto' stops nonlinear runs on the held-out
+#: residual's plateau and noisy data by the discrepancy principle where no denoised target regularizes it,
+#: and leaves other runs to --steps / --time-budget.
 STOPS = {
     "auto": _auto,
     "discrepancy": _discrepancy,
-    "none": lambda problem: None,
+    "plateau": _plateau,
+    "none": lambda problem, steps=None: None,
 }
 
 
@@ -260,7 +274,7 @@ def _parallel_train(args, out, ckpt, device, parallel) -> int:
                          batch_size=args.batch_size, hidden=hidden, optimizer=args.optimizer)
     _checks.check_run(problem, args, hp)  # memory, HIG step time, --export-samples (before allocating)
     logging.getLogger("pdeinv").debug(f"pdeinv train: --method {args.method} with {hp}")
-    stop = STOPS[args.stop](problem)
+    stop = STOPS[args.stop](problem, _checks.steps(args, hp))
     torch.manual_seed(args.seed)
     net = _network_spec(problem, hp, args.net, bool(args.data))
     t_net, c_net = time.perf_counter(), time.process_time()
@@ -450,8 +464,9 @@ def _rule_arguments(t) -> None:
     t.add_argument("--stop", choices=sorted(STOPS), default="auto",
                    help="stopping rule that never looks at x: 'discrepancy' stops once the residual on "
                         "128 held-out observations reaches 1.1x the noise level (the problem's, or an "
-                        "estimate when it has none); 'auto' (default) uses it on noisy problems the "
-                        "denoised target (pdeinv.methods.targets) cannot filter (no spectral basis)")
+                        "estimate when it has none); 'plateau' once that residual has not fallen by 1 %% "
+                        "in 3 checks; 'auto' (default): plateau on nonlinear physics, discrepancy on "
+                        "noisy problems the denoised target (pdeinv.methods.targets) cannot filter")
 
 
 def _network_arguments(t) -> None:
