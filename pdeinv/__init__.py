@@ -25,7 +25,9 @@ _WHERE = {
         "export": "io.export", "mesh": "fem.mesh", "observe": "fem.sensors", "plots": "io.plots",
         "nets": "nets", "runs": "io.runs", "references": "training.references", "targets": "methods.targets",
         "threads": "util.threads", "settings": "problem.settings", "scenes": "problem.scenes",
-        "verdict": "training.verdict", "nonlinear_scenes": "problem.nonlinear_scenes"}.items()},
+        "verdict": "training.verdict", "nonlinear_scenes": "problem.nonlinear_scenes",
+        # the layers (``pdeinv.io.export`` works without importing ``pdeinv.io`` first)
+        **{k: k for k in ("util", "fem", "physics", "inverse", "methods", "training", "io")}}.items()},
     "FailedRun": "training.verdict",
     "load_run": "io.runs", "save_run": "io.runs",
     "apply": "physics.bridge", "Checkpoint": "training.checkpoint", "Discretization": "fem.forms",
