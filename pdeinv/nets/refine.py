@@ -30,7 +30,6 @@ FBPConvNet), with the physics-trained ``b`` in place of a fixed classical invers
 from __future__ import annotations
 
 import math
-import time
 from dataclasses import dataclass
 from typing import Protocol, runtime_checkable
 
@@ -39,6 +38,7 @@ import torch
 from torch import nn
 
 from ..fem.grid import GridMap
+from ..util.clock import Budget
 from .corrections import DenseCorrection, GridCorrection, SpectralFilter, UNet
 from .protocol import Network, declared
 
@@ -49,11 +49,12 @@ __all__ = ["DenseCorrection", "GridCorrection", "PriorFit", "PriorFitted", "Refi
 @dataclass(frozen=True)
 class PriorFit:
     """How :meth:`Refined.fit_prior` fits the correction: Adam at ``lr``, ``batch`` draws per step, at
-    most ``steps`` steps or ``time_budget`` seconds, the held-out error checked every ``check_every``
-    steps (default: once per pass over the training draws, at least every 100) on ``held_out`` of the
-    draws; after ``patience`` checks without a relative improvement of
-    ``min_gain`` over the best so far it restarts from that best at a quarter of the lr, at most
-    ``decays`` times, then stops; the best is what is kept."""
+    most ``steps`` steps or ``time_budget`` seconds (CPU seconds of the fitting thread, at most 3× as
+    many wall seconds: :class:`pdeinv.util.clock.Budget`, the same work on a loaded machine), the
+    held-out error checked every ``check_every`` steps (default: once per pass over the training draws,
+    at least every 100) on ``held_out`` of the draws; after ``patience`` checks without a relative
+    improvement of ``min_gain`` over the best so far it restarts from that best at a quarter of the lr,
+    at most ``decays`` times, then stops; the best is what is kept."""
 
     steps: int = 100_000
     time_budget: float | None = 300.0
@@ -193,12 +194,12 @@ class Refined(Network):
             return float(np.mean(relative_error(out.double().numpy(), x[val])))
 
         before = float(np.mean(relative_error(xb[val].double().numpy(), x[val])))
-        best, best_state, bad, step, decays, t0 = before, None, 0, 0, 0, time.perf_counter()
+        best, best_state, bad, step, decays, clock = before, None, 0, 0, 0, Budget(settings.time_budget)
         g.requires_grad_(True)
         opt = torch.optim.Adam(g.parameters(), settings.lr)
         try:
             while step < settings.steps and len(tr):
-                if settings.time_budget is not None and time.perf_counter() - t0 > settings.time_budget:
+                if clock.over():  # the thread's CPU seconds (pdeinv.util.clock)
                     break
                 rows = torch.as_tensor(tr[torch.randint(len(tr), (size,), generator=gen).numpy()])
                 loss = ((xb[rows] + g(inputs[rows]) - xt[rows]) ** 2).mean()
@@ -224,10 +225,10 @@ class Refined(Network):
                                 group["lr"] /= 4
         finally:
             g.requires_grad_(False)
-        kept = best_state is not None
-        if kept:
+        if kept := best_state is not None:
             g.load_state_dict(best_state)
         self.active.fill_(kept)
         self.prior_info = {"kept": kept, "draws": n, "held_out": int(n_val), "error_before": before,
-                           "error_after": best, "steps": step, "seconds": time.perf_counter() - t0}
+                           "error_after": best, "steps": step, "seconds": clock.wall(),
+                           "cpu_seconds": clock.spent()}
         return self.prior_info

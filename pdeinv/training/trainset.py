@@ -61,22 +61,19 @@ def prior_rows(problem, own, n: int, seed: int, seconds: float | None = None,
     ``seconds``, more in chunks of ``n`` (streams of that stream) while the next chunk is expected to end
     within ``seconds`` of the start, up to ``most`` rows: a nonlinear correction overfits a few thousand
     draws (sine_gordon_1d's dense MLP) where the physics could give many more in seconds."""
-    import time
-
     import numpy as np
+
+    from ..util.clock import Budget
 
     if own is not None:
         if own.x is None:
             return None, "none: the data file has no x"
         return (own.x, own.y), f"the data file's x ({len(own.x)} training rows)"
     prior = problem.settings.get("prior", "the scene's sampler")
-    t0, stream = time.perf_counter(), seed_stream(seed, PRIOR_DATA)
+    clock, stream = Budget(seconds), seed_stream(seed, PRIOR_DATA)  # CPU seconds (pdeinv.util.clock)
     parts = [problem.sample(n, stream)]
     most = n if seconds is None or most is None else max(n, most)
-    while len(parts) * n + n <= most:
-        spent = time.perf_counter() - t0
-        if spent * (len(parts) + 1) / len(parts) > seconds:
-            break
+    while len(parts) * n + n <= most and not clock.over((len(parts) + 1) / len(parts)):
         parts.append(problem.sample(n, seed_stream(stream, len(parts))))
     x, y = (np.concatenate(a) for a in zip(*parts, strict=True))
     return (x, y), f"{len(x)} draws of the scene's prior ({prior})"

@@ -479,8 +479,8 @@ def _network_arguments(t) -> None:
     t.add_argument("--prior-fit", type=float, default=None, metavar="S",
                    help="after the rule, fit the default network's nonlinear correction on draws of the "
                         "prior (the scene's sampler, or the rows of --data that carry x) for at most S "
-                        "seconds (default 300, or $PDEINV_PRIOR_FIT; 0: off, the network stays the rule's "
-                        "linear estimate)")
+                        "CPU seconds of its thread, at most 3 S wall seconds (default 300, or "
+                        "$PDEINV_PRIOR_FIT; 0: off, the network stays the rule's linear estimate)")
     t.add_argument("--hidden", default=None, metavar="W,W", help="MLP hidden widths, e.g. 64,64")
 
 
