@@ -41,8 +41,10 @@ def test_block_krylov_gives_the_dense_modes_and_the_stepping_operator(monkeypatc
         assert np.linalg.norm(op.forward(x) - ys) / np.linalg.norm(ys) <= 1e-10
 
 
-def test_the_stopping_rule_weighs_each_mode_by_its_gain():
-    """Looser ``eps`` → a smaller Krylov space and a less accurate operator, both measured."""
+def test_the_stopping_rule_weighs_each_mode_by_its_gain(monkeypatch):
+    """Looser ``eps`` → a smaller Krylov space and a less accurate operator, both measured (from a plain
+    random start: the powered one has every mode converged to 1e-11 at the first check here)."""
+    monkeypatch.setattr(modes, "START_POWERS", 0)
     heat = _heat(40, kappa=0.02)  # 1521 unknowns
     x = np.random.default_rng(1).standard_normal((2, heat.n_in))
     ys = Stepping(heat).forward(x)
@@ -171,3 +173,81 @@ def test_the_next_check_is_extrapolated_from_the_ritz_counts():
     assert modes._next_check(3000, 1700, None, 1877, 64) == 3180  # 6 % without two checks
     assert modes._next_check(3000, 1876, (2900, 1800), 1877, 64) == 3064  # at least a block
     assert modes._next_check(3000, 1000, (2990, 999), 1877, 64) == 3750  # at most 25 %
+
+
+def _block_tridiagonal(rng, m, band):
+    A = rng.standard_normal((m, m))
+    return np.triu(np.tril(A + A.T, band), -band)
+
+
+@pytest.mark.parametrize("m,band", [(90, 6), (97, 8), (40, 40)])
+def test_the_inertia_count_is_the_number_of_eigenvalues_above(m, band):
+    """``_count_above``: the block LDLᵀ (Haynsworth) count of the band's eigenvalues above ``μ`` equals the
+    dense count, also at ``μ`` an eigenvalue of the matrix or of a leading block (a zero pivot)."""
+    rng = np.random.default_rng(5)
+    A = _block_tridiagonal(rng, m, band)
+    H = np.triu(A) + 1e-15 * np.triu(rng.standard_normal((m, m)), band + 1)  # upper triangle stored
+    lam = np.linalg.eigvalsh(A)
+    lead = np.linalg.eigvalsh(A[:band, :band])[:3] if band < m else []  # a zero pivot in D₁
+    grid = np.linspace(lam[0] - 1, lam[-1] + 1, 41)
+    for mu in np.concatenate([grid, lam[::7] + 1e-9, lead]):
+        assert modes._count_above(H, m, band, mu) == int((lam > mu).sum()), mu
+    if band < m:  # the partition must hold the band
+        assert any(modes._count_above(H, m, band - 1, mu) != int((lam > mu).sum()) for mu in grid)
+
+
+def test_the_cut_separates_the_kept_ritz_values():
+    heat = _heat(12, kappa=0.02)
+    log_gain, log_tol, sigma = _log_gain(heat), np.log(heat.tol), -1e-6
+    mu = 1.0 / np.geomspace(1.0, 1e5, 400)
+    mu_c = modes._cut(log_gain, log_tol, sigma, mu[0])
+    kept = log_gain(sigma + 1 / mu) >= log_gain(np.array([sigma + 1 / mu[0]]))[0] + log_tol
+    assert 0 < kept.sum() < len(mu) and np.array_equal(kept, mu > mu_c)
+    flat = lambda lam: np.zeros_like(lam)  # noqa: E731
+    assert modes._cut(flat, log_tol, sigma, 1.0) == -np.inf
+
+
+def test_the_powered_start_and_the_inertia_checks_give_the_same_modes_with_fewer_vectors(monkeypatch):
+    """``START_POWERS`` solves on the random start block (:func:`modes._start_block`) and the checks that
+    stop at the inertia count change the basis size only: the same eigenpairs as a plain start checked on
+    the Ritz values, to 1e-10 where the gain is ≥ 1e-6 of the largest, and the same operator."""
+    heat = _heat(48, kappa=0.02)  # 2209 unknowns
+    log_gain, log_tol = _log_gain(heat), np.log(heat.tol)
+    from scipy.optimize import brentq
+
+    cut = brentq(lambda lam: log_gain(np.array([lam]))[0] - log_gain(np.zeros(1))[0] - log_tol, 0, 1e6)
+    at_least = modes.count_below(heat.M, heat.K, cut)
+    sizes = []
+    original = modes._ritz
+
+    def ritz(H, basis, *a):
+        sizes.append(basis.m)
+        return original(H, basis, *a)
+
+    monkeypatch.setattr(modes, "_ritz", ritz)
+    new = modes.lowest_modes(heat.M, heat.K, log_gain, log_tol, k=120, dense_max=0, at_least=at_least)
+    new_m = sizes[-1]
+    monkeypatch.setattr(modes, "START_POWERS", 0)
+    monkeypatch.setattr(modes, "_kept_count", lambda *a: None)
+    old = modes.lowest_modes(heat.M, heat.K, log_gain, log_tol, k=120, dense_max=0, at_least=at_least)
+    assert new_m < sizes[-1] and len(new[0]) >= at_least > 100
+    k = min(len(new[0]), len(old[0]))
+    w = np.exp(log_gain(new[0][:k]) - log_gain(new[0][:1]))
+    assert (np.abs(new[0][:k] - old[0][:k]) / old[0][:k])[w >= 1e-6].max() <= 1e-10
+    assert np.abs(new[1].T @ heat.M @ new[1] - np.eye(len(new[0]))).max() <= 1e-12
+    x = np.random.default_rng(6).standard_normal((3, heat.n_in))
+    ops = [((x @ heat.M @ Phi) * np.exp(log_gain(lam))) @ Phi.T for lam, Phi in (new, old)]
+    assert np.linalg.norm(ops[0] - ops[1]) / np.linalg.norm(ops[1]) <= 1e-10
+
+
+def test_the_powered_start_survives_a_singular_neumann_stiffness():
+    """Pure Neumann: ``K`` singular, ``σ`` just below 0, ``μ₁ ≈ 1/|σ|``: the start block's powers stop where
+    Cholesky QR fails and the modes are the dense solver's (λ₁ = 0 included)."""
+    import scipy.linalg as la
+
+    d = pdeinv.discretize(pdeinv.fem.mesh.unit_square(30), dirichlet=False)
+    log_gain = lambda lam: -30 * np.log1p(0.01 * np.maximum(lam, 0))  # noqa: E731  backward Euler
+    lam, Phi = modes.lowest_modes(d.M, d.K, log_gain, np.log(1e-10), k=80, dense_max=0)
+    dense = la.eigh(d.K.toarray(), d.M.toarray(), eigvals_only=True)
+    assert abs(lam[0]) <= 1e-8 and len(lam) >= int((log_gain(dense) >= np.log(1e-10)).sum()) - 3
+    assert np.abs(lam[1:] - dense[1:len(lam)]).max() / dense[len(lam)] <= 1e-10
