@@ -113,7 +113,9 @@ def test_route_takes_the_dense_eigh_where_the_krylov_basis_would_be_most_of_the_
     """Dense up to DENSE_MAX; between it and DENSE_EIGH_MAX by cost; no Krylov for k > N/2."""
     assert modes.route(1000, 900) == "dense"
     assert modes.route(3969, 300) == "krylov"  # heat_2d n=64: a few hundred of 3 969
-    assert modes.route(3375, 1417) == "dense"  # heat_3d n=16: 4N(3k)² > 9N³
+    assert modes.route(3375, 1571) == "krylov"  # heat_3d n=16: 5.8 s against 6.4 s for the dense eigh
+    assert modes.route(3375, 1700) == "dense"  # k > N/2: the Krylov basis would be the whole space
+    assert modes.krylov_flops(12167, 2075) < 0.1 * 9 * 12167**3  # heat_3d n=24: 20 s; dense ~300 s
     assert modes.route(modes.DENSE_EIGH_MAX + 1, modes.DENSE_EIGH_MAX) is None
     assert modes.route(12167, 2000) == "krylov"
 

@@ -50,17 +50,24 @@ DENSE_MAX = 1500
 #: unknowns up to which the dense solver is still offered when the Krylov basis would be too large
 #: (``k > N/2``, or :func:`krylov_flops` above the dense ``9N³``): a dense
 #: generalized ``eigh`` at 3 375 unknowns (heat_3d n=16, 1 417 of 3 375 modes kept) took 10 s on
-#: one loaded thread, against 43 s for the dense operator by stepping and 15 s for its SVD
+#: one loaded thread, against 43 s for the dense operator by stepping and 15 s for its SVD; the block
+#: Krylov method now takes 5.8 s there (6.4 s for the dense ``eigh`` in the same session) and is chosen
 DENSE_EIGH_MAX = 6000
 
 
 def krylov_flops(N: int, k: float) -> float:
-    """BLAS flops of the block Krylov method for ``k`` kept modes: a basis of ``m ≈ 2k`` vectors,
-    orthogonalized twice (``2Nm²``), Rayleigh–Ritz checks at geometrically growing sizes (about twice
-    the last one's ``10m³``) and the Ritz vectors (``2Nmk``): ``12Nk² + 160k³``. Measured at heat_3d
-    n=24 (1 820 of 12 167 modes, 3 520 vectors): 1.45e12 flops by this model in 71 s on one thread of
-    a loaded machine (2e10 flop/s; the dense eigh ran at 3.5e10 flop/s in the same conditions)."""
-    return 12 * N * k**2 + 160 * k**3
+    """Cost of the block Krylov method for ``k`` expected modes (the caller's count with its margin), in
+    flops at the rate of the dense ``eigh`` (the ``9N³`` it is weighed against), block solves apart:
+    a basis of ``m = min(N, 1.7k)`` vectors (measured 1.6–1.73k), ``4.8Nm² + 5.3m³ + 2940Nm`` — the basis
+    orthogonalized once (``2Nm²``) and the Ritz vectors ``Q Y`` (``2Nmk``), the final ``eigh`` of ``H``
+    (``m × m``, memory-bound), the per-vector work of blocks of 64 (Cholesky QR, the local pass, ``M``
+    products, fresh pages). Fitted (relative least squares) to the measured eigensolve less its solves,
+    one thread, the dense ``eigh`` of heat_3d n=16 (6.4 s) fixing the rate: heat_3d n=16 / 20 / 24 (``N``
+    3 375 / 6 859 / 12 167, ``k`` 1 571 / 1 808 / 2 075) 4.5 / 9.5 / 19.9 s, model 4.4 / 9.6 / 19.9;
+    heat_2d n=128 / 256 (16 129 / 65 025, ``k`` 317 / 320) 0.78 / 4.6 s, model 0.89 / 3.6. The previous
+    method's model, ``12Nk² + 160k³``, gave 13 / 23 / 38 s for the 3-D ones."""
+    m = min(N, 1.7 * k)
+    return 4.8 * N * m**2 + 5.3 * m**3 + 2940 * N * m
 
 
 def route(N: int, k: float) -> str | None:
