@@ -93,38 +93,39 @@ def _cholqr(W: np.ndarray, M) -> tuple[np.ndarray, np.ndarray]:
 
 
 class _Basis:
-    """A growing M-orthonormal basis ``Q`` (column blocks), with ``MQ`` kept beside it."""
+    """A growing M-orthonormal basis ``Q`` (column blocks) of ``N`` rows. ``MQ`` is not kept: the passes
+    take ``Qᵀ(MW)`` with a fresh sparse product ``MW`` per pass, instead of ``(MQ)ᵀW`` from a second ``N × m``
+    array (heat_3d n=24: 350 MB less, and 0.6 s less of first-touch page faults)."""
 
-    def __init__(self, N: int, capacity: int):
-        self.Q = np.empty((N, capacity), order="F")
-        self.MQ = np.empty((N, capacity), order="F")
+    def __init__(self, M, capacity: int):
+        self.M = M
+        self.Q = np.empty((M.shape[0], capacity), order="F")
         self.m = 0
 
-    def append(self, V: np.ndarray, MV: np.ndarray) -> None:
+    def append(self, V: np.ndarray) -> None:
         b = V.shape[1]
         if self.m + b > self.Q.shape[1]:
-            cap = 2 * self.Q.shape[1] + b
-            for name in ("Q", "MQ"):
-                grown = np.empty((self.Q.shape[0], cap), order="F")
-                grown[:, :self.m] = vars(self)[name][:, :self.m]
-                setattr(self, name, grown)
-        self.Q[:, self.m:self.m + b], self.MQ[:, self.m:self.m + b] = V, MV
+            grown = np.empty((self.Q.shape[0], 2 * self.Q.shape[1] + b), order="F")
+            grown[:, :self.m] = self.Q[:, :self.m]
+            self.Q = grown
+        self.Q[:, self.m:self.m + b] = V
         self.m += b
 
     def orthogonalize(self, W: np.ndarray, local: int = 0) -> np.ndarray:
-        """Remove the basis from ``W``; returns the coefficients ``C`` (``W ← W − Q C``).
+        """Remove the basis from ``W`` (in place); returns the coefficients ``C`` (``W ← W − Q C``).
 
         ``local = 0``: classical Gram–Schmidt twice against the whole basis. ``local > 0`` (a block
         Lanczos step, ``W = S Qⱼ``): first against the last ``local`` columns, where the recurrence
         puts all of ``W`` but rounding (``S Qⱼ = Qⱼ₋₁ Bⱼ₋₁ᵀ + Qⱼ Aⱼ + Qⱼ₊₁ Bⱼ``), then once against
         the whole basis: the second full pass removed nothing the first had not (its coefficients
         are at the rounding level once the large local ones are gone) and cost half the eigensolve
-        at heat_3d n=24."""
-        Q, MQ = self.Q[:, :self.m], self.MQ[:, :self.m]
-        C = np.zeros((self.m, W.shape[1]))
+        at heat_3d n=24. Each pass takes ``MW`` afresh: updated as ``MW − (MQ)C`` it would carry the
+        rounding of the large ``W`` before the pass into the small one after it (a powered start block
+        makes ``S Q₁`` lie almost in ``Q₁``: orthogonality was lost at 1e-2)."""
+        Q, C = self.Q[:, :self.m], np.zeros((self.m, W.shape[1]))
         whole = slice(0, self.m)
         for part in ((slice(max(0, self.m - local), self.m), whole) if local else (whole, whole)):
-            Cp = MQ[:, part].T @ W
+            Cp = Q[:, part].T @ (self.M @ W)
             W -= Q[:, part] @ Cp
             C[part] += Cp
         return C
@@ -178,7 +179,7 @@ def _block_krylov(M, K, log_gain, log_tol, k, eps, block, max_fraction, seed, at
     b = int(min(block, max(1, N // 8)))
     sigma = -1e-8 * float(K.diagonal().mean() / M.diagonal().mean())
     solve = default_solver(sp.csc_matrix(K - sigma * M)).solve
-    basis = _Basis(N, min(N, 3 * k + b))
+    basis = _Basis(M, min(N, 3 * k + b))
     H = np.zeros((0, 0))
     rng = np.random.default_rng(seed)
     V = _start_block(rng.standard_normal((N, b)), M, solve)
@@ -191,8 +192,8 @@ def _block_krylov(M, K, log_gain, log_tol, k, eps, block, max_fraction, seed, at
     check_at, last = min(N, max(2 * b, int(1.5 * k))), None
     while True:
         m, b = basis.m, V.shape[1]
-        basis.append(V, M @ V)
-        W = solve(basis.MQ[:, m:m + b])
+        basis.append(V)
+        W = solve(M @ V)
         C = basis.orthogonalize(W, local=2 * b)
         if H.shape[0] < m + b:  # grown geometrically: np.pad per block copied O(m²) each time
             grown = np.zeros((min(N, int(1.25 * (m + b)) + b),) * 2)
