@@ -253,3 +253,52 @@ def test_the_powered_start_survives_a_singular_neumann_stiffness():
     dense = la.eigh(d.K.toarray(), d.M.toarray(), eigvals_only=True)
     assert abs(lam[0]) <= 1e-8 and len(lam) >= int((log_gain(dense) >= np.log(1e-10)).sum()) - 3
     assert np.abs(lam[1:] - dense[1:len(lam)]).max() / dense[len(lam)] <= 1e-10
+
+
+def test_locking_gives_the_eigenpairs_of_the_whole_rayleigh_ritz_with_exact_residuals(monkeypatch):
+    """``_rayleigh_ritz`` with locking (the leading ``m1`` rows first, converged pairs set aside) against
+    the plain ``eigh`` of all of ``H``, on the ``H`` of a real run: the same Ritz values to 1e-10 where the
+    gain is ≥ 1e-6 of the largest, the same weighted operator ``Y diag(w) Yᵀ`` to 1e-10, ``Y`` orthonormal;
+    and each residual it reports is the true ``(‖H y − μ y‖² + ‖B yₗₐₛₜ‖²)^{1/2}``."""
+    heat = _heat(64, kappa=0.01)  # 3969 unknowns
+    got = {}
+    original = modes._rayleigh_ritz
+
+    def spy(H, m, B, q, weight, log_tol, eps, m1=0):
+        got.update(H=H.copy(), m=m, B=B, q=q, weight=weight, log_tol=log_tol, eps=eps, m1=m1)
+        return original(H, m, B, q, weight, log_tol, eps, m1)
+
+    monkeypatch.setattr(modes, "_rayleigh_ritz", spy)
+    modes.lowest_modes(heat.M, heat.K, _log_gain(heat), np.log(heat.tol), k=200, dense_max=0)
+    H, m, B, q, weight = (got[k] for k in ("H", "m", "B", "q", "weight"))
+    assert got["m1"] > 0  # the run took the locked path
+    plain = original(H, m, B, q, weight, got["log_tol"], got["eps"])
+    locked = original(H, m, B, q, weight, got["log_tol"], got["eps"], got["m1"])
+    Y = locked[1]
+    aside = np.abs(Y[got["m1"]:]).max(axis=0) == 0
+    assert aside.sum() >= 10  # pairs set aside at m1
+    w = weight(plain[0])
+    assert (np.abs(locked[0] - plain[0]) / plain[0])[w >= 1e-6].max() <= 1e-10
+    ops = [(Yk * weight(mu)) @ Yk.T for mu, Yk, _ in (plain, locked)]
+    assert np.abs(ops[0] - ops[1]).max() <= 1e-10
+    assert np.abs(Y.T @ Y - np.eye(q)).max() <= 1e-12
+    Hs = np.triu(H[:m, :m]) + np.triu(H[:m, :m], 1).T
+    true = np.hypot(np.linalg.norm(Hs @ Y - Y * locked[0], axis=0), np.linalg.norm(B @ Y[-len(B):], axis=0))
+    assert np.abs(true - locked[2]).max() <= 1e-13 * locked[0].max()
+    assert locked[2][aside].min() > 0  # their dropped couplings, counted in their residuals
+
+
+def test_a_failed_locking_falls_back_to_the_whole_rayleigh_ritz(monkeypatch):
+    """Locking everything converged only to ``1e8·eps`` fails the residual check: the plain ``eigh`` is
+    taken instead and gives the same modes as without locking."""
+    heat = _heat(64, kappa=0.01)
+    args = (heat.M, heat.K, _log_gain(heat), np.log(heat.tol))
+    calls = []
+    original = modes._rayleigh_ritz
+    monkeypatch.setattr(modes, "_rayleigh_ritz", lambda *a: calls.append(a[-1]) or original(*a))
+    monkeypatch.setattr(modes, "LOCK_MARGIN", 1e8)
+    loose = modes.lowest_modes(*args, k=200, dense_max=0)
+    assert calls[0] > 0 and calls[-1] == 0
+    monkeypatch.setattr(modes, "LOCK_AT", 0.0)
+    plain = modes.lowest_modes(*args, k=200, dense_max=0)
+    assert np.array_equal(loose[0], plain[0]) and np.array_equal(loose[1], plain[1])
