@@ -11,13 +11,18 @@ Rayleigh–Ritz ``H y = μ y`` gives ``λ = σ + 1/μ`` and ``φ = Q y`` with th
 ``‖S φ − μ φ‖_M = ‖B y_last‖`` (no extra solve). ``σ`` sits just below 0, so a singular
 Neumann ``K`` is fine.
 
-**Cost** (heat_3d n=24: 12 167 unknowns, ~1 880 modes kept, a basis of ~3 900 vectors, one thread):
-each new block is orthogonalized against the last two blocks, where the recurrence puts it, then once
-against the whole basis (``2Nm²`` flops in all; a second full pass changed nothing measurable and cost
-as much); the checks read the Ritz values from ``H``'s band (``H`` is block tridiagonal up to the
-reorthogonalization's rounding-level coefficients: ``O(m² b)`` instead of a dense ``eigvalsh``) at
-basis sizes extrapolated from the Ritz counts; the kept vectors come from one dense ``eigh`` of
-``H`` by divide and conquer. Eigensolve 50.5 → 35.4 CPU s (docs/scaling.md, third session).
+**Cost** (heat_3d n=24: 12 167 unknowns, ~1 880 modes kept, a basis of 3 584 vectors, one thread):
+the first block is a random one after 8 block solves (:func:`_start_block`: ``K_j(S, S⁸R)`` damps the
+many high modes for no basis vectors; 3 904 vectors without); each new block is orthogonalized against
+the last two blocks, where the recurrence puts it, then once against the whole basis (``2Nm²`` flops in
+all; a second full pass changed nothing measurable and cost as much; only ``Q`` is stored, ``Qᵀ(MW)``
+with a fresh sparse ``MW``); a check first counts the kept Ritz values by the inertia of ``H``'s band
+(``H`` is block tridiagonal up to the reorthogonalization's rounding-level coefficients; a block
+``LDLᵀ``, :func:`_count_above`, ``O(m b²)``), reads the Ritz values from the band (``O(m² b)``) only once
+the count reaches the exact one, and the next check sits where the counts extrapolate to it; the kept
+vectors come from ``eigh`` by divide and conquer, of the leading 60 % of ``H`` first and then of what is
+left once its converged pairs are locked (:func:`_rayleigh_ritz`). Eigensolve 50.5 → 35.4 CPU s
+(docs/scaling.md, third session) → about 23 s (fourth session).
 
 **Stopping rule — accuracy of the operator, not of every eigenvector.** A caller passes
 ``log_gain(λ)``, the log of what each mode is multiplied by (``log|r(dtκλ)ⁿ|`` for heat),
@@ -185,10 +190,10 @@ def _block_krylov(M, K, log_gain, log_tol, k, eps, block, max_fraction, seed, at
     V = _start_block(rng.standard_normal((N, b)), M, solve)
     band = b  # H is block tridiagonal: band b while every Bⱼ is triangular (Cholesky QR), else 2b − 1
     # Rayleigh–Ritz checks from 1.5k (k: the caller's count of kept modes, with its margin; the basis needs
-    # ~2.1 times the kept modes: heat_3d n=24 kept 1 889 modes with 3 968 vectors), then where the Ritz
-    # count, extrapolated linearly from the last two checks, reaches ``at_least``: the Ritz values come
-    # from H's band (0.6 s at 3 968 against 4.9 s for a dense eigvalsh), so checks are cheap and the
-    # basis stops within a block or two of the size it needs
+    # ~1.9 times the kept modes: heat_3d n=24 kept 1 880 modes with 3 584 vectors), then where the Ritz
+    # count, extrapolated linearly from the last two checks, reaches ``at_least``: the count is an inertia
+    # of H's band (~0.03 s; the band's Ritz values 0.6 s at 3 584, a dense eigvalsh 4.9 s at 3 968), so
+    # checks are cheap and the basis stops within a block or two of the size it needs
     check_at, last = min(N, max(2 * b, int(1.5 * k))), None
     while True:
         m, b = basis.m, V.shape[1]
