@@ -47,6 +47,19 @@ def finished(at, steps: int | None, time_budget: float | None) -> bool:
         time_budget is not None and at.wall >= time_budget))
 
 
+@torch.no_grad()
+def held_out_residual(operator, y_val: np.ndarray, model: torch.nn.Module) -> float:
+    """``Σ_i ‖P f(y_i) − y_i‖²`` over held-out observations ``y_val``; ``inf`` when ``f`` is not finite
+    there (the physics is then not called)."""
+    param = next(iter(model.parameters()), None)
+    dtype = param.dtype if param is not None else torch.float32
+    device = param.device if param is not None else None
+    xhat = model(torch.as_tensor(y_val, dtype=dtype, device=device)).double().cpu().numpy()
+    if not np.isfinite(xhat).all():
+        return np.inf
+    return float(np.sum((operator.forward(xhat) - y_val) ** 2))
+
+
 class DiscrepancyState(NamedTuple):
     operator: object
     y_val: np.ndarray
@@ -112,13 +125,9 @@ class DiscrepancyStop:
     def check(self, state: DiscrepancyState, model: torch.nn.Module):
         if state.noise_sq == 0:  # noise-free: nothing to stop for, and nothing to compute
             return state, {"discrepancy": np.inf}, False
-        param = next(iter(model.parameters()), None)
-        dtype = param.dtype if param is not None else torch.float32
-        device = param.device if param is not None else None
-        xhat = model(torch.as_tensor(state.y_val, dtype=dtype, device=device)).double().cpu().numpy()
-        if not np.isfinite(xhat).all():
+        r2 = held_out_residual(state.operator, state.y_val, model)
+        if not np.isfinite(r2):
             return state, {"discrepancy": np.inf}, False
-        r2 = float(np.sum((state.operator.forward(xhat) - state.y_val) ** 2))
         ratio = float(np.sqrt(r2 / state.noise_sq))
         return state, {"discrepancy": ratio}, bool(ratio <= self.tau)
 
@@ -163,12 +172,7 @@ class PlateauStop:
 
     @torch.no_grad()
     def check(self, state: PlateauState, model: torch.nn.Module):
-        param = next(iter(model.parameters()), None)
-        dtype = param.dtype if param is not None else torch.float32
-        device = param.device if param is not None else None
-        xhat = model(torch.as_tensor(state.y_val, dtype=dtype, device=device)).double().cpu().numpy()
-        r2 = float(np.sum((state.operator.forward(xhat) - state.y_val) ** 2)) if np.isfinite(xhat).all() \
-            else np.inf
+        r2 = held_out_residual(state.operator, state.y_val, model)
         gained = r2 < (1 - self.min_gain) * state.best
         state = state._replace(best=min(r2, state.best), bad=0 if gained else state.bad + 1)
         return state, {"plateau": r2}, state.bad >= self.patience
