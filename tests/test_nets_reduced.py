@@ -23,7 +23,7 @@ def trained(model):
 
 @pytest.mark.parametrize("body", ["linear", "mlp"])
 def test_trained_parameter_count_does_not_depend_on_the_mesh(body):
-    f = nets.reduced(k_in=24, k_out=20, body=body, hidden=(16,))
+    f = nets.reduced(k_in=24, k_out=20, body=body, hidden=(16,), k_max=20)
     small, big = (pdeinv.load_problem("heat_2d", n=n) for n in (8, 24))  # 49 and 529 unknowns
     a, b = f(small), f(big)
     assert trained(a) == trained(b) == (24 * 20 + 20 if body == "linear" else 24 * 16 + 16 + 16 * 20 + 20)
@@ -34,7 +34,7 @@ def test_trained_parameter_count_does_not_depend_on_the_mesh(body):
 
 def test_the_head_starts_at_zero_and_the_decoder_is_orthonormal_and_fixed():
     p = pdeinv.load_problem("heat_2d", n=12)
-    model = nets.reduced(k_in=16, k_out=16)(p)
+    model = nets.reduced(k_in=16, k_out=16, k_max=16)(p)
     y = torch.randn(3, p.operator.n_out)
     with pytest.raises(RuntimeError, match="Whitening .* is not fitted"):  # never a silent pass-through
         model(y)
@@ -85,6 +85,22 @@ def test_the_default_follows_reversibility_then_size(monkeypatch):
     assert nets.default_model(wave).decoder is None
     monkeypatch.setattr(nets.defaults, "REDUCED_ABOVE", wave.N - 1)
     assert nets.default_model(wave).decoder is not None
+
+
+def test_the_decoder_grows_once_where_its_columns_miss_the_prior():
+    """decoder_basis: k columns that are all kept and still miss more than `uncaptured` are redrawn once,
+    up to k_max columns; a prior that k columns hold is left at its own width."""
+    p = pdeinv.load_problem("heat_2d", n=24)  # 529 unknowns: 20 columns miss far more than 1e-10
+    small, info_small = nets.prior_basis(p, 20)
+    grown, info = nets.decoder_basis(p, 20, 80)
+    assert small.shape[1] == 20 and grown.shape[1] == info["components"] == 80
+    assert info["samples"] == 160 and 1 - info["captured"] < 0.1 * (1 - info_small["captured"])
+    fits, info_fits = nets.decoder_basis(p, 20, 80, uncaptured=1e-2)  # 20 hold all but 1 %: no growth
+    assert fits.shape[1] <= 20 and info_fits["samples"] == 80
+    x, _ = p.sample(40, seed=4)
+    err = [p.relative_error(x @ Q @ Q.T, x).mean() for Q in (np.linalg.qr(B)[0] for B in (small, grown))]
+    assert err[1] < 0.5 * err[0]
+    assert nets.reduced(k_in=16, k_out=20, k_max=80)(p).decoder.shape[0] == 80
 
 
 def test_the_decoder_keeps_what_the_prior_fills():
@@ -160,7 +176,7 @@ def test_the_reduced_network_is_selectable_by_name_in_a_run_record():
     from pdeinv.io.runs import network
 
     p = pdeinv.load_problem("heat_2d", n=8)
-    model = network(p, {"kind": "reduced", "k_in": 12, "k_out": 10})
+    model = network(p, {"kind": "reduced", "k_in": 12, "k_out": 10, "k_max": 10})
     assert isinstance(model.post, nets.Decoder) and model.pre.k == 12 and model.post.basis.shape == (10, p.N)
     assert pdeinv.reduced is nets.reduced
 
@@ -192,7 +208,7 @@ def test_one_normalized_sip_step_is_newtons_step_on_the_scaled_decoder():
     Jacobi-normalized step at lr 1 lands on the proxy's least-squares solution in one step; by λ_max
     alone it would move the weakest column by ~1e-8 of that."""
     p = pdeinv.load_problem("heat_1d", n=32, steps=10)
-    model = nets.reduced(k_in=8, k_out=12)(p)  # 8 whitened directions: z exact to ~1e-12
+    model = nets.reduced(k_in=8, k_out=12, k_max=12)(p)  # 8 whitened directions: z exact to ~1e-12
     _, y = p.sample(200, seed=0)
     nets.fit_preconditioning(model, y)
     Y = torch.as_tensor(y, dtype=torch.float64)
@@ -221,7 +237,7 @@ def test_sip_on_a_decoder_inverts_inside_its_span():
     from pdeinv.methods.sip import decoder_inverse
 
     p = pdeinv.load_problem("heat_1d", n=32, steps=10)
-    model = nets.reduced(k_in=8, k_out=6)(p)
+    model = nets.reduced(k_in=8, k_out=6, k_max=6)(p)
     inverse = pdeinv.SIP().context(p, model).inverse
     assert isinstance(inverse, DecoderTikhonov) and decoder_inverse(p, nets.whitened()(p)) is None
     D = model.post.basis.numpy()  # (k, N): rows are the decoder's columns

@@ -54,11 +54,21 @@ from .defaults import (
 )
 from .mlp import MLP, Residual, dense, mlp, zero_last_layer
 from .net import BODIES, DTYPE, LinearInParameters, Net, fit_preconditioning, whitened
-from .reduced import REDUCED_K, REDUCED_K_IN, REDUCED_UNCAPTURED, Decoder, prior_basis, reduced
+from .reduced import (
+           REDUCED_K,
+           REDUCED_K_IN,
+           REDUCED_K_MAX,
+           REDUCED_UNCAPTURED,
+           Decoder,
+           decoder_basis,
+           prior_basis,
+           reduced,
+)
 
 __all__ = ["BODIES", "DECODER_MAX_UNCAPTURED", "DENSE_MAX_UNKNOWNS", "DTYPE", "FALLBACK_COMPONENTS", "MLP",
            "REDUCED_ABOVE",
-           "REDUCED_K", "REDUCED_K_IN", "REDUCED_UNCAPTURED", "Decoder", "LinearInParameters", "Net",
+           "REDUCED_K", "REDUCED_K_IN", "REDUCED_K_MAX", "REDUCED_UNCAPTURED", "Decoder",
+           "LinearInParameters", "Net", "decoder_basis",
            "Residual", "correction_kind", "data_base", "default_model", "default_size", "dense",
            "fit_preconditioning",
            "linear_default", "mlp", "network_size", "prior_basis", "reduced", "refined", "refined_size",

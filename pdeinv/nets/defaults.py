@@ -9,7 +9,7 @@ from torch import nn
 
 from ..physics.nonlinear import is_linear
 from .net import DTYPE, whitened
-from .reduced import REDUCED_K, REDUCED_K_IN, reduced
+from .reduced import REDUCED_K_IN, REDUCED_K_MAX, reduced
 
 #: the largest fraction of the prior's energy a decoder may leave out before :func:`linear_default`
 #: takes the whitened map instead (an error floor of 0.1 %)
@@ -180,7 +180,7 @@ def _prior_decoded(problem, rows_per_component) -> bool:
 def default_size(problem) -> tuple[int, int]:
     """``(parameters + buffers, widest layer)`` of :func:`default_model`'s network for ``problem``,
     without building it (the memory guard, :func:`pdeinv.training.budget.check_training`; an upper bound:
-    the decoder may keep fewer than :data:`REDUCED_K` columns); a problem
+    the decoder may keep fewer than :data:`REDUCED_K_MAX` columns); a problem
     with its own ``model_factory`` gets the dense bound ``m² + m n + n`` (an upper bound for
     the scenes' MLP)."""
     m, n = problem.operator.n_out, problem.operator.n_in
@@ -189,7 +189,7 @@ def default_size(problem) -> tuple[int, int]:
     if problem.model_factory is not None:
         return dense, max(m, n)
     if max(m, n) > REDUCED_ABOVE or _prior_decoded(problem, None):
-        k_in, k_out = min(REDUCED_K_IN, m), min(REDUCED_K, n)
+        k_in, k_out = min(REDUCED_K_IN, m), min(REDUCED_K_MAX, n)
         size = k_in * k_out + k_out + m * k_in + n * k_out + m + k_in
         # a decoder that misses the prior falls back to the whitened map (linear_default)
         kf = min(m, n, FALLBACK_COMPONENTS)
@@ -212,8 +212,8 @@ def network_size(problem, kind: str = "default", hidden=None) -> dict:
         return {"params": k * n + n, "buffers": m * k + k + m + 1, "build": 0}
 
     def reduced_size():
-        k_in, k_out = min(REDUCED_K_IN, m), min(REDUCED_K, n)
-        draws = 4 * k_out  # prior_basis: 4k draws of the prior, their Gram matrix, QR of N × k
+        k_in, k_out = min(REDUCED_K_IN, m), min(REDUCED_K_MAX, n)
+        draws = 2 * k_out  # decoder_basis: at most 2·k_max draws, their Gram matrix, QR of N × k
         return {"params": k_in * k_out + k_out, "buffers": m * k_in + k_in + m + 1 + n * k_out,
                 "build": 8 * (draws * n + draws**2 + 2 * n * k_out)}
 

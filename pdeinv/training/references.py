@@ -148,7 +148,7 @@ def tikhonov_best(problem, Y_test, X_test, grid=ALPHA_GRID, P=None) -> dict:
 def prior_wiener(problem, Y_train: np.ndarray, noise: float):
     """``(estimator, info)``: the y-only estimator the default network converges to where the operator
     is not reversible (:func:`pdeinv.nets.default_model`): in the prior decoder's span ``D``
-    (:func:`pdeinv.nets.prior_basis`) with ``P D = Q diag(s) Vᵀ``,
+    (:func:`pdeinv.nets.decoder_basis`) with ``P D = Q diag(s) Vᵀ``,
 
         x̂ = D V diag(f / s) Qᵀ y,
 
@@ -160,9 +160,9 @@ def prior_wiener(problem, Y_train: np.ndarray, noise: float):
 
     from ..inverse.decoder import REL_ALPHA, decoded_svd
     from ..methods.targets import SpectralWiener
-    from ..nets import REDUCED_K, REDUCED_UNCAPTURED, prior_basis
+    from ..nets.reduced import decoder_basis
 
-    D, info = prior_basis(problem, min(REDUCED_K, problem.N), uncaptured=REDUCED_UNCAPTURED)
+    D, info = decoder_basis(problem)
     Q, s, V = decoded_svd(problem.operator, D.T)
     if noise:
         fitted = SpectralWiener().fit_basis(SimpleNamespace(proj=Q, out=Q, g=s), Y_train, noise)
