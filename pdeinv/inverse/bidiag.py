@@ -1,0 +1,124 @@
+"""Tikhonov solutions for every α from one Krylov space: generalized Golub–Kahan bidiagonalization.
+
+For a linear ``P`` (Euclidean ``forward`` / ``adjoint``), an input mass ``M`` and an observation mass ``N``
+(``M_out``: ``M`` for field observations, else the identity), the regularized solutions
+
+    x_α = argmin ‖P x − y‖²_N + α ‖x‖²_M
+
+lie in the Krylov space ``K_k(P*P, P*y)`` of the M-adjoint ``P* = M⁻¹PᵀN`` once ``k`` resolves the
+singular values above ``√α``, whatever α. The generalized Golub–Kahan recurrence (Arioli 2013)
+
+    β₁ u₁ = y,                           α₁ v₁ = M⁻¹PᵀN u₁,
+    β_{j+1} u_{j+1} = P v_j − α_j u_j,   α_{j+1} v_{j+1} = M⁻¹PᵀN u_{j+1} − β_{j+1} v_j,
+
+with ``‖u‖_N = ‖v‖_M = 1``, gives ``P V_k = U_{k+1} B_k`` (``B_k`` lower bidiagonal, ``(k+1) × k``) and,
+because ``‖V_k z‖_M = ‖z‖``,
+
+    x_α ≈ V_k z_α,   z_α = argmin ‖B_k z − β₁ e₁‖² + α ‖z‖² = W diag(s / (s² + α)) Zᵀ β₁ e₁
+
+from one small SVD ``B_k = Z diag(s) Wᵀ`` per row: every α of a grid for the price of one space.
+Rows are independent (each has its own ``α_j, β_j``) and share one batched forward, one batched
+adjoint and one mass solve per iteration. Both bases are reorthogonalized in full against what is
+stored (``k·B·(m + n)`` floats): without it the recurrence loses orthogonality once the leading singular
+values have converged, and repeats them.
+
+:func:`bidiagonalize` builds the space; :class:`KrylovTikhonov` solves in it. The matrix-free
+counterpart of :func:`pdeinv.training.references.tikhonov_path` (an SVD of the dense ``P``) for meshes
+where no dense ``P`` fits.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from .._checks import count
+from ..fem.solvers import SuperLU
+from ..physics.capabilities import output_mass
+
+
+def _norms(X, mass):
+    return np.sqrt(np.einsum("bi,bi->b", X, X if mass is None else (mass @ X.T).T))
+
+
+def _orthogonalize(W, basis, mass):
+    """``W`` minus its ``mass``-projection on every stored row block of ``basis`` (one pass each, twice)."""
+    for _ in range(2):
+        for Q in basis:
+            MQ = Q if mass is None else (mass @ Q.T).T
+            W = W - np.einsum("bi,bi->b", W, MQ)[:, None] * Q
+    return W
+
+
+class KrylovTikhonov:
+    """``solve(alpha) -> X̂`` (``(B, n)``) for any α from one generalized Golub–Kahan space (module
+    docstring); ``info``: iterations, the smallest ``α_j, β_j`` seen (breakdown), calls."""
+
+    def __init__(self, V, B_lower, beta1, info):
+        self.V, self.info = V, info  # V: (k, B, n); B_lower: (B, k+1, k); beta1: (B,)
+        self._B, self._beta1 = B_lower, beta1
+        Z, s, Wt = np.linalg.svd(B_lower, full_matrices=False)  # (B, k+1, k), (B, k), (B, k, k)
+        self._s = s
+        self._rhs = Z[:, 0, :] * beta1[:, None]  # Zᵀ β₁ e₁, per row
+        self._W = np.swapaxes(Wt, 1, 2)  # (B, k, k)
+
+    @property
+    def s_max(self) -> float:
+        """The largest singular value the space has resolved (from below: ``P``'s ``s_max`` in the norms)."""
+        return float(self._s.max())
+
+    def truncated(self, k: int) -> KrylovTikhonov:
+        """The same rows solved in the first ``k`` iterations' space (a convergence check)."""
+        k = max(1, min(int(k), self.V.shape[0]))
+        info = {**self.info, "iterations": k}
+        return KrylovTikhonov(self.V[:k], self._B[:, : k + 1, :k], self._beta1, info)
+
+    def solve(self, alpha: float) -> np.ndarray:
+        s = self._s
+        with np.errstate(divide="ignore", invalid="ignore"):
+            f = np.where(s > 0, s / (s**2 + alpha), 0.0)
+        z = np.einsum("bij,bj->bi", self._W, f * self._rhs)  # (B, k)
+        return np.einsum("bk,kbn->bn", z, self.V)
+
+
+def bidiagonalize(op, Y, M=None, M_out="auto", iterations: int = 200) -> KrylovTikhonov:
+    """``iterations`` steps of the generalized Golub–Kahan recurrence for the rows of ``Y`` (module
+    docstring); stops early where every row has broken down (its space is exhausted: ``α_j`` or ``β_j``
+    below ``1e-14`` of the largest). ``M``: input mass (sparse SPD, or ``None``); ``M_out``: ``'auto'``
+    (:func:`pdeinv.physics.capabilities.output_mass`) or a matrix or ``None``."""
+    iterations = count(iterations, "iterations")
+    Y = np.atleast_2d(np.asarray(Y, dtype=float))
+    N = output_mass(op, M) if isinstance(M_out, str) else M_out
+    Minv = (lambda R: R) if M is None else (lambda R, lu=SuperLU(M): lu.solve(R.T).T)
+    rows = Y.shape[0]
+    beta1 = _norms(Y, N)
+    if not np.all(beta1 > 0):
+        raise ValueError("bidiagonalize: an observation row is zero; its Tikhonov solution is 0 for every α")
+    U, V = [Y / beta1[:, None]], []
+    alphas, betas = [], []
+    live = np.ones(rows, bool)
+
+    def adjoint(Ur):  # M⁻¹ Pᵀ N u
+        return Minv(np.asarray(op.adjoint(Ur if N is None else (N @ Ur.T).T), dtype=float))
+
+    for _ in range(iterations):
+        W = adjoint(U[-1]) - (betas[-1][:, None] * V[-1] if V else 0.0)
+        W = _orthogonalize(W, V, M)
+        a = _norms(W, M)
+        V.append(np.where(a[:, None] > 0, W / np.where(a > 0, a, 1)[:, None], 0.0))
+        alphas.append(a)
+        R = _orthogonalize(np.asarray(op.forward(V[-1]), dtype=float) - a[:, None] * U[-1], U, N)
+        b = _norms(R, N)
+        U.append(np.where(b[:, None] > 0, R / np.where(b > 0, b, 1)[:, None], 0.0))
+        betas.append(b)
+        scale = max(float(np.max(alphas[0])), 1e-300)
+        live &= (a > 1e-14 * scale) & (b > 1e-14 * scale)
+        if not live.any():
+            break
+    k = len(alphas)
+    Bk = np.zeros((rows, k + 1, k))
+    idx = np.arange(k)
+    Bk[:, idx, idx] = np.stack(alphas, 1)
+    Bk[:, idx + 1, idx] = np.stack(betas, 1)
+    info = {"iterations": k, "forward_calls": k, "adjoint_calls": k, "rows": rows,
+            "min_alpha": float(np.min(alphas[-1])), "min_beta": float(np.min(betas[-1]))}
+    return KrylovTikhonov(np.stack(V), Bk, beta1, info)
