@@ -217,6 +217,24 @@ def test_a_dense_correction_is_fitted_saved_and_reloaded(tmp_path):
         assert torch.allclose(again(yt), net(yt), rtol=0, atol=1e-6)
 
 
+def test_a_budget_limited_fit_checks_in_time_and_keeps_its_last_gain():
+    """Checks come at least CHECKS_PER_BUDGET times per budget whatever `check_every` says, and steps after
+    the last check are checked once more when the budget ends: a slow correction (a U-Net step on 65 025
+    unknowns takes ~8 s) never spends its budget without a check."""
+    from pdeinv.nets.refine import CHECKS_PER_BUDGET
+
+    p = pdeinv.load_problem("sine_gordon_1d")
+    net = p.model()
+    x, y = p.sample(1024, 1)
+    net.fit_observations(y)
+    lines = []
+    info = net.fit_prior(x, y, p.relative_error, PriorFit(check_every=10**9, time_budget=2.0), lines.append)
+    checks = [s for s in lines if s.startswith("prior fit step")]
+    assert 2 <= len(checks) <= CHECKS_PER_BUDGET + 1
+    assert f"prior fit step {info['steps']}:" in checks[-1]  # the last steps were checked
+    assert info["kept"] and info["error_after"] < info["error_before"]
+
+
 def test_prior_draws_grow_where_the_physics_is_fast_and_start_with_the_same_rows():
     from pdeinv.training.trainer import prior_draw_counts
     from pdeinv.training.trainset import prior_rows

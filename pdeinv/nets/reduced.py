@@ -145,13 +145,16 @@ def decoder_basis(problem, k: int = REDUCED_K, k_max: int = REDUCED_K_MAX, sampl
                   scaled: bool = True, uncaptured: float = REDUCED_UNCAPTURED):
     """:func:`prior_basis` with at most ``k`` columns; where all ``k`` are kept and they still leave more
     than ``uncaptured`` of the drawn energy out, once more with at most ``k_max`` columns from
-    ``samples`` or ``2·k_max`` draws (:data:`REDUCED_K_MAX`). The first, small draw decides for the
-    scenes that need few columns (heat_2d: ~280), so they pay nothing for the second."""
+    ``samples`` or ``2·k_max`` draws (:data:`REDUCED_K_MAX`), provided ``k_max`` is below the ``N`` unknowns:
+    a decoder is a reduction, and a prior that no fewer than ``N`` columns hold is left to
+    :func:`~pdeinv.nets.defaults.linear_default`'s check (heat_boxes at 961 unknowns: the whitened map). The
+    first, small draw decides for the scenes that need few columns (heat_2d: ~280), so they pay nothing for
+    the second."""
     n = problem.operator.n_in
     basis, info = prior_basis(problem, min(k, n), samples, scaled=scaled, uncaptured=uncaptured)
-    if info["components"] < min(k, n) or 1 - info["captured"] <= uncaptured or min(k_max, n) <= k:
+    if info["components"] < min(k, n) or 1 - info["captured"] <= uncaptured or not k < k_max < n:
         return basis, info
-    return prior_basis(problem, min(k_max, n), samples or 2 * k_max, scaled=scaled, uncaptured=uncaptured)
+    return prior_basis(problem, k_max, samples or 2 * k_max, scaled=scaled, uncaptured=uncaptured)
 
 
 def reduced(k_in: int = REDUCED_K_IN, k_out: int = REDUCED_K, body: str = "linear", hidden=(256, 256),
