@@ -100,6 +100,27 @@ def test_sip_step_matches_hand_formula():
     np.testing.assert_allclose(model.bias.detach().numpy(), b - lr * (X - Xt).mean(0), atol=1e-13)
 
 
+@pytest.mark.parametrize("with_target", [False, True])
+def test_sip_in_chunks_of_rows_is_the_full_batch_update(monkeypatch, with_target):
+    """Large (rows, N) arrays are split by rows (sip.CHUNK_ENTRIES): 7 rows in chunks of 2 give the
+    full batch's direction, loss and proxy to rounding (weights 2/7, 2/7, 2/7, 1/7)."""
+    from pdeinv.methods import sip as sip_module
+
+    problem, A, rng = toy()
+    model = linear(5, 5)
+    Y = torch.tensor(rng.standard_normal((7, 5)))
+    goal = torch.tensor(rng.standard_normal((7, 5))) if with_target else None
+    rule = SIP(eta=0.5, normalize=False)
+    state = rule.init(problem, model)
+    full = rule.update(state, model, Y, goal)
+    monkeypatch.setattr(sip_module, "CHUNK_ENTRIES", 10)  # 10 // 5 = 2 rows per chunk
+    chunked = rule.update(state, model, Y, goal)
+    for a, b in zip(full.direction, chunked.direction, strict=True):
+        torch.testing.assert_close(a, b, rtol=1e-12, atol=1e-14)
+    for key in ("loss", "proxy"):
+        assert chunked.info[key] == pytest.approx(full.info[key], rel=1e-12)
+
+
 @pytest.mark.parametrize("rule", [SIP(eta=1.0, optimizer=sgd(3 / 1.7**2), normalize=False), SIP()],
                          ids=["raw-lr-B/c2", "default-normalized"])
 def test_sip_exact_inverse_eta_one_lands_on_the_solution(rule):

@@ -21,6 +21,10 @@ from .base import OptimizerFactory, Rule, State, Update, check_finite, gradient,
 from .curvature import checked, gauss_newton_max
 from .transforms import OptimizerStep
 
+#: entries of one ``(rows, N)`` array in a chunk of :meth:`SIP.update` (2²⁴: 134 MB in float64); larger
+#: batches are split by rows. heat_2d at 65 025 unknowns, SIP's full batch of 1 024: chunks of 256 rows
+CHUNK_ENTRIES = 2**24
+
 #: ``(y_target, x0) -> x̃`` on numpy ``(B, ·)`` arrays: a local inverse ``P⁻¹_(x0, P x0)``
 InverseSimulator = Callable[[np.ndarray, np.ndarray], np.ndarray]
 
@@ -151,6 +155,32 @@ class SIP(Rule):
 
     def update(self, state: State, model: torch.nn.Module, y_target: torch.Tensor,
                target: torch.Tensor | None = None) -> Update:
+        """One SIP direction on the batch, in chunks of rows where its ``(B, N)`` arrays are large
+        (:data:`CHUNK_ENTRIES`): the proxy and the loss are means over rows, so the chunks' directions and
+        measurements, weighted by their share of the rows, sum to the batch's. The network must treat
+        rows independently (every pdeinv network does; a batch-coupled layer such as BatchNorm would see
+        the chunks)."""
+        op = state.context.operator
+        rows = max(1, CHUNK_ENTRIES // max(op.n_in, op.n_out, 1))
+        B = y_target.shape[0]
+        if B <= rows:
+            return self._update(state, model, y_target, target)
+        total_dir, total = None, {}
+        for i in range(0, B, rows):
+            chunk = slice(i, i + rows)
+            part = self._update(state, model, y_target[chunk], None if target is None else target[chunk])
+            w = min(rows, B - i) / B
+            if part.direction is None:  # a non-finite loss: the guard refuses the batch
+                return part
+            scaled = tuple(None if d is None else w * d for d in part.direction)
+            total_dir = scaled if total_dir is None else tuple(
+                b if a is None else a if b is None else a + b for a, b in zip(total_dir, scaled, strict=True))
+            for k, v in part.info.items():
+                total[k] = total.get(k, 0.0) + w * v
+        return Update(total_dir, total)
+
+    def _update(self, state: State, model: torch.nn.Module, y_target: torch.Tensor,
+                target: torch.Tensor | None = None) -> Update:
         op, inverse, curvature, diagonal, local = state.context
         x = prediction(model(y_target))
         x_np = x.detach().cpu().double().numpy()
