@@ -4,6 +4,7 @@ part is allocated (the budget and the primitive checks: :mod:`pdeinv.util.memory
 from __future__ import annotations
 
 from ..inverse import TikhonovCG
+from ..methods.sip import CHUNK_ENTRIES
 from ..nets import network_size
 from ..util.memory import GB, HIG_JACOBIAN_GB, check
 
@@ -22,7 +23,8 @@ def run_bytes(problem, n_train: int, n_test: int, batch: int, hidden=None, net: 
       default's decoder-or-fallback counted as the larger): its buffers, and per trained parameter its
       value, gradient and, with Adam (``optimizer``; GD and Adam rules: Adam), two moments;
     * ``batch``: one batch through network and physics: the output and its gradient at the widest layer,
-      and ``x``, ``y``, the residual and the local inverse's result (float64);
+      and ``x``, ``y``, the residual and the local inverse's result (float64); for SIP one chunk of rows
+      (:data:`pdeinv.methods.sip.CHUNK_ENTRIES`);
     * ``set-up``: the larger of what building the network needs on top (the prior decoder's draws and Gram
       matrix) and the whitening fit's SVD of the training observations (three ``(n, m)`` arrays): they
       come one after the other and are freed before training;
@@ -38,15 +40,16 @@ def run_bytes(problem, n_train: int, n_test: int, batch: int, hidden=None, net: 
     size = network_size(problem, "mlp" if hidden else net, hidden)
     d = size["dtype_bytes"]
     copies = STATE_COPIES["sgd" if method == "sip" and optimizer == "sgd" else "adam"]
+    rows = min(batch, max(1, CHUNK_ENTRIES // max(m, n, 1))) if method in (None, "sip") else batch
     parts = {
         "data": (n_train + n_test + n_val) * (8 * (m + n) + d * m) + prior_draws * 8 * (m + n),
         "network": copies * d * size["params"] + d * size["buffers"],
-        "batch": 2 * d * batch * size["widest"] + 8 * batch * (n + 2 * m),
+        "batch": 2 * d * rows * size["widest"] + 8 * rows * (n + 2 * m),
         "set-up": max(size["build"], 3 * 8 * n_train * m),
     }
     inverse = problem.inverse_simulator
     if method in (None, "sip") and isinstance(inverse, TikhonovCG):
-        parts["inverse"] = inverse.memory_bytes(batch)
+        parts["inverse"] = inverse.memory_bytes(rows)
     linear_net = not hidden and problem.model_factory is None
     if method == "hig" and not linear_net:  # the default networks take the Kronecker route: no J
         parts["HIG Jacobian"] = min(8.0 * batch * m * size["params"], HIG_JACOBIAN_GB * 2**30)
