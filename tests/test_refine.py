@@ -235,6 +235,29 @@ def test_a_budget_limited_fit_checks_in_time_and_keeps_its_last_gain():
     assert info["kept"] and info["error_after"] < info["error_before"]
 
 
+def test_a_feed_computed_per_batch_fits_the_same_correction(monkeypatch):
+    """Above STORED_ENTRIES the base's estimates and the correction's inputs are computed per batch instead
+    of stored for all draws (heat_2d at 65 025 unknowns: 1.2 GB less): the same steps, the same fit."""
+    from pdeinv.nets import refine
+
+    p = pdeinv.load_problem("sine_gordon_1d")
+    x, y = p.sample(512, 1)
+    fits = []
+    for entries in (refine.STORED_ENTRIES, 0):
+        monkeypatch.setattr(refine, "STORED_ENTRIES", entries)
+        monkeypatch.setattr(refine, "PREPARE_ROWS", 10**9)
+        torch.manual_seed(0)
+        net = p.model()
+        net.fit_observations(y)
+        info = net.fit_prior(x, y, p.relative_error, PriorFit(steps=60, check_every=20, time_budget=None))
+        with torch.no_grad():
+            fits.append((info, net(torch.as_tensor(y[:8])).numpy()))
+    (a, out_a), (b, out_b) = fits
+    assert a["steps"] == b["steps"] == 60 and a["kept"] == b["kept"]
+    assert a["error_after"] == pytest.approx(b["error_after"], rel=1e-4)
+    np.testing.assert_allclose(out_a, out_b, rtol=1e-4, atol=1e-6 * np.abs(out_a).max())
+
+
 def test_prior_draws_grow_where_the_physics_is_fast_and_start_with_the_same_rows():
     from pdeinv.training.trainer import prior_draw_counts
     from pdeinv.training.trainset import prior_rows
