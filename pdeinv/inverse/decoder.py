@@ -68,6 +68,7 @@ from __future__ import annotations
 from typing import NamedTuple
 
 import numpy as np
+import scipy.linalg as sla
 
 from ._inputs import given_forward, out, pair
 
@@ -118,6 +119,7 @@ class DecoderTikhonov:
         self.rows = decoded_rows(decoder, op.n_in)
         s = self.svd.s
         self.filter = s / (s**2 + self.rel_alpha * (s[0] ** 2 if s.size else 0.0))
+        self._gram = None  # the decoder rows' Gram factor (forward_in_span), on first use
 
     def __call__(self, y, x0) -> np.ndarray:
         Y, X0, single = pair(y, x0, len(self.svd.Q), self.rows.shape[1])
@@ -128,6 +130,18 @@ class DecoderTikhonov:
         Y, X0, single = pair(y, x0, len(self.svd.Q), self.rows.shape[1])
         Y0 = given_forward(y0, X0, len(self.svd.Q))
         return out(self._step(Y, X0, Y0), single)
+
+    def forward_in_span(self, X) -> np.ndarray:
+        """``P x`` for fields ``x = D c`` of the decoder's span without running the physics: ``c`` by least
+        squares on the decoder's rows, then ``P̂ c = Q diag(s) Vᵀ c`` (``k`` forward calls paid once, at
+        the SVD). Exact to rounding in the span (and up to the rank cut's ``k·eps`` relative); a field outside
+        it loses its part outside. A wave scene at 29 929 unknowns: 1 024 rows by 50 Newmark steps took ~77 s,
+        this ~0.5 s."""
+        X = np.atleast_2d(np.asarray(X, dtype=float))
+        if self._gram is None:
+            self._gram = sla.cho_factor(self.rows @ self.rows.T)
+        c = sla.cho_solve(self._gram, self.rows @ X.T).T
+        return ((c @ self.svd.V) * self.svd.s) @ self.svd.Q.T
 
     def _step(self, Y, X0, Y0) -> np.ndarray:
         dc = (((Y - Y0) @ self.svd.Q) * self.filter) @ self.svd.V.T

@@ -12,6 +12,7 @@ import numpy as np
 import torch
 
 from .._checks import positive
+from ..inverse.decoder import DecoderTikhonov
 from ..inverse.protocol import ReusesForward
 from ..nets.protocol import declared
 from ..physics.base import LinearOperator
@@ -39,6 +40,10 @@ class SIPContext(NamedTuple):
     diagonal: tuple | None = None  # the network's Gauss–Newton diagonal, when it has one (calibrate)
     #: ``(y, x0, y0) -> x̃``: the same inverse given ``y0 = P x0`` (:class:`~pdeinv.inverse.ReusesForward`)
     local: Callable[[np.ndarray, np.ndarray, np.ndarray], np.ndarray] | None = None
+    #: ``x -> P x`` for the network's fields without running the physics, where they lie in a fixed decoder's
+    #: span and ``P D`` is known (:meth:`~pdeinv.inverse.decoder.DecoderTikhonov.forward_in_span`); ``None``:
+    #: the operator's own forward
+    forward: Callable[[np.ndarray], np.ndarray] | None = None
 
 
 def decoder_inverse(problem, model):
@@ -47,7 +52,6 @@ def decoder_inverse(problem, model):
     Tikhonov solve of the residual in ``span D`` (:class:`~pdeinv.inverse.decoder.DecoderTikhonov`),
     where observations are exact or a denoised target will be fitted; ``None`` otherwise (the
     problem's own inverse)."""
-    from ..inverse.decoder import DecoderTikhonov
     from .targets import SpectralWiener
 
     lin = declared(model).linear_in_parameters()
@@ -131,7 +135,10 @@ class SIP(Rule):
         else:
             simulator = inverse
         local = simulator.local if isinstance(simulator, ReusesForward) else None
-        return SIPContext(problem.operator, inverse, local=local)
+        # the default decoder inverse was built from this network's decoder: its fields are in span D
+        forward = inverse.forward_in_span if self.inverse is None and isinstance(inverse, DecoderTikhonov) \
+            else None
+        return SIPContext(problem.operator, inverse, local=local, forward=forward)
 
     def calibrate(self, state: State, model: torch.nn.Module, y: torch.Tensor) -> State:
         """``λ̂`` on the batch ``y`` (when ``normalize``): called once, before the first step."""
@@ -181,11 +188,11 @@ class SIP(Rule):
 
     def _update(self, state: State, model: torch.nn.Module, y_target: torch.Tensor,
                 target: torch.Tensor | None = None) -> Update:
-        op, inverse, curvature, diagonal, local = state.context
+        op, inverse, curvature, diagonal, local, forward = state.context
         x = prediction(model(y_target))
         x_np = x.detach().cpu().double().numpy()
         yt = (y_target if target is None else target).detach().cpu().double().numpy()
-        y = op.forward(x_np)
+        y = op.forward(x_np) if forward is None else forward(x_np)
         loss = 0.5 * float(((y - yt) ** 2).sum(-1).mean())
         if not math.isfinite(loss):  # the inverse is never called on it; the guard refuses
             return Update(None, {"loss": loss})
