@@ -268,4 +268,4 @@ def test_prior_draws_grow_where_the_physics_is_fast_and_start_with_the_same_rows
     assert x0.shape == (256, p.N) and x1.shape == (1024, p.N) and source.startswith("1024 draws")
     assert np.array_equal(x1[:256], x0)  # the first draws are those without the extension
     assert not np.array_equal(x1[256:512], x0)  # then fresh streams
-    assert prior_draw_counts(63, 4096) == (4096, 65536) and prior_draw_counts(10**5, 4096) == (1000, 1000)
+    assert prior_draw_counts(63, 4096) == (4096, 65536) and prior_draw_counts(10**5, 4096) == (500, 500)

@@ -48,9 +48,11 @@ from .verdict import of_predictions
 
 __all__ = ["Callback", "Result", "Trainer", "seed_stream", "train"]
 
-#: at most this many field entries in a scene's prior draws (x, y and the base's estimates in float64 and
-#: float32: ~20 bytes each, 2 GB): 4096 draws up to 48 828 unknowns, fewer above, never under 256
-PRIOR_ENTRIES = 100_000_000
+#: at most this many field entries in a scene's prior draws (x and y in float64: 16 bytes each, 800 MB):
+#: 4096 draws up to 12 207 unknowns, fewer above, never under 256. At 10⁴–10⁵ unknowns a U-Net step takes
+#: seconds and the fit's budget sees a few hundred to a thousand draws (heat_3d at 29 791 unknowns: 19 steps
+#: of 32 in 181 s), so more would only hold memory (10⁸ entries: 3 356 draws there, peak RSS 13.5 GB)
+PRIOR_ENTRIES = 50_000_000
 
 #: more draws where they are cheap to hold and to compute (:func:`prior_draw_counts`): at most this many
 #: field entries (~400 MB) and :data:`PRIOR_MOST` rows, drawn within :data:`PRIOR_DRAW_SHARE` of the fit's
