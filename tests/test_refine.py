@@ -269,3 +269,19 @@ def test_prior_draws_grow_where_the_physics_is_fast_and_start_with_the_same_rows
     assert np.array_equal(x1[:256], x0)  # the first draws are those without the extension
     assert not np.array_equal(x1[256:512], x0)  # then fresh streams
     assert prior_draw_counts(63, 4096) == (4096, 65536) and prior_draw_counts(10**5, 4096) == (500, 500)
+
+
+def test_the_unet_fit_batch_shrinks_with_the_unfolded_grid():
+    """32 draws per prior-fit step on small grids; fewer where grid points × 3^dim × draws would pass
+    FIT_BATCH_POINTS (the CPU convolutions' unfolded buffers: heat_3d at 29 791 unknowns held 4–5 GB per
+    step with 32)."""
+    from types import SimpleNamespace
+
+    from pdeinv.nets.corrections import FIT_BATCH_POINTS, GridCorrection
+
+    def batch(shape):
+        return GridCorrection(SimpleNamespace(shape=shape)).fit_batch
+
+    assert batch((63, 63)) == batch((15, 15, 15)) == 32
+    assert batch((255, 255)) == FIT_BATCH_POINTS // (255 * 255 * 9) == 14
+    assert batch((31, 31, 31)) == 10 and batch((99, 99, 99)) == 2
