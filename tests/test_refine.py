@@ -285,3 +285,31 @@ def test_the_unet_fit_batch_shrinks_with_the_unfolded_grid():
     assert batch((63, 63)) == batch((15, 15, 15)) == 32
     assert batch((255, 255)) == FIT_BATCH_POINTS // (255 * 255 * 9) == 14
     assert batch((31, 31, 31)) == 10 and batch((99, 99, 99)) == 2
+
+
+def test_slow_physics_draws_what_its_share_of_the_budget_buys_and_the_fit_gets_the_rest(monkeypatch):
+    """The draws a scene's prior fit always makes are bounded by PRIOR_DRAW_SHARE of its budget at the pace
+    the training samples were drawn (never below PRIOR_FLOOR), and the fit gets what drawing left (at least
+    the share): wave_2d at 29 929 unknowns drew 3 341 rows for ~500 s before a fit of 300 s."""
+    from pdeinv.training import trainer as tr
+
+    seen = {}
+    real_rows, real_fit = tr.prior_rows, PriorFit.fit
+
+    def rows(problem, own, n, seed, seconds=None, most=None):
+        seen["n"] = n
+        return real_rows(problem, own, n, seed, seconds, most)
+
+    def fit(self, model, x, y, relative_error, log=None):
+        seen["budget"] = self.time_budget
+        return real_fit(self, model, x, y, relative_error, log)
+
+    monkeypatch.setattr(tr, "prior_rows", rows)
+    monkeypatch.setattr(PriorFit, "fit", fit)
+    monkeypatch.setattr(tr, "PRIOR_DRAW_SHARE", 1e-7)  # the samples' pace then buys no more than the floor
+    p = pdeinv.load_problem("heat_1d", n=16)
+    rule, _ = make_rule("sip", p, p.noise)
+    pdeinv.train(p, rule, steps=1, n_train=64, n_test=16, batch_size=None, progress=False,
+                 prior_fit=PriorFit(steps=5, time_budget=4.0))
+    assert seen["n"] == tr.PRIOR_FLOOR
+    assert 4.0 * 1e-7 <= seen["budget"] <= 4.0

@@ -30,7 +30,7 @@ FBPConvNet), with the physics-trained ``b`` in place of a fixed classical invers
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Protocol, runtime_checkable
 
 import numpy as np
@@ -66,6 +66,10 @@ class PriorFit:
     min_gain: float = 0.005
     decays: int = 2
     seed: int = 0
+
+    def within(self, seconds: float) -> PriorFit:
+        """These settings with ``time_budget = seconds`` (the trainer: what drawing the prior left)."""
+        return replace(self, time_budget=seconds)
 
     def applies(self, model) -> bool:
         """Whether ``model`` has a part fitted on prior draws (:class:`PriorFitted`)."""

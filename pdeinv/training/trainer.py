@@ -61,6 +61,12 @@ PRIOR_ENTRIES = 50_000_000
 #: 0.098 / 0.083 / 0.070, the fit stopping on its own plateau after 63 / 109 / 256 CPU s of its 300
 PRIOR_EXTRA_ENTRIES, PRIOR_MOST, PRIOR_DRAW_SHARE = 20_000_000, 65_536, 0.5
 
+#: the fewest prior draws where the physics is slow: the draws a scene's prior fit always makes are
+#: bounded by what :data:`PRIOR_DRAW_SHARE` of its budget buys at the pace the training samples were drawn,
+#: and the fit gets the rest of the budget (wave_2d at 29 929 unknowns: 158 ms per Newmark draw, 3 341 draws
+#: took ~500 s before a 300 s fit that was not kept; the run 1 300 s in all)
+PRIOR_FLOOR = 256
+
 
 def prior_draw_counts(N: int, prior_draws: int) -> tuple[int, int]:
     """``(n, most)``: the prior draws a scene's prior fit always makes (``prior_draws``, fewer above
@@ -430,10 +436,16 @@ class Trainer:
             return None
         n, most = prior_draw_counts(self.problem.N, self.prior_draws)  # memory: O(n·N)
         budget = self.prior_fit.time_budget
-        t0 = time.perf_counter()
+        if budget is not None:  # as many draws as the draw share of the budget buys, at the samples' pace
+            per_row = self.setup_cpu.get("samples", 0.0) / max(1, self.n_train + self.n_test)
+            n = min(n, max(PRIOR_FLOOR, int(PRIOR_DRAW_SHARE * budget / max(per_row, 1e-9))))
+        t0, cpu0 = time.perf_counter(), time.thread_time()
         draws, source = prior_rows(self.problem, self._own, n, self.seed,
                                    None if budget is None else PRIOR_DRAW_SHARE * budget, most)
         run.at.wall += time.perf_counter() - t0
+        fit = self.prior_fit  # drawing and fitting share the budget
+        if budget is not None:
+            fit = fit.within(max(budget - (time.thread_time() - cpu0), PRIOR_DRAW_SHARE * budget))
         if draws is None:
             if self.parallel.is_writer:
                 warnings.warn(f"the network's nonlinear correction was not fitted: prior {source}; it stays "
@@ -441,7 +453,7 @@ class Trainer:
                               RuntimeWarning, stacklevel=3)
             return {"kept": False, "prior": source}
         t0 = time.perf_counter()
-        info = self.prior_fit.fit(run.model, *draws, self.problem.relative_error)
+        info = fit.fit(run.model, *draws, self.problem.relative_error)
         run.at.wall += time.perf_counter() - t0
         if info.get("kept"):  # the run's last record: the refined network's test errors
             last = {**self.history[-1], **self.evaluate(run.model, run.test), "wall_s": run.at.wall}
