@@ -6,7 +6,8 @@
 Prints the held-out relative L²(Ω) x-error of best-α Tikhonov (``argmin ‖Px − y‖²_N + α‖x‖²_M``, the α of
 ``ALPHA_GRID`` chosen with the test x: an oracle) from one generalized Golub–Kahan space per test row
 (:func:`pdeinv.training.references.tikhonov_best_krylov`; ``converged`` is the change when half the
-iterations are dropped), its seconds, and each ``pdeinv train`` run folder's network on the same rows
+iterations are dropped; only α whose change is below 1 % count), its seconds, and each ``pdeinv train``
+run folder's network on the same rows
 (the first ``--n-test`` rows of the trainer's test stream are not the run's own unless ``--n-test 128``).
 """
 
@@ -44,6 +45,8 @@ def main():
     print(f"{label} best-alpha Tikhonov: x_err {r['x_err']:.4g} at rel. alpha {r['alpha_rel']:g}, "
           f"{r['iterations']} iterations (change at half: {r['converged']:.2g}), "
           f"{time.process_time() - t:.1f} CPU s")
+    print("  sweep (rel. alpha: x_err, change at half): " + ", ".join(
+        f"{a}: {e:.4g}, {c:.2g}" for a, (e, c) in r["sweep"].items()))
 
 
 if __name__ == "__main__":

@@ -58,3 +58,15 @@ def test_bad_input_is_named():
         bidiagonalize(p.operator, np.zeros((2, p.operator.n_out)), p.disc.M)
     with pytest.raises(ValueError, match="iterations"):
         bidiagonalize(p.operator, np.ones((1, p.operator.n_out)), p.disc.M, iterations=0)
+
+
+def test_the_krylov_reference_counts_only_converged_alphas():
+    """A small space resolves large α only: smaller ones are left out of the choice (a truncated space
+    regularizes by itself) and reported apart; a space in which no α converged is refused."""
+    p = pdeinv.load_problem("wave_2d", n=12, noise=0.01)
+    x, y = p.sample(6, seed=4)
+    r = R.tikhonov_best_krylov(p, y, x, iterations=20)
+    small = [c for a, (_, c) in r["sweep"].items() if float(a) <= 1e-8]
+    assert r["converged"] < 1e-2 and min(small) >= 1e-2 and r["unconverged_x_err"] is not None
+    with pytest.raises(ValueError, match="no α of the grid converged"):
+        R.tikhonov_best_krylov(p, y, x, grid=(1e-10,), iterations=4)
