@@ -99,8 +99,8 @@ def _decoded_svd(op, decoder) -> DecodedSVD:
     P_hat = np.asarray(op.forward(decoded_rows(decoder, op.n_in)), dtype=float).T  # (m, k)
     Q, s, Vt = np.linalg.svd(P_hat, full_matrices=False)
     # the rank cut scales with the short side k, not with the mesh: heat_2d's closed-form decoder solve
-    # kept 135 of P̂'s directions at 65 025 unknowns with max(m, k)·eps (x-error 0.00229, against 0.00126
-    # on 3 969 unknowns), 174 with k·eps (0.00126); α (rounding-level) damps what is left
+    # kept 150 of P̂'s directions at 3 969 unknowns and 135 at 65 025 with max(m, k)·eps (x-error 0.00135,
+    # 0.00250), 169 and 174 with k·eps (0.00125, 0.00134); α (rounding-level) damps what is left
     keep = s > s[0] * min(P_hat.shape) * np.finfo(float).eps if s.size and s[0] > 0 else np.zeros(0, bool)
     return DecodedSVD(Q[:, keep], s[keep], Vt[keep].T)
 
@@ -135,8 +135,8 @@ class DecoderTikhonov:
         """``P x`` for fields ``x = D c`` of the decoder's span without running the physics: ``c`` by least
         squares on the decoder's rows, then ``P̂ c = Q diag(s) Vᵀ c`` (``k`` forward calls paid once, at
         the SVD). Exact to rounding in the span (and up to the rank cut's ``k·eps`` relative); a field outside
-        it loses its part outside. A wave scene at 29 929 unknowns: 1 024 rows by 50 Newmark steps took ~77 s,
-        this ~0.5 s."""
+        it loses its part outside. A wave scene at 29 929 unknowns: 1 024 rows by 50 Newmark steps take ~77 s;
+        this, three products of the batch with ``(k, N)``-sized arrays."""
         X = np.atleast_2d(np.asarray(X, dtype=float))
         if self._gram is None:
             self._gram = sla.cho_factor(self.rows @ self.rows.T)
