@@ -19,8 +19,10 @@ because ``‖V_k z‖_M = ‖z‖``,
 from one small SVD ``B_k = Z diag(s) Wᵀ`` per row: every α of a grid for the price of one space.
 Rows are independent (each has its own ``α_j, β_j``) and share one batched forward, one batched
 adjoint and one mass solve per iteration. Both bases are reorthogonalized in full against what is
-stored (``k·B·(m + n)`` floats): without it the recurrence loses orthogonality once the leading singular
-values have converged, and repeats them.
+stored (``2·k·B·(m + n)`` floats: each block also with its mass applied, once, when it is stored):
+without it the recurrence loses orthogonality once the leading singular values have converged, and
+repeats them. Applying the mass to every stored block at every iteration instead cost 5.6× the time
+(wave_2d, 961 unknowns, 16 rows, 200 iterations: 16.4 s against 2.9 s).
 
 :func:`bidiagonalize` builds the space; :class:`KrylovTikhonov` solves in it. The matrix-free
 counterpart of :func:`pdeinv.training.references.tikhonov_path` (an SVD of the dense ``P``) for meshes
@@ -36,17 +38,26 @@ from ..fem.solvers import SuperLU
 from ..physics.capabilities import output_mass
 
 
-def _norms(X, mass):
-    return np.sqrt(np.einsum("bi,bi->b", X, X if mass is None else (mass @ X.T).T))
+def _apply(mass, X):
+    """``mass`` applied to each row of ``X`` (the identity for ``None``)."""
+    return X if mass is None else (mass @ X.T).T
 
 
-def _orthogonalize(W, basis, mass):
-    """``W`` minus its ``mass``-projection on every stored row block of ``basis`` (one pass each, twice)."""
+def _orthogonalize(W, basis, mbasis):
+    """``W`` minus its mass-projection on every stored row block (``mbasis``: the same blocks with the mass
+    applied, computed once when each block was stored), classical Gram–Schmidt run twice."""
     for _ in range(2):
-        for Q in basis:
-            MQ = Q if mass is None else (mass @ Q.T).T
+        for Q, MQ in zip(basis, mbasis, strict=True):
             W = W - np.einsum("bi,bi->b", W, MQ)[:, None] * Q
     return W
+
+
+def _normalized(W, mass):
+    """``(W / ‖W‖, mass·W / ‖W‖, ‖W‖)`` per row, ``‖·‖`` the mass norm; zero rows stay zero."""
+    MW = _apply(mass, W)
+    norm = np.sqrt(np.maximum(np.einsum("bi,bi->b", W, MW), 0.0))
+    inv = np.where(norm > 0, 1.0 / np.where(norm > 0, norm, 1.0), 0.0)[:, None]
+    return W * inv, MW * inv, norm
 
 
 class KrylovTikhonov:
@@ -90,25 +101,24 @@ def bidiagonalize(op, Y, M=None, M_out="auto", iterations: int = 200) -> KrylovT
     N = output_mass(op, M) if isinstance(M_out, str) else M_out
     Minv = (lambda R: R) if M is None else (lambda R, lu=SuperLU(M): lu.solve(R.T).T)
     rows = Y.shape[0]
-    beta1 = _norms(Y, N)
+    u, Mu, beta1 = _normalized(Y, N)
     if not np.all(beta1 > 0):
         raise ValueError("bidiagonalize: an observation row is zero; its Tikhonov solution is 0 for every α")
-    U, V = [Y / beta1[:, None]], []
+    U, MU, V, MV = [u], [Mu], [], []
     alphas, betas = [], []
     live = np.ones(rows, bool)
-
-    def adjoint(Ur):  # M⁻¹ Pᵀ N u
-        return Minv(np.asarray(op.adjoint(Ur if N is None else (N @ Ur.T).T), dtype=float))
-
     for _ in range(iterations):
-        W = adjoint(U[-1]) - (betas[-1][:, None] * V[-1] if V else 0.0)
-        W = _orthogonalize(W, V, M)
-        a = _norms(W, M)
-        V.append(np.where(a[:, None] > 0, W / np.where(a > 0, a, 1)[:, None], 0.0))
+        W = Minv(np.asarray(op.adjoint(MU[-1]), dtype=float))  # M⁻¹ Pᵀ N u
+        if V:
+            W = W - betas[-1][:, None] * V[-1]
+        v, Mv, a = _normalized(_orthogonalize(W, V, MV), M)
+        V.append(v)
+        MV.append(Mv)
         alphas.append(a)
-        R = _orthogonalize(np.asarray(op.forward(V[-1]), dtype=float) - a[:, None] * U[-1], U, N)
-        b = _norms(R, N)
-        U.append(np.where(b[:, None] > 0, R / np.where(b > 0, b, 1)[:, None], 0.0))
+        R = _orthogonalize(np.asarray(op.forward(v), dtype=float) - a[:, None] * U[-1], U, MU)
+        u, Mu, b = _normalized(R, N)
+        U.append(u)
+        MU.append(Mu)
         betas.append(b)
         scale = max(float(np.max(alphas[0])), 1e-300)
         live &= (a > 1e-14 * scale) & (b > 1e-14 * scale)
