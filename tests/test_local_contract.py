@@ -262,3 +262,33 @@ def test_sip_passes_its_forward_to_the_inverse(problems, monkeypatch):
     change = steps["plain"][1]
     assert np.allclose(steps["local"][1], change, rtol=1e-6, atol=1e-9 * np.abs(change).max())
     assert np.abs(steps["local"][1]).max() > 0
+
+
+def test_sip_in_decoder_coordinates_is_the_field_step(problems):
+    """With the default inverse on the network's own decoder, SIP's step runs in the decoder's coordinates
+    (``SIP._update_in_span``: ``P̂ c``, ``Δc``, the proxy through ``DᵀD``) and equals the step on the fields
+    (the same context without ``span``, the physics' own forward) to rounding: gradient, loss and proxy;
+    with the observations and with another ``target``. (Unnormalized: the Jacobi scaling divides by the
+    decoder's weakest columns, where the field route's ``x − x̃``, formed from two ``(B, N)`` fields, rounds
+    at ``eps·|x|``; the coordinates are the more accurate route.)"""
+    import torch
+
+    p = get(problems, "heat_plate")
+    _, y = p.sample(16, seed=9)
+    Y = torch.as_tensor(y)
+    torch.manual_seed(0)
+    model = pdeinv.nets.fit_preconditioning(p.model(), y)
+    with torch.no_grad():  # a non-trivial network: its fields are not the zero field
+        for q in model.parameters():
+            q.add_(1e-3 * torch.randn_like(q))
+    rule = pdeinv.SIP(eta=0.7, normalize=False)
+    state = rule.init(p, model)
+    assert state.context.span is state.context.inverse
+    fields = state._replace(context=state.context._replace(span=None, forward=None))  # the physics
+    for target in (None, Y + 0.01 * Y.std() * torch.randn_like(Y)):
+        a, b = rule.update(state, model, Y, target), rule.update(fields, model, Y, target)
+        for da, db in zip(a.direction, b.direction, strict=True):
+            assert float((da - db).abs().max()) <= 1e-7 * float(db.abs().max())
+        assert a.info["loss"] == pytest.approx(b.info["loss"], rel=1e-10)
+        assert a.info["proxy"] == pytest.approx(b.info["proxy"], rel=1e-8)
+        assert b.info["proxy"] > 0

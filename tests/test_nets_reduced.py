@@ -101,6 +101,10 @@ def test_the_decoder_grows_once_where_its_columns_miss_the_prior():
     err = [p.relative_error(x @ Q @ Q.T, x).mean() for Q in (np.linalg.qr(B)[0] for B in (small, grown))]
     assert err[1] < 0.5 * err[0]
     assert nets.reduced(k_in=16, k_out=20, k_max=80)(p).decoder.shape[0] == 80
+    # 35 columns hold all but 1e-3: more than k, but the first 80 draws resolve them (two per column)
+    wider, info_wider = nets.decoder_basis(p, 20, 80, uncaptured=1e-3)
+    assert 20 < wider.shape[1] <= 40 and info_wider["samples"] == 80
+    assert 1 - info_wider["captured"] <= 1e-3
 
 
 def test_the_decoder_keeps_what_the_prior_fills():
@@ -267,3 +271,19 @@ def test_the_exact_curvature_equals_power_iteration(factory):
     slow = gauss_newton_max(model, Y, iters=500, diagonal=diag)
     assert model.gauss_newton_max(Y) == pytest.approx(slow, rel=1e-6)
     assert nets.whitened("mlp", hidden=(4,))(p).gauss_newton_max(Y) is None
+
+
+def test_noisy_observations_take_a_shorter_decoder():
+    """The default decoder may leave out (NOISY_FLOOR·σ)² of the prior's energy at relative noise σ: fewer
+    columns (each one forward solve before training), an error floor of a tenth of the noise."""
+    from pdeinv.nets.defaults import linear_default
+    from pdeinv.nets.reduced import NOISY_FLOOR, REDUCED_UNCAPTURED, decoder_uncaptured
+
+    assert decoder_uncaptured(None) == decoder_uncaptured(0.0) == REDUCED_UNCAPTURED
+    assert decoder_uncaptured(0.01) == pytest.approx((NOISY_FLOOR * 0.01) ** 2)
+    k = {}
+    for noise in (0.0, 0.01):
+        net = linear_default(pdeinv.load_problem("heat_2d", n=24, noise=noise))
+        k[noise] = net.decoder.shape[0]
+        assert 1 - net.decoder_info["captured"] <= decoder_uncaptured(noise)
+    assert k[0.01] < 0.8 * k[0.0], k

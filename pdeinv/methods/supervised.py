@@ -53,7 +53,7 @@ class Supervised(SIP):
         if target is None:
             raise ValueError("Supervised needs the training rows' true fields as its target: keep "
                              "target='auto' (pdeinv.methods.targets.TrueFields) and give data with x")
-        op, _, curvature, diagonal, _, _ = state.context
+        op, _, curvature, diagonal, _, _, _ = state.context
         x = prediction(model(y_target))
         if target.shape != x.shape:
             raise ValueError(f"Supervised: the target has shape {tuple(target.shape)}, the network's output "

@@ -9,7 +9,7 @@ from torch import nn
 
 from ..physics.nonlinear import is_linear
 from .net import DTYPE, whitened
-from .reduced import REDUCED_K_IN, REDUCED_K_MAX, reduced
+from .reduced import REDUCED_K_IN, REDUCED_K_MAX, decoder_uncaptured, reduced
 
 #: the largest fraction of the prior's energy a decoder may leave out before :func:`linear_default`
 #: takes the whitened map instead (an error floor of 0.1 %)
@@ -108,9 +108,10 @@ def linear_default(problem, rows_per_component: float | None = None) -> nn.Modul
         if rows_per_component is None and not is_linear(problem.operator):
             kw["rows_per_component"] = NONLINEAR_ROWS_PER_COMPONENT
         return whitened("linear", **kw)(problem)
-    net = reduced(**kw)(problem)
+    uncaptured = decoder_uncaptured(problem.noise)
+    net = reduced(**kw, uncaptured=uncaptured)(problem)
     info = net.decoder_info
-    if 1 - info.get("captured", 1.0) > DECODER_MAX_UNCAPTURED:
+    if 1 - info.get("captured", 1.0) > max(DECODER_MAX_UNCAPTURED, uncaptured):
         return _whitened_fallback(problem, rows_per_component)
     return net
 

@@ -39,6 +39,12 @@ class Net(Network):
         network's fields lie in ``span D`` whatever its body (targets and inverses work there)."""
         return declared(self.post).decoder
 
+    def coefficients(self, y: torch.Tensor) -> torch.Tensor | None:
+        """``c = body(pre(y))``, the decoder's input (``f(y) = c Dᵀ``), when the network ends in a decoder:
+        a rule that works in ``span D`` (:class:`~pdeinv.SIP`'s proxy) then never forms the ``(B, N)``
+        fields; ``None`` without one."""
+        return None if self.decoder is None else self.body(self.pre(y))
+
     def linear_in_parameters(self) -> LinearInParameters | None:
         """The structure ``x = D(W z(y) + b)`` when the body is one ``nn.Linear`` (alone or as the
         only module of an ``nn.Sequential``) holding every trainable parameter: ``z = pre(y)`` is a

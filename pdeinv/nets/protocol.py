@@ -10,6 +10,7 @@ defaults declare nothing:
 ``gauss_newton_diagonal(y)``    diag of ``(1/B) JᵀJ`` per trainable parameter, exactly (None)
 ``gauss_newton_max(y)``         its largest eigenvalue in closed form (None)
 ``decoder``                     the fixed output map's rows ``Dᵀ`` (``(k, N)``; None)
+``coefficients(y)``             ``c`` with ``f(y) = c Dᵀ``, without forming the fields (None)
 ``decoder_info``                how the decoder was chosen (``{}``)
 ==============================  ==============================================================
 
@@ -38,6 +39,9 @@ class _Nothing:
         return None
 
     def gauss_newton_max(self, y):
+        return None
+
+    def coefficients(self, y):
         return None
 
 

@@ -63,6 +63,19 @@ REDUCED_K_MAX = 2048
 #: ``√1e-10 = 1e-5`` relative, far below what any scene's observations resolve
 REDUCED_UNCAPTURED = 1e-10
 
+#: with observations carrying relative noise ``σ``, the decoder may leave out ``(NOISY_FLOOR·σ)²`` of the
+#: prior's energy (:func:`decoder_uncaptured`): an error floor of ``NOISY_FLOOR·σ``, added in quadrature to
+#: an error no linear estimate brings much below ``σ`` on these scenes (module docstring of
+#: :mod:`pdeinv.nets.defaults`: measured there)
+NOISY_FLOOR = 0.1
+
+
+def decoder_uncaptured(noise: float | None) -> float:
+    """The energy fraction a default decoder may leave out: :data:`REDUCED_UNCAPTURED`, or
+    ``(NOISY_FLOOR·noise)²`` where that is larger. Every decoder column costs one forward solve before
+    training (``P D``); a 3-D prior needs ~1 560 columns for 1e-10 and ~660 for 1e-6 (12 167 unknowns)."""
+    return max(REDUCED_UNCAPTURED, (NOISY_FLOOR * float(noise or 0.0)) ** 2)
+
 
 #: leading whitened components into :func:`reduced` (``k_in``). 1024 rather than 256: with noisy
 #: observations the denoised target depends on y's coordinates along the kept modes, which 256 data
@@ -143,7 +156,8 @@ def prior_basis(problem, k: int, samples: int | None = None, seed: int = 20_161,
 
 def decoder_basis(problem, k: int = REDUCED_K, k_max: int = REDUCED_K_MAX, samples: int | None = None,
                   scaled: bool = True, uncaptured: float = REDUCED_UNCAPTURED):
-    """:func:`prior_basis` with at most ``k`` columns; where all ``k`` are kept and they still leave more
+    """:func:`prior_basis` with at most ``k`` columns (where ``k < k_max < N``: as many as the first ``4k``
+    draws resolve at two per column, up to ``k_max``); where all are kept and they still leave more
     than ``uncaptured`` of the drawn energy out, once more with at most ``k_max`` columns from
     ``samples`` or ``2·k_max`` draws (:data:`REDUCED_K_MAX`), provided ``k_max`` is below the ``N`` unknowns:
     a decoder is a reduction, and a prior that no fewer than ``N`` columns hold is left to
@@ -151,8 +165,13 @@ def decoder_basis(problem, k: int = REDUCED_K, k_max: int = REDUCED_K_MAX, sampl
     first, small draw decides for the scenes that need few columns (heat_2d: ~280), so they pay nothing for
     the second."""
     n = problem.operator.n_in
-    basis, info = prior_basis(problem, min(k, n), samples, scaled=scaled, uncaptured=uncaptured)
-    if info["components"] < min(k, n) or 1 - info["captured"] <= uncaptured or not k < k_max < n:
+    grows = k < k_max < n
+    first = samples or 4 * min(k, n)
+    # where it may grow, the first draws already serve up to one column per two draws (a 3-D prior at
+    # 1 % noise: ~700 columns from its 2 048 draws, no second draw of 4 096 fields and their Gram)
+    wide = min(k_max, max(k, first // 2)) if grows else min(k, n)
+    basis, info = prior_basis(problem, wide, first, scaled=scaled, uncaptured=uncaptured)
+    if info["components"] < wide or 1 - info["captured"] <= uncaptured or not grows:
         return basis, info
     return prior_basis(problem, k_max, samples or 2 * k_max, scaled=scaled, uncaptured=uncaptured)
 

@@ -215,6 +215,9 @@ class Refined(Network):
     def gauss_newton_max(self, y):
         return self._base().gauss_newton_max(y)
 
+    def coefficients(self, y):
+        return self._base().coefficients(y)
+
     @property
     def decoder(self):
         return self._base().decoder

@@ -57,7 +57,8 @@ def _leapfrog(mesh, disc, cfg):
 
 #: wave time integrators for final-field scenes: name -> (mesh, disc, cfg) -> operator
 WAVE_SCHEMES = {
-    "newmark": lambda mesh, disc, cfg: Wave(disc.M, disc.K, c=cfg["c"], T=cfg["T"], steps=cfg["steps"]),
+    "newmark": lambda mesh, disc, cfg: Wave(disc.M, disc.K, c=cfg["c"], T=cfg["T"], steps=cfg["steps"],
+                                                 dim=disc.dim),
     "leapfrog": _leapfrog,
 }
 
