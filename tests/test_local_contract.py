@@ -292,3 +292,31 @@ def test_sip_in_decoder_coordinates_is_the_field_step(problems):
         assert a.info["loss"] == pytest.approx(b.info["loss"], rel=1e-10)
         assert a.info["proxy"] == pytest.approx(b.info["proxy"], rel=1e-8)
         assert b.info["proxy"] > 0
+
+
+def test_held_out_observations_come_from_the_decoded_physics(problems, monkeypatch):
+    """The trainer's evaluation and stopping residual take ``P f(y)`` from the run's ``P D`` where the
+    network ends in that decoder (no physics call), equal to the physics' own to rounding; without a
+    computed ``P D`` the physics runs."""
+    import torch
+
+    from pdeinv.inverse.decoder import decoded_svd
+    from pdeinv.training.stopping import observe
+
+    p = get(problems, "heat_plate")
+    _, y = p.sample(8, seed=10)
+    Y = torch.as_tensor(y)
+    model = pdeinv.nets.fit_preconditioning(p.model(), y)
+    with torch.no_grad():
+        for q in model.parameters():
+            q.add_(1e-3 * torch.randn_like(q))
+    op, calls = p.operator, []
+    forward = op.forward
+    monkeypatch.setattr(op, "forward", lambda X: calls.append(len(X)) or forward(X))
+    x, direct = observe(op, model, Y)
+    assert calls == [8]
+    decoded_svd(op, model.decoder)  # what SIP's inverse and the target compute once per run
+    calls.clear()
+    x2, decoded = observe(op, model, Y)
+    assert calls == [] and np.array_equal(x, x2)
+    assert np.abs(decoded - direct).max() <= 1e-10 * np.abs(direct).max()

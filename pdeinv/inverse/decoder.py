@@ -83,6 +83,10 @@ class DecodedSVD(NamedTuple):
     s: np.ndarray  # (r,)
     V: np.ndarray  # (k, r)
 
+    def forward(self, C) -> np.ndarray:
+        """``P x`` for ``x = D c`` given the coefficients ``c`` (rows of ``C``): ``P̂ c = Q diag(s) Vᵀ c``."""
+        return ((np.asarray(C, dtype=float) @ self.V) * self.s) @ self.Q.T
+
 
 def decoded_svd(op, decoder) -> DecodedSVD:
     """``P̂``'s thin SVD from ``k`` forward calls; ``decoder``: the rows ``Dᵀ`` (``(k, N)``, numpy or
@@ -93,6 +97,13 @@ def decoded_svd(op, decoder) -> DecodedSVD:
     if key not in cache:  # the entry keeps the decoder alive: its id stays unique
         cache[key] = (decoder, _decoded_svd(op, decoder))
     return cache[key][1]
+
+
+def known_svd(op, decoder) -> DecodedSVD | None:
+    """:func:`decoded_svd` of ``op`` and ``decoder`` where this run already computed it, else ``None`` (no
+    forward calls): what a caller that could also run the physics asks."""
+    entry = vars(op).get("_decoded_svd", {}).get(id(decoder))
+    return None if entry is None or entry[0] is not decoder else entry[1]
 
 
 def _decoded_svd(op, decoder) -> DecodedSVD:
@@ -143,7 +154,7 @@ class DecoderTikhonov:
 
     def forward_coefficients(self, C) -> np.ndarray:
         """``P x`` for ``x = D c`` given the coefficients ``c`` (rows of ``C``): ``P̂ c = Q diag(s) Vᵀ c``."""
-        return ((np.asarray(C, dtype=float) @ self.svd.V) * self.svd.s) @ self.svd.Q.T
+        return self.svd.forward(C)
 
     def change_coefficients(self, R) -> np.ndarray:
         """``Δc = V diag(s/(s²+α)) Qᵀ r`` per row ``r`` of ``R``: the inverse's change ``x̃ − x₀ = D Δc`` for a

@@ -21,6 +21,7 @@ import torch
 from ..errors import NonFiniteError
 from ..methods.guard import ADVICE
 from ..physics.capabilities import observes_field
+from .stopping import observe
 from .verdict import FailedRun, amplitude, failure, of_predictions
 
 
@@ -28,10 +29,9 @@ from .verdict import FailedRun, amplitude, failure, of_predictions
 def evaluate(problem, model, test) -> dict:
     """Mean relative L²(Ω) x- and y-errors on ``test = (x or None, y numpy, y tensor)``."""
     x, y, y_t = test
-    xhat = model(y_t).double().cpu().numpy()
-    if not np.isfinite(xhat).all():
+    xhat, yhat = observe(problem.operator, model, y_t)
+    if yhat is None:
         return {"y_err": math.nan} if x is None else {"x_err": math.nan, "y_err": math.nan}
-    yhat = problem.operator.forward(xhat)
     if observes_field(problem.operator):  # declared, never guessed from shapes
         y_err = problem.disc.relative_error(yhat, y)
     else:

@@ -36,7 +36,9 @@ import numpy as np
 import torch
 
 from .._checks import count, positive
+from ..inverse.decoder import known_svd
 from ..inverse.noise import estimate_noise
+from ..nets.protocol import declared
 
 
 def finished(at, steps: int | None, time_budget: float | None) -> bool:
@@ -48,16 +50,28 @@ def finished(at, steps: int | None, time_budget: float | None) -> bool:
 
 
 @torch.no_grad()
+def observe(operator, model: torch.nn.Module, y: torch.Tensor) -> tuple[np.ndarray, np.ndarray | None]:
+    """``(f(y), P f(y))`` as float64 numpy; ``P f(y)`` is ``None`` when ``f(y)`` is not finite (the physics is
+    then not called). Where ``f(y) = c Dᵀ`` ends in a decoder whose ``P D`` this run already computed
+    (:func:`~pdeinv.inverse.decoder.known_svd`), ``P f(y) = P̂ c`` without the physics: 128 held-out rows of
+    wave_3d at 29 791 unknowns cost ~30 s of Newmark steps per check otherwise."""
+    xhat = model(y).double().cpu().numpy()
+    if not np.isfinite(xhat).all():
+        return xhat, None
+    net = declared(model)
+    svd = None if net.decoder is None else known_svd(operator, net.decoder)
+    c = None if svd is None else net.coefficients(y)
+    return xhat, operator.forward(xhat) if c is None else svd.forward(c.double().cpu().numpy())
+
+
 def held_out_residual(operator, y_val: np.ndarray, model: torch.nn.Module) -> float:
-    """``Σ_i ‖P f(y_i) − y_i‖²`` over held-out observations ``y_val``; ``inf`` when ``f`` is not finite
-    there (the physics is then not called)."""
+    """``Σ_i ‖P f(y_i) − y_i‖²`` over held-out observations ``y_val`` (:func:`observe`); ``inf`` when ``f``
+    is not finite there (the physics is then not called)."""
     param = next(iter(model.parameters()), None)
     dtype = param.dtype if param is not None else torch.float32
     device = param.device if param is not None else None
-    xhat = model(torch.as_tensor(y_val, dtype=dtype, device=device)).double().cpu().numpy()
-    if not np.isfinite(xhat).all():
-        return np.inf
-    return float(np.sum((operator.forward(xhat) - y_val) ** 2))
+    _, yhat = observe(operator, model, torch.as_tensor(y_val, dtype=dtype, device=device))
+    return np.inf if yhat is None else float(np.sum((yhat - y_val) ** 2))
 
 
 class DiscrepancyState(NamedTuple):
