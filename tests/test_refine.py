@@ -313,3 +313,29 @@ def test_slow_physics_draws_what_its_share_of_the_budget_buys_and_the_fit_gets_t
                  prior_fit=PriorFit(steps=5, time_budget=4.0))
     assert seen["n"] == tr.PRIOR_FLOOR
     assert 4.0 * 1e-7 <= seen["budget"] <= 4.0
+
+
+def test_a_fit_too_slow_for_its_budget_is_not_started_and_draws_nothing(monkeypatch):
+    """PriorFit.too_slow times one step of the correction on random inputs of its shape (weights and
+    gradients left alone) and refuses a fit that could not take min_steps in its budget; the trainer then
+    draws nothing and records why."""
+    from pdeinv.training import trainer as tr
+
+    p = pdeinv.load_problem("heat_2d", n=8)
+    model = p.model()
+    before = {k: v.clone() for k, v in model.correction.state_dict().items()}
+    seconds = model.step_seconds()
+    assert 0 < seconds < 60
+    assert all(torch.equal(v, before[k]) for k, v in model.correction.state_dict().items())
+    assert all(q.grad is None and not q.requires_grad for q in model.correction.parameters())
+    assert PriorFit(time_budget=1e9).too_slow(model) is None
+    assert PriorFit(time_budget=None, min_steps=10**9).too_slow(model) is None
+    why = PriorFit(time_budget=1.0, min_steps=10**9).too_slow(model)
+    assert "fewer than 1000000000" in why and "--prior-fit" in why
+    drawn = []
+    monkeypatch.setattr(tr, "prior_rows", lambda *a, **k: drawn.append(a) or (None, "never"))
+    rule, _ = make_rule("sip", p, p.noise)
+    result = pdeinv.train(p, rule, steps=1, n_train=32, n_test=8, progress=False,
+                          prior_fit=PriorFit(time_budget=1.0, min_steps=10**9))
+    record = result.metrics["prior_fit"]
+    assert drawn == [] and record["kept"] is False and "fewer than 1000000000" in record["skipped"]

@@ -127,6 +127,10 @@ class GridCorrection(nn.Module):
     def forward(self, inputs: torch.Tensor) -> torch.Tensor:
         return self.grid.to_mesh(self.unet(inputs))
 
+    def example_inputs(self, batch: int) -> torch.Tensor:
+        """Random inputs of :meth:`inputs`' shape ``(batch, channels, *grid)``: what a step costs, before any draw."""
+        return torch.randn(batch, 1 if self.physics is None else 2, *self.grid.shape)
+
 
 class DenseCorrection(nn.Module):
     """``g = σ_x · MLP([y/σ_y, b/σ_x [, x_T/σ_x]])`` (module docstring): ``hidden`` GELU layers, zero last
@@ -163,3 +167,7 @@ class DenseCorrection(nn.Module):
 
     def forward(self, inputs: torch.Tensor) -> torch.Tensor:
         return self.x_scale * self.mlp(inputs)
+
+    def example_inputs(self, batch: int) -> torch.Tensor:
+        """Random inputs of :meth:`inputs`' shape ``(batch, width)``: what a step costs, before any draw."""
+        return torch.randn(batch, self.mlp[0].in_features)

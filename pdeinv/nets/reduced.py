@@ -65,8 +65,8 @@ REDUCED_UNCAPTURED = 1e-10
 
 #: with observations carrying relative noise ``σ``, the decoder may leave out ``(NOISY_FLOOR·σ)²`` of the
 #: prior's energy (:func:`decoder_uncaptured`): an error floor of ``NOISY_FLOOR·σ``, added in quadrature to
-#: an error no linear estimate brings much below ``σ`` on these scenes (module docstring of
-#: :mod:`pdeinv.nets.defaults`: measured there)
+#: an error no linear estimate brings much below ``σ`` on these scenes. Measured (wave_3d, 3 375 unknowns,
+#: 1 %, CLI defaults, one thread): 1 495 → 632 columns, set-up 81 → 40 s, x-error 0.0119 → 0.0121
 NOISY_FLOOR = 0.1
 
 

@@ -17,7 +17,6 @@ from ..fem.solvers import SuperLU, solver_for
 from .propagator import FinalField, Propagator
 from .schemes import Newmark
 
-
 #: Newmark steps up to which :class:`Wave` takes the mesh's fast solver by default: cholespy's systematic
 #: energy drift (1.5e-16 per step, measured) stays below 1e-13 over a run this long
 FAST_SOLVER_STEPS = 600

@@ -434,6 +434,8 @@ class Trainer:
         its time counts as training time. What was done, and where the prior came from, or ``None``."""
         if self.prior_fit is None or not self.prior_fit.applies(run.model):
             return None
+        if (why := self.prior_fit.too_slow(run.model)) is not None:  # before any draw: its share is saved too
+            return {"kept": False, "skipped": why, "prior": "no draws"}
         n, most = prior_draw_counts(self.problem.N, self.prior_draws)  # memory: O(n·N)
         budget = self.prior_fit.time_budget
         if budget is not None:  # as many draws as the draw share of the budget buys, at the samples' pace
