@@ -79,21 +79,20 @@ class PriorFit:
         return isinstance(model, PriorFitted)
 
     def too_slow(self, model) -> str | None:
-        """Why the fit is not worth its draws, or ``None``: one step of ``model``'s correction, timed on random
-        inputs before any draw (:meth:`Refined.step_seconds`), leaves fewer than ``min_steps`` in
+        """Why the fit is not worth its draws, or ``None``: one step of ``model``'s correction, timed on
+        random inputs before any draw (:meth:`Refined.step_seconds`), leaves fewer than ``min_steps`` in
         ``time_budget``. No run measured kept a correction fitted in fewer: heat_3d at 29 791 unknowns (143
         U-Net steps in 300 s), wave_2d at 29 929 (32), heat_2d at 65 025 (43) were all not kept, each after
         150–300 s of draws and steps."""
-        probe = getattr(model, "step_seconds", None)  # optional for a user's PriorFitted network
-        if self.time_budget is None or probe is None:
+        if self.time_budget is None or not isinstance(model, Refined):  # a user's PriorFitted: not timed
             return None
-        seconds = probe(self.batch)
+        seconds = model.step_seconds(self.batch)
         steps = self.time_budget / max(seconds, 1e-12)
         if steps >= self.min_steps:
             return None
         return (f"one step of the correction takes {seconds:.3g} CPU s, {steps:.0f} steps in the "
-                f"{self.time_budget:g} s budget, fewer than {self.min_steps}: not fitted (--prior-fit S raises "
-                "the budget)")
+                f"{self.time_budget:g} s budget, fewer than {self.min_steps}: not fitted (--prior-fit S "
+                "raises the budget)")
 
     def fit(self, model, x, y, relative_error, log=None) -> dict:
         """``model.fit_prior`` with these settings (:meth:`Refined.fit_prior`)."""
