@@ -128,7 +128,7 @@ class GridCorrection(nn.Module):
         return self.grid.to_mesh(self.unet(inputs))
 
     def example_inputs(self, batch: int) -> torch.Tensor:
-        """Random inputs of :meth:`inputs`' shape ``(batch, channels, *grid)``: a step's cost before any draw."""
+        """Random inputs of :meth:`inputs`' shape ``(batch, channels, *grid)``: a step's cost, no draw."""
         return torch.randn(batch, 1 if self.physics is None else 2, *self.grid.shape)
 
 
