@@ -339,3 +339,30 @@ def test_a_fit_too_slow_for_its_budget_is_not_started_and_draws_nothing(monkeypa
                           prior_fit=PriorFit(time_budget=1.0, min_steps=10**9))
     record = result.metrics["prior_fit"]
     assert drawn == [] and record["kept"] is False and "fewer than 1000000000" in record["skipped"]
+
+
+def test_slow_physics_is_judged_on_what_drawing_leaves_of_the_budget(monkeypatch):
+    """The fit's affordable steps count only the budget its draws leave: where the physics is slow (the
+    draws take PRIOR_DRAW_SHARE of the budget at the samples' pace) a fit that the whole budget would
+    allow is not started; with fast physics the same fit runs."""
+    import time
+
+    monkeypatch.setattr(Refined, "step_seconds", lambda self, batch=None, repeats=2: 0.01)
+    fit = PriorFit(steps=5, time_budget=4.0, min_steps=300)  # 400 steps in 4 s, 200 in the half drawing leaves
+    records = {}
+    for pace in (0.0, 0.005):  # CPU seconds per forward row
+        p = pdeinv.load_problem("heat_1d", n=16)
+        forward = p.operator.forward
+
+        def slow(X, forward=forward, pace=pace):
+            t0 = time.thread_time()
+            while time.thread_time() - t0 < pace * len(X):
+                pass
+            return forward(X)
+
+        monkeypatch.setattr(p.operator, "forward", slow)
+        rule, _ = make_rule("sip", p, p.noise)
+        result = pdeinv.train(p, rule, steps=1, n_train=64, n_test=16, progress=False, prior_fit=fit)
+        records[pace] = result.metrics["prior_fit"]
+    assert "skipped" not in records[0.0] and records[0.0]["draws"] > 0
+    assert "fewer than 300" in records[0.005]["skipped"] and records[0.005]["prior"] == "no draws"

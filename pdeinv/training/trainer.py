@@ -434,13 +434,14 @@ class Trainer:
         its time counts as training time. What was done, and where the prior came from, or ``None``."""
         if self.prior_fit is None or not self.prior_fit.applies(run.model):
             return None
-        if (why := self.prior_fit.too_slow(run.model)) is not None:  # before any draw: its share is saved too
-            return {"kept": False, "skipped": why, "prior": "no draws"}
         n, most = prior_draw_counts(self.problem.N, self.prior_draws)  # memory: O(n·N)
-        budget = self.prior_fit.time_budget
+        budget, left = self.prior_fit.time_budget, self.prior_fit
         if budget is not None:  # as many draws as the draw share of the budget buys, at the samples' pace
             per_row = self.setup_cpu.get("samples", 0.0) / max(1, self.n_train + self.n_test)
             n = min(n, max(PRIOR_FLOOR, int(PRIOR_DRAW_SHARE * budget / max(per_row, 1e-9))))
+            left = left.within(max(budget - n * per_row, PRIOR_DRAW_SHARE * budget))  # what drawing leaves
+        if (why := left.too_slow(run.model)) is not None:  # decided before any draw: their time is saved too
+            return {"kept": False, "skipped": why, "prior": "no draws"}
         t0, cpu0 = time.perf_counter(), time.thread_time()
         draws, source = prior_rows(self.problem, self._own, n, self.seed,
                                    None if budget is None else PRIOR_DRAW_SHARE * budget, most)
