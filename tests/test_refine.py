@@ -348,7 +348,7 @@ def test_slow_physics_is_judged_on_what_drawing_leaves_of_the_budget(monkeypatch
     import time
 
     monkeypatch.setattr(Refined, "step_seconds", lambda self, batch=None, repeats=2: 0.01)
-    fit = PriorFit(steps=5, time_budget=4.0, min_steps=300)  # 400 steps in 4 s, 200 in the half drawing leaves
+    fit = PriorFit(steps=5, time_budget=4.0, min_steps=300)  # 400 steps in 4 s, 200 in what drawing leaves
     records = {}
     for pace in (0.0, 0.005):  # CPU seconds per forward row
         p = pdeinv.load_problem("heat_1d", n=16)

@@ -81,9 +81,9 @@ class PriorFit:
     def too_slow(self, model) -> str | None:
         """Why the fit is not worth its draws, or ``None``: one step of ``model``'s correction, timed on
         random inputs before any draw (:meth:`Refined.step_seconds`), leaves fewer than ``min_steps`` in
-        ``time_budget`` (the trainer asks with what the draws will leave of it). No run measured kept a correction fitted in fewer: heat_3d at 29 791 unknowns (143
-        U-Net steps in 300 s), wave_2d at 29 929 (32), heat_2d at 65 025 (43) were all not kept, each after
-        150–300 s of draws and steps."""
+        ``time_budget`` (the trainer asks with what the draws will leave of it). No run measured kept a
+        correction fitted in fewer: heat_3d at 29 791 unknowns (143 U-Net steps in 300 s), wave_2d at 29 929
+        (32), heat_2d at 65 025 (43) were all not kept, each after 150–300 s of draws and steps."""
         if self.time_budget is None or not isinstance(model, Refined):  # a user's PriorFitted: not timed
             return None
         seconds = model.step_seconds(self.batch)
