@@ -185,3 +185,27 @@ def test_cli_auto_stops_nonlinear_runs_on_the_plateau():
     res = pdeinv.Trainer(ac, "sip", steps=30, n_train=64, n_test=8, seed=0, progress=False,
                          stop="plateau").fit()
     assert res.metrics["stopped_by"] == "plateau" and res.metrics["steps"] < 30
+
+
+def test_a_step_that_moves_nothing_ends_the_run_and_changes_no_result(monkeypatch):
+    """``converged``: a step that moved no parameter by more than STILL of the largest. SIP on a noisy wave
+    reaches its fixed point in a few steps and stops there with the 30-step run's x-error; a noise-free heat
+    run, whose weak modes keep improving x at a rounding-level loss, runs all its steps."""
+    from pdeinv.methods.presets import make_rule
+    from pdeinv.training import stopping
+
+    a = torch.tensor([1.0, -2.0, 3.0], dtype=torch.float64)
+    assert stopping.converged(a, a.clone()) and stopping.converged(a, a + 1e-12)
+    assert not stopping.converged(a, a + 1e-8) and not stopping.converged(a[:0], a[:0])
+    runs, STILL = {}, stopping.STILL
+    for still in (STILL, 0.0):
+        monkeypatch.setattr(stopping, "STILL", still)
+        for name, kw in (("wave_2d", {"n": 12, "noise": 0.01}), ("heat_1d", {"n": 32})):
+            p = pdeinv.load_problem(name, **kw)
+            rule, _ = make_rule("sip", p, p.noise)
+            runs[name, still] = pdeinv.train(p, rule, progress=False, prior_fit=None).metrics
+    wave, wave_all = runs["wave_2d", STILL], runs["wave_2d", 0.0]
+    assert wave["stopped_by"] == "converged" and wave["steps"] <= 5 and wave_all["steps"] == 30
+    assert wave["x_err"] == pytest.approx(wave_all["x_err"], rel=1e-9)
+    assert runs["heat_1d", STILL]["steps"] == 30
+    assert runs["heat_1d", STILL]["x_err"] == runs["heat_1d", 0.0]["x_err"]

@@ -29,6 +29,7 @@ their ``x`` is discarded). ``info`` is merged into the history row.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from typing import NamedTuple, Protocol, runtime_checkable
 
@@ -39,6 +40,29 @@ from .._checks import count, positive
 from ..inverse.decoder import known_svd
 from ..inverse.noise import estimate_noise
 from ..nets.protocol import declared
+
+
+#: a step that moved no trainable parameter by more than this, relative to the largest, changed nothing
+#: (:func:`converged`): SIP at its fixed point moves them by rounding (wave_2d at 1 %: 4e-16 at 121 unknowns,
+#: 3e-14 at 961), and a step that still improves x by far more (noise-free heat, steps 25–30: ≥ 2.6e-5)
+STILL = 1e-10
+
+
+def parameters(model: torch.nn.Module) -> torch.Tensor:
+    """The trainable parameters as one flat copy (:func:`converged` compares two)."""
+    return torch.cat([p.detach().reshape(-1).clone() for p in model.parameters() if p.requires_grad])
+
+
+def converged(before: torch.Tensor, after: torch.Tensor) -> bool:
+    """Whether a step left every trainable parameter where it was, to :data:`STILL` of the largest: a rule at
+    its fixed point, whose further steps are rounding. wave_3d at 29 791 unknowns and 1 %: SIP's loss 237 →
+    5e-22 → 1e-27 in three steps, then 27 full-batch steps (3 s each) that changed nothing. A loss at
+    rounding is not the test: noise-free heat scenes reach it by step 5 and their weak modes still improve
+    x by 1–3 % over the next 25 steps (heat_1d 0.00411 → 0.00398)."""
+    if before.numel() == 0 or before.shape != after.shape:
+        return False
+    scale = float(after.abs().max())
+    return math.isfinite(scale) and scale > 0 and float((after - before).abs().max()) <= STILL * scale
 
 
 def finished(at, steps: int | None, time_budget: float | None) -> bool:

@@ -32,7 +32,7 @@ from .checkpoint import Checkpoint, Position
 from .data import OwnData, own_data
 from .distributed import Single
 from .evaluation import check_evaluation, evaluate, metrics
-from .stopping import finished
+from .stopping import converged, finished, parameters
 from .trainset import (
     BATCH_ORDER,
     N_TRAIN,
@@ -141,8 +141,8 @@ class Trainer:
     Stops after ``steps`` steps or ``time_budget`` seconds of training,
     when a callback returns True, or when the stopping rule ``stop`` fires (e.g.
     :class:`~pdeinv.training.stopping.DiscrepancyStop`, every ``stop.every`` accepted steps, on held-out
-    observations only). ``metrics["stopped_by"]`` says which (``steps``, ``time_budget``, the rule's
-    name, or ``callback``) and ``metrics["steps"]`` at which step.
+    observations only), or when a step moved no parameter (:func:`~pdeinv.training.stopping.converged`). ``metrics["stopped_by"]`` says which (``steps``,
+    ``time_budget``, the rule's name, ``converged`` or ``callback``) and ``metrics["steps"]`` at which step.
 
     **Guard** (:class:`~pdeinv.methods.guard.Guard`: its policy, budget and messages). A step whose loss,
     prediction or update holds NaN/Inf, whose loss exceeds ``max_loss_growth`` (1e3; None: off) times the
@@ -369,14 +369,17 @@ class Trainer:
         if self.parallel.is_writer:
             warnings.warn(f"{message}; step rejected{note}", RuntimeWarning, stacklevel=4)
 
-    def _after(self, run: _Run, record: dict) -> bool:
-        """Stopping rule (its time counts), evaluation, history, callbacks, checkpoint; True when done."""
+    def _after(self, run: _Run, record: dict, before) -> bool:
+        """Stopping rule (its time counts), a step that moved nothing (``before``: the parameters before it),
+        evaluation, history, callbacks, checkpoint; True when done."""
         at = run.at
         if run.stop_state is not None and at.step % self.stop.every == 0:
             t0, (run.stop_state, checked, fired) = time.perf_counter(), self.stop.check(run.stop_state,
                                                                                         run.model)
             at.wall, at.stopped_by = at.wall + time.perf_counter() - t0, self.stop.name if fired else None
             record.update(checked)
+        if at.stopped_by is None and converged(before, parameters(run.model)):
+            at.stopped_by = "converged"  # the step moved nothing (pdeinv.training.stopping)
         done = finished(at, self.steps, self.time_budget)
         if at.step % self.eval_every == 0 or done or at.step == 1:
             record.update(self.evaluate(run.model, run.test))
@@ -403,6 +406,7 @@ class Trainer:
         done = finished(run.at, self.steps, self.time_budget)  # a resumed run that had finished
         while not done:
             at, batch, t0 = run.at, run.batch(self.batch_size, self.n_train), time.perf_counter()
+            before = parameters(run.model)
             try:  # one guarded step
                 run.state, info = run.guard.step(self._rule, run.state, run.model, *batch)
             except NonFiniteError as err:  # rejected: last good state back, step size lowered
@@ -412,7 +416,7 @@ class Trainer:
             at.wall += time.perf_counter() - t0
             at.step += 1
             try:
-                done = self._after(run, {"step": at.step, "wall_s": at.wall, **info})
+                done = self._after(run, {"step": at.step, "wall_s": at.wall, **info}, before)
             except NonFiniteError as err:  # rejected after the fact (a finite blow-up: cut by its overshoot)
                 at.stopped_by = None
                 self._reject(run, err, bar, at.step)
