@@ -41,7 +41,6 @@ from ..inverse.decoder import known_svd
 from ..inverse.noise import estimate_noise
 from ..nets.protocol import declared
 
-
 #: a step that moved no trainable parameter by more than this, relative to the largest, changed nothing
 #: (:func:`converged`): SIP at its fixed point moves them by rounding (wave_2d at 1 %: 4e-16 at 121 unknowns,
 #: 3e-14 at 961), and a step that still improves x by far more (noise-free heat, steps 25–30: ≥ 2.6e-5)

@@ -141,7 +141,8 @@ class Trainer:
     Stops after ``steps`` steps or ``time_budget`` seconds of training,
     when a callback returns True, or when the stopping rule ``stop`` fires (e.g.
     :class:`~pdeinv.training.stopping.DiscrepancyStop`, every ``stop.every`` accepted steps, on held-out
-    observations only), or when a step moved no parameter (:func:`~pdeinv.training.stopping.converged`). ``metrics["stopped_by"]`` says which (``steps``,
+    observations only), or when a step moved no parameter
+    (:func:`~pdeinv.training.stopping.converged`). ``metrics["stopped_by"]`` says which (``steps``,
     ``time_budget``, the rule's name, ``converged`` or ``callback``) and ``metrics["steps"]`` at which step.
 
     **Guard** (:class:`~pdeinv.methods.guard.Guard`: its policy, budget and messages). A step whose loss,
