@@ -46,22 +46,31 @@ from ..nets.protocol import declared
 #: 3e-14 at 961), and a step that still improves x by far more (noise-free heat, steps 25–30: ≥ 2.6e-5)
 STILL = 1e-10
 
+#: ... and whose loss sits within ``(ROUNDING_ULPS·eps)² · m`` of the first (~100 ulps per observation)
+ROUNDING_ULPS = 100.0
+
+#: accepted steps in a row that are :func:`converged` before a run stops
+STILL_STEPS = 2
+
 
 def parameters(model: torch.nn.Module) -> torch.Tensor:
     """The trainable parameters as one flat copy (:func:`converged` compares two)."""
     return torch.cat([p.detach().reshape(-1).clone() for p in model.parameters() if p.requires_grad])
 
 
-def converged(before: torch.Tensor, after: torch.Tensor) -> bool:
-    """Whether a step left every trainable parameter where it was, to :data:`STILL` of the largest: a rule at
-    its fixed point, whose further steps are rounding. wave_3d at 29 791 unknowns and 1 %: SIP's loss 237 →
-    5e-22 → 1e-27 in three steps, then 27 full-batch steps (3 s each) that changed nothing. A loss at
-    rounding is not the test: noise-free heat scenes reach it by step 5 and their weak modes still improve
-    x by 1–3 % over the next 25 steps (heat_1d 0.00411 → 0.00398)."""
-    if before.numel() == 0 or before.shape != after.shape:
+def converged(before: torch.Tensor, after: torch.Tensor, loss: float, first: float, m: int) -> bool:
+    """Whether a step found the rule at its fixed point: it left every trainable parameter where it was (to
+    :data:`STILL` of the largest) at a loss at float64 rounding of the first (``loss ≤ (ROUNDING_ULPS·eps)²
+    · m · first``, ``m`` observations). wave_3d at 29 791 unknowns and 1 %: SIP's loss 237 → 5e-22 → 1e-27 in
+    three steps, then 27 full-batch steps (3 s each) that changed nothing. Neither test alone: noise-free
+    heat reaches a rounding-level loss by step 5 while its weak modes still improve x by 1–3 % over the next
+    25 steps (heat_1d 0.00411 → 0.00398), and a diverged network's huge weights make any step look still."""
+    if before.numel() == 0 or before.shape != after.shape or not (math.isfinite(loss) and first > 0):
         return False
     scale = float(after.abs().max())
-    return math.isfinite(scale) and scale > 0 and float((after - before).abs().max()) <= STILL * scale
+    eps = np.finfo(float).eps
+    return (math.isfinite(scale) and scale > 0 and float((after - before).abs().max()) <= STILL * scale
+            and loss <= (ROUNDING_ULPS * eps) ** 2 * m * first)
 
 
 def finished(at, steps: int | None, time_budget: float | None) -> bool:

@@ -32,7 +32,7 @@ from .checkpoint import Checkpoint, Position
 from .data import OwnData, own_data
 from .distributed import Single
 from .evaluation import check_evaluation, evaluate, metrics
-from .stopping import converged, finished, parameters
+from .stopping import STILL_STEPS, converged, finished, parameters
 from .trainset import (
     BATCH_ORDER,
     N_TRAIN,
@@ -103,6 +103,7 @@ class _Run:
     stop_state: object
     at: Position
     guard: Guard  # step size, failures, lowest loss, last good state (methods.guard)
+    still: int = 0  # accepted steps in a row that moved no parameter (stopping.converged)
 
     def batch(self, size: int, n: int) -> tuple[torch.Tensor, torch.Tensor | None]:
         """The next ``size`` training rows and their float64 targets (``None``: the rows); all: themselves."""
@@ -379,8 +380,11 @@ class Trainer:
                                                                                         run.model)
             at.wall, at.stopped_by = at.wall + time.perf_counter() - t0, self.stop.name if fired else None
             record.update(checked)
-        if at.stopped_by is None and converged(before, parameters(run.model)):
-            at.stopped_by = "converged"  # the step moved nothing (pdeinv.training.stopping)
+        first = self.history[0]["loss"] if self.history else record["loss"]
+        still = converged(before, parameters(run.model), record["loss"], first, self.problem.operator.n_out)
+        run.still = run.still + 1 if still else 0
+        if at.stopped_by is None and run.still >= STILL_STEPS:
+            at.stopped_by = "converged"  # at a fixed point (pdeinv.training.stopping)
         done = finished(at, self.steps, self.time_budget)
         if at.step % self.eval_every == 0 or done or at.step == 1:
             record.update(self.evaluate(run.model, run.test))
