@@ -182,6 +182,10 @@ def test_cli_auto_stops_nonlinear_runs_on_the_plateau():
     ac = pdeinv.load_problem("allen_cahn_1d", n=16, steps=10)
     assert STOPS["auto"](ac, 30) == PlateauStop(every=1) and STOPS["auto"](ac, 1000).every == 33
     assert STOPS["auto"](pdeinv.load_problem("heat_1d", n=16), 30) is None
+    # noisy data: none where a denoised target fits, in the basis of P D with the network's decoder too
+    wave = pdeinv.load_problem("wave_2d", n=12, noise=0.01, backend="steps")  # no spectral basis of its own
+    assert STOPS["auto"](wave, 30).name == "discrepancy"
+    assert STOPS["auto"](wave, 30, pdeinv.nets.reduced(k_in=8, k_out=16, k_max=16)(wave)) is None
     res = pdeinv.Trainer(ac, "sip", steps=30, n_train=64, n_test=8, seed=0, progress=False,
                          stop="plateau").fit()
     assert res.metrics["stopped_by"] == "plateau" and res.metrics["steps"] < 30
