@@ -10,7 +10,8 @@ operators directly, not the scenes):
 * heat ``Heat(M, K, κ=0.01, T=1, 100 steps, backward Euler)`` with ``backend`` =
   ``steps`` (the default direct solver, Cholesky or SuperLU), ``steps+amg``
   (:class:`pdeinv.fem.solvers.AMGCG`), ``modal``, ``dense``, ``svd``;
-* wave ``Wave(M, K, c=1, T=0.5, 50 Newmark steps)`` (SuperLU, its default) compiled to
+* wave ``Wave(M, K, c=1, T=0.5, 50 Newmark steps)`` (the mesh's direct solver, its default; SuperLU in the
+  tables of docs/scaling.md measured before 2026-11-27) compiled to
   ``steps``, ``steps+amg``, ``dense``, ``svd``.
 
 Columns: **build s** — constructing the operator and one forward of one column (so
@@ -68,7 +69,7 @@ def operator(disc, physics: str, backend: str):
         return Heat(disc.M, disc.K, kappa=0.01, T=1.0, steps=100, backend=kind, measure=disc.measure,
                     dim=disc.dim, **kw)
     kw = {"solver": AMGCG} if amg else {}
-    return Wave(disc.M, disc.K, c=1.0, T=0.5, steps=50, **kw).compile(kind, disc.M)
+    return Wave(disc.M, disc.K, c=1.0, T=0.5, steps=50, dim=disc.dim, **kw).compile(kind, disc.M)
 
 
 def _peak_rss() -> int:
