@@ -142,8 +142,8 @@ class Trainer:
     Stops after ``steps`` steps or ``time_budget`` seconds of training,
     when a callback returns True, or when the stopping rule ``stop`` fires (e.g.
     :class:`~pdeinv.training.stopping.DiscrepancyStop`, every ``stop.every`` accepted steps, on held-out
-    observations only), or when a step moved no parameter
-    (:func:`~pdeinv.training.stopping.converged`). ``metrics["stopped_by"]`` says which (``steps``,
+    observations only), or at the rule's fixed point (two steps in a row that moved no parameter, at a
+    rounding-level loss: :func:`~pdeinv.training.stopping.converged`). ``metrics["stopped_by"]`` says which (``steps``,
     ``time_budget``, the rule's name, ``converged`` or ``callback``) and ``metrics["steps"]`` at which step.
 
     **Guard** (:class:`~pdeinv.methods.guard.Guard`: its policy, budget and messages). A step whose loss,
@@ -372,7 +372,7 @@ class Trainer:
             warnings.warn(f"{message}; step rejected{note}", RuntimeWarning, stacklevel=4)
 
     def _after(self, run: _Run, record: dict, before) -> bool:
-        """Stopping rule (its time counts), a step that moved nothing (``before``: the parameters before it),
+        """Stopping rule (its time counts), the fixed point (``before``: the parameters before the step),
         evaluation, history, callbacks, checkpoint; True when done."""
         at = run.at
         if run.stop_state is not None and at.step % self.stop.every == 0:
