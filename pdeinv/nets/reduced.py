@@ -67,8 +67,8 @@ REDUCED_UNCAPTURED = 1e-10
 #: prior's energy (:func:`decoder_uncaptured`): an error floor of ``NOISY_FLOOR·σ``, added in quadrature to
 #: an error no linear estimate brings much below ``σ`` on these scenes. Measured at 1 % (SIP, no prior fit,
 #: held-out x-error; columns) with the floor 0 (1e-10) / 0.03 / 0.05 / 0.1: wave_2d at 3 969 unknowns 0.01078
-#: (278) / 0.01085 (175) / 0.01081 (161) / 0.01103 (140); wave_3d at 3 375 0.01191 (1 495) / — / 0.0121 (664) /
-#: 0.01229 (566)
+#: (278) / 0.01085 (175) / 0.01081 (161) / 0.01103 (140); wave_3d at 3 375 0.01191 (1 495) / — /
+#: 0.0121 (664) / 0.01229 (566)
 NOISY_FLOOR = 0.05
 
 

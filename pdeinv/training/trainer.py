@@ -143,8 +143,9 @@ class Trainer:
     when a callback returns True, or when the stopping rule ``stop`` fires (e.g.
     :class:`~pdeinv.training.stopping.DiscrepancyStop`, every ``stop.every`` accepted steps, on held-out
     observations only), or at the rule's fixed point (two steps in a row that moved no parameter, at a
-    rounding-level loss: :func:`~pdeinv.training.stopping.converged`). ``metrics["stopped_by"]`` says which (``steps``,
-    ``time_budget``, the rule's name, ``converged`` or ``callback``) and ``metrics["steps"]`` at which step.
+    rounding-level loss: :func:`~pdeinv.training.stopping.converged`). ``metrics["stopped_by"]`` says
+    which (``steps``, ``time_budget``, the rule's name, ``converged`` or ``callback``) and
+    ``metrics["steps"]`` at which step.
 
     **Guard** (:class:`~pdeinv.methods.guard.Guard`: its policy, budget and messages). A step whose loss,
     prediction or update holds NaN/Inf, whose loss exceeds ``max_loss_growth`` (1e3; None: off) times the
