@@ -275,7 +275,7 @@ def test_the_exact_curvature_equals_power_iteration(factory):
 
 def test_noisy_observations_take_a_shorter_decoder():
     """The default decoder may leave out (NOISY_FLOOR·σ)² of the prior's energy at relative noise σ: fewer
-    columns (each one forward solve before training), an error floor of a tenth of the noise."""
+    columns (each one forward solve before training), an error floor of a twentieth of the noise."""
     from pdeinv.nets.defaults import linear_default
     from pdeinv.nets.reduced import NOISY_FLOOR, REDUCED_UNCAPTURED, decoder_uncaptured
 

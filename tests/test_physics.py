@@ -199,3 +199,21 @@ def test_reversibility_is_declared_by_the_scheme_not_found_by_name():
     assert not reversible(heat) and not reversible(sensed)
     with pytest.raises(ValueError, match="not time-reversible"):
         heat.reverse(np.zeros(heat.n_in), np.zeros(heat.n_in))
+
+
+def test_wave_takes_the_mesh_solver_for_short_runs_and_superlu_for_long_ones():
+    """Wave's default solver: the mesh's (Cholesky where cholespy is installed) up to FAST_SOLVER_STEPS
+    steps, SuperLU beyond (cholespy's systematic energy drift); both give the same final field."""
+    from pdeinv.fem.forms import discretize
+    from pdeinv.fem.solvers import SuperLU, solver_for
+    from pdeinv.physics.wave import FAST_SOLVER_STEPS, Wave
+
+    d = discretize(pdeinv.mesh.unit_square(12), "P1")
+    short = Wave(d.M, d.K, steps=FAST_SOLVER_STEPS, dim=2)
+    long = Wave(d.M, d.K, steps=FAST_SOLVER_STEPS + 1, dim=2)
+    assert type(long.scheme.lu) is SuperLU
+    assert type(short.scheme.lu) is type(solver_for(2)(short.scheme.A))
+    lu = Wave(d.M, d.K, steps=FAST_SOLVER_STEPS, solver=SuperLU)
+    x = np.random.default_rng(7).standard_normal((3, short.n_in))
+    a, b = short.forward(x), lu.forward(x)
+    assert np.abs(a - b).max() <= 1e-10 * np.abs(b).max()
