@@ -114,7 +114,13 @@ def test_torchrun_two_processes_train_as_one_gd(tmp_path):
     cmd = [sys.executable, "-m", "torch.distributed.run", "--standalone", "--nproc_per_node=2",
            "-m", "pdeinv", *RUN, "--method", "gd", "--out", str(tmp_path / "two")]
     done = subprocess.run(cmd, cwd=ROOT, env=_env(), capture_output=True, text=True, timeout=180)
-    assert done.returncode == 0, done.stderr[-2000:]
+    if done.returncode != 0 and "(SIGABRT)" in done.stderr:  # a rank killed by gloo's transport on a loaded
+        # machine (seen once in CI, 2026-11-27, beside two training runs; not reproduced in 5 runs): once more
+        first = done.stderr
+        done = subprocess.run(cmd + ["--overwrite"], cwd=ROOT, env=_env(), capture_output=True, text=True,
+                              timeout=180)
+        assert done.returncode == 0, first[:2000] + "\n...\n" + done.stderr[-2000:]
+    assert done.returncode == 0, done.stderr[:1000] + "\n...\n" + done.stderr[-2000:]
     _same_run(tmp_path / "one", tmp_path / "two")
 
 
