@@ -65,12 +65,16 @@ def converged(before: torch.Tensor, after: torch.Tensor, loss: float, first: flo
     three steps, then 27 full-batch steps (3 s each) that changed nothing. Neither test alone: noise-free
     heat reaches a rounding-level loss by step 5 while its weak modes still improve x by 1–3 % over the next
     25 steps (heat_1d 0.00411 → 0.00398), and a diverged network's huge weights make any step look still."""
-    if before.numel() == 0 or before.shape != after.shape or not (math.isfinite(loss) and first > 0):
+    if before.numel() == 0 or before.shape != after.shape or not at_rounding(loss, first, m):
         return False
     scale = float(after.abs().max())
+    return math.isfinite(scale) and scale > 0 and float((after - before).abs().max()) <= STILL * scale
+
+
+def at_rounding(loss: float, first: float, m: int) -> bool:
+    """``loss ≤ (ROUNDING_ULPS·eps)² · m · first`` (finite, ``first > 0``): :func:`converged`'s loss test."""
     eps = np.finfo(float).eps
-    return (math.isfinite(scale) and scale > 0 and float((after - before).abs().max()) <= STILL * scale
-            and loss <= (ROUNDING_ULPS * eps) ** 2 * m * first)
+    return math.isfinite(loss) and first > 0 and loss <= (ROUNDING_ULPS * eps) ** 2 * m * first
 
 
 def finished(at, steps: int | None, time_budget: float | None) -> bool:

@@ -32,7 +32,7 @@ from .checkpoint import Checkpoint, Position
 from .data import OwnData, own_data
 from .distributed import Single
 from .evaluation import check_evaluation, evaluate, metrics
-from .stopping import STILL_STEPS, converged, finished, parameters
+from .stopping import STILL_STEPS, at_rounding, converged, finished, parameters
 from .trainset import (
     BATCH_ORDER,
     N_TRAIN,
@@ -382,7 +382,9 @@ class Trainer:
             at.wall, at.stopped_by = at.wall + time.perf_counter() - t0, self.stop.name if fired else None
             record.update(checked)
         first = self.history[0]["loss"] if self.history else record["loss"]
-        still = converged(before, parameters(run.model), record["loss"], first, self.problem.operator.n_out)
+        m = self.problem.operator.n_out
+        still = at_rounding(record["loss"], first, m) and converged(  # copies the parameters only then
+            before, parameters(run.model), record["loss"], first, m)
         run.still = run.still + 1 if still else 0
         if at.stopped_by is None and run.still >= STILL_STEPS:
             at.stopped_by = "converged"  # at a fixed point (pdeinv.training.stopping)
