@@ -88,6 +88,14 @@ class SpectralFilter(nn.Module):
         return ((y @ self.proj) * self.filt) @ self.synth.T
 
 
+def _physics(physics, y, t=None) -> torch.Tensor:
+    """``x_T(y)`` in float32: ``t`` if given, else the filter's product (no gradient)."""
+    if t is None:
+        with torch.no_grad():
+            t = physics(y)
+    return t.to(torch.float32)
+
+
 #: grid points × draws × ``3^dim`` of one prior-fit step of the U-Net correction
 #: (:attr:`GridCorrection.fit_batch`): the CPU convolutions unfold ``3^dim × channels`` floats per point and
 #: draw for the backward; heat_3d at 29 791 unknowns with 32 draws per step held 4–5 GB per step (peak RSS
@@ -115,13 +123,13 @@ class GridCorrection(nn.Module):
     def prepare(self, y: torch.Tensor, xb: torch.Tensor) -> None:
         """Nothing to fit before the fit (the grid maps are fixed)."""
 
-    def inputs(self, y: torch.Tensor, xb: torch.Tensor) -> torch.Tensor:
-        """``Ê b(y)``, and ``Ê x_T(y)`` with a physics filter: ``(B, channels, *grid)``."""
+    def inputs(self, y: torch.Tensor, xb: torch.Tensor, t: torch.Tensor | None = None) -> torch.Tensor:
+        """``Ê b(y)``, and ``Ê x_T(y)`` with a physics filter (``t``: ``x_T(y)`` if already computed):
+        ``(B, channels, *grid)``."""
         g = self.grid.to_grid(xb.to(torch.float32))
         if self.physics is None:
             return g
-        with torch.no_grad():
-            t = self.physics(y).to(torch.float32)
+        t = _physics(self.physics, y, t)
         return torch.cat([g, self.grid.to_grid(t)], 1)
 
     def forward(self, inputs: torch.Tensor) -> torch.Tensor:
@@ -158,11 +166,11 @@ class DenseCorrection(nn.Module):
             rms = float(torch.sqrt(torch.mean(v.double() ** 2)))
             buf.fill_(rms if rms > 0 and np.isfinite(rms) else 1.0)
 
-    def inputs(self, y: torch.Tensor, xb: torch.Tensor) -> torch.Tensor:
+    def inputs(self, y: torch.Tensor, xb: torch.Tensor, t: torch.Tensor | None = None) -> torch.Tensor:
+        """``[y/σ_y, b/σ_x [, x_T/σ_x]]`` (``t``: ``x_T(y)`` if already computed)."""
         parts = [y.to(torch.float32) / self.y_scale, xb.to(torch.float32) / self.x_scale]
         if self.physics is not None:
-            with torch.no_grad():
-                parts.append(self.physics(y).to(torch.float32) / self.x_scale)
+            parts.append(_physics(self.physics, y, t) / self.x_scale)
         return torch.cat(parts, 1)
 
     def forward(self, inputs: torch.Tensor) -> torch.Tensor:
