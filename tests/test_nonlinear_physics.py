@@ -126,6 +126,13 @@ def test_sine_gordon_reverse_recomputation_equals_the_stored_trajectory():
     R = np.random.default_rng(3).standard_normal(X.shape)
     ref = store.vjp(X, R)
     assert np.max(np.abs(op.vjp(X, R) - ref)) <= 1e-12 * np.max(np.abs(ref))
+    # after a forward at bitwise the same X (the bridge) the sweep starts from that run's final state,
+    # which is what it would march to: the same cotangent to the bit; at another X it marches
+    op.forward(X)
+    assert op._last is not None and np.array_equal(op._last[0], X)
+    after = op.vjp(X, R)
+    op.forward(X + 1.0)
+    assert np.array_equal(after, op.vjp(X, R))
 
 
 def test_sine_gordon_reverse_stepping_returns_the_initial_state():

@@ -22,7 +22,8 @@ transposed step maps ``(ū', v̄')`` to
     ū' ← ū' − (dt/2) A(u')ᵀ v̄';   v̄½ = v̄' + dt ū';   ū = ū';   v̄ = v̄½;   ū ← ū − (dt/2) A(u)ᵀ v̄½,
 
 which needs the states ``u`` and ``u'`` of each step: the reverse sweep recomputes them by
-stepping backwards from the final state alongside (``recompute='reverse'``, O(1) fields), or
+stepping backwards from the final state alongside (``recompute='reverse'``, O(1) fields; the final state
+of the last forward run if the vjp is at bitwise its input, as the torch bridge's backward is), or
 reads a stored trajectory (``recompute='store'``, the reference in the tests). The reversed states
 differ from the forward ones by rounding (measured below 1e-14 relative at the defaults), which is
 the only difference between the two.
@@ -47,6 +48,7 @@ class SineGordon(Physics):
     linear = False
     output_space = "field"
     reversible = True  # Störmer–Verlet: final_state and reverse run the full state both ways
+    _last = None  # (X, u_T, v_T) of the last forward run
 
     def __init__(self, M_lumped, K, c=1.0, T=1.0, steps=None, strength=1.0, cfl=0.5, recompute="reverse"):
         m = np.asarray(sp.csr_matrix(M_lumped).diagonal(), dtype=float)
@@ -134,8 +136,16 @@ class SineGordon(Physics):
 
     # -- Physics ------------------------------------------------------------------------------------
     def _forward(self, X):
-        U, _ = self._march(np.ascontiguousarray(X.T), np.zeros((X.shape[1], X.shape[0])))
+        U, V = self._march(np.ascontiguousarray(X.T), np.zeros((X.shape[1], X.shape[0])))
+        self._last = (X.copy(), U, V)  # a vjp at bitwise the same X (the bridge's backward) starts here
         return np.ascontiguousarray(U.T)
+
+    def _final(self, X, U0):
+        """``(u_T, v_T)`` from ``X``: the last forward run's if ``X`` is bitwise its input, else marched."""
+        last = self._last
+        if last is not None and last[0].shape == X.shape and np.array_equal(last[0], X):
+            return last[1], last[2]
+        return self._march(U0, np.zeros_like(U0))
 
     def _jvp(self, X, Vdot):
         U, V = np.ascontiguousarray(X.T), np.zeros((X.shape[1], X.shape[0]))
@@ -158,7 +168,7 @@ class SineGordon(Physics):
             self._march(U0, np.zeros_like(U0), keep=traj)
             states = (traj[j] for j in range(self.steps, -1, -1))
         else:
-            states = self._reversed(*self._march(U0, np.zeros_like(U0)))
+            states = self._reversed(*self._final(X, U0))
         Ub, Vb = np.ascontiguousarray(R.T), np.zeros_like(U0)
         U1 = next(states)
         AVb = self._A_T(U1, Vb)
