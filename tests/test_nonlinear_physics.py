@@ -133,6 +133,13 @@ def test_sine_gordon_reverse_recomputation_equals_the_stored_trajectory():
     after = op.vjp(X, R)
     op.forward(X + 1.0)
     assert np.array_equal(after, op.vjp(X, R))
+    # final_state from (X, 0) returns the kept run's state (time reversal after SIP's forward), as copies
+    marched = SineGordon(op.mass, op.K, c=op.c, T=op.t_end, steps=op.steps, strength=op.strength)
+    op.forward(X[:1])
+    UT, VT = op.final_state(X[:1])
+    assert all(np.array_equal(a, b) for a, b in zip((UT, VT), marched.final_state(X[:1]), strict=True))
+    UT += 1.0
+    assert np.array_equal(op.final_state(X[:1])[0], marched.final_state(X[:1])[0])
 
 
 def test_sine_gordon_reverse_stepping_returns_the_initial_state():

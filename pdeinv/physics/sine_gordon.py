@@ -133,9 +133,11 @@ class SineGordon(Physics):
         return np.ascontiguousarray(U.T), np.ascontiguousarray(V.T), single
 
     def final_state(self, U0, V0=None) -> tuple[np.ndarray, np.ndarray]:
-        """``(u_T, v_T)`` from ``(u₀, v₀)`` (``v₀ = 0`` if omitted), batch-first."""
+        """``(u_T, v_T)`` from ``(u₀, v₀)`` (``v₀ = 0`` if omitted: then the last forward run's, if ``U0`` is
+        bitwise its input — SIP's time reversal after its forward), batch-first."""
         U, V, single = self._pair(U0, V0, ("U0", "V0"))
-        out = tuple(np.ascontiguousarray(a.T) for a in self._march(U, V))
+        end = self._march(U, V) if V0 is not None else self._final(U)
+        out = tuple(np.array(a.T, order="C") for a in end)  # copies: never a view of the kept run
         return tuple(a[0] for a in out) if single else out
 
     def reverse(self, UT, VT) -> tuple[np.ndarray, np.ndarray]:
@@ -156,12 +158,13 @@ class SineGordon(Physics):
     def _forward(self, X):
         U, V = self._march(np.ascontiguousarray(X.T), np.zeros((X.shape[1], X.shape[0])))
         self._last = (X.copy(), U, V)  # a vjp at bitwise the same X (the bridge's backward) starts here
-        return np.ascontiguousarray(U.T)
+        return np.array(U.T, order="C")  # a copy: the caller may write into it
 
-    def _final(self, X, U0):
-        """``(u_T, v_T)`` from ``X``: the last forward run's if ``X`` is bitwise its input, else marched."""
+    def _final(self, U0):
+        """``(u_T, v_T)`` (columns) from ``(u₀, 0)``: the last forward run's if ``U0`` holds bitwise its
+        input, else marched."""
         last = self._last
-        if last is not None and last[0].shape == X.shape and np.array_equal(last[0], X):
+        if last is not None and last[0].shape == U0.T.shape and np.array_equal(last[0], U0.T):
             return last[1], last[2]
         return self._march(U0, np.zeros_like(U0))
 
@@ -186,7 +189,7 @@ class SineGordon(Physics):
             self._march(U0, np.zeros_like(U0), keep=traj)
             states = (traj[j] for j in range(self.steps, -1, -1))
         else:
-            states = self._reversed(*self._final(X, U0))
+            states = self._reversed(*self._final(U0))
         Ub, Vb = np.ascontiguousarray(R.T), np.zeros_like(U0)
         U1 = next(states)
         AVb = self._A_T(U1, Vb)
