@@ -173,6 +173,22 @@ def test_plateau_stop_fires_after_patience_checks_without_a_gain():
         PlateauStop(patience=0)
 
 
+def test_plateau_stop_puts_the_network_back_to_its_lowest_residual():
+    """When the held-out residual rises after its lowest point (SIP on sine_gordon_2d at 16 k unknowns),
+    the rule fires with the parameters of that point restored; checks before it keep no stale copy."""
+    from pdeinv.training.stopping import PlateauStop
+
+    p = pdeinv.load_problem("heat_1d", n=16, steps=10)
+    x, y = p.sample(8, 0)
+    rule, model = PlateauStop(patience=2, min_gain=0.01), _Fixed(x)
+    state = rule.init(p, y, y)
+    for s in (0.0, 0.9, 0.5, 0.3):  # the best at 0.9, then two checks worse
+        model.s.data.fill_(s)
+        state, _, stop = rule.check(state, model)
+    assert stop and float(model.s.detach()) == 0.9
+    assert float(state.kept["s"]) == 0.9 and state.kept["s"].data_ptr() != model.s.data_ptr()
+
+
 def test_cli_auto_stops_nonlinear_runs_on_the_plateau():
     """`--stop auto`: nonlinear physics gets the plateau stop, checked ~30 times a run; linear noise-free
     runs none; `pdeinv.train(..., stop="plateau")` builds it by name."""

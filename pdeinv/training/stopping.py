@@ -187,6 +187,7 @@ class PlateauState(NamedTuple):
     y_val: np.ndarray
     best: float  # the lowest held-out residual ‖P f(y) − y‖² so far
     bad: int  # checks in a row without a relative gain of min_gain over it
+    kept: dict | None = None  # the network's state dict at ``best`` (restored when the rule fires)
 
 
 @dataclass(frozen=True)
@@ -200,7 +201,10 @@ class PlateauStop:
     (one thread, loaded): the loss fell 8.9, 0.20, 0.020 in the first three steps and then stayed at
     0.027–0.029 for 27 more, 75 s each, 1 900 s of a 2 583-s run. On noisy data the held-out residual
     stops falling once the network fits the training rows' noise (it cannot fit the held-out noise): an
-    early stop on held-out data, as the discrepancy principle is. The state restarts on a resumed run."""
+    early stop on held-out data, as the discrepancy principle is. When it fires, the network is put back
+    to its parameters at the lowest residual (one copy of its state dict is kept): SIP on sine_gordon_2d at
+    16 129 unknowns raised the held-out residual from its first step on (y-error 0.51 → 0.66 in three steps,
+    x-error 0.74 → 0.81) while its training loss fell. The state restarts on a resumed run."""
 
     min_gain: float = 0.01
     patience: int = 3
@@ -224,5 +228,11 @@ class PlateauStop:
     def check(self, state: PlateauState, model: torch.nn.Module):
         r2 = held_out_residual(state.operator, state.y_val, model)
         gained = r2 < (1 - self.min_gain) * state.best
-        state = state._replace(best=min(r2, state.best), bad=0 if gained else state.bad + 1)
-        return state, {"plateau": r2}, state.bad >= self.patience
+        kept = state.kept
+        if r2 < state.best or kept is None:
+            kept = {k: v.detach().clone() for k, v in model.state_dict().items()}
+        state = state._replace(best=min(r2, state.best), bad=0 if gained else state.bad + 1, kept=kept)
+        fired = state.bad >= self.patience
+        if fired:
+            model.load_state_dict(state.kept)
+        return state, {"plateau": r2}, fired
