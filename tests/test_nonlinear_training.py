@@ -219,6 +219,11 @@ def test_the_whitened_map_of_a_nonlinear_map_keeps_one_direction_per_eight_rows(
     assert pdeinv.nets.default_model(sg, refine=False).pre.rows_per_component == NONLINEAR_ROWS_PER_COMPONENT
     wave = pdeinv.load_problem("wave_2d", n=8)
     assert pdeinv.nets.default_model(wave, refine=False).pre.rows_per_component is None
+    # above REDUCED_ABOVE the reduced network's whitened input keeps the same cap on nonlinear physics
+    big = pdeinv.load_problem("sine_gordon_2d", n=48, T=0.05)
+    net = pdeinv.nets.default_model(big, refine=False)
+    assert big.N > pdeinv.nets.defaults.REDUCED_ABOVE
+    assert net.pre.rows_per_component == NONLINEAR_ROWS_PER_COMPONENT
 
 
 def test_hig_at_its_nonlinear_preset_trains_allen_cahn_where_eta_one_diverged():

@@ -101,13 +101,19 @@ def linear_default(problem, rows_per_component: float | None = None) -> nn.Modul
     (the SIP paper's boxes at 64×64: 512 components leave 1.3 %, SIP 1.07 against 0.14 for the whitened
     map, its rounding-level solve amplifying the missing part): the whitened linear map with at most
     :data:`FALLBACK_COMPONENTS` components is taken instead (parameters linear in the mesh). On nonlinear
-    physics the whitened map keeps one direction per :data:`NONLINEAR_ROWS_PER_COMPONENT` rows."""
+    physics the whitened map, and above :data:`REDUCED_ABOVE` the reduced network's whitened input, keep one
+    direction per :data:`NONLINEAR_ROWS_PER_COMPONENT` rows (sine_gordon_2d at 16 129 unknowns, SIP: 1 024
+    input directions on 1 024 rows took the training loss down 12× in three steps and the held-out residual
+    up 2.8×)."""
     big = max(problem.operator.n_in, problem.operator.n_out) > REDUCED_ABOVE
     kw = {"rows_per_component": rows_per_component}
+    nonlinear = rows_per_component is None and not is_linear(problem.operator)
     if not (big or _prior_decoded(problem, rows_per_component)):
-        if rows_per_component is None and not is_linear(problem.operator):
+        if nonlinear:
             kw["rows_per_component"] = NONLINEAR_ROWS_PER_COMPONENT
         return whitened("linear", **kw)(problem)
+    if nonlinear and big:  # the reduced network's whitened input too (sine_gordon_2d at 16 129 unknowns)
+        kw["rows_per_component"] = NONLINEAR_ROWS_PER_COMPONENT
     uncaptured = decoder_uncaptured(problem.noise)
     net = reduced(**kw, uncaptured=uncaptured)(problem)
     info = net.decoder_info
