@@ -142,6 +142,21 @@ def test_sine_gordon_reverse_recomputation_equals_the_stored_trajectory():
     assert np.array_equal(op.final_state(X[:1])[0], marched.final_state(X[:1])[0])
 
 
+def test_sine_gordon_marches_blocks_of_columns_to_the_same_bits(monkeypatch):
+    """Forward, jvp and vjp march blocks of columns that stay in cache (BLOCK_ENTRIES): each column's
+    arithmetic is the same, so blocks of 3 give the whole batch's results to the bit."""
+    from pdeinv.physics import sine_gordon
+
+    op = _ops()["sine_gordon"]
+    X, V = _draw(op, b=8, amp=3.0), np.random.default_rng(4).standard_normal((8, op.n_in))
+    R = np.random.default_rng(5).standard_normal((8, op.n_out))
+    whole = [op.forward(X), op.jvp(X, V), op.vjp(X + 0.0, R)]
+    monkeypatch.setattr(sine_gordon, "BLOCK_ENTRIES", 3 * op.n_in)
+    op._last = None
+    blocks = [op.forward(X), op.jvp(X, V), op.vjp(X + 0.0, R)]
+    assert all(np.array_equal(a, b) for a, b in zip(whole, blocks, strict=True))
+
+
 def test_sine_gordon_reverse_stepping_returns_the_initial_state():
     p = pdeinv.load_problem("sine_gordon_1d")
     x, y = p.sample(8, seed=0)
