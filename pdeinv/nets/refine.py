@@ -47,11 +47,11 @@ from torch import nn
 
 from ..fem.grid import GridMap
 from ..util.clock import Budget
-from .corrections import DenseCorrection, GridCorrection, SpectralFilter, UNet
+from .corrections import DenseCorrection, GridCorrection, SpanCorrection, SpectralFilter, UNet
 from .protocol import Network, declared
 
-__all__ = ["DenseCorrection", "GridCorrection", "PriorFit", "PriorFitted", "Refined", "SpectralFilter",
-           "UNet"]
+__all__ = ["DenseCorrection", "GridCorrection", "PriorFit", "PriorFitted", "Refined", "SpanCorrection",
+           "SpectralFilter", "UNet"]
 
 
 @dataclass(frozen=True)
@@ -258,7 +258,9 @@ class Refined(Network):
 
     @property
     def correction_kind(self) -> str:
-        """``'dense'`` or ``'grid'`` (:func:`pdeinv.nets.defaults.refined`'s ``correction``)."""
+        """``'dense'``, ``'span'`` or ``'grid'`` (:func:`pdeinv.nets.defaults.refined`'s ``correction``)."""
+        if isinstance(self.correction, SpanCorrection):
+            return "span"
         return "dense" if isinstance(self.correction, DenseCorrection) else "grid"
 
     # --- the base's declared structure, valid while the correction is off -----------------------
