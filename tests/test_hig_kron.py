@@ -241,7 +241,7 @@ def test_the_hig_preset_batch_is_every_row_on_the_default_networks_and_32_on_an_
     assert hyperparameters("hig", "heat_2d")["batch_size"] is None
     assert hyperparameters("hig", "heat_2d", hidden=(16,))["batch_size"] == HIG_MLP_BATCH == 32
     assert hyperparameters("hig", "heat_2d", hidden=(16,), batch_size=4)["batch_size"] == 4
-    assert hyperparameters("sip", "heat_2d", hidden=(16,))["batch_size"] is None  # HIG's rule only
+    assert hyperparameters("sip", "heat_2d")["batch_size"] is None  # SIP on an MLP: test_accuracy
 
 
 def test_dead_feature_columns_get_no_step_and_a_smaller_product():

@@ -459,10 +459,11 @@ def _rule_arguments(t) -> None:
     t.add_argument("--eta", type=float, default=None, help="step scale η (sip, hig)")
     t.add_argument("--tau", type=float, default=None, help="relative singular-value cut (hig)")
     t.add_argument("--batch-size", type=int, default=None,
-                   help="samples per step (default: the method's preset; sip: every training sample)")
+                   help="samples per step (default: the method's preset; sip: every training sample, "
+                        "32 with --hidden)")
     t.add_argument("--optimizer", choices=("adam", "sgd"), default=None,
-                   help="SIP's proxy optimizer (default: sgd on the curvature-normalized proxy, "
-                        "methods/presets.py)")
+                   help="SIP's proxy optimizer (default: sgd on the curvature-normalized proxy; adam at "
+                        "1e-3 with --hidden; methods/presets.py)")
     t.add_argument("--stop", choices=sorted(STOPS), default="auto",
                    help="stopping rule that never looks at x: 'discrepancy' stops once the residual on "
                         "128 held-out observations reaches 1.1x the noise level (the problem's, or an "
