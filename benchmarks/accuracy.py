@@ -36,9 +36,11 @@ def tikhonov(scene: str, noise: float) -> float:
     return references.tikhonov_best(p, y, x, grid=GRID)["x_err"]
 
 
-def train(scene: str, method: str, noise: float, out: Path) -> dict:
+def train(scene: str, method: str, noise: float, out: Path, extra: tuple = ()) -> dict:
+    """``metrics.json`` of ``pdeinv train SCENE --method M [--set noise=δ] *extra`` (``{"error": …}`` if it
+    failed): no other flag but the output's."""
     cmd = [sys.executable, "-m", "pdeinv", "train", scene, "--method", method, "--out", str(out),
-           "--overwrite", "--export-samples", "0", "--checkpoint-every", "0"]
+           "--overwrite", "--export-samples", "0", "--checkpoint-every", "0", *extra]
     if noise:
         cmd += ["--set", f"noise={noise:g}"]
     done = subprocess.run(cmd, capture_output=True, text=True,
