@@ -21,6 +21,7 @@ import csv
 import json
 import math
 import os
+import signal
 import socket
 import subprocess
 import sys
@@ -126,8 +127,12 @@ def test_torchrun_two_processes_train_as_one_gd(tmp_path):
 
 def test_two_processes_train_as_one_sip(tmp_path):
     _single(tmp_path / "one", "--method", "sip")
-    ranks = _two_ranks([*RUN, "--method", "sip", "--out", str(tmp_path / "two")])
-    assert [code for code, _ in ranks] == [0, 0], ranks[0][1][-2000:]
+    argv = [*RUN, "--method", "sip", "--out", str(tmp_path / "two")]
+    ranks = _two_ranks(argv)
+    if -signal.SIGABRT in [code for code, _ in ranks]:  # gloo's transport on a loaded machine, as in the
+        # torchrun test above (seen once here, 2026-11-27, in the full suite; 3 of 3 alone passed): once more
+        ranks = _two_ranks([*argv, "--overwrite"])
+    assert [code for code, _ in ranks] == [0, 0], "\n".join(err[-2000:] for _, err in ranks)
     _same_run(tmp_path / "one", tmp_path / "two")
 
 
