@@ -77,13 +77,19 @@ def _free_port() -> int:
         return s.getsockname()[1]
 
 
-def _two_ranks(argv0: list, argv1: list | None = None, script: list | None = None) -> list:
+def _two_ranks(argv0: list, argv1: list | None = None, script: list | None = None,
+               retried: bool = False) -> list:
     """Start ranks 0 and 1 as torchrun would (its environment), wait, return ``(code, stderr)`` each."""
     port, head = _free_port(), script or ["-m", "pdeinv"]
     procs = [subprocess.Popen([sys.executable, *head, *argv], cwd=ROOT, env=_env(rank, port),
                               stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
              for rank, argv in enumerate((argv0, argv1 or argv0))]
-    return [(p.wait(timeout=180), p.communicate()[1]) for p in procs]
+    ranks = [(p.wait(timeout=180), p.communicate()[1]) for p in procs]
+    if -signal.SIGABRT in [code for code, _ in ranks] and not retried:  # no test expects an abort: gloo's
+        # transport (as in the torchrun test; twice in the full suite on 2026-11-27, with at most one other job:
+        # "terminate called without an active exception" at a rank's exit; alone, every run passed): once more
+        return _two_ranks([*argv0, "--overwrite"], argv1 and [*argv1, "--overwrite"], script, retried=True)
+    return ranks
 
 
 def _nothing_in(out: Path) -> bool:
@@ -127,11 +133,7 @@ def test_torchrun_two_processes_train_as_one_gd(tmp_path):
 
 def test_two_processes_train_as_one_sip(tmp_path):
     _single(tmp_path / "one", "--method", "sip")
-    argv = [*RUN, "--method", "sip", "--out", str(tmp_path / "two")]
-    ranks = _two_ranks(argv)
-    if -signal.SIGABRT in [code for code, _ in ranks]:  # gloo's transport on a loaded machine, as in the
-        # torchrun test above (seen once here, 2026-11-27, in the full suite; 3 of 3 alone passed): once more
-        ranks = _two_ranks([*argv, "--overwrite"])
+    ranks = _two_ranks([*RUN, "--method", "sip", "--out", str(tmp_path / "two")])
     assert [code for code, _ in ranks] == [0, 0], "\n".join(err[-2000:] for _, err in ranks)
     _same_run(tmp_path / "one", tmp_path / "two")
 
