@@ -86,8 +86,9 @@ def _two_ranks(argv0: list, argv1: list | None = None, script: list | None = Non
              for rank, argv in enumerate((argv0, argv1 or argv0))]
     ranks = [(p.wait(timeout=180), p.communicate()[1]) for p in procs]
     if -signal.SIGABRT in [code for code, _ in ranks] and not retried:  # no test expects an abort: gloo's
-        # transport (as in the torchrun test; twice in the full suite on 2026-11-27, with at most one other job:
-        # "terminate called without an active exception" at a rank's exit; alone, every run passed): once more
+        # transport (as in the torchrun test; twice in the full suite on 2026-11-27, at most one other job
+        # running: "terminate called without an active exception" at a rank's exit; alone, every run
+        # passed): once more
         return _two_ranks([*argv0, "--overwrite"], argv1 and [*argv1, "--overwrite"], script, retried=True)
     return ranks
 
