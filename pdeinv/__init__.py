@@ -7,17 +7,10 @@ Names are imported on first use (PEP 562), so ``import pdeinv`` and ``pdeinv --h
 do not pay for torch (measured: ``pdeinv --help`` 3.2 s → 0.3 s).
 
 ``pdeinv.train`` is the function :func:`pdeinv.training.trainer.train`; the trainer's module is
-:mod:`pdeinv.training.trainer` (it was ``pdeinv/train.py``, whose name the function shadowed). The old
-module path still imports, for one release: ``sys.modules["pdeinv.train"]`` is an alias of
-:mod:`pdeinv.training.trainer` registered here, so ``from pdeinv.train import Trainer`` works and, the alias
-never being loaded as a submodule, never rebinds ``pdeinv.train`` (the function).
+:mod:`pdeinv.training.trainer`.
 """
 
 import importlib
-import sys
-import types
-
-from .util import moved
 
 #: public name -> the module that defines it (public submodules map to their module path)
 _WHERE = {
@@ -65,20 +58,3 @@ def __getattr__(name: str):
 def __dir__():
     return sorted(set(globals()) | set(__all__))
 
-
-class _Alias(types.ModuleType):
-    """``pdeinv.train`` as a module path: the names of :mod:`pdeinv.training.trainer` and its seed streams
-    (:mod:`pdeinv.training.trainset`), loaded on first use; deprecated: import from those modules."""
-
-    def __getattr__(self, name: str):
-        if name.startswith("__"):  # inspect.getmodule asks every module for __file__: import nothing
-            raise AttributeError(f"module 'pdeinv.train' has no attribute {name!r}")
-        for module in ("training.trainer", "training.trainset"):
-            value = vars(importlib.import_module(f"{__name__}.{module}")).get(name, self)
-            if value is not self:
-                return value
-        raise AttributeError(f"module 'pdeinv.train' has no attribute {name!r}")
-
-
-sys.modules.setdefault(f"{__name__}.train", _Alias(f"{__name__}.train", _Alias.__doc__))
-moved.install(__name__)

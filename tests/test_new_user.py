@@ -124,12 +124,6 @@ def test_help_does_not_import_torch():
     assert out.strip() == "False"
 
 
-def test_pdeinv_train_is_still_the_function():
-    import pdeinv.train  # noqa: F401  (the submodule: must not replace the function)
-
-    assert callable(pdeinv.train) and pdeinv.train.__name__ == "train"
-
-
 def test_optimizer_as_factory_class_or_instance_is_the_same():
     p = [torch.nn.Parameter(torch.zeros(3))]
     specs = [pdeinv.adam(1e-3), torch.optim.Adam, torch.optim.Adam([torch.nn.Parameter(torch.ones(1))])]

@@ -12,7 +12,7 @@ from pdeinv.cli import main
 def test_every_public_name_resolves(name):
     value = getattr(pdeinv, name)
     module = isinstance(value, types.ModuleType)
-    # a public module is the one at its path (the short name, or the layer it moved into in 0.2)
+    # a public module is the one at its path
     where = pdeinv._WHERE[name]
     assert value is not None and (not module or value.__name__ == f"pdeinv.{where.lstrip('=')}")
 
@@ -27,24 +27,3 @@ def test_version(capsys):
         main(["--version"])
     assert done.value.code == 0 and capsys.readouterr().out.strip() == f"pdeinv {pdeinv.__version__}"
 
-
-def test_train_is_the_function_and_the_old_module_path_an_alias():
-    """Issue 24: the module ``pdeinv/train.py`` shadowed by the function ``pdeinv.train`` is now
-    ``pdeinv.training.trainer``; ``from pdeinv.train import …`` still resolves (an alias, for one release) and
-    importing it never rebinds ``pdeinv.train``."""
-    import sys
-    from pathlib import Path
-
-    import pdeinv.train  # noqa: F401
-    from pdeinv.train import TEST_DATA, Trainer, seed_stream
-
-    import pdeinv.training.trainer
-    import pdeinv.training.trainset
-
-    assert pdeinv.train is pdeinv.training.trainer.train and Trainer is pdeinv.training.trainer.Trainer
-    trainset = pdeinv.training.trainset
-    assert seed_stream is trainset.seed_stream and TEST_DATA == trainset.TEST_DATA
-    assert not (Path(pdeinv.__file__).parent / "train.py").exists()
-    with pytest.raises(ImportError, match="nothing"):
-        from pdeinv.train import nothing  # noqa: F401
-    assert not hasattr(sys.modules["pdeinv.train"], "__file__")  # inspect.getmodule's probe imports nothing

@@ -1,6 +1,6 @@
 """SIGTERM handled as Ctrl-C is: raised where the program is, as :class:`Terminated` (a
 ``KeyboardInterrupt``), so every ``finally`` and ``except BaseException`` runs — an atomic write removes
-its temporary (:func:`pdeinv.files.atomic_write`), the run lock is released, ``pdeinv train`` names its
+its temporary (:func:`pdeinv.util.files.atomic_write`), the run lock is released, ``pdeinv train`` names its
 last checkpoint — and the command exits with 143 (128 + SIGTERM; Ctrl-C: 130). Both are held back
 while a module is being imported (an interrupted C-extension import broke every later import of numpy
 and torch) and raised as soon as the import is done.

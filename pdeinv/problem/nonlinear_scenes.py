@@ -1,5 +1,5 @@
 """Builders of the nonlinear scenes (Allen–Cahn heat, sine-Gordon wave): a mesh and settings in, a
-Problem out, as :mod:`pdeinv.scenes` does for the linear ones.
+Problem out, as :mod:`pdeinv.problem.scenes` does for the linear ones.
 
 ``strength`` is the nonlinearity: ``r`` in ``f(u) = r (u³ − u)`` (Allen–Cahn) or ``s`` in
 ``g(u) = s sin u`` (sine-Gordon). At ``strength=0`` each operator is its linear scene's scheme

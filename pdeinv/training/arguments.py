@@ -59,8 +59,8 @@ def _is_array(value) -> bool:
 
 
 def _is_result(value) -> bool:
-    """A :class:`pdeinv.trainer.Result` (looked up, not imported: the trainer imports this module, and
-    no Result exists before it is imported)."""
+    """A :class:`pdeinv.training.trainer.Result` (looked up, not imported: the trainer imports this module,
+    and no Result exists before it is imported)."""
     trainer = sys.modules.get(f"{__package__}.trainer")
     return trainer is not None and isinstance(value, trainer.Result)
 

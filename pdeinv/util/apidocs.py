@@ -6,8 +6,8 @@ from __future__ import annotations
 import sys
 from pathlib import Path
 
-#: not documented: the command line and benchmarks (``pdeinv --help``), entry scripts, the old paths
-SKIP = ("pdeinv.cli", "pdeinv.bench", "pdeinv.util.moved", "pdeinv.__main__")
+#: not documented: the command line and benchmarks (``pdeinv --help``), entry scripts
+SKIP = ("pdeinv.cli", "pdeinv.bench", "pdeinv.__main__")
 
 
 def modules() -> list[str]:

@@ -23,7 +23,7 @@ Without any of these (other systems) nothing is refused.
   ``nnz(L + U)``; cholespy needs about half): 2-D 0.8–1.9 kB per node up to 10⁶ nodes,
   3-D 6 kB at 12 167 nodes, 10 kB at 29 791, 14 kB at 59 319 (fill grows like N^{1/3} per
   node), so the per-node constants stay upper bounds up to ~10⁵ 3-D nodes; above
-  :data:`pdeinv.solvers.AMG_CROSSOVER` the heat operators use AMG-CG, whose hierarchy is
+  :data:`pdeinv.fem.solvers.AMG_CROSSOVER` the heat operators use AMG-CG, whose hierarchy is
   ~0.3 kB per node (2-D and 3-D).
 * sensors: the observation vector of one sample (records × sensors) and the sensor matrix.
 * training (:func:`run_bytes`): the data sets and the prior fit's draws, the network that ``--net`` /

@@ -5,7 +5,7 @@
 * a path that resolves to an input of the command (``--data``, the run's ``model.pt``, the fields file
   being drawn) is refused: writing it would destroy that input;
 * an existing file inside a run folder (one holding ``run.json`` or ``metrics.json``): the run's own
-  outputs (:data:`pdeinv.runs.OUTPUTS`: ``training.png``, ``metrics.json``, ``model.pt``, …) and
+  outputs (:data:`pdeinv.io.runs.OUTPUTS`: ``training.png``, ``metrics.json``, ``model.pt``, …) and
   whatever else is kept there, is refused unless the command owns that file (``pdeinv show`` redraws
   ``fields.png``);
 * missing parent folders are created; a folder that cannot be created or written (read-only, under a
@@ -60,7 +60,7 @@ def _not_an_input(path: Path, flag: str, inputs: Iterable) -> None:
 
 def run_output(path) -> bool:
     """Whether ``path`` is an existing file of a run folder (one holding :data:`RUN_MARKERS`): the run's
-    own results (``training.png``, ``metrics.json``, ``model.pt``, … :data:`pdeinv.runs.OUTPUTS`) or
+    own results (``training.png``, ``metrics.json``, ``model.pt``, … :data:`pdeinv.io.runs.OUTPUTS`) or
     anything else kept there."""
     path = Path(path)
     return path.is_file() and any((path.parent / m).is_file() for m in RUN_MARKERS)
