@@ -9,6 +9,7 @@ from pdeinv.fem.grid import GridMap, spacing
 from pdeinv.methods.presets import make_rule
 from pdeinv.nets.refine import PriorFit, Refined
 from pdeinv.problem.sampling import boxes, gaussian_random_field
+from pdeinv.training.stages import PriorStage
 
 
 @pytest.mark.parametrize("name, kw", [("heat_1d", {}), ("heat_boxes", {"n": 8}), ("heat_3d", {"n": 4})])
@@ -55,10 +56,6 @@ def test_refined_network_is_its_base_until_the_correction_is_fitted():
     assert torch.equal(net(y), net.base(y))
     assert net.linear_in_parameters() is not None  # the base's structure is declared through
     assert not any(q.requires_grad for q in net.correction.parameters())
-    base_state = net.base.state_dict()  # a run saved before the correction existed still loads
-    fresh = p.model()
-    fresh.load_state_dict(base_state)
-    assert torch.equal(fresh(y), net(y))
 
 
 def _oracles(p, xt, yt):
@@ -83,8 +80,8 @@ def test_nonlinear_default_beats_every_linear_estimator_on_a_small_box_scene():
     p = pdeinv.load_problem("heat_boxes", n=16)
     rule, hp = make_rule("sip", p, p.noise)
     res = pdeinv.train(p, rule, steps=hp["steps"], batch_size=hp["batch_size"], seed=0, progress=False,
-                       prior_fit=PriorFit(steps=1500, time_budget=None), prior_draws=2048)
-    info = res.metrics["prior_fit"]
+                       prior=PriorStage(PriorFit(steps=1500), draws=2048))
+    info = res.metrics["stages"][1]
     assert info["kept"] and "boxes" in info["prior"]
     xt, yt = pdeinv.Trainer(p, rule, res.model, steps=1).held_out()
     mmse, tikhonov = _oracles(p, xt, yt)
@@ -96,30 +93,33 @@ def test_prior_comes_from_the_data_file_and_never_from_the_scene_sampler():
     p = pdeinv.load_problem("heat_1d")
     x, y = p.sample(300, seed=3)
     rule, hp = make_rule("sip", p, p.noise)
-    fit = PriorFit(steps=20, check_every=10, time_budget=None)
+    stage = PriorStage(PriorFit(steps=20))
     with_x = pdeinv.train(p, rule, data=y, data_x=x, n_test=50, steps=2, batch_size=None, progress=False,
-                          prior_fit=fit)
-    assert with_x.metrics["prior_fit"]["prior"] == "the data file's x (250 training rows)"
-    assert with_x.metrics["prior_fit"]["draws"] == 250
-    with pytest.warns(RuntimeWarning, match="no x"):
-        only_y = pdeinv.train(p, rule, data=y, n_test=50, steps=2, batch_size=None, progress=False,
-                              prior_fit=fit)
-    assert only_y.metrics["prior_fit"] == {"kept": False, "prior": "none: the data file has no x"}
+                          prior=stage)
+    assert with_x.metrics["stages"][1]["prior"] == "the data file's x (250 training rows)"
+    assert with_x.metrics["stages"][1]["draws"] == 250
+    only_y = pdeinv.train(p, rule, data=y, n_test=50, steps=2, batch_size=None, progress=False, prior=stage)
+    assert only_y.metrics["stages"][1] == {"name": "prior", "kept": False,
+                                           "skipped": "no prior: none: the data file has no x",
+                                           "seconds": only_y.metrics["stages"][1]["seconds"]}
     assert not bool(only_y.model.active)
 
 
-def test_cli_fits_the_prior_by_default_and_records_it(tmp_path, monkeypatch):
-    from pdeinv.cli import main
-
-    monkeypatch.delenv("PDEINV_PRIOR_FIT")
-    monkeypatch.setattr("pdeinv.cli.commands.train.PRIOR_FIT_S", 3.0)
-    assert main(["train", "heat_1d", "--steps", "3", "--out", str(tmp_path / "r"), "--threads", "1"]) == 0
+def test_cli_runs_the_prior_stage_by_default_and_records_it(tmp_path):
+    """Without --prior-fit the stage's counts are the problem's (stages.draw_count, PriorFit's passes);
+    --prior-fit N caps its steps; a negative count is refused."""
     import json
 
-    fit = json.loads((tmp_path / "r" / "metrics.json").read_text())["prior_fit"]
-    draws = int(fit["prior"].split()[0])  # 4096, and more where the physics is fast (prior_draw_counts)
-    assert fit["prior"] == f"{draws} draws of the scene's prior (bumps)" and draws >= 4096
-    assert fit["seconds"] < 10
+    from pdeinv.cli import main
+    from pdeinv.training.stages import draw_count
+
+    p = pdeinv.load_problem("heat_1d", n=16)
+    assert main(["train", "heat_1d", "--set", "n=16", "--steps", "3", "--prior-fit", "30", "--out",
+                 str(tmp_path / "r"), "--threads", "1"]) == 0
+    stages = json.loads((tmp_path / "r" / "metrics.json").read_text())["stages"]
+    assert [s["name"] for s in stages] == ["sip", "prior"]
+    assert stages[1]["prior"] == f"{draw_count(p.N)} draws of the scene's prior (bumps)"
+    assert stages[1]["draws"] == draw_count(p.N) and stages[1]["steps"] <= 30
     assert main(["train", "heat_1d", "--steps", "3", "--prior-fit", "-1", "--out", str(tmp_path / "s")]) == 2
 
 
@@ -138,7 +138,7 @@ def test_own_data_takes_no_prior_from_the_scene(tmp_path):
                  "--prior-fit", "2", "--out", str(out), "--threads", "1"]) == 0
     spec = json.loads((out / "run.json").read_text())["network"]
     assert spec["base"] == "whitened"
-    fit = json.loads((out / "metrics.json").read_text())["prior_fit"]
+    fit = json.loads((out / "metrics.json").read_text())["stages"][1]
     assert fit["prior"].startswith("the data file's x")
     d, pred = str(tmp_path / "d.npz"), str(tmp_path / "p.npz")
     assert main(["predict", str(out), "--data", d, "--out", pred]) == 0
@@ -207,7 +207,7 @@ def test_a_dense_correction_is_fitted_saved_and_reloaded(tmp_path):
     net = p.model()
     x, y = p.sample(2048, 1)
     net.fit_observations(y)
-    info = net.fit_prior(x, y, p.relative_error, PriorFit(steps=600, time_budget=None))
+    info = net.fit_prior(x, y, p.relative_error, PriorFit(steps=600))
     assert info["kept"] and info["error_after"] < 0.9 * info["error_before"]
     out = save_run(tmp_path / "r", p, model=net)
     assert json.loads((out / "run.json").read_text())["network"] == {"kind": "default", "correction": "dense"}
@@ -215,24 +215,6 @@ def test_a_dense_correction_is_fitted_saved_and_reloaded(tmp_path):
     yt = torch.as_tensor(p.sample(8, 2)[1])
     with torch.no_grad():
         assert torch.allclose(again(yt), net(yt), rtol=0, atol=1e-6)
-
-
-def test_a_budget_limited_fit_checks_in_time_and_keeps_its_last_gain():
-    """Checks come at least CHECKS_PER_BUDGET times per budget whatever `check_every` says, and steps after
-    the last check are checked once more when the budget ends: a slow correction (a U-Net step on 65 025
-    unknowns takes ~8 s) never spends its budget without a check."""
-    from pdeinv.nets.refine import CHECKS_PER_BUDGET
-
-    p = pdeinv.load_problem("sine_gordon_1d")
-    net = p.model()
-    x, y = p.sample(1024, 1)
-    net.fit_observations(y)
-    lines = []
-    info = net.fit_prior(x, y, p.relative_error, PriorFit(check_every=10**9, time_budget=2.0), lines.append)
-    checks = [s for s in lines if s.startswith("prior fit step")]
-    assert 2 <= len(checks) <= CHECKS_PER_BUDGET + 1
-    assert f"prior fit step {info['steps']}:" in checks[-1]  # the last steps were checked
-    assert info["kept"] and info["error_after"] < info["error_before"]
 
 
 def test_the_correction_starts_from_the_least_squares_blend_of_base_and_physics_filter():
@@ -243,11 +225,11 @@ def test_the_correction_starts_from_the_least_squares_blend_of_base_and_physics_
     net = p.model()
     x, y = p.sample(1024, 1)
     net.fit_observations(y)
-    info = net.fit_prior(x, y, p.relative_error, PriorFit(steps=0, time_budget=None))
+    info = net.fit_prior(x, y, p.relative_error, PriorFit(steps=0))
     yt = torch.as_tensor(y)
     with torch.no_grad():
         b, t = net.base(yt).numpy(), net.correction.physics(yt).numpy()
-        out = net(yt).numpy()
+        out = net.corrected(yt, net.base(yt)).numpy()  # before the data-consistency layer
     d = t - b
     lam = float(np.sum((x - b) * d) / np.sum(d * d))  # over all draws: the fit used 7/8 of them
     err = lambda a: float(np.mean(p.relative_error(a, x)))  # noqa: E731
@@ -256,10 +238,7 @@ def test_the_correction_starts_from_the_least_squares_blend_of_base_and_physics_
     assert err(out) <= min(err(b), err(t)) * (1 + 1e-6), (err(out), err(b), err(t))
     sq = lambda m: float(np.sum((b + m * d - x) ** 2))  # noqa: E731  the least-squares objective
     assert sq(info["mix"]) < min(sq(0.9 * info["mix"]), sq(1.1 * info["mix"]), sq(0.0), sq(1.0))
-    assert info["error_after"] < info["error_before"]
-    fresh = p.model()  # a state dict saved before the blend (no "mix") still loads, with λ = 0
-    fresh.load_state_dict({k: v for k, v in net.state_dict().items() if k != "mix"})
-    assert float(fresh.mix) == 0.0
+    assert info["error_corrected"] < info["error_before"]
 
 
 @pytest.mark.parametrize("name, kw, atol", [("sine_gordon_1d", {}, 1e-6), ("heat_boxes", {"n": 16}, 1e-3)])
@@ -278,7 +257,7 @@ def test_a_feed_computed_per_batch_fits_the_same_correction(monkeypatch, name, k
         torch.manual_seed(0)
         net = p.model()
         net.fit_observations(y)
-        info = net.fit_prior(x, y, p.relative_error, PriorFit(steps=60, check_every=20, time_budget=None))
+        info = net.fit_prior(x, y, p.relative_error, PriorFit(steps=60))
         with torch.no_grad():
             fits.append((info, net(torch.as_tensor(y[:8])).numpy()))
     (a, out_a), (b, out_b) = fits
@@ -289,17 +268,19 @@ def test_a_feed_computed_per_batch_fits_the_same_correction(monkeypatch, name, k
     np.testing.assert_allclose(out_a, out_b, rtol=1e-4, atol=atol * np.abs(out_a).max())
 
 
-def test_prior_draws_grow_where_the_physics_is_fast_and_start_with_the_same_rows():
-    from pdeinv.training.trainer import prior_draw_counts
-    from pdeinv.training.trainset import prior_rows
+def test_prior_draws_are_a_count_of_the_unknowns_and_the_same_for_the_same_seed():
+    from pdeinv.training.stages import draw_count
+    from pdeinv.training.trainset import PRIOR_CHUNK, prior_rows
 
+    assert draw_count(63) == 65536 and draw_count(3969) == 5039 and draw_count(29929) == 1670
+    assert draw_count(10**6) == 256
     p = pdeinv.load_problem("heat_1d", n=16)
-    (x0, _), _ = prior_rows(p, None, 256, 0)
-    (x1, _), source = prior_rows(p, None, 256, 0, seconds=30.0, most=1024)
-    assert x0.shape == (256, p.N) and x1.shape == (1024, p.N) and source.startswith("1024 draws")
-    assert np.array_equal(x1[:256], x0)  # the first draws are those without the extension
-    assert not np.array_equal(x1[256:512], x0)  # then fresh streams
-    assert prior_draw_counts(63, 4096) == (4096, 65536) and prior_draw_counts(10**5, 4096) == (500, 500)
+    (x0, _), source = prior_rows(p, None, PRIOR_CHUNK + 8, 0)
+    (x1, _), _ = prior_rows(p, None, PRIOR_CHUNK + 8, 0)
+    assert x0.shape == (PRIOR_CHUNK + 8, p.N) and source.startswith(f"{PRIOR_CHUNK + 8} draws")
+    assert np.array_equal(x0, x1)
+    (x2, _), _ = prior_rows(p, None, 8, 0, stream=1)  # the stage's pilot draws: their own stream
+    assert not np.array_equal(x2, x0[:8])
 
 
 def test_the_unet_fit_batch_shrinks_with_the_unfolded_grid():
@@ -316,87 +297,6 @@ def test_the_unet_fit_batch_shrinks_with_the_unfolded_grid():
     assert batch((63, 63)) == batch((15, 15, 15)) == 32
     assert batch((255, 255)) == FIT_BATCH_POINTS // (255 * 255 * 9) == 14
     assert batch((31, 31, 31)) == 10 and batch((99, 99, 99)) == 2
-
-
-def test_slow_physics_draws_what_its_share_of_the_budget_buys_and_the_fit_gets_the_rest(monkeypatch):
-    """The draws a scene's prior fit always makes are bounded by PRIOR_DRAW_SHARE of its budget at the pace
-    the training samples were drawn (never below PRIOR_FLOOR), and the fit gets what drawing left (at least
-    the share): wave_2d at 29 929 unknowns drew 3 341 rows for ~500 s before a fit of 300 s."""
-    from pdeinv.training import trainer as tr
-
-    seen = {}
-    real_rows, real_fit = tr.prior_rows, PriorFit.fit
-
-    def rows(problem, own, n, seed, seconds=None, most=None):
-        seen["n"] = n
-        return real_rows(problem, own, n, seed, seconds, most)
-
-    def fit(self, model, x, y, relative_error, log=None):
-        seen["budget"] = self.time_budget
-        return real_fit(self, model, x, y, relative_error, log)
-
-    monkeypatch.setattr(tr, "prior_rows", rows)
-    monkeypatch.setattr(PriorFit, "fit", fit)
-    monkeypatch.setattr(tr, "PRIOR_DRAW_SHARE", 1e-7)  # the samples' pace then buys no more than the floor
-    p = pdeinv.load_problem("heat_1d", n=16)
-    rule, _ = make_rule("sip", p, p.noise)
-    pdeinv.train(p, rule, steps=1, n_train=64, n_test=16, batch_size=None, progress=False,
-                 prior_fit=PriorFit(steps=5, time_budget=4.0))
-    assert seen["n"] == tr.PRIOR_FLOOR
-    assert 4.0 * 1e-7 <= seen["budget"] <= 4.0
-
-
-def test_a_fit_too_slow_for_its_budget_is_not_started_and_draws_nothing(monkeypatch):
-    """PriorFit.too_slow times one step of the correction on random inputs of its shape (weights and
-    gradients left alone) and refuses a fit that could not take min_steps in its budget; the trainer then
-    draws nothing and records why."""
-    from pdeinv.training import trainer as tr
-
-    p = pdeinv.load_problem("heat_2d", n=8)
-    model = p.model()
-    before = {k: v.clone() for k, v in model.correction.state_dict().items()}
-    seconds = model.step_seconds()
-    assert 0 < seconds < 60
-    assert all(torch.equal(v, before[k]) for k, v in model.correction.state_dict().items())
-    assert all(q.grad is None and not q.requires_grad for q in model.correction.parameters())
-    assert PriorFit(time_budget=1e9).too_slow(model) is None
-    assert PriorFit(time_budget=None, min_steps=10**9).too_slow(model) is None
-    why = PriorFit(time_budget=1.0, min_steps=10**9).too_slow(model)
-    assert "fewer than 1000000000" in why and "--prior-fit" in why
-    drawn = []
-    monkeypatch.setattr(tr, "prior_rows", lambda *a, **k: drawn.append(a) or (None, "never"))
-    rule, _ = make_rule("sip", p, p.noise)
-    result = pdeinv.train(p, rule, steps=1, n_train=32, n_test=8, progress=False,
-                          prior_fit=PriorFit(time_budget=1.0, min_steps=10**9))
-    record = result.metrics["prior_fit"]
-    assert drawn == [] and record["kept"] is False and "fewer than 1000000000" in record["skipped"]
-
-
-def test_slow_physics_is_judged_on_what_drawing_leaves_of_the_budget(monkeypatch):
-    """The fit's affordable steps count only the budget its draws leave: where the physics is slow (the
-    draws take PRIOR_DRAW_SHARE of the budget at the samples' pace) a fit that the whole budget would
-    allow is not started; with fast physics the same fit runs."""
-    import time
-
-    monkeypatch.setattr(Refined, "step_seconds", lambda self, batch=None, repeats=2: 0.01)
-    fit = PriorFit(steps=5, time_budget=4.0, min_steps=300)  # 400 steps in 4 s, 200 in what drawing leaves
-    records = {}
-    for pace in (0.0, 0.005):  # CPU seconds per forward row
-        p = pdeinv.load_problem("heat_1d", n=16)
-        forward = p.operator.forward
-
-        def slow(X, forward=forward, pace=pace):
-            t0 = time.thread_time()
-            while time.thread_time() - t0 < pace * len(X):
-                pass
-            return forward(X)
-
-        monkeypatch.setattr(p.operator, "forward", slow)
-        rule, _ = make_rule("sip", p, p.noise)
-        result = pdeinv.train(p, rule, steps=1, n_train=64, n_test=16, progress=False, prior_fit=fit)
-        records[pace] = result.metrics["prior_fit"]
-    assert "skipped" not in records[0.0] and records[0.0]["draws"] > 0
-    assert "fewer than 300" in records[0.005]["skipped"] and records[0.005]["prior"] == "no draws"
 
 
 def test_large_nonlinear_meshes_get_the_span_correction_which_fits_saves_and_reloads(tmp_path):
@@ -427,7 +327,7 @@ def test_large_nonlinear_meshes_get_the_span_correction_which_fits_saves_and_rel
         body.weight.copy_(W[:-1].T)
         body.bias.copy_(W[-1])
         assert torch.equal(net(yt[:4]), net.base(yt[:4]))
-    info = net.fit_prior(x, y, p.relative_error, PriorFit(steps=400, time_budget=None))
+    info = net.fit_prior(x, y, p.relative_error, PriorFit(steps=400))
     assert info["kept"] and info["error_after"] < 0.95 * info["error_before"], info  # 0.76 -> 0.69
     with torch.no_grad():
         out = net(yt[:8])

@@ -107,6 +107,43 @@ def _physics(physics, y, t=None) -> torch.Tensor:
 FIT_BATCH_POINTS = 2**23
 
 
+def fit_batch(kind: str, points: int, dim: int) -> int:
+    """Draws per prior-fit step of a correction of ``kind`` on ``points`` grid points in ``dim``
+    dimensions, without building it: :attr:`GridCorrection.fit_batch` (with as many grid points as
+    unknowns), else 128."""
+    if kind != "grid":
+        return DenseCorrection.fit_batch
+    return int(min(32, max(2, FIT_BATCH_POINTS // (max(points, 1) * 3**dim))))
+
+
+def unet_macs(points: int, dim: int, c: int = 16, channels_in: int = 2) -> int:
+    """Multiply-adds of one forward pass of :class:`UNet` on one image of ``points`` pixels: each
+    convolution's weights times the pixels of its level (full, ``2^-dim``, ``4^-dim``)."""
+    k = 3**dim
+    full = channels_in * c * k + c * c * k + 3 * c * c * k + c
+    half = 2 * c * c * k + 4 * c * c * k + 12 * c * c * k
+    quarter = 8 * c * c * k + 16 * c * c * k
+    return int(points * (full + half / 2**dim + quarter / 4**dim))
+
+
+def mlp_macs(widths) -> int:
+    """Multiply-adds of one forward pass of a dense MLP with layer ``widths`` on one sample."""
+    return int(sum(a * b for a, b in zip(widths[:-1], widths[1:], strict=True)))
+
+
+def correction_macs(kind: str, N: int, m: int, dim: int, physics: bool, hidden=(512, 512, 512),
+                    decoder: int | None = None) -> int:
+    """Multiply-adds of one forward pass of a correction of ``kind`` on one sample, from the problem's
+    sizes alone (the plan and the prior stage count with it): the U-Net on ``N`` grid points, the dense
+    MLP on ``(y, b [, x_T])``, or the MLP in a ``decoder``-column span and its synthesis."""
+    if kind == "grid":
+        return unet_macs(N, dim, channels_in=2 if physics else 1)
+    if kind == "span":
+        k = decoder or min(N, 512)
+        return mlp_macs((k, *hidden, k)) + 2 * k * N
+    return mlp_macs((N * (2 if physics else 1) + m, *hidden, N))
+
+
 class GridCorrection(nn.Module):
     """``g = E U(Ê b(y) [, Ê x_T(y)])`` (module docstring): ``grid`` a
     :class:`~pdeinv.fem.grid.GridMap`, ``physics`` an optional :class:`SpectralFilter` (a second channel)."""

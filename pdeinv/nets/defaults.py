@@ -166,6 +166,7 @@ def refined(problem, base: nn.Module, correction: str = "auto") -> nn.Module:
     from ..fem.grid import GridMap, spacing
     from ..inverse import NOISE_FREE_REL_ALPHA
     from ..physics.capabilities import modal_basis
+    from .consistency import DataConsistency
     from .corrections import DenseCorrection, SpanCorrection
     from .refine import Refined, SpectralFilter
 
@@ -180,11 +181,14 @@ def refined(problem, base: nn.Module, correction: str = "auto") -> nn.Module:
         return Refined(base, correction=SpanCorrection(decoder.detach(), DENSE_HIDDEN))
     modes = modal_basis(problem.operator)  # a full-rank physics estimate as a second input, where cheap
     noise = float(problem.noise or 0.0)
-    physics = None if modes is None else SpectralFilter(modes, max(noise, NOISE_FREE_REL_ALPHA**0.5) ** 2)
+    rel = max(noise, NOISE_FREE_REL_ALPHA**0.5) ** 2
+    physics = None if modes is None else SpectralFilter(modes, rel)
+    consistency = None if modes is None else DataConsistency(modes, rel)  # P f(y) = y to the noise
     if (kind if correction == "auto" else correction) == "dense":
         dense = DenseCorrection(problem.N, problem.operator.n_out, DENSE_HIDDEN, physics)
-        return Refined(base, correction=dense)
-    return Refined(base, GridMap(problem.points, spacing(problem.disc.basis.mesh)), physics=physics)
+        return Refined(base, correction=dense, consistency=consistency)
+    return Refined(base, GridMap(problem.points, spacing(problem.disc.basis.mesh)), physics=physics,
+                   consistency=consistency)
 
 
 def _prior_decoded(problem, rows_per_component) -> bool:

@@ -37,8 +37,7 @@ FBPConvNet), with the physics-trained ``b`` in place of a fixed classical invers
 from __future__ import annotations
 
 import math
-import time
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 from typing import Protocol, runtime_checkable
 
 import numpy as np
@@ -46,68 +45,71 @@ import torch
 from torch import nn
 
 from ..fem.grid import GridMap
-from ..util.clock import Budget
+from .consistency import DataConsistency
 from .corrections import DenseCorrection, GridCorrection, SpanCorrection, SpectralFilter, UNet
 from .protocol import Network, declared
 
-__all__ = ["DenseCorrection", "GridCorrection", "PriorFit", "PriorFitted", "Refined", "SpanCorrection",
-           "SpectralFilter", "UNet"]
+__all__ = ["DataConsistency", "DenseCorrection", "GridCorrection", "PriorFit", "PriorFitted", "Refined",
+           "SpanCorrection", "SpectralFilter", "UNet"]
 
 
 @dataclass(frozen=True)
 class PriorFit:
-    """How :meth:`Refined.fit_prior` fits the correction: Adam at ``lr``, ``batch`` draws per step, at
-    most ``steps`` steps or ``time_budget`` seconds (CPU seconds of the fitting thread, at most 3× as
-    many wall seconds: :class:`pdeinv.util.clock.Budget`, the same work on a loaded machine), the
-    held-out error checked every ``check_every`` steps (default: once per pass over the training draws,
-    at least every 100) on ``held_out`` of the draws; after ``patience`` checks without a relative
-    improvement of ``min_gain`` over the best so far it restarts from that best at a quarter of the lr,
-    at most ``decays`` times, then stops; the best is what is kept."""
+    """How :meth:`Refined.fit_prior` fits the correction, in counts: Adam at ``lr``, ``batch`` draws per
+    step, at most ``steps`` steps (``None``: :data:`EPOCHS` passes over the training draws, at most
+    :data:`MAX_STEPS`), the held-out error checked once per pass over the training draws on ``held_out``
+    of them; after ``patience`` checks without a relative improvement of ``min_gain`` over the best so far
+    it restarts from that best at a quarter of the lr, at most ``decays`` times, then stops; the best is
+    what is kept. The same settings and seed give the same network on any machine and any load."""
 
-    steps: int = 100_000
-    time_budget: float | None = 300.0
+    steps: int | None = None
     lr: float = 1e-3
     batch: int | None = None  # None: the correction's own (``fit_batch``: U-Net 32, dense 128)
     held_out: float = 0.125
-    check_every: int | None = None  # None: once per pass over the draws, at least every 100 steps
     patience: int = 5
     min_gain: float = 0.005
     decays: int = 2
     seed: int = 0
-    #: fewer affordable steps than this in ``time_budget`` and the fit is not started (:meth:`too_slow`)
-    min_steps: int = 200
 
-    def within(self, seconds: float) -> PriorFit:
-        """These settings with ``time_budget = seconds`` (the trainer: what drawing the prior left)."""
-        return replace(self, time_budget=seconds)
+    def __post_init__(self):
+        from .._checks import count
+
+        if self.steps is not None:  # 0: the blend and the data-consistency layer only
+            count(self.steps, "PriorFit(steps)", minimum=0)
+        count(self.patience, "PriorFit(patience)")
+        count(self.decays, "PriorFit(decays)", minimum=0)
+        if self.batch is not None:
+            count(self.batch, "PriorFit(batch)")
+        if not (isinstance(self.lr, float | int) and self.lr > 0):
+            raise ValueError(f"PriorFit(lr={self.lr!r}) is not allowed; expected a number > 0")
+        if not 0 < self.held_out < 1:
+            raise ValueError(f"PriorFit(held_out={self.held_out!r}) is not allowed; expected a fraction in "
+                             "(0, 1)")
 
     def applies(self, model) -> bool:
         """Whether ``model`` has a part fitted on prior draws (:class:`PriorFitted`)."""
         return isinstance(model, PriorFitted)
 
-    def too_slow(self, model) -> str | None:
-        """Why the fit is not worth its draws, or ``None``: one step of ``model``'s correction, timed on
-        random inputs before any draw (:meth:`Refined.step_seconds`), leaves fewer than ``min_steps`` in
-        ``time_budget`` (the trainer asks with what the draws will leave of it). No run measured kept a
-        correction fitted in fewer: heat_3d at 29 791 unknowns (143 U-Net steps in 300 s), wave_2d at 29 929
-        (32), heat_2d at 65 025 (43) were all not kept, each after 150–300 s of draws and steps."""
-        if self.time_budget is None or not isinstance(model, Refined):  # a user's PriorFitted: not timed
-            return None
-        seconds = model.step_seconds(self.batch)
-        steps = self.time_budget / max(seconds, 1e-12)
-        if steps >= self.min_steps:
-            return None
-        return (f"one step of the correction takes {seconds:.3g} CPU s, {steps:.0f} steps in the "
-                f"{self.time_budget:g} s budget, fewer than {self.min_steps}: not fitted (--prior-fit S "
-                "raises the budget)")
+    def step_count(self, n_train: int, batch: int) -> int:
+        """The steps of a fit on ``n_train`` training draws in batches of ``batch``: ``steps``, or
+        :data:`EPOCHS` passes, at most :data:`MAX_STEPS`."""
+        if self.steps is not None:
+            return self.steps
+        return int(min(MAX_STEPS, EPOCHS * math.ceil(max(n_train, 1) / batch)))
 
     def fit(self, model, x, y, relative_error, log=None) -> dict:
         """``model.fit_prior`` with these settings (:meth:`Refined.fit_prior`)."""
         return model.fit_prior(x, y, relative_error, self, log)
 
 
-#: the held-out error is checked at least this many times within the prior fit's time budget
-CHECKS_PER_BUDGET = 10
+#: passes over the training draws of a default prior fit (the SIP paper's boxes at 64×64 were still
+#: improving after ~55 passes of 3 584 draws; the plateau rule ends earlier fits)
+EPOCHS = 60
+
+#: the most steps of a default prior fit: a U-Net step on 4 k unknowns costs ~40 ms of one core, so this
+#: bounds the default stage at a few minutes there
+MAX_STEPS = 8192
+
 
 #: :class:`_Feed` stores the base's estimates and the correction's inputs for all draws up to this many
 #: entries per array (2²⁶: 268 MB in float32), and computes them per batch beyond: heat_2d at 65 025
@@ -244,7 +246,7 @@ class Refined(Network):
 
     def __init__(self, base: nn.Module, grid: GridMap | None = None, channels: int = 16,
                  dim: int | None = None, physics: SpectralFilter | None = None,
-                 correction: nn.Module | None = None):
+                 correction: nn.Module | None = None, consistency: DataConsistency | None = None):
         super().__init__()
         if (correction is None) == (grid is None):
             raise ValueError("Refined takes a grid (the U-Net correction) or a correction, exactly one")
@@ -252,6 +254,7 @@ class Refined(Network):
         self.correction = (GridCorrection(grid, channels, dim, physics) if correction is None
                            else correction).to(torch.float32)
         self.correction.requires_grad_(False)  # trained by fit_prior only
+        self.consistency = consistency
         self.register_buffer("active", torch.zeros((), dtype=torch.bool))
         self.register_buffer("mix", torch.zeros(()))  # λ of b_λ = b + λ (x_T − b) (module docstring)
         self.prior_info: dict = {}
@@ -296,6 +299,11 @@ class Refined(Network):
         xb = self.base(y)
         if not bool(self.active):
             return xb
+        x = self.corrected(y, xb)
+        return x if self.consistency is None else self.consistency(y, x)
+
+    def corrected(self, y: torch.Tensor, xb: torch.Tensor) -> torch.Tensor:
+        """``b_λ(y) + g(y, b(y))`` given ``xb = b(y)``: the estimate before the data-consistency layer."""
         physics = self.correction.physics  # a correction strategy's filter x_T (None: none)
         with torch.no_grad():
             t = None if physics is None else physics(y)
@@ -303,22 +311,6 @@ class Refined(Network):
         if t is not None and float(self.mix) != 0.0:  # b_λ = b + λ (x_T − b)
             start = xb + self.mix.to(xb.dtype) * (t.to(xb.dtype) - xb)
         return start + self.correction(self.correction.inputs(y, xb, t)).to(xb.dtype)
-
-    def load_state_dict(self, state_dict, strict: bool = True, assign: bool = False):
-        """Also a state dict of the base network alone (a run saved before the correction existed), and
-        one of release 0.1 (the U-Net at ``correction.*``, its grid at ``grid.*``)."""
-        if not any(k.startswith(("base.", "correction.", "grid.")) for k in state_dict):
-            return self.base.load_state_dict(state_dict, strict, assign)
-        if "mix" not in state_dict:  # saved before the blend: λ = 0
-            state_dict = {**state_dict, "mix": torch.zeros((), dtype=self.mix.dtype)}
-        if any(k.startswith("grid.") for k in state_dict):
-            def moved(k):
-                if k.startswith("grid."):
-                    return "correction." + k
-                return k.replace("correction.", "correction.unet.", 1) if k.startswith("correction.") else k
-
-            state_dict = {moved(k): v for k, v in state_dict.items()}
-        return super().load_state_dict(state_dict, strict, assign)
 
     def _apply(self, fn, recurse=True):
         """``.to(dtype)`` moves the base; the correction stays float32 (a network's arithmetic: its output
@@ -337,28 +329,11 @@ class Refined(Network):
         self.correction.prepare(yb, xb)
         return feed.store() if feed.stored else feed
 
-    def step_seconds(self, batch: int | None = None, repeats: int = 2) -> float:
-        """CPU seconds of one fitting step of the correction (forward, backward, on ``batch`` random inputs of
-        its shape; default its ``fit_batch``), the least of ``repeats``: no draw needed. The correction's
-        weights and gradients are left as they were."""
-        g = self.correction
-        inputs = g.example_inputs(batch or g.fit_batch)
-        best = math.inf
-        g.requires_grad_(True)
-        try:
-            for _ in range(repeats):
-                t0 = time.thread_time()
-                g(inputs).square().mean().backward()
-                best = min(best, time.thread_time() - t0)
-        finally:
-            g.zero_grad(set_to_none=True)
-            g.requires_grad_(False)
-        return best
-
     def fit_prior(self, x, y, relative_error, settings: PriorFit = PriorFit(), log=None) -> dict:
-        """Fit ``g`` on prior draws ``x`` ``(n, N)``, ``y`` ``(n, m)`` (numpy) with the base frozen;
+        """Fit ``g`` on prior draws ``x`` ``(n, N)``, ``y`` ``(n, m)`` (numpy) with the base frozen, then the
+        data-consistency layer's weights on the held-out draws (:mod:`pdeinv.nets.consistency`);
         ``relative_error(xhat, x)`` is the problem's per-sample relative L²(Ω) error (numpy). Returns
-        what was done (``kept``, held-out errors before and after, steps, seconds)."""
+        what was done (``kept``, held-out errors before and after, draws, steps)."""
         x = np.asarray(x, dtype=float)
         n = len(x)
         gen = torch.Generator().manual_seed(settings.seed)
@@ -367,23 +342,26 @@ class Refined(Network):
         val, tr = perm[:n_val], perm[n_val:]
         g = self.correction
         feed = self._fit_inputs(y, tr)
-        size = settings.batch or g.fit_batch
-        every = settings.check_every or max(100, math.ceil(len(tr) / size))
+        size = min(settings.batch or g.fit_batch, max(len(tr), 1))
+        every = max(1, math.ceil(len(tr) / size))  # once per pass over the training draws
+        steps = settings.step_count(len(tr), size)
 
-        def held_out_error(correct: bool = True) -> float:
+        def held_out(correct: bool = True) -> torch.Tensor:
             with torch.no_grad():
-                out = torch.cat([xb + g(inp) if correct else xb for xb, inp in feed.chunks(val)])
-            return float(np.mean(relative_error(out.double().numpy(), x[val])))
+                return torch.cat([xb + g(inp) if correct else xb for xb, inp in feed.chunks(val)]).double()
 
-        before = held_out_error(correct=False)
-        clock, opt = Budget(settings.time_budget), torch.optim.Adam(g.parameters(), settings.lr)
-        track, step, last = _Best(g, opt, settings, before), 0, 0.0
+        def error(xhat) -> float:
+            return float(np.mean(relative_error(xhat.numpy(), x[val])))
+
+        before = error(held_out(correct=False))
+        opt = torch.optim.Adam(g.parameters(), settings.lr)
+        track, step = _Best(g, opt, settings, before), 0
         feed.mix = _blend(feed, x, tr if feed.stored else tr[:PREPARE_ROWS])
         if feed.mix != 0.0:
-            track.checked(held_out_error(), 0, log)  # b_λ with g = 0: kept if better than b alone
+            track.checked(error(held_out()), 0, log)  # b_λ with g = 0: kept if better than b alone
         g.requires_grad_(True)
         try:
-            while step < settings.steps and len(tr) and not clock.over():  # CPU seconds (pdeinv.util.clock)
+            while step < steps and len(tr):
                 rows = torch.as_tensor(tr[torch.randint(len(tr), (size,), generator=gen).numpy()])
                 xb, inputs = feed(rows)
                 loss = ((xb + g(inputs) - torch.as_tensor(x[rows], dtype=torch.float32)) ** 2).mean()
@@ -391,24 +369,21 @@ class Refined(Network):
                 loss.backward()
                 opt.step()
                 step += 1
-                # every `every` steps, and at least CHECKS_PER_BUDGET times in the budget (a U-Net step on
-                # 65 025 unknowns takes ~8 s: 37 steps in 300 s, 100 steps per check never checked once)
-                budget = settings.time_budget
-                timely = budget is not None and clock.spent() - last >= budget / CHECKS_PER_BUDGET
-                if step % every == 0 or timely or step == settings.steps:
-                    last = clock.spent()
-                    if track.checked(held_out_error(), step, log):
-                        break
-            if step and step != track.step and not track.stopped:  # the budget ran out between two checks
-                track.checked(held_out_error(), step, log)
+                if (step % every == 0 or step == steps) and track.checked(error(held_out()), step, log):
+                    break
         finally:
             g.requires_grad_(False)
         if kept := track.state is not None:
             g.load_state_dict(track.state)
         self.active.fill_(kept)
         self.mix.fill_(feed.mix if kept else 0.0)
+        after = track.best
+        if kept and self.consistency is not None:  # the observations get back what the correction took
+            self.consistency.fit(y[val], held_out(), x[val])
+            with torch.no_grad():
+                after = error(self.consistency(torch.as_tensor(y[val], dtype=torch.float64), held_out()))
         self.prior_info = {"kept": kept, "draws": n, "held_out": int(n_val), "error_before": before,
-                           "mix": float(self.mix),
-                           "error_after": track.best, "steps": step, "seconds": clock.wall(),
-                           "cpu_seconds": clock.spent()}
+                           "mix": float(self.mix), "error_corrected": track.best, "error_after": after,
+                           "consistency": kept and self.consistency is not None, "steps": step,
+                           "max_steps": steps}
         return self.prior_info

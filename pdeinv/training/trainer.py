@@ -22,7 +22,6 @@ from ..methods.base import NonFiniteError, UpdateRule
 from ..methods.guard import Guard
 from ..methods.presets import PRESET, run_defaults
 from ..methods.protocol import declared
-from ..nets.refine import PriorFit
 from ..physics.backends.device import placed, resolve
 from ..problem.definition import Problem
 from ..util.progress import progress
@@ -32,12 +31,12 @@ from .checkpoint import Checkpoint, Position
 from .data import OwnData, own_data
 from .distributed import Single
 from .evaluation import check_evaluation, evaluate, metrics
+from .stages import PriorStage
 from .stopping import STILL_STEPS, at_rounding, converged, finished, parameters
 from .trainset import (
     BATCH_ORDER,
     N_TRAIN,
     fit_inputs,
-    prior_rows,
     seed_stream,
     stop_rows,
     test_rows,
@@ -47,35 +46,6 @@ from .trainset import (
 from .verdict import of_predictions
 
 __all__ = ["Callback", "Result", "Trainer", "seed_stream", "train"]
-
-#: at most this many field entries in a scene's prior draws (x and y in float64: 16 bytes each, 800 MB):
-#: 4096 draws up to 12 207 unknowns, fewer above, never under 256. At 10⁴–10⁵ unknowns a U-Net step takes
-#: seconds and the fit's budget sees a few hundred to a thousand draws (heat_3d at 29 791 unknowns: 19 steps
-#: of 32 in 181 s), so more would only hold memory (10⁸ entries: 3 356 draws there, peak RSS 13.5 GB)
-PRIOR_ENTRIES = 50_000_000
-
-#: more draws where they are cheap to hold and to compute (:func:`prior_draw_counts`): at most this many
-#: field entries (~400 MB) and :data:`PRIOR_MOST` rows, drawn within :data:`PRIOR_DRAW_SHARE` of the fit's
-#: time budget (CPU seconds). Draws, not fitting time, limit the dense correction where the physics is
-#: cheap: allen_cahn_2d (225 unknowns), the same base, 16 384 / 32 768 / 65 536 draws: held-out x_err
-#: 0.098 / 0.083 / 0.070, the fit stopping on its own plateau after 63 / 109 / 256 CPU s of its 300
-PRIOR_EXTRA_ENTRIES, PRIOR_MOST, PRIOR_DRAW_SHARE = 20_000_000, 65_536, 0.5
-
-#: the fewest prior draws where the physics is slow: the draws a scene's prior fit always makes are
-#: bounded by what :data:`PRIOR_DRAW_SHARE` of its budget buys at the pace the training samples were drawn,
-#: and the fit gets the rest of the budget (wave_2d at 29 929 unknowns: 158 ms per Newmark draw, 3 341 draws
-#: took ~500 s before a 300 s fit that was not kept; the run 1 300 s in all)
-PRIOR_FLOOR = 256
-
-
-def prior_draw_counts(N: int, prior_draws: int) -> tuple[int, int]:
-    """``(n, most)``: the prior draws a scene's prior fit always makes (``prior_draws``, fewer above
-    ``PRIOR_ENTRIES / N`` unknowns, never under 256) and the most it makes when the physics is fast
-    (:func:`~pdeinv.training.trainset.prior_rows`; a dense correction on 4 096 sine_gordon_1d draws
-    early-stopped at 0.094 with its held-out error rising, on 16 384 it reached 0.064)."""
-    n = min(prior_draws, max(256, PRIOR_ENTRIES // max(N, 1)))
-    return n, max(n, min(PRIOR_MOST, PRIOR_EXTRA_ENTRIES // max(N, 1)))
-
 
 #: ``callback(record, model) -> bool | None``; returning True stops training after this step
 Callback = Callable[[dict, torch.nn.Module], "bool | None"]
@@ -167,13 +137,12 @@ class Trainer:
     stays
     on the CPU). An unknown device, or CUDA where there is none, is a ``ValueError``.
 
-    **Prior fit.** ``prior_fit`` (a :class:`~pdeinv.nets.refine.PriorFit`; ``None``, the default here,
-    skips it;
-    ``pdeinv train`` sets one) fits a network's part that learns the prior
-    (:class:`~pdeinv.nets.refine.Refined`,
-    the default network's nonlinear correction) after the rule, on ``prior_draws`` fresh draws of the
-    scene, or on own data's training rows when they carry ``x`` (none without: a warning); its time counts
-    as training time and ``metrics["prior_fit"]`` says what was fitted on what.
+    **Stages.** The rule's stage is the loop above. Then, where the network has a part fitted on the prior
+    (:class:`~pdeinv.nets.refine.PriorFitted`: the default network's correction and data-consistency
+    layer), ``prior`` (a :class:`~pdeinv.training.stages.PriorStage`; ``"auto"``: the default one, as
+    ``pdeinv train``; ``None``: none) fits it on draws of the scene's prior, or on own data's training rows
+    when they carry ``x``, unless it decides beforehand that it cannot help (and says why).
+    ``metrics["stages"]`` lists each stage with its held-out ``x_err``, ``y_err``, steps and seconds.
 
     **Data parallel.** ``parallel`` (:class:`~pdeinv.training.distributed.Single`, or
     :class:`~pdeinv.training.distributed.DataParallel` from torchrun's environment by
@@ -210,8 +179,7 @@ class Trainer:
     data: object = None  # own observations (B, m): array, tensor or torch Dataset
     data_x: object = None  # their true fields (B, N), for errors only
     parallel: object = field(default_factory=Single)  # pdeinv.training.distributed: Single or DataParallel
-    prior_fit: PriorFit | None = None  # a PriorFitted network's last stage (pdeinv.nets.refine); CLI: on
-    prior_draws: int = 4096  # prior draws for it on a scene (own data: the file's training rows with x)
+    prior: PriorStage | None | str = "auto"  # the stage after the rule's (pdeinv.training.stages)
     history: list[dict] = field(default_factory=list, init=False)
     _target_info: dict | None = field(default=None, init=False, repr=False)
     _own: OwnData | None = field(default=None, init=False, repr=False)
@@ -262,6 +230,11 @@ class Trainer:
         self.fit_scaling = args.flag(self.fit_scaling, "fit_scaling")
         self.resume = args.flag(self.resume, "resume")
         self.progress = args.flag(self.progress, "progress", optional=True)
+        if isinstance(self.prior, str) and self.prior == "auto":
+            self.prior = PriorStage()
+        elif self.prior is not None and not isinstance(self.prior, PriorStage):
+            raise TypeError(f"prior={self.prior!r} is not allowed; expected 'auto', None or a "
+                            "pdeinv.training.stages.PriorStage")
         self._preset = run_defaults(self.rule, self.model, self.problem)
         if self.steps == PRESET:
             self.steps = None if self.time_budget is not None else self._preset["steps"]
@@ -432,48 +405,42 @@ class Trainer:
             bar.update(1)
             bar.set_postfix(loss=f"{info['loss']:.3g}", refresh=False)
         bar.close()
-        prior = self._fit_prior(run)
+        stages = [self._rule_stage(run)]
+        if self.prior is not None and self.prior.applies(run.model):
+            stages.append(self._prior_stage(run))
         record = metrics(self, run)
-        if prior is not None:
-            record["prior_fit"] = prior
+        record["stages"] = stages
         record["unseen_energy"], warning = of_predictions(self.problem, run.model, run.test, self.seed)
         if warning and self.parallel.is_writer:  # energy where the physics cannot see (.verdict)
             warnings.warn(warning, RuntimeWarning, stacklevel=2)
         return Result(run.model, self.history, record, run.state)
 
-    def _fit_prior(self, run: _Run) -> dict | None:
-        """The network's part fitted on prior draws after the rule (:mod:`pdeinv.nets.refine`), if it has one;
-        its time counts as training time. What was done, and where the prior came from, or ``None``."""
-        if self.prior_fit is None or not self.prior_fit.applies(run.model):
-            return None
-        n, most = prior_draw_counts(self.problem.N, self.prior_draws)  # memory: O(n·N)
-        budget, left = self.prior_fit.time_budget, self.prior_fit
-        if budget is not None:  # as many draws as the draw share of the budget buys, at the samples' pace
-            per_row = self.setup_cpu.get("samples", 0.0) / max(1, self.n_train + self.n_test)
-            n = min(n, max(PRIOR_FLOOR, int(PRIOR_DRAW_SHARE * budget / max(per_row, 1e-9))))
-            left = left.within(max(budget - n * per_row, PRIOR_DRAW_SHARE * budget))  # what drawing leaves
-        if (why := left.too_slow(run.model)) is not None:  # decided before any draw: their time is saved too
-            return {"kept": False, "skipped": why, "prior": "no draws"}
-        t0, cpu0 = time.perf_counter(), time.thread_time()
-        draws, source = prior_rows(self.problem, self._own, n, self.seed,
-                                   None if budget is None else PRIOR_DRAW_SHARE * budget, most)
+    def _rule_stage(self, run: _Run) -> dict:
+        """The rule's stage as ``metrics["stages"]`` reports it: its steps, seconds and held-out errors."""
+        last = self.history[-1] if self.history else self.evaluate(run.model, run.test)
+        done = self.steps is not None and run.at.step >= self.steps
+        by = run.at.stopped_by or ("steps" if done else "time_budget")
+        return {"name": self.rule.name, "steps": run.at.step, "seconds": run.at.wall, "stopped_by": by,
+                **{k: last[k] for k in ("x_err", "y_err") if k in last}}
+
+    def _prior_stage(self, run: _Run) -> dict:
+        """The prior stage (:class:`~pdeinv.training.stages.PriorStage`) after the rule's: decided on, run,
+        and reported with the refined network's test errors; its time counts as training time."""
+        stage, t0 = self.prior, time.perf_counter()
+        why = stage.why_not(self.problem, run.model, self._own, self.seed, self.problem.relative_error)
+        if why is not None:
+            return {"name": stage.name, "kept": False, "skipped": why, "seconds": time.perf_counter() - t0}
+        info = stage.run(self.problem, run.model, self._own, self.seed)
+        if info.get("skipped") and self.parallel.is_writer:
+            warnings.warn(f"the network's prior part was not fitted: {info['skipped']}; it stays the rule's "
+                          "estimate (give x in the file to learn the prior from it)", RuntimeWarning,
+                          stacklevel=3)
         run.at.wall += time.perf_counter() - t0
-        fit = self.prior_fit  # drawing and fitting share the budget
-        if budget is not None:
-            fit = fit.within(max(budget - (time.thread_time() - cpu0), PRIOR_DRAW_SHARE * budget))
-        if draws is None:
-            if self.parallel.is_writer:
-                warnings.warn(f"the network's nonlinear correction was not fitted: prior {source}; it stays "
-                              "the rule's estimate (give x in the file to learn the prior from it)",
-                              RuntimeWarning, stacklevel=3)
-            return {"kept": False, "prior": source}
-        t0 = time.perf_counter()
-        info = fit.fit(run.model, *draws, self.problem.relative_error)
-        run.at.wall += time.perf_counter() - t0
+        errors = {}
         if info.get("kept"):  # the run's last record: the refined network's test errors
-            last = {**self.history[-1], **self.evaluate(run.model, run.test), "wall_s": run.at.wall}
-            self.history[-1] = last
-        return {**info, "prior": source}
+            errors = self.evaluate(run.model, run.test)
+            self.history[-1] = {**self.history[-1], **errors, "wall_s": run.at.wall}
+        return {"name": stage.name, **info, **errors, "seconds": time.perf_counter() - t0}
 
 
 def train(problem: Problem | str | os.PathLike, rule: UpdateRule | str, model: torch.nn.Module | None = None,

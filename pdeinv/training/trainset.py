@@ -52,31 +52,29 @@ def stop_rows(problem, own, n_val: int, seed: int):
     return own.y_val if own is not None else problem.sample(n_val, seed_stream(seed, VAL_DATA))[1]
 
 
-def prior_rows(problem, own, n: int, seed: int, seconds: float | None = None,
-               most: int | None = None) -> tuple[tuple | None, str]:
+def prior_rows(problem, own, n: int, seed: int, stream: int = 0) -> tuple[tuple | None, str]:
     """``((x, y) or None, source)``: draws of the prior for a network part fitted on it
     (:mod:`pdeinv.nets.refine`). Own data: its *training* rows when the file has ``x`` (never the test or
     stopping rows), ``None`` without ``x`` (the prior is then unknown: never the scene's sampler in its
-    place); a scene: ``n`` fresh draws of ``problem.sample`` (stream ``PRIOR_DATA``), then, with
-    ``seconds``, more in chunks of ``n`` (streams of that stream) while the next chunk is expected to end
-    within ``seconds`` of the start, up to ``most`` rows: a nonlinear correction overfits a few thousand
-    draws (sine_gordon_1d's dense MLP) where the physics could give many more in seconds."""
+    place); a scene: ``n`` fresh draws of ``problem.sample`` from sub-stream ``stream`` of
+    ``PRIOR_DATA``, in chunks of at most :data:`PRIOR_CHUNK` (each its own sub-stream): a count, so the
+    same seed gives the same draws on any machine."""
     import numpy as np
-
-    from ..util.clock import Budget
 
     if own is not None:
         if own.x is None:
             return None, "none: the data file has no x"
         return (own.x, own.y), f"the data file's x ({len(own.x)} training rows)"
     prior = problem.settings.get("prior", "the scene's sampler")
-    clock, stream = Budget(seconds), seed_stream(seed, PRIOR_DATA)  # CPU seconds (pdeinv.util.clock)
-    parts = [problem.sample(n, stream)]
-    most = n if seconds is None or most is None else max(n, most)
-    while len(parts) * n + n <= most and not clock.over((len(parts) + 1) / len(parts)):
-        parts.append(problem.sample(n, seed_stream(stream, len(parts))))
+    base = seed_stream(seed_stream(seed, PRIOR_DATA), stream)
+    sizes = [min(PRIOR_CHUNK, n - i) for i in range(0, n, PRIOR_CHUNK)]
+    parts = [problem.sample(k, seed_stream(base, i)) for i, k in enumerate(sizes)]
     x, y = (np.concatenate(a) for a in zip(*parts, strict=True))
     return (x, y), f"{len(x)} draws of the scene's prior ({prior})"
+
+
+#: prior draws are made in chunks of this many rows (bounded memory of one call to the sampler)
+PRIOR_CHUNK = 4096
 
 
 def training_fields(problem, own, n_train: int, seed: int):

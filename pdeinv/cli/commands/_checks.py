@@ -109,20 +109,13 @@ def check_run(problem, args, hp: dict) -> None:
 
 
 def _prior_draws(problem, args) -> int:
-    """The prior draws the trainer will hold for the default network's prior fit (0 without one):
-    the most ``Trainer._fit_prior`` may draw (:func:`pdeinv.training.trainer.prior_draw_counts`)."""
-    import os
+    """The prior draws the trainer will hold for the default network's prior stage (0 without one):
+    :func:`pdeinv.training.stages.draw_count`."""
+    from pdeinv.training.stages import draw_count
 
-    from pdeinv.training.trainer import Trainer, prior_draw_counts
-
-    seconds = args.prior_fit if args.prior_fit is not None else os.environ.get("PDEINV_PRIOR_FIT", "300")
-    try:
-        on = float(seconds) > 0
-    except ValueError:
-        on = True  # the trainer's own check refuses it with its message
-    if not on or getattr(args, "net", "default") != "default" or args.hidden:
+    if args.prior_fit == 0 or getattr(args, "net", "default") != "default" or args.hidden:
         return 0
-    return prior_draw_counts(problem.N, Trainer.prior_draws)[1]
+    return draw_count(problem.N)
 
 
 def steps(args, hp: dict | None = None) -> int | None:

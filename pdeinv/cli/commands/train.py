@@ -164,6 +164,11 @@ def _train(args) -> int:
     from pdeinv.training.distributed import from_env
     from pdeinv.training.verdict import FailedRun
 
+    if args.explain:
+        return _explain(args)
+    if args.out is None:
+        raise UsageError("--out DIR is required: the folder for the run's files (or --explain to see the "
+                         "plan without training)")
     out = out_path(args.out)
     ckpt = out / "checkpoint.pt"
     _check_flags(args, out)
@@ -192,6 +197,27 @@ def _train(args) -> int:
         return 1
     finally:
         parallel.close()
+
+
+def _explain(args) -> int:
+    """``--explain``: the run's plan (:func:`pdeinv.training.plan.plan`) on stdout; nothing trained or
+    written."""
+    from pdeinv.training.plan import plan
+
+    set_threads(args.threads)
+    problem, _, y, x = _problem_and_data(args)
+    own = None
+    if y is not None:
+        from pdeinv.training.data import own_data
+
+        own = own_data(problem, y, x, args.n_test, 0, False)
+    hidden = _hidden(args.hidden) if args.hidden is not None else None
+    chosen = plan(problem, args.method, net=args.net, hidden=hidden, prior=_prior_stage(args),
+                  n_train=args.n_train or (len(own.y) if own is not None else 1024), steps=args.steps,
+                  batch_size=args.batch_size, own=own, n_test=args.n_test, lr=args.lr, eta=args.eta,
+                  tau=args.tau, optimizer=args.optimizer)
+    print(chosen.explain())
+    return 0
 
 
 def _lost_peer(err: RuntimeError) -> bool:
@@ -230,27 +256,17 @@ def _network_spec(problem, hp: dict, net: str = "default", data: bool = False) -
     return spec
 
 
-def _prior_fit(args):
-    """``--prior-fit S``: the prior fit of a network's nonlinear correction (:mod:`pdeinv.nets.refine`) for at
-    most S seconds; 0: none."""
-    import os
-
+def _prior_stage(args):
+    """``--prior-fit N``: the prior stage (:class:`pdeinv.training.stages.PriorStage`) with at most N steps;
+    0: none; not given: the default stage, its counts derived from the problem."""
     from pdeinv.nets.refine import PriorFit
+    from pdeinv.training.stages import PriorStage
 
-    seconds, where = args.prior_fit, "--prior-fit"
-    if seconds is None:  # the default, which PDEINV_PRIOR_FIT may change (e.g. 0 in a test suite)
-        seconds, where = os.environ.get("PDEINV_PRIOR_FIT", str(PRIOR_FIT_S)), "PDEINV_PRIOR_FIT="
-        try:
-            seconds = float(seconds)
-        except ValueError:
-            raise UsageError(f"{where}{seconds!r}: expected seconds >= 0 (0: no prior fit)") from None
-    if not seconds >= 0:
-        raise UsageError(f"{where}{seconds:g}: expected seconds >= 0 (0: no prior fit)")
-    return PriorFit(time_budget=seconds, seed=args.seed) if seconds > 0 else None
-
-
-#: ``--prior-fit``'s default: seconds for the prior fit of the default network's correction
-PRIOR_FIT_S = 300.0
+    if args.prior_fit is None:
+        return PriorStage(PriorFit())
+    if args.prior_fit < 0:
+        raise UsageError(f"--prior-fit {args.prior_fit}: expected a number of steps >= 0 (0: no prior stage)")
+    return PriorStage(PriorFit(steps=args.prior_fit)) if args.prior_fit > 0 else None
 
 
 def _parallel_train(args, out, ckpt, device, parallel) -> int:
@@ -289,7 +305,7 @@ def _parallel_train(args, out, ckpt, device, parallel) -> int:
                       checkpoint=FolderCheckpoint(ckpt, args.checkpoint_every, fresh) if args.checkpoint_every
                       else None,
                       resume=args.resume, stop=stop, data=y, data_x=x, device=device, parallel=parallel,
-                      prior_fit=_prior_fit(args), progress=False if getattr(args, "quiet", False) else None,
+                      prior=_prior_stage(args), progress=False if getattr(args, "quiet", False) else None,
                       callbacks=[] if sys.stderr.isatty() else [_Heartbeat(_checks.steps(args, hp))])
     if not parallel.is_writer:  # trains its shard; rank 0 writes everything
         failed = trainer.fit().metrics["failed"]
@@ -389,11 +405,23 @@ def _run(args, out, problem, overrides, net, hp, trainer, fresh, setup=None) -> 
                                samples=min(args.export_samples, len(y_test)))
             written |= {Path(p).name for p in files.values()}
         clear_outputs(out, keep=written)  # e.g. fields.vtu of an earlier run or a resumed one
-        # %.3g, never %.4f: "x_err 0.0000" once hid 6e-11
-        x_err = "n/a (no x in the data)" if metrics["x_err"] is None else f"{metrics['x_err']:.3g}"
-        print(f"{problem.name} {args.method}: {metrics['steps']} steps ({metrics['stopped_by']}) in "
-              f"{metrics['wall_s']:.2f} s, x_err {x_err}, y_err {metrics['y_err']:.3g} -> {out}")
+        print(f"{problem.name} {'; '.join(_stage_line(st) for st in metrics['stages'])}; "
+              f"{metrics['wall_s']:.2f} s -> {out}")
         return _verdict(metrics["failed"], args.accept_bad, out)
+
+
+def _stage_line(stage: dict) -> str:
+    """One stage of the summary line: ``sip: 30 steps (steps), x_err 0.159, y_err 9e-13``."""
+    name = stage["name"]
+    if stage.get("skipped"):
+        return f"{name}: skipped ({stage['skipped']})"
+    if "kept" in stage and not stage["kept"]:
+        return f"{name}: not kept ({stage.get('steps', 0)} steps did not lower the held-out error)"
+    # %.3g, never %.4f: "x_err 0.0000" once hid 6e-11
+    x_err = "n/a (no x in the data)" if stage.get("x_err") is None else f"{stage['x_err']:.3g}"
+    how = f" ({stage['stopped_by']})" if stage.get("stopped_by") else ""
+    on = f" on {stage['draws']} draws" if "draws" in stage else ""
+    return f"{name}: {stage.get('steps', 0)} steps{how}{on}, x_err {x_err}, y_err {stage['y_err']:.3g}"
 
 
 def _setup_phases(trainer, setup) -> dict:
@@ -440,7 +468,10 @@ def add_parser(sub) -> None:
                    help="seed of everything random: the training and test draws, the batch order, the "
                         "network's initial weights (an integer from 0 to 2^32-1; default 0)")
     t.add_argument("--no-cache", action="store_true", help="no disk cache of factorizations")
-    t.add_argument("--out", required=True, metavar="DIR",
+    t.add_argument("--explain", action="store_true",
+                   help="print what the run will do (backend, inverse, rule, network, stages and their "
+                        "counts, memory) and exit without training or writing anything")
+    t.add_argument("--out", default=None, metavar="DIR",
                    help="folder for the run's files (created with its parents; one that holds another run "
                         "is refused unless --resume or --overwrite): metrics.json, history.csv, "
                         "training.png, model.pt, run.json, checkpoint.pt, fields.vtu/png")
@@ -479,11 +510,11 @@ def _network_arguments(t) -> None:
                         "operator is not reversible, else the whitened linear map) trained by the rule, "
                         "plus a nonlinear correction fitted on the prior (--prior-fit); linear: the "
                         "linear estimate alone; pdeinv.nets.default_model)")
-    t.add_argument("--prior-fit", type=float, default=None, metavar="S",
-                   help="after the rule, fit the default network's nonlinear correction on draws of the "
-                        "prior (the scene's sampler, or the rows of --data that carry x) for at most S "
-                        "CPU seconds of its thread, at most 3 S wall seconds (default 300, or "
-                        "$PDEINV_PRIOR_FIT; 0: off, the network stays the rule's linear estimate)")
+    t.add_argument("--prior-fit", type=int, default=None, metavar="N",
+                   help="the prior stage after the rule: fit the default network's nonlinear correction on "
+                        "draws of the prior (the scene's sampler, or the rows of --data that carry x) for at "
+                        "most N steps, then its data-consistency layer (default: 60 passes over the draws, "
+                        "at most 8192 steps; 0: no prior stage, the network stays the rule's estimate)")
     t.add_argument("--hidden", default=None, metavar="W,W", help="MLP hidden widths, e.g. 64,64")
 
 
