@@ -58,8 +58,8 @@ def test_gradient_methods_train_on_allen_cahn(method):
 
 
 def test_linear_references_refuse_a_nonlinear_map_and_the_default_inverse_asks_the_capability():
-    from pdeinv import references
     from pdeinv.inverse import TimeReversal, default_inverse
+    from pdeinv.training import references
 
     p = _small()
     with pytest.raises(NotImplementedError, match="a dense matrix of P"):
@@ -138,16 +138,16 @@ def test_the_default_network_beats_gauss_newton_on_sine_gordon_1d():
     from pdeinv.methods.presets import make_rule
     from pdeinv.nets.refine import PriorFit
     from pdeinv.training.references import levenberg_marquardt
+    from pdeinv.training.stages import PriorStage
 
     p = pdeinv.load_problem("sine_gordon_1d")
     rule, hp = make_rule("sip", p, p.noise)
     trainer = pdeinv.Trainer(p, rule, steps=hp["steps"], batch_size=hp["batch_size"], seed=0, n_test=32,
-                             progress=False, prior_fit=PriorFit(steps=4000, time_budget=None),
-                             prior_draws=16384)
+                             progress=False, prior=PriorStage(PriorFit(steps=4000), draws=16384))
     res = trainer.fit()
     xt, yt = trainer.held_out()
     gn = {a: float(np.mean(p.relative_error(levenberg_marquardt(p, yt, a)[0], xt))) for a in (1e-1, 1e-2)}
-    assert res.metrics["prior_fit"]["kept"]
+    assert res.metrics["stages"][1]["kept"]
     assert res.metrics["x_err"] < 0.75 * gn[1e-2] and res.metrics["x_err"] < 1.05 * min(gn.values())
 
 
@@ -161,18 +161,19 @@ def test_the_default_network_beats_gauss_newton_on_allen_cahn_1d():
     from pdeinv.methods.presets import make_rule
     from pdeinv.nets.refine import PriorFit
     from pdeinv.training.references import levenberg_marquardt
+    from pdeinv.training.stages import PriorStage
     from pdeinv.training.stopping import PlateauStop
 
     p = pdeinv.load_problem("allen_cahn_1d")
     rule, hp = make_rule("sip", p, p.noise)
     trainer = pdeinv.Trainer(p, rule, steps=hp["steps"], batch_size=hp["batch_size"], seed=0, n_train=256,
-                             n_test=32, progress=False, prior_fit=PriorFit(steps=4000, time_budget=None),
-                             prior_draws=16384, stop=PlateauStop())
+                             n_test=32, progress=False, prior=PriorStage(PriorFit(steps=4000), draws=16384),
+                             stop=PlateauStop())
     res = trainer.fit()
     xt, yt = trainer.held_out()
     alphas = (1e-2, 1e-3, 1e-4)
     gn = {a: float(np.mean(p.relative_error(levenberg_marquardt(p, yt, a)[0], xt))) for a in alphas}
-    assert res.metrics["prior_fit"]["kept"] and res.metrics["stopped_by"] == "plateau"
+    assert res.metrics["stages"][1]["kept"] and res.metrics["stopped_by"] == "plateau"
     assert res.metrics["x_err"] < 0.75 * gn[1e-2] and res.metrics["x_err"] < 1.05 * min(gn.values())
 
 

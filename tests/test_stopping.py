@@ -227,7 +227,7 @@ def test_a_step_that_moves_nothing_ends_the_run_and_changes_no_result(monkeypatc
         for name, kw in (("wave_2d", {"n": 12, "noise": 0.01}), ("heat_1d", {"n": 32})):
             p = pdeinv.load_problem(name, **kw)
             rule, _ = make_rule("sip", p, p.noise)
-            runs[name, still] = pdeinv.train(p, rule, progress=False, prior_fit=None).metrics
+            runs[name, still] = pdeinv.train(p, rule, progress=False, prior=None).metrics
     wave, wave_all = runs["wave_2d", STILL], runs["wave_2d", 0.0]
     assert wave["stopped_by"] == "converged" and wave["steps"] <= 6 and wave_all["steps"] == 30
     assert wave["x_err"] == pytest.approx(wave_all["x_err"], rel=1e-9)
