@@ -21,9 +21,6 @@ def _private_cache(tmp_path_factory):
     with pytest.MonkeyPatch.context() as mp:
         mp.setenv("PDEINV_CACHE_DIR", str(tmp_path_factory.mktemp("pdeinv-cache")))
         mp.delenv("PDEINV_NO_CACHE", raising=False)
-        # `pdeinv train` without --prior-fit fits no correction here (up to 300 s per run otherwise);
-        # the tests of the prior fit ask for it (tests/test_refine.py)
-        mp.setenv("PDEINV_PRIOR_FIT", "0")
         yield
 
 
