@@ -6,8 +6,9 @@
 Reads the rows ``benchmarks/accuracy.py`` writes (later files override earlier ones cell by cell, so
 partial re-runs merge), and draws one panel per noise level: a dot per method and scene, Tikhonov with
 the oracle α as a bar. Log scale: noise-free wave scenes reach rounding. ``--table`` also prints the
-markdown table of ``docs/results.md``: x-errors (the best trained method in bold), ratios, and each
-method's mean step time (``metrics["step_s"]``: compare within a row, runs of one invocation only).
+markdown table of ``benchmarks/notes/results-history.md``: x-errors (the best trained method in bold),
+ratios, and each method's mean step time (``metrics["step_s"]``: compare within a row, runs of one
+invocation only).
 """
 
 from __future__ import annotations

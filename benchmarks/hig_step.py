@@ -14,7 +14,8 @@ Measured (2-core machine shared with other jobs, one thread):
 * before (kept-rows route of the last session): wave_2d 2.03–2.15× (HIG 86–93 ms, Adam 40–45 ms);
 * dead feature columns out of the products, modes below the float32 products' rounding left out, no
   products once the step is below the weights' resolution (:mod:`pdeinv.methods.hig.fixed`), and the
-  guard's copy every 10th step for both sides: see the closing numbers in ``docs/results.md``.
+  guard's copy every 10th step for both sides: see the closing numbers in
+  ``benchmarks/notes/results-history.md``.
 """
 
 from __future__ import annotations

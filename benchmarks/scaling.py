@@ -1,7 +1,7 @@
 """Scaling against the mesh: build time, step time and peak memory per backend, 2-D and 3-D.
 
     OMP_NUM_THREADS=1 python benchmarks/scaling.py [--quick] [--sizes2 32 64 128 256]
-        [--sizes3 8 16 24 32] [--budget 120] [--out docs/scaling.md]
+        [--sizes3 8 16 24 32] [--budget 120] [--out benchmarks/notes/scaling.md]
 
 For the unit square (``n × n × 2`` P1 triangles) and the unit cube (``n³ × 6`` P1
 tetrahedra), Dirichlet boundary, it builds (``pdeinv.fem.forms.discretize`` and the
@@ -11,7 +11,7 @@ operators directly, not the scenes):
   ``steps`` (the default direct solver, Cholesky or SuperLU), ``steps+amg``
   (:class:`pdeinv.fem.solvers.AMGCG`), ``modal``, ``dense``, ``svd``;
 * wave ``Wave(M, K, c=1, T=0.5, 50 Newmark steps)`` (the mesh's direct solver, its default; SuperLU in the
-  tables of docs/scaling.md measured before 2026-11-27) compiled to
+  tables of benchmarks/notes/scaling.md measured before 2026-11-27) compiled to
   ``steps``, ``steps+amg``, ``dense``, ``svd``.
 
 Columns: **build s** — constructing the operator and one forward of one column (so

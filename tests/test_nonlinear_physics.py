@@ -278,7 +278,7 @@ def test_chord_equals_newton_forward_jvp_and_vjp(kw, amp):
 def test_chord_equals_newton_on_the_scene_defaults():
     p = pdeinv.load_problem("allen_cahn_1d")
     op = p.operator
-    assert op.solver.name == "chord"  # the default: the faster one, as measured (docs/nonlinear.md)
+    assert op.solver.name == "chord"  # the default: the faster one, measured (benchmarks/notes/nonlinear.md)
     newton = ReactionHeat(op.M, op.K, kappa=op.kappa, T=op.t_end, steps=op.steps, strength=op.strength,
                           solver="newton")
     X = p.sampler(16, np.random.default_rng(3))

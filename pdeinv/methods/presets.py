@@ -67,7 +67,7 @@ No per-scene table: every step size follows from the maths.
   the preset on every scene (and, since :mod:`.hig_fixed`, the cheaper step as well).
 
 Measured with ``benchmarks/accuracy.py`` (CLI defaults, one thread) against best-α Tikhonov on
-the same 128 test pairs: see ``docs/results.md``.
+the same 128 test pairs: see ``benchmarks/notes/results-history.md``.
 """
 
 from __future__ import annotations

@@ -27,8 +27,8 @@ Both default networks are linear in their parameters after a fixed feature map
 (:meth:`Net.linear_in_parameters`): SIP's proxy step is then a Newton step
 (:meth:`Net.gauss_newton_diagonal`) and HIG has an exact Kronecker-factored step
 (:mod:`pdeinv.methods.hig.kron`). Measured against best-α Tikhonov on every scene with
-``benchmarks/accuracy.py``: the table is in ``docs/results.md``. The whitening is fitted by
-the trainer on the training observations only (:func:`fit_preconditioning`), never on ``x``,
+``benchmarks/accuracy.py``: the table is in ``benchmarks/notes/results-history.md``. The whitening is fitted
+by the trainer on the training observations only (:func:`fit_preconditioning`), never on ``x``,
 and travels with the state dict.
 
 History: an earlier sweep (SIP with Adam on the proxy, float32, 20 s per run) picked the

@@ -6,7 +6,8 @@ Three strategies, chosen by what the mesh is (:func:`pdeinv.nets.defaults.correc
 * :class:`GridCorrection`: a U-Net (:class:`UNet`) on a regular grid reached through the
   finite-element interpolation (:class:`~pdeinv.fem.grid.GridMap`), ``g = E U(Ê b(y) [, Ê x_T(y)])``:
   parameters independent of the mesh, a local (convolutional) prior, any 2-D/3-D mesh. The SIP
-  paper's boxes at 64×64: 0.159 → 0.044 (from the blend of the base and ``x_T``; docs/results.md).
+  paper's boxes at 64×64: 0.159 → 0.044 (from the blend of the base and ``x_T``;
+  benchmarks/notes/results-history.md).
 * :class:`DenseCorrection`: a GELU MLP on the whole observation and estimate,
   ``g = σ_x · MLP([y/σ_y, b(y)/σ_x [, x_T(y)/σ_x]])``: every unknown sees every observation, which a
   nonlinear inverse of a wave or reaction map needs (information travels across the domain), at

@@ -31,7 +31,7 @@ from the prior. This is the post-processing design of learned reconstruction (Ji
 FBPConvNet), with the physics-trained ``b`` in place of a fixed classical inverse. Measured
 (heat_boxes 64×64, ``pdeinv train heat_boxes``, SIP, one loaded thread): 0.159 → 0.044 noise-free
 (best-α Tikhonov 0.135, linear MMSE 0.199), 0.330 → 0.154 at 1 % (0.320, 0.322); 95×95: 0.600 → 0.047
-(0.108), where it ended at 0.136 without the blend; docs/results.md.
+(0.108), where it ended at 0.136 without the blend; benchmarks/notes/results-history.md.
 """
 
 from __future__ import annotations

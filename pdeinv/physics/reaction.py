@@ -41,7 +41,7 @@ columns not yet converged, per Newton iteration. A column stops when its Newton 
 ``‖δ_k‖∞ ≤ rtol·‖w‖∞``, or when the quadratic model predicts the next error below that,
 ``‖δ_k‖³/‖δ_{k−1}‖² ≤ rtol·‖w‖∞`` (the update ``δ_k`` is then applied and nothing is factorized
 again). The tangent solves factorize ``J`` once per step. Quadratic convergence, but a block LU
-per iteration: 6–9× slower than the chord on the scenes (docs/nonlinear.md).
+per iteration: 6–9× slower than the chord on the scenes (benchmarks/notes/nonlinear.md).
 
 **Exact discrete adjoint.** The tangent of a step is ``δw = J(w)⁻¹ C(u) δu`` with
 ``C(u) = B − (1−θ) dt M diag(f'(u))``; its transpose ``ū = C(u)ᵀ J(w)⁻ᵀ w̄`` needs the states

@@ -42,8 +42,8 @@ def _plateau(problem, steps=None, model=None):
 
 def _auto(problem, steps=None, model=None):
     """Nonlinear physics (declared): the plateau stop (:class:`pdeinv.training.stopping.PlateauStop`; the
-    discrepancy stop never fired in the nonlinear runs of docs/nonlinear.md, and SIP's steps there cost
-    75 s each after the third had converged). Noisy data: the trainer's denoised target
+    discrepancy stop never fired in the nonlinear runs of benchmarks/notes/nonlinear.md, and SIP's steps there
+    cost 75 s each after the third had converged). Noisy data: the trainer's denoised target
     (pdeinv.methods.targets) when it can fit one — its fixed point is regularized, and a discrepancy stop
     would only end slower rules (HIG: 0.141 at step 10 against 0.12 at step 100 on heat_2d at 1 %) before
     they reach it —, else the discrepancy stop. Whether it can is asked with the run's ``model``: a network

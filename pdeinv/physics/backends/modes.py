@@ -22,7 +22,7 @@ with a fresh sparse ``MW``); a check first counts the kept Ritz values by the in
 the count reaches the exact one, and the next check sits where the counts extrapolate to it; the kept
 vectors come from ``eigh`` by divide and conquer, of the leading 60 % of ``H`` first and then of what is
 left once its converged pairs are locked (:func:`_rayleigh_ritz`). Eigensolve 50.5 → 35.4 CPU s
-(docs/scaling.md, third session) → 24 s (fourth session).
+(benchmarks/notes/scaling.md, third session) → 24 s (fourth session).
 
 **Stopping rule — accuracy of the operator, not of every eigenvector.** A caller passes
 ``log_gain(λ)``, the log of what each mode is multiplied by (``log|r(dtκλ)ⁿ|`` for heat),
