@@ -202,22 +202,28 @@ def _train(args) -> int:
 def _explain(args) -> int:
     """``--explain``: the run's plan (:func:`pdeinv.training.plan.plan`) on stdout; nothing trained or
     written."""
-    from pdeinv.training.plan import plan
 
     set_threads(args.threads)
     problem, _, y, x = _problem_and_data(args)
+    print(_plan(args, problem, y, x).explain())
+    return 0
+
+
+def _plan(args, problem, y=None, x=None):
+    """The run's :class:`pdeinv.training.plan.Plan` from the command line (own data: ``y``, ``x``)."""
+    from pdeinv.training.plan import plan
+    from pdeinv.training.trainset import N_TRAIN
+
     own = None
     if y is not None:
         from pdeinv.training.data import own_data
 
         own = own_data(problem, y, x, args.n_test, 0, False)
     hidden = _hidden(args.hidden) if args.hidden is not None else None
-    chosen = plan(problem, args.method, net=args.net, hidden=hidden, prior=_prior_stage(args),
-                  n_train=args.n_train or (len(own.y) if own is not None else 1024), steps=args.steps,
-                  batch_size=args.batch_size, own=own, n_test=args.n_test, lr=args.lr, eta=args.eta,
-                  tau=args.tau, optimizer=args.optimizer)
-    print(chosen.explain())
-    return 0
+    return plan(problem, args.method, net=args.net, hidden=hidden, prior=_prior_stage(args),
+                n_train=args.n_train or (len(own.y) if own is not None else N_TRAIN), steps=args.steps,
+                batch_size=args.batch_size, own=own, n_test=args.n_test, lr=args.lr, eta=args.eta,
+                tau=args.tau, optimizer=args.optimizer)
 
 
 def _lost_peer(err: RuntimeError) -> bool:
@@ -312,7 +318,8 @@ def _parallel_train(args, out, ckpt, device, parallel) -> int:
         return FAILED if failed and not args.accept_bad else 0
     prepare_out(out)
     try:
-        return _run(args, out, problem, overrides, net, hp, trainer, fresh, (setup, setup_cpu))
+        return _run(args, out, problem, overrides, net, hp, trainer, fresh, (setup, setup_cpu),
+                    _plan(args, problem, y, x))
     except FileNotFoundError:  # e.g. --resume without a checkpoint: bad input (exit 2)
         raise
     except OSError as err:  # a full disk, no permission: not the input's fault, not numerical
@@ -356,7 +363,7 @@ def _problem_and_data(args):
     return problem, overrides, y, x
 
 
-def _run(args, out, problem, overrides, net, hp, trainer, fresh, setup=None) -> int:
+def _run(args, out, problem, overrides, net, hp, trainer, fresh, setup=None, chosen=None) -> int:
     """Train under the folder's lock and write every output; see :data:`pdeinv.io.runs.OUTPUTS`."""
     import torch
 
@@ -384,7 +391,8 @@ def _run(args, out, problem, overrides, net, hp, trainer, fresh, setup=None) -> 
             print(f"pdeinv train: {what(err)}; {saved}", file=sys.stderr)
             return exit_code(err)
         fresh()
-        metrics = {**result.metrics, **_setup_phases(trainer, setup), "method": args.method,
+        metrics = {**result.metrics, **_setup_phases(trainer, setup), "plan": chosen.as_dict(),
+                   "method": args.method,
                    "hyperparameters": hp, "settings": {k: v for k, v in problem.settings.items()},
                    "route": result.history[-1].get("route"), "torch_threads": torch.get_num_threads()}
         if args.data:
