@@ -34,10 +34,11 @@ ENTRIES, MOST_DRAWS, FEWEST_DRAWS = 20_000_000, 65_536, 256
 ENTRIES_4K = 50_000_000
 
 
-#: multiply-adds a default stage's fit may spend (forward and backward, ~3× a forward pass per draw):
-#: the work 300 CPU seconds bought on one core of the 2-core machine (a U-Net step on 63×63 grid points,
-#: 32 draws, 0.64 s: ~1.5·10¹⁰ multiply-adds per second), now a count: the same on every machine
-FIT_MACS = 4.5e12
+#: multiply-adds a default stage's fit may spend (forward and backward, ~3× a forward pass per draw), a
+#: count, the same on every machine: ~1 000 U-Net steps of 32 draws on heat_boxes' 63×63 grid (0.64 s each
+#: on one core of the 2-core machine, ~1.5·10¹⁰ multiply-adds per second); half of it ended at 0.050
+#: there (0.060 before the data-consistency layer), where the same fit had reached 0.044 before
+FIT_MACS = 9e12
 
 
 def step_count(problem, kind: str, batch: int, n_train: int, fit: PriorFit) -> int:
