@@ -14,10 +14,11 @@ $(BIN)/.installed: pyproject.toml
 	$(BIN)/pip install -q -e '.[test,fast]'
 	touch $@
 
-.PHONY: install demo test docs
+.PHONY: install demo test docs results
 install: $(BIN)/.installed
 
-# the main job: SIP training on heat_2d (under a minute on 2 cores); outputs in runs/demo
+# the main job: SIP training on heat_2d (the prior stage skips itself: SIP is already within 1 %);
+# outputs in runs/demo
 demo: install
 	$(BIN)/pdeinv train heat_2d --seed 0 --out runs/demo --overwrite
 
@@ -28,3 +29,8 @@ test: install
 # the API reference from the docstrings (pdoc; in the test extra): docs/api/index.html
 docs: install
 	$(BIN)/python -m pdeinv.util.apidocs docs/api
+
+# docs/results.md: pdeinv train with its default flags on the default scenes, one run at a time
+# (benchmarks/results.py; --quick for the n = 16 variants)
+results: install
+	$(BIN)/python benchmarks/results.py
