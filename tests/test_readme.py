@@ -1,4 +1,5 @@
-"""The README's tutorial and every python block of the docs pages run as written.
+"""The README's tutorial and every python block of the docs pages run as written; their relative links
+resolve, and docs/train.md shows what ``--explain`` prints.
 
 Each runs in a temporary folder (they write files). Blocks not meant to run are fenced ```bash,
 ```sh or ```text; the ```bash lines of the sections with a dedicated test below run through the CLI.
@@ -40,6 +41,54 @@ def _section(page: Path, heading: str) -> str:
 
 def _blocks(text: str) -> list[tuple[str, str]]:
     return FENCE.findall(text)
+
+
+#: pages whose relative links must resolve: the README, the guides, the lab notes
+LINKED = [README, *PAGES, *sorted((ROOT / "benchmarks" / "notes").glob("*.md"))]
+
+
+def _anchor(heading: str) -> str:
+    """GitHub's anchor of a markdown heading: lower case, punctuation dropped, spaces as hyphens."""
+    return re.sub(r"[^\w\- ]", "", heading.strip().lower()).replace(" ", "-")
+
+
+def _anchors(page: Path) -> set[str]:
+    text = FENCE.sub("", page.read_text())
+    return {_anchor(h) for h in re.findall(r"^#{1,6} (.+)$", text, flags=re.M)}
+
+
+@pytest.mark.parametrize("page", LINKED, ids=lambda p: str(p.relative_to(ROOT)))
+def test_relative_links_resolve(page):
+    """Every relative link of the README, the guides and the lab notes names a file that exists, and
+    an anchor into a markdown page names one of its headings (pages move: docs/ → benchmarks/notes/)."""
+    text = FENCE.sub("", page.read_text())
+    for target in re.findall(r"\]\(([^)\s]+)\)", text):
+        if re.match(r"[a-z]+:", target):
+            continue
+        path, _, anchor = target.partition("#")
+        where = (page.parent / path).resolve() if path else page
+        assert where.exists(), f"{page.name}: the link {target!r} names no file"
+        if anchor and where.suffix == ".md":
+            assert anchor in _anchors(where), f"{page.name}: the link {target!r} names no heading"
+
+
+def test_train_page_shows_what_explain_prints(capsys):
+    """docs/train.md pastes the output of its `pdeinv train ... --explain` line: it is the current one
+    (the memory line's estimates aside)."""
+    import shlex
+
+    from pdeinv.cli import main
+
+    block = next(code for lang, code in _blocks((DOCS / "train.md").read_text())
+                 if lang == "text" and code.startswith("$ pdeinv train"))
+    command, *shown = block.strip().splitlines()
+    argv = shlex.split(command.removeprefix("$ "))
+    capsys.readouterr()
+    assert main([*argv[1:], "--threads", "1"]) == 0
+    printed = capsys.readouterr().out.strip().splitlines()
+    strip = lambda lines: [line for line in lines if not line.startswith("memory")]  # noqa: E731
+    assert strip(printed) == strip(shown)
+    assert [line.split()[0] for line in printed] == [line.split()[0] for line in shown]
 
 
 def test_every_block_names_its_language():
