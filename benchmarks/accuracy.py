@@ -28,7 +28,7 @@ GRID = tuple(10.0 ** (-k / 4) for k in range(0, 65))
 
 def tikhonov(scene: str, noise: float) -> float:
     import pdeinv
-    from pdeinv import references
+    from pdeinv.training import references
     from pdeinv.training.trainset import TEST_DATA, seed_stream
 
     p = pdeinv.load_problem(scene, noise=noise)

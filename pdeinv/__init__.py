@@ -12,36 +12,26 @@ do not pay for torch (measured: ``pdeinv --help`` 3.2 s → 0.3 s).
 
 import importlib
 
-#: public name -> the module that defines it (public submodules map to their module path)
+#: public name -> the module that defines it ("=path": the name is that submodule itself)
 _WHERE = {
-    **{name: f"={path}" for name, path in {
-        "export": "io.export", "mesh": "fem.mesh", "observe": "fem.sensors", "plots": "io.plots",
-        "nets": "nets", "runs": "io.runs", "references": "training.references", "targets": "methods.targets",
-        "threads": "util.threads", "settings": "problem.settings", "scenes": "problem.scenes",
-        "verdict": "training.verdict", "nonlinear_scenes": "problem.nonlinear_scenes",
-        # the layers (``pdeinv.io.export`` works without importing ``pdeinv.io`` first)
-        **{k: k for k in ("util", "fem", "physics", "inverse", "methods", "training", "io")}}.items()},
-    "FailedRun": "training.verdict",
-    "load_run": "io.runs", "save_run": "io.runs",
-    "apply": "physics.bridge", "Checkpoint": "training.checkpoint", "Discretization": "fem.forms",
-    "discretize": "fem.forms",
-    **dict.fromkeys(["Discrepancy", "FixedAlpha", "ModalTikhonov", "RelativeAlpha", "StateReversal",
-                     "SpectralTikhonov", "TikhonovCG", "TimeReversal", "default_inverse"], "inverse"),
-    **dict.fromkeys(["GD", "HIG", "SIP", "Supervised", "NonFiniteError", "adam", "sgd"], "methods"),
-    **dict.fromkeys(["Net", "mlp", "reduced", "whitened", "zero_last_layer"], "nets"),
-    "estimate_noise": "inverse.noise", "sensor_matrix": "fem.sensors",
-    **dict.fromkeys(["Heat", "Leapfrog", "LinearOperator", "Matrix", "Modal", "Stepping", "Wave",
-                     "Propagator", "Physics", "ReactionHeat", "SineGordon"], "physics"),
-    "Whitening": "nets.whitening",
+    # the layers (``pdeinv.io.export`` works without importing ``pdeinv.io`` first) and the mesh builders
+    **{k: f"={k}" for k in ("util", "fem", "physics", "inverse", "methods", "training", "io", "nets")},
+    "mesh": "=fem.mesh",
     **dict.fromkeys(["Problem", "available", "load_problem"], "problem"),
-    **dict.fromkeys(["AMGCG", "Cholesky", "SuperLU", "amg_cg", "default_solver", "solver_for"],
-                    "fem.solvers"),
-    "DiscrepancyStop": "training.stopping",
-    "PlateauStop": "training.stopping",
+    "apply": "physics.bridge",
+    **dict.fromkeys(["GD", "HIG", "SIP", "Supervised", "adam", "sgd"], "methods"),
     **dict.fromkeys(["Result", "Trainer", "train"], "training.trainer"),
+    "Checkpoint": "training.checkpoint",
+    **dict.fromkeys(["DiscrepancyStop", "PlateauStop"], "training.stopping"),
+    **dict.fromkeys(["load_run", "save_run"], "io.runs"),
 }
 
+#: the names a user calls; everything else is reached by its module path (``pdeinv.inverse.TikhonovCG``)
 __all__ = sorted(_WHERE)
+
+#: the short names a problem module imports (``from pdeinv import mesh, scenes, settings``), not in __all__
+_WHERE.update({"scenes": "=problem.scenes", "nonlinear_scenes": "=problem.nonlinear_scenes",
+               "settings": "=problem.settings", "observe": "=fem.sensors"})
 __version__ = "0.1.0"
 
 

@@ -12,8 +12,8 @@ import pytest
 import torch
 
 import pdeinv
-from pdeinv import references as refs
 from pdeinv.methods.presets import make_rule
+from pdeinv.training import references as refs
 from pdeinv.training.stopping import DiscrepancyStop
 from pdeinv.training.trainset import TEST_DATA, seed_stream
 

@@ -12,6 +12,7 @@ import pytest
 import scipy.sparse as sp
 
 import pdeinv
+from pdeinv.fem.forms import discretize
 from pdeinv.physics import Heat, Modal
 from pdeinv.physics.backends import modes
 from pdeinv.util import cache
@@ -127,7 +128,7 @@ WRITER = textwrap.dedent("""
     import os, sys, time
     from pathlib import Path
     import numpy as np
-    from pdeinv import cache
+    from pdeinv.util import cache
 
     flags = Path(sys.argv[1])
     def build():  # both processes are inside build (both missed) before either writes
@@ -216,7 +217,7 @@ def test_no_cache_flag_switches_the_cache_off(folder, monkeypatch, tmp_path, com
 
 
 def _heat(n=10, **kw):
-    d = pdeinv.discretize(pdeinv.fem.mesh.unit_square(n))
+    d = discretize(pdeinv.fem.mesh.unit_square(n))
     return Heat(d.M, d.K, backend="steps", measure=d.measure, dim=d.dim, **kw)
 
 

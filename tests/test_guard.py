@@ -14,9 +14,9 @@ import pytest
 import torch
 
 import pdeinv
-from pdeinv import NonFiniteError, Trainer
+from pdeinv import Trainer
 from pdeinv.cli import main
-from pdeinv.methods import GD, sgd
+from pdeinv.methods import GD, NonFiniteError, sgd
 from pdeinv.nets import MLP
 
 FAULTS = str(Path(__file__).with_name("faults.py"))

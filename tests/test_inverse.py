@@ -85,7 +85,7 @@ def test_generic_fallback_for_any_operator():
 
     It is exact at y₀ and inverts when the problem is well posed."""
     A = np.random.default_rng(0).standard_normal((30, 20))
-    op = pdeinv.Matrix(A)
+    op = pdeinv.physics.Matrix(A)
     inv = default_inverse(op)
     assert isinstance(inv, TikhonovCG)
     x0 = np.random.default_rng(1).standard_normal((3, 20))

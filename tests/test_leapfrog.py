@@ -12,7 +12,7 @@ from pdeinv.cli import main
 @pytest.mark.parametrize("name, kw", [("wave_1d", dict(n=32, steps=64)), ("wave_2d", dict(n=8, steps=20))])
 def test_dot_product_and_gradcheck(name, kw):
     op = load(name, scheme="leapfrog", **kw).operator
-    assert isinstance(op, pdeinv.Leapfrog)
+    assert isinstance(op, pdeinv.physics.Leapfrog)
     assert dot_test(op) < 1e-12
     x = torch.randn(2, op.n_in, dtype=torch.float64, requires_grad=True)
     assert torch.autograd.gradcheck(lambda t: pdeinv.apply(op, t), (x,))

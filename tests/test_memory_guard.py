@@ -27,7 +27,7 @@ def test_the_network_estimate_is_within_a_factor_of_the_built_network(kind, monk
     p = pdeinv.load_problem("heat_2d", n=16)
     size = nets.network_size(p, kind)
     torch.manual_seed(0)
-    model = pdeinv.runs.network(p, {"kind": kind})
+    model = pdeinv.io.runs.network(p, {"kind": kind})
     params, buffers = _bytes(model)
     copies = budget.STATE_COPIES["adam"]  # value, gradient, two Adam moments; the buffers
     built = copies * params + buffers
@@ -38,7 +38,7 @@ def test_the_network_estimate_is_within_a_factor_of_the_built_network(kind, monk
 def test_the_mlp_estimate_is_its_parameter_count():
     p = pdeinv.load_problem("heat_2d", n=8)
     size = nets.network_size(p, hidden=(32, 16))
-    model = pdeinv.runs.network(p, {"kind": "mlp", "hidden": [32, 16]})
+    model = pdeinv.io.runs.network(p, {"kind": "mlp", "hidden": [32, 16]})
     assert size["params"] == sum(q.numel() for q in model.parameters())
 
 

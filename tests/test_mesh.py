@@ -5,6 +5,7 @@ import pytest
 from exact import load
 
 import pdeinv
+from pdeinv.fem.forms import discretize
 
 
 @pytest.mark.parametrize("suffix", [".msh", ".vtu", ".vtk"])
@@ -118,8 +119,8 @@ def test_load_refuses_unsupported_cells(tmp_path, cells, match):
 def test_tetra_meshes_discretize_and_others_are_refused():
     import skfem
 
-    d = pdeinv.discretize(skfem.MeshTet().refined(2), dirichlet=False)
+    d = discretize(skfem.MeshTet().refined(2), dirichlet=False)
     assert abs(d.measure - 1.0) < 1e-12 and d.dim == 3
     assert abs(d.K @ np.ones(d.N)).max() < 1e-12  # constants are in the kernel of the Neumann stiffness
     with pytest.raises(ValueError, match=r"MeshQuad1 is not supported.*MeshTet1"):
-        pdeinv.discretize(skfem.MeshQuad())
+        discretize(skfem.MeshQuad())

@@ -1,7 +1,7 @@
 """Update rules, one step each, against the formula computed by hand on dense linear problems.
 
 The toy problem is ``y = A x`` with a small dense, well-conditioned ``A`` wrapped
-as ``pdeinv.Matrix``; networks are float64 so the comparisons can be tight.
+as ``pdeinv.physics.Matrix``; networks are float64 so the comparisons can be tight.
 """
 
 from __future__ import annotations
@@ -29,7 +29,8 @@ def toy(n=5, m=5, seed=0):
     np.fill_diagonal(S, np.linspace(2.0, 0.5, min(m, n)))
     A = U @ S @ V.T
     exact = lambda y, x0: np.linalg.lstsq(A, y.T, rcond=None)[0].T  # noqa: E731
-    problem = SimpleNamespace(name="toy", operator=pdeinv.Matrix(A), inverse=exact, noise=0.0, disc=None)
+    problem = SimpleNamespace(name="toy", operator=pdeinv.physics.Matrix(A), inverse=exact, noise=0.0,
+                              disc=None)
     return problem, A, rng
 
 

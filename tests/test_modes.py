@@ -5,12 +5,13 @@ import pytest
 
 import pdeinv
 from pdeinv.errors import TooManyModes
+from pdeinv.fem.forms import discretize
 from pdeinv.physics import Heat, Modal, Stepping
 from pdeinv.physics.backends import modes
 
 
 def _heat(n, **kw):
-    d = pdeinv.discretize(pdeinv.fem.mesh.unit_square(n))
+    d = discretize(pdeinv.fem.mesh.unit_square(n))
     return Heat(d.M, d.K, backend="steps", measure=d.measure, dim=d.dim, **kw)
 
 
@@ -59,7 +60,7 @@ def test_the_stopping_rule_weighs_each_mode_by_its_gain(monkeypatch):
 
 
 def test_too_many_modes_is_refused_and_k_checked():
-    d = pdeinv.discretize(pdeinv.fem.mesh.unit_square(16))
+    d = discretize(pdeinv.fem.mesh.unit_square(16))
     flat = lambda lam: np.zeros_like(lam)  # noqa: E731  every mode matters: more than half of N
     with pytest.raises(TooManyModes, match="more than"):
         modes.lowest_modes(d.M, d.K, flat, np.log(1e-14), k=30, dense_max=0)
@@ -69,7 +70,7 @@ def test_too_many_modes_is_refused_and_k_checked():
 
 def test_a_rank_deficient_block_keeps_its_range():
     """``W = V B`` exactly when ``W`` has dependent columns; the filled-in columns are M-orthonormal."""
-    d = pdeinv.discretize(pdeinv.fem.mesh.unit_square(12))
+    d = discretize(pdeinv.fem.mesh.unit_square(12))
     rng = np.random.default_rng(0)
     basis = modes._Basis(d.M, 8)
     basis.append(modes._cholqr(rng.standard_normal((d.N, 4)), d.M)[0])
@@ -89,7 +90,7 @@ def test_count_below_is_the_exact_eigenvalue_count_and_weyl_overcounts_3d():
 
     from pdeinv.physics.backends.modal import weyl_count
 
-    d = pdeinv.discretize(pdeinv.fem.mesh.unit_cube(10))  # 729 unknowns
+    d = discretize(pdeinv.fem.mesh.unit_cube(10))  # 729 unknowns
     lam = la.eigh(d.K.toarray(), d.M.toarray(), eigvals_only=True)
     for cut in (50.0, 700.0, 3800.0):
         assert modes.count_below(d.M, d.K, cut) == int((lam < cut).sum())
@@ -98,7 +99,7 @@ def test_count_below_is_the_exact_eigenvalue_count_and_weyl_overcounts_3d():
 
 
 def test_count_modes_uses_the_inertia_count_beyond_the_dense_size(monkeypatch):
-    d = pdeinv.discretize(pdeinv.fem.mesh.unit_cube(8))
+    d = discretize(pdeinv.fem.mesh.unit_cube(8))
     heat = Heat(d.M, d.K, backend="steps", measure=d.measure, dim=3, kappa=0.01)
     weyl = heat.count_modes(38.0)
     monkeypatch.setattr(modes, "DENSE_MAX", 10)
@@ -123,7 +124,7 @@ def test_route_takes_the_dense_eigh_where_the_krylov_basis_would_be_most_of_the_
 def test_the_geometric_checks_give_the_same_modes_on_a_3d_mesh(monkeypatch):
     """The block Krylov method (checks at geometrically growing bases, started from the exact count)
     against the dense eigh on a 3-D mesh where Weyl over-counts: the same operator to 1e-10."""
-    d = pdeinv.discretize(pdeinv.fem.mesh.unit_cube(12))  # 1331 unknowns
+    d = discretize(pdeinv.fem.mesh.unit_cube(12))  # 1331 unknowns
     heat = Heat(d.M, d.K, backend="steps", measure=d.measure, dim=3, kappa=0.01, tol=1e-8)
     monkeypatch.setenv("PDEINV_NO_CACHE", "1")
     dense = Modal(heat)
@@ -154,7 +155,7 @@ def test_band_values_are_the_ritz_values_of_the_banded_block_lanczos_matrix():
 def test_one_full_pass_after_the_local_one_leaves_the_block_orthogonal_to_the_basis():
     """``orthogonalize(W, local)``: against the last ``local`` columns, then once against all; the block
     is M-orthogonal to the whole basis to rounding and ``W = Q C + W_after``."""
-    d = pdeinv.discretize(pdeinv.fem.mesh.unit_square(20))
+    d = discretize(pdeinv.fem.mesh.unit_square(20))
     rng = np.random.default_rng(4)
     basis = modes._Basis(d.M, 64)
     for _ in range(4):
@@ -247,7 +248,7 @@ def test_the_powered_start_survives_a_singular_neumann_stiffness():
     Cholesky QR fails and the modes are the dense solver's (λ₁ = 0 included)."""
     import scipy.linalg as la
 
-    d = pdeinv.discretize(pdeinv.fem.mesh.unit_square(30), dirichlet=False)
+    d = discretize(pdeinv.fem.mesh.unit_square(30), dirichlet=False)
     log_gain = lambda lam: -30 * np.log1p(0.01 * np.maximum(lam, 0))  # noqa: E731  backward Euler
     lam, Phi = modes.lowest_modes(d.M, d.K, log_gain, np.log(1e-10), k=80, dense_max=0)
     dense = la.eigh(d.K.toarray(), d.M.toarray(), eigvals_only=True)

@@ -14,9 +14,9 @@ import pytest
 import torch
 
 import pdeinv
-from pdeinv import Checkpoint, NonFiniteError, Trainer
+from pdeinv import Checkpoint, Trainer
 from pdeinv.cli import main
-from pdeinv.methods import GD, HIG, SIP, adam, apply_if_finite, sgd
+from pdeinv.methods import GD, HIG, SIP, NonFiniteError, adam, apply_if_finite, sgd
 from pdeinv.nets import MLP
 
 FAULTS = str(Path(__file__).with_name("faults.py"))

@@ -149,11 +149,11 @@ def test_checkpoint_creates_its_folder_and_fails_early(tmp_path):
 
 
 def test_zero_last_layer():
-    net = pdeinv.zero_last_layer(torch.nn.Sequential(torch.nn.Linear(3, 4), torch.nn.Tanh(),
-                                                     torch.nn.Linear(4, 2)))
+    net = pdeinv.nets.zero_last_layer(torch.nn.Sequential(torch.nn.Linear(3, 4), torch.nn.Tanh(),
+                                                          torch.nn.Linear(4, 2)))
     assert not net[2].weight.any() and not net[2].bias.any() and net[0].weight.any()
     with pytest.raises(ValueError, match="has no torch.nn.Linear"):
-        pdeinv.zero_last_layer(torch.nn.Tanh())
+        pdeinv.nets.zero_last_layer(torch.nn.Tanh())
 
 
 def test_wave_1d_default_sees_every_mode():

@@ -204,7 +204,7 @@ def test_defaults_are_clearly_nonlinear(name):
 
 def test_linearity_is_declared():
     d = _disc(8)
-    heat = pdeinv.Heat(d.M, d.K, steps=5, backend="steps", dim=1)
+    heat = pdeinv.physics.Heat(d.M, d.K, steps=5, backend="steps", dim=1)
     assert is_linear(heat) and not is_linear(ReactionHeat(d.M, d.K, steps=5))
     # a linear operator is a Physics whose tangent is itself
     X = np.random.default_rng(0).standard_normal((2, d.N))

@@ -15,6 +15,7 @@ import pytest
 
 import pdeinv
 from pdeinv import observe
+from pdeinv.fem.forms import discretize
 from pdeinv.inverse import SpectralTikhonov, default_inverse
 from pdeinv.physics import Heat, Modal, Propagator, Wave
 from pdeinv.physics.capabilities import Spectral, modal_basis
@@ -31,7 +32,7 @@ def test_heat_is_a_propagator_with_the_one_loop():
     ``(M + dt κ K) u⁺ = M u`` by a plain SciPy loop give the same final field."""
     import scipy.sparse.linalg as sla
 
-    d = pdeinv.discretize(pdeinv.fem.mesh.unit_square(6))
+    d = discretize(pdeinv.fem.mesh.unit_square(6))
     op = Heat(d.M, d.K, kappa=0.01, T=1.0, steps=10, backend="steps")
     assert isinstance(op, Propagator) and op.kind == "steps" and op.backend is None
     assert op.stepping() is op
@@ -47,7 +48,7 @@ def test_reaction_diffusion_written_the_cheap_way_gets_the_modal_backend(scheme)
     """``M u' + (κK + rM) u = 0`` as ``Heat(..., C=r*M)``: symmetric matrices, so ``auto`` takes the
     modal form (it used to be refused for any ``C``), equal to time stepping and its own transpose;
     each mode decays by ``r(dt(κλ + r))ⁿ``."""
-    d = pdeinv.discretize(pdeinv.fem.mesh.unit_square(16))
+    d = discretize(pdeinv.fem.mesh.unit_square(16))
     r, kw = 2.0, dict(kappa=0.01, steps=50, scheme=scheme, measure=d.measure, dim=d.dim)
     op = Heat(d.M, d.K, C=r * d.M, **kw)
     assert op.symmetric and op.kind == "modal", op.choice
@@ -79,7 +80,7 @@ def test_convection_still_has_no_modal_form():
 
 
 def test_sensor_and_wave_runs_have_no_modal_form():
-    d = pdeinv.discretize(pdeinv.fem.mesh.unit_square(6))
+    d = discretize(pdeinv.fem.mesh.unit_square(6))
     S = observe.sensor_matrix(d, [[0.5, 0.5]])
     with pytest.raises(ValueError, match="records sensors"):
         Modal(Heat(d.M, d.K, steps=10, backend="steps").sensors(S, 5))
@@ -90,7 +91,7 @@ def test_sensor_and_wave_runs_have_no_modal_form():
 def _hand_built(n=16, sensors=12, with_inverse=False):
     """A new user's module: unit square, Dirichlet on the left edge only, 12 sensors, ``.sensors(S, 10)``."""
     m = pdeinv.fem.mesh.unit_square(n).with_boundaries({"left": lambda x: np.isclose(x[0], 0.0)})
-    disc = pdeinv.discretize(m, dirichlet="left")
+    disc = discretize(m, dirichlet="left")
     S = observe.sensor_matrix(disc, observe.interior_points(m, sensors))
     op = Heat(disc.M, disc.K, kappa=0.05, T=1.0, steps=100, backend="steps",
               measure=disc.measure, dim=disc.dim).sensors(S, 10)
@@ -116,7 +117,7 @@ def test_a_hand_built_sensor_operator_goes_through_the_chooser(with_inverse):
 
 
 def test_a_hand_built_wave_is_compiled_by_the_problem_and_an_explicit_choice_is_kept():
-    d = pdeinv.discretize(pdeinv.fem.mesh.unit_square(8))
+    d = discretize(pdeinv.fem.mesh.unit_square(8))
     auto = Problem("w", d, Wave(d.M, d.K, steps=20), partial(gaussian_bumps, d.points))
     assert auto.operator.choice.startswith("auto: ") and auto.operator.kind == "dense", auto.operator.choice
     kept = Problem("w", d, Wave(d.M, d.K, steps=20).compile("steps"), partial(gaussian_bumps, d.points))
@@ -128,14 +129,14 @@ def test_a_spectral_basis_is_one_declared_class():
     else (an object with look-alike attributes) is not a basis."""
     from pdeinv.physics.backends.compiled import spectral_basis
 
-    d = pdeinv.discretize(pdeinv.fem.mesh.unit_square(6))
+    d = discretize(pdeinv.fem.mesh.unit_square(6))
     heat = Heat(d.M, d.K, steps=10, backend="modal")
     svd = Heat(d.M, d.K, steps=10, backend="svd")
     dense = Heat(d.M, d.K, steps=10, backend="dense")
     assert all(isinstance(b, Spectral) for b in (heat.modes, svd.modes, spectral_basis(dense, d.M)))
     assert dense.modes is None and modal_basis(dense) is None
 
-    class LookAlike(pdeinv.Matrix):
+    class LookAlike(pdeinv.physics.Matrix):
         modes = type("Fake", (), {"g": np.ones(2), "In": np.eye(2), "out": np.eye(2), "synth": np.eye(2)})()
 
     assert modal_basis(LookAlike(np.eye(2))) is None

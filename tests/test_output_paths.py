@@ -92,7 +92,7 @@ def test_save_run_creates_its_folder_and_loads_back(tmp_path):
     out = pdeinv.save_run(tmp_path / "a" / "b", "heat_1d", {"n": 8}, model=result.model)
     problem, model = pdeinv.load_run(out)
     y = p.sample(2, seed=1)[1]
-    np.testing.assert_allclose(pdeinv.export.predict(model, y), pdeinv.export.predict(result.model, y))
+    np.testing.assert_allclose(pdeinv.io.export.predict(model, y), pdeinv.io.export.predict(result.model, y))
 
 
 def test_the_policy_functions(tmp_path):

@@ -269,7 +269,7 @@ def test_noisy_data_without_a_declared_level_trains_at_the_level_it_shows(tmp_pa
     x-error 6.6e4 measured), said in one line, recorded in run.json, and the run reaches the oracle-α
     Tikhonov of the same test rows; --set noise=0 is obeyed (and fitting the noise exactly ends
     worse than predicting zero: exit 3, pdeinv.training.verdict)."""
-    from pdeinv import references
+    from pdeinv.training import references
 
     p = pdeinv.load_problem("heat_2d", n=16, noise=0.01)
     x, y = p.sample(600, 7)
@@ -331,8 +331,8 @@ def test_cli_classical_reads_a_clean_file_as_noise_free(tmp_path):
     no Morozov or Wiener-target row (no noise to fit them to), Tikhonov at the noise-free α, and the
     prior Wiener estimate in its noise-free form, which is what the default network trains to on that
     file (``pdeinv train`` reads it as clean): once the rounding estimate was passed on as a level."""
-    from pdeinv import references as refs
     from pdeinv.inverse import NOISE_FREE_REL_ALPHA, default_inverse
+    from pdeinv.training import references as refs
 
     p = pdeinv.load_problem("heat_1d", kappa=0.05)
     x, y = pdeinv.load_problem("heat_1d", kappa=0.05, prior="boxes").sample(300, 5)

@@ -17,9 +17,17 @@ def test_every_public_name_resolves(name):
     assert value is not None and (not module or value.__name__ == f"pdeinv.{where.lstrip('=')}")
 
 
-def test_the_modules_users_reach_for_are_attributes():
-    """``pdeinv.references`` once raised AttributeError (``from pdeinv import references`` worked)."""
-    assert pdeinv.references.tikhonov_best and pdeinv.targets.SpectralWiener and pdeinv.threads.limit
+def test_the_public_names_are_few():
+    """``__all__`` lists what a user calls (at most 30 names); the rest is reached by its module path."""
+    assert len(pdeinv.__all__) <= 30 and set(pdeinv.__all__) <= set(pdeinv._WHERE)
+    assert pdeinv.io.export.predict and pdeinv.inverse.TikhonovCG and pdeinv.physics.Heat
+
+
+@pytest.mark.parametrize("name", ["mesh", "scenes", "settings", "nonlinear_scenes", "observe"])
+def test_the_short_names_problem_modules_import(name):
+    """``from pdeinv import mesh, scenes, settings`` (problems/*.py), not listed in ``__all__``."""
+    value = getattr(pdeinv, name)
+    assert isinstance(value, types.ModuleType) and value.__name__ == f"pdeinv.{pdeinv._WHERE[name][1:]}"
 
 
 def test_version(capsys):

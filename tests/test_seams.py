@@ -8,6 +8,7 @@ from exact import dot_test, load
 import pdeinv
 from pdeinv import observe
 from pdeinv.fem.advection import cellular_flow, convection, max_cell_peclet
+from pdeinv.fem.forms import discretize
 from pdeinv.fem.solvers import AMGCG, SuperLU, default_solver, is_symmetric
 from pdeinv.inverse import TikhonovCG, default_inverse
 from pdeinv.physics import Leapfrog
@@ -59,7 +60,7 @@ def test_advection_inverse_round_trip_chosen_by_capability(backend, inverse):
 
 
 def test_streamline_diffusion_is_symmetric_psd_along_the_flow_and_off_below_peclet_one():
-    d = pdeinv.discretize(pdeinv.fem.mesh.unit_square(16))
+    d = discretize(pdeinv.fem.mesh.unit_square(16))
     flow = cellular_flow(10.0)
     D = (convection(d, flow, 1e-3) - convection(d, flow, kappa=1e9)).toarray()  # δ = 0 for huge κ
     assert np.abs(D).max() > 0 and np.allclose(D, D.T, atol=1e-14)
@@ -85,8 +86,8 @@ def test_sensor_records_are_plain_numbers_even_when_there_are_as_many_as_unknown
 
 
 def test_leapfrog_with_sensors_records_the_leapfrog_run():
-    d = pdeinv.discretize(pdeinv.fem.mesh.unit_square(6))
-    lumped = pdeinv.discretize(pdeinv.fem.mesh.unit_square(6), lumped=True).M
+    d = discretize(pdeinv.fem.mesh.unit_square(6))
+    lumped = discretize(pdeinv.fem.mesh.unit_square(6), lumped=True).M
     S = observe.sensor_matrix(d, [[0.5, 0.5], [0.3, 0.6]])
     op = Leapfrog(lumped, d.K, T=0.6, steps=12).sensors(S, 4)
     assert dot_test(op) <= 1e-12

@@ -17,6 +17,7 @@ from exact import dot_test, load
 
 import pdeinv
 from pdeinv import observe
+from pdeinv.fem.forms import discretize
 from pdeinv.physics import Heat, Wave, sensors
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -91,7 +92,7 @@ def test_taylor_remainder_rate(name):
 
 def test_layout_is_record_major():
     """Record r of a run with record_every=k is S times the plain operator after (r+1)k steps."""
-    d = pdeinv.discretize(pdeinv.fem.mesh.unit_square(6))
+    d = discretize(pdeinv.fem.mesh.unit_square(6))
     S = observe.sensor_matrix(d, observe.interior_points(d.basis.mesh, 3))
     x = np.random.default_rng(0).standard_normal((2, d.N))
     for Op, Sens, kw in ((Heat, sensors, dict(kappa=0.05, backend="steps")), (Wave, sensors, {})):
@@ -105,7 +106,7 @@ def test_layout_is_record_major():
 
 @pytest.mark.parametrize("element", ["P1", "P2"])
 def test_sensor_at_a_node_reads_the_nodal_value(element):
-    d = pdeinv.discretize(pdeinv.fem.mesh.unit_square(5), element)
+    d = discretize(pdeinv.fem.mesh.unit_square(5), element)
     idx = np.array([0, 3, d.N // 2, d.N - 1])
     S = observe.sensor_matrix(d, d.points[:, idx].T)
     u = np.random.default_rng(2).standard_normal(d.N)
@@ -114,7 +115,7 @@ def test_sensor_at_a_node_reads_the_nodal_value(element):
 
 @pytest.mark.parametrize("kind", ["heat", "wave"])
 def test_all_nodes_final_step_only_is_the_plain_operator(kind):
-    d = pdeinv.discretize(pdeinv.fem.mesh.unit_square(6))
+    d = discretize(pdeinv.fem.mesh.unit_square(6))
     S = observe.sensor_matrix(d, d.points.T)
     if kind == "heat":
         plain = Heat(d.M, d.K, kappa=0.05, steps=8, backend="steps")
@@ -130,7 +131,7 @@ def test_all_nodes_final_step_only_is_the_plain_operator(kind):
 
 
 def test_heat_sensors_reuse_a_stepping_backend():
-    d = pdeinv.discretize(pdeinv.fem.mesh.unit_square(6))
+    d = discretize(pdeinv.fem.mesh.unit_square(6))
     S = observe.sensor_matrix(d, [[0.5, 0.5]])
     stepping = Heat(d.M, d.K, backend="steps")
     # one θ-step (one factorization) shared by the final-field backend and the sensor run

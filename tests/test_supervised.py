@@ -24,7 +24,7 @@ def test_supervised_fits_the_true_fields_and_reports_the_y_loss():
 
 def test_supervised_direction_is_the_gradient_of_the_x_loss():
     p = pdeinv.load_problem("heat_1d", n=16)
-    net = pdeinv.whitened("linear")(p)
+    net = pdeinv.nets.whitened("linear")(p)
     x, y = p.sample(8, 0)
     net.fit_observations(y)
     with torch.no_grad():

@@ -5,11 +5,11 @@ import pytest
 import torch
 
 import pdeinv
-from pdeinv import references as refs
 from pdeinv.inverse import Discrepancy, SpectralTikhonov
 from pdeinv.methods.curvature import gauss_newton_max
 from pdeinv.methods.targets import SpectralWiener
 from pdeinv.physics.backends.compiled import spectral_basis
+from pdeinv.training import references as refs
 from pdeinv.training.trainset import TEST_DATA, TRAIN_DATA, seed_stream
 
 

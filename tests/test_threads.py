@@ -2,9 +2,9 @@
 
 import torch
 
-from pdeinv import threads
 from pdeinv.cli import main
 from pdeinv.training.trainer import Trainer
+from pdeinv.util import threads
 
 
 def _counts():

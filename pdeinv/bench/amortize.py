@@ -3,8 +3,8 @@
 A network is worth training when it is at least as accurate as the classical solve and cheaper
 per sample, so that the training time is paid back. For every classical solve the operator
 supports (a constructor that refuses the operator drops the row): ``tikhonov_modal``
-(:class:`~pdeinv.ModalTikhonov`) and ``tikhonov_cg`` (:class:`~pdeinv.TikhonovCG`, block PCG on
-the normal equations) from ``x₀ = 0``, ``time_reversal`` (:class:`~pdeinv.TimeReversal`) from
+(:class:`~pdeinv.inverse.ModalTikhonov`) and ``tikhonov_cg`` (:class:`~pdeinv.inverse.TikhonovCG`, block
+PCG on the normal equations) from ``x₀ = 0``, ``time_reversal`` (:class:`~pdeinv.inverse.TimeReversal`) from
 ``(y, v = 0)``, with α by Morozov's discrepancy principle at the problem's noise level (else the
 default noise-free α), we time a batch and report the time per sample, the batch's mean x-error,
 and the **break-even count** ``n* = t_train / (t_classical − t_network)`` (per-sample times): the

@@ -4,7 +4,7 @@ A case is a value: ``Case(sweep, value, run)`` where ``run() -> dict`` of number
 :func:`classify` turns whatever happens into one of
 
 * ``ok`` — finished, every number finite and every watched error ≤ ``bound``;
-* ``nan`` — a NaN/Inf in the returned numbers, or :class:`pdeinv.NonFiniteError` raised
+* ``nan`` — a NaN/Inf in the returned numbers, or :class:`pdeinv.methods.NonFiniteError` raised
   by an update rule (the guard caught it before it spread);
 * ``diverged`` — finite numbers but a watched value (keys ending in ``growth`` or ``x_err``)
   above ``bound`` (forward errors are accuracy, not watched: at κT = 1 the exact field is 3e-9

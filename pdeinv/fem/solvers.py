@@ -10,7 +10,7 @@ symmetric matrix (Cholesky, CG) refuse it.
 ``default_solver(A, dim)`` takes AMG-CG for a symmetric matrix above the measured
 :data:`AMG_CROSSOVER` of the mesh dimension, below it a sparse Cholesky (cholespy) when
 installed, and SuperLU otherwise; ``solver_for(dim)`` binds the dimension (what
-:class:`pdeinv.Heat` uses); ``amg_cg(rtol)`` asks for AMG-CG explicitly.
+:class:`pdeinv.physics.Heat` uses); ``amg_cg(rtol)`` asks for AMG-CG explicitly.
 """
 
 from __future__ import annotations
@@ -40,7 +40,7 @@ def is_symmetric(A: sp.spmatrix, rtol: float = 1e-13) -> bool:
 def _require_symmetric(A, name: str) -> None:
     if not is_symmetric(A):
         raise ValueError(f"the {name} solver needs a symmetric matrix and this one is not; "
-                         "use solver=pdeinv.SuperLU (LU, any square matrix)")
+                         "use solver=pdeinv.fem.solvers.SuperLU (LU, any square matrix)")
 
 
 class SuperLU:

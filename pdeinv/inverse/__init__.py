@@ -71,7 +71,8 @@ def default_inverse(op, disc=None, noise: float = 0.0, alpha=None):
       dense forward (``op.backend.P``, whose SVD in the problem's norms is then computed on the
       first call, :class:`~pdeinv.physics.backends.compiled.LazySVD`) → :class:`SpectralTikhonov`: the exact
       Tikhonov filter per singular value (Morozov's α in closed form);
-    * else reversible (declared by the scheme: :class:`~pdeinv.Wave`, :class:`~pdeinv.Leapfrog`)
+    * else reversible (declared by the scheme: :class:`~pdeinv.physics.Wave`,
+      :class:`~pdeinv.physics.Leapfrog`)
       → :class:`TimeReversal` (no α; exact at ``y₀``; two stepping runs).
 
     Why the filter wins where both exist: time reversal from ``(y, v_T(x₀))`` changes each mode

@@ -39,7 +39,7 @@ from ._inputs import out, pair
 
 
 class TimeReversal:
-    """``P⁻¹_(x₀, Px₀)(y) = u-part of Wave.reverse(y, v_T(x₀))`` for a :class:`~pdeinv.Wave`."""
+    """``P⁻¹_(x₀, Px₀)(y) = u-part of Wave.reverse(y, v_T(x₀))`` for a :class:`~pdeinv.physics.Wave`."""
 
     def __init__(self, op):
         if not reversible(op):

@@ -1,6 +1,6 @@
 """What an operator can do, asked by capability, never by concrete class.
 
-Operators declare (on :class:`~pdeinv.LinearOperator`, whose defaults a user's own operator
+Operators declare (on :class:`~pdeinv.physics.LinearOperator`, whose defaults a user's own operator
 inherits: the safe answer):
 
 * ``output_space``: ``"field"`` when an observation is a field on the mesh (then

@@ -4,7 +4,7 @@ Second order in time, one sparse product per step and no solve (:class:`.schemes
 has the step and its exact transpose). Stable iff ``c dt √λ_max < 2`` (CFL), ``λ_max``
 the largest eigenvalue of ``K φ = λ M_L φ``: a ``dt`` at or above the limit is refused
 with the smallest admissible number of steps (at the limit the error grows linearly,
-above it exponentially). Newmark (:class:`pdeinv.Wave`) has no limit; leapfrog wins
+above it exponentially). Newmark (:class:`pdeinv.physics.Wave`) has no limit; leapfrog wins
 when many cheap steps beat a few solves (large meshes, moderate ``T``).
 """
 

@@ -136,7 +136,7 @@ class Propagator(LinearOperator):
     def count_modes(self, mu: float) -> float:
         """How many eigenvalues of the scheme's ``L φ = λ M φ`` lie below ``mu`` (sizes the modal
         eigensolve): exact for a symmetric θ-scheme beyond ``modes.DENSE_MAX`` unknowns
-        (:meth:`exact_count`), else all ``N`` (:class:`~pdeinv.Heat`: Weyl's law there)."""
+        (:meth:`exact_count`), else all ``N`` (:class:`~pdeinv.physics.Heat`: Weyl's law there)."""
         exact = self.exact_count(mu)
         return float(self.n_in) if exact is None else float(exact)
 

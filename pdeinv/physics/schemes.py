@@ -46,7 +46,7 @@ class Implicit:
         self.solve_T = getattr(self.lu, "solve_T", None) or (self.lu.solve if self.symmetric else None)
         if self.solve_T is None:
             raise ValueError(f"solver {type(self.lu).__name__} has no solve_T and the matrix is not "
-                             "symmetric; use solver=pdeinv.SuperLU")
+                             "symmetric; use solver=pdeinv.fem.solvers.SuperLU")
 
     def flops(self) -> float:
         """One column's step: the solve, ``2·fill(LU)`` (``FILL_FALLBACK·nnz(A)`` for a solver that reports

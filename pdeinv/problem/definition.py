@@ -51,8 +51,9 @@ class Problem:
     def __post_init__(self):
         if not isinstance(self.operator, Physics):
             raise TypeError(f"operator={type(self.operator).__name__} is not allowed; expected a "
-                            "pdeinv.LinearOperator (e.g. pdeinv.Matrix(A) or Heat(...)) or a nonlinear "
-                            "pdeinv.Physics (with jvp and vjp): they declare what the rules may use")
+                            "pdeinv.physics.LinearOperator (e.g. pdeinv.physics.Matrix(A) or Heat(...)) or "
+                            "a nonlinear pdeinv.physics.Physics (with jvp and vjp): they declare what the "
+                            "rules may use")
         # an operator built by hand goes through the backend chooser as the scenes' do; a nonlinear
         # one (declared linear=False) has no matrix to compile
         if is_linear(self.operator):

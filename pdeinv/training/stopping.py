@@ -138,7 +138,7 @@ class DiscrepancyStop:
     ``noise``: ``None`` takes the problem's level (a noise-free problem makes the
     rule inert: it never fires); ``"estimate"`` estimates it from the training
     observations; a number is the relative level itself.
-    ``tau = 1.1`` as for Morozov's α (:class:`pdeinv.Discrepancy`).
+    ``tau = 1.1`` as for Morozov's α (:class:`pdeinv.inverse.Discrepancy`).
     """
 
     tau: float = 1.1

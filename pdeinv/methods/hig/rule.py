@@ -164,8 +164,8 @@ class HIG(Rule):
                              "adam or sip")
         if lin is None and self.route == "kronecker":
             raise ValueError("HIG(route='kronecker') needs a network linear in its parameters after a fixed "
-                             "feature map (model.linear_in_parameters(), e.g. pdeinv.whitened('linear') or "
-                             f"pdeinv.reduced()); {type(model).__name__} does not declare one")
+                             "feature map (model.linear_in_parameters(), e.g. pdeinv.nets.whitened('linear') "
+                             f"or pdeinv.nets.reduced()); {type(model).__name__} does not declare one")
         kron = None if lin is None else Kronecker(lin, decoded_svd(op, lin.decoder))
         device = next(iter(model.parameters()), torch.empty(0)).device
         if kron is None and device.type != "cpu":
