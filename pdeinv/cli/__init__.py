@@ -18,6 +18,7 @@ import pkgutil
 import sys
 
 from ..errors import numerical_types
+from ..training.arguments import SEED_MAX
 from ..util.runlock import FolderLocked
 from . import commands
 from .commands import UsageError, parse_sets
@@ -46,10 +47,6 @@ def build_parser() -> argparse.ArgumentParser:
     for command in sub.choices.values():  # -q/--quiet, -v/--verbose on every subcommand (pdeinv.cli.logs)
         add_arguments(command)
     return p
-
-
-#: the seeds every command accepts: numpy's SeedSequence and torch.manual_seed both take these
-SEED_MAX = 2**32 - 1
 
 
 def check_common(args) -> None:

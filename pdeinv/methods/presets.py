@@ -141,9 +141,6 @@ def _nonlinear(problem) -> bool:
     return problem is not None and not isinstance(problem, str) and not is_linear(problem.operator)
 
 
-#: per-problem overrides of GENERIC (none needed since the steps are normalized by the curvature)
-PER_PROBLEM: dict[str, dict[str, dict]] = {}
-
 #: the value of ``Trainer(steps=..., batch_size=...)`` that means "the rule's preset" (their default)
 PRESET = "preset"
 
@@ -192,8 +189,7 @@ def hyperparameters(method: str, problem, noise: float = 0.0, **overrides) -> di
     if method not in METHODS:
         raise ValueError(f"method={method!r} is not allowed; expected one of "
                          f"{', '.join(map(repr, METHODS))}")
-    name = problem if isinstance(problem, str) else problem.name
-    hp = {**GENERIC[method], **PER_PROBLEM.get(name, {}).get(method, {})}
+    hp = dict(GENERIC[method])
     hp.setdefault("hidden", None)
     hp.setdefault("rows_per_component", None)
     bad = sorted(k for k, v in overrides.items() if v is not None and (k not in hp or k == "steps"))

@@ -117,11 +117,3 @@ def network_parameters(n_in: int, n_out: int, hidden) -> int:
     """Parameters of a dense network ``n_in -> hidden... -> n_out`` (weights and biases)."""
     widths = [n_in, *hidden, n_out]
     return sum(a * b + b for a, b in zip(widths, widths[1:]))
-
-
-def training_bytes(n_obs: int, n_unknowns: int, n_train: int, n_test: int, n_params: int,
-                   batch: int, widest: int) -> float:
-    """Data sets (x, y float64 and y float32), network state (16 B per parameter), one batch's
-    activations (``widest`` values per sample, ×4 for the backward pass)."""
-    data = (n_train + n_test) * (8 * (n_obs + n_unknowns) + 4 * n_obs)
-    return data + 16 * n_params + 16 * batch * widest

@@ -10,6 +10,10 @@ from __future__ import annotations
 import os
 from pathlib import Path
 
+#: the exit code of results that cannot be right (``--accept-bad``: 0): a training run that failed its
+#: verdict (:mod:`pdeinv.training.verdict`), classical solves that cannot be (``pdeinv classical``)
+FAILED = 3
+
 
 class UsageError(Exception):
     """A user mistake the CLI reports in one line (exit code 2)."""
@@ -84,15 +88,6 @@ def out_path(text: str, flag: str = "--out") -> Path:
     if not str(text).strip():
         raise UsageError(f"{flag} {text!r} is empty; expected a path")
     return Path(text)
-
-
-def not_an_input(outputs, inputs) -> None:
-    """Refuse an output path that resolves to an input file (it would be overwritten or deleted)."""
-    from pdeinv.util.outpaths import output_file
-
-    for name, p in outputs:
-        if p:
-            output_file(p, name, inputs)
 
 
 def prepare_out(out) -> None:

@@ -33,10 +33,7 @@ import sys
 
 from pdeinv.util.outpaths import output_file
 
-from . import add_set_argument, build_problem, set_threads
-
-#: the exit code of solves that cannot be right (as ``pdeinv train``'s failed run)
-FAILED = 3
+from . import FAILED, add_set_argument, build_problem, set_threads
 
 ORDER = 2
 
