@@ -226,10 +226,6 @@ def test_cli_bad_input_exits_2_with_one_line(files, tmp_path, capsys, argv, matc
     assert after == before  # nothing already written is lost, truncated or left behind
 
 
-def test_the_catalogue_is_long_enough():
-    assert len(CLI) + len(API) >= 20
-
-
 #: (id, call, exception, message); the Python API raises what the CLI reports
 API = [
     ("kappa-negative", lambda: load("heat_1d", n=8, kappa=-1.0), ValueError, r"kappa=-1\.0 is not allowed"),
