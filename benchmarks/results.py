@@ -166,7 +166,7 @@ def page(rows: list[dict], *, date: str | None = None, commit: str | None = None
         "",
         "Older measurements (every scene and method against best-α Tikhonov, the bench, scaling against the "
         "mesh, nonlinear physics) are kept as lab notes in "
-        "[benchmarks/notes/](../benchmarks/notes/results-history.md).",
+        "[benchmarks/notes/](../benchmarks/notes/README.md).",
         "",
     ]
     return "\n".join(lines)
