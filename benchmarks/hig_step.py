@@ -43,7 +43,7 @@ def step_s(problem, method: str, steps: int | None, noise: float = 0.0) -> float
     marks = {}
     n = steps or hp.get("steps", 1000)
     r = pdeinv.Trainer(problem, rule, network(problem, spec), steps=n, batch_size=hp["batch_size"],
-                       eval_every=n if steps is None else 10 * n, progress=False,
+                       eval_every=n if steps is None else 10 * n, progress=False, prior=None,
                        callbacks=[lambda rec, _m: marks.__setitem__(rec["step"], time.perf_counter())]).fit()
     if steps is None:
         return r.metrics["step_s"]

@@ -35,7 +35,7 @@ def row(n: int, net: str, method: str, steps: int, seed: int = 0) -> dict:
     torch.manual_seed(seed)
     model = NETS[net]()(problem)
     result = Trainer(problem, rule, model, steps=steps, n_train=1024, n_test=128,
-                     batch_size=hp["batch_size"], seed=seed, progress=False).fit()
+                     batch_size=hp["batch_size"], seed=seed, progress=False, prior=None).fit()
     m = result.metrics
     return {"n": n, "N": problem.N, "net": net, "method": method,
             "params": sum(p.numel() for p in model.parameters()),

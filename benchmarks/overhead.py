@@ -67,7 +67,7 @@ def trainer_step_s(problem, rule, hp, model, steps: int) -> float:
         marks[record["step"]] = time.perf_counter()
 
     pdeinv.Trainer(problem, rule, model, steps=steps, batch_size=hp["batch_size"], eval_every=10 * steps,
-                   callbacks=[clock], progress=False).fit()
+                   callbacks=[clock], progress=False, prior=None).fit()
     return per_step(marks, steps)
 
 

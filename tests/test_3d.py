@@ -132,7 +132,8 @@ def test_weyl_count_in_3d_errs_on_the_safe_side():
 
 def test_cli_training_learns(tmp_path):
     out = tmp_path / "run"
-    argv = ["train", "heat_3d", "--set", "n=4", "--steps", "50", "--n-train", "64", "--n-test", "16",
+    argv = ["train", "--prior-fit", "0",
+            "heat_3d", "--set", "n=4", "--steps", "50", "--n-train", "64", "--n-test", "16",
             "--batch-size", "16", "--threads", "1", "--seed", "0", "--out", str(out)]
     assert main(argv) == 0
     m = json.loads((out / "metrics.json").read_text())

@@ -26,7 +26,7 @@ def _cli_sip(problem, stop=None, steps=None):
     rule, hp = make_rule("sip", problem.name, problem.noise)
     steps = steps or hp["steps"]
     return pdeinv.Trainer(problem, rule, steps=steps, seed=0, batch_size=hp["batch_size"],
-                          eval_every=steps, progress=False, stop=stop).fit()
+                          eval_every=steps, progress=False, stop=stop, prior=None).fit()
 
 
 def _oracle(problem):
@@ -118,7 +118,8 @@ def test_sip_on_an_mlp_takes_the_papers_optimizer_and_beats_adam(tmp_path):
     errs = {}
     for method in ("sip", "adam"):
         out = tmp_path / method
-        assert main(["train", "heat_1d", "--method", method, "--hidden", "64,64", "--prior-fit", "0",
+        assert main(["train", "--prior-fit", "0",
+                     "heat_1d", "--method", method, "--hidden", "64,64", "--prior-fit", "0",
                      "--n-train", "256", "--n-test", "64", "--threads", "1", "--export-samples", "0",
                      "--checkpoint-every", "0", "--out", str(out)]) == 0
         errs[method] = json.loads((out / "metrics.json").read_text())["x_err"]

@@ -130,7 +130,7 @@ def files(tmp_path_factory):
     meshio.write(d / "tet.vtu", meshio.Mesh(cube, [("tetra", np.array([[0, 1, 2, 3]]))]))
     meshio.write(d / "past.vtu", meshio.Mesh(pts, [("triangle", np.array([[0, 1, 2], [0, 2, 7]]))]))
     meshio.write(d / "quads.vtu", meshio.Mesh(pts, [("quad", np.array([[0, 1, 2, 3]]))]))
-    assert main(["train", "heat_1d", *SMALL, "--steps", "2", "--checkpoint-every", "1",
+    assert main(["train", "--prior-fit", "0", "heat_1d", *SMALL, "--steps", "2", "--checkpoint-every", "1",
                  "--out", str(d / "run")]) == 0
     (d / "corrupt").mkdir()
     good = (d / "run" / "checkpoint.pt").read_bytes()
@@ -209,7 +209,7 @@ def _argv(argv, d, tmp_path):
         extra += [x for kv in ("n=16", "steps=10") if not any(a.startswith(kv[:2]) for a in argv)
                   for x in ("--set", kv)]
     out = [] if "--out" in argv else ["--out", str(tmp_path / "out")]
-    return ["train", *argv, *extra, *out]
+    return ["train", "--prior-fit", "0", *argv, *extra, *out]
 
 
 @pytest.mark.parametrize("argv, match", [pytest.param(a, m, id=i) for i, a, m in CLI])
@@ -256,21 +256,24 @@ API = [
     ("batch-above-data", lambda: _trainer(batch_size=9, n_train=8), ValueError,
      r"batch_size=9 is larger than n_train=8"),
     # typed entry points (issue 36): the kind of object is a TypeError, its value a ValueError
-    ("train-args-swapped", lambda: pdeinv.Trainer(pdeinv.SIP(), _heat(), steps=1), TypeError,
+    ("train-args-swapped", lambda: pdeinv.Trainer(pdeinv.SIP(), _heat(), steps=1, prior=None), TypeError,
      r"problem is an update rule \(SIP\); expected a pdeinv\.Problem.*swapped\?"),
-    ("train-rule-unknown-name", lambda: pdeinv.Trainer(_heat(), "sipp", steps=1), ValueError,
+    ("train-rule-unknown-name", lambda: pdeinv.Trainer(_heat(), "sipp", steps=1, prior=None), ValueError,
      r"rule='sipp' is not a method name; expected one of 'gd', 'adam', 'sip'"),
-    ("train-rule-is-a-class", lambda: pdeinv.Trainer(_heat(), pdeinv.SIP, steps=1), TypeError,
+    ("train-rule-is-a-class", lambda: pdeinv.Trainer(_heat(), pdeinv.SIP, steps=1, prior=None), TypeError,
      r"rule=SIP is a class; expected an instance: pdeinv\.SIP\(\)"),
-    ("train-rule-is-a-number", lambda: pdeinv.Trainer(_heat(), 3, steps=1), TypeError,
+    ("train-rule-is-a-number", lambda: pdeinv.Trainer(_heat(), 3, steps=1, prior=None), TypeError,
      r"rule=3 is int; expected an update rule .*no init or update method"),
-    ("train-problem-none", lambda: pdeinv.Trainer(None, pdeinv.SIP(), steps=1), TypeError,
+    ("train-problem-none", lambda: pdeinv.Trainer(None, pdeinv.SIP(), steps=1, prior=None), TypeError,
      r"problem=None is NoneType; expected a pdeinv\.Problem"),
-    ("train-problem-unknown-name", lambda: pdeinv.Trainer("heat_4d", pdeinv.SIP(), steps=1), ValueError,
+    ("train-problem-unknown-name", lambda: pdeinv.Trainer("heat_4d", pdeinv.SIP(), steps=1,
+                                                          prior=None), ValueError,
      r"unknown problem 'heat_4d'"),
-    ("train-model-is-a-result", lambda: pdeinv.Trainer(_heat(), pdeinv.SIP(), _result(), steps=1), TypeError,
+    ("train-model-is-a-result", lambda: pdeinv.Trainer(_heat(), pdeinv.SIP(), _result(), steps=1,
+                                                       prior=None), TypeError,
      r"model is a training Result; expected its network: pass result\.model"),
-    ("train-model-is-an-array", lambda: pdeinv.Trainer(_heat(), pdeinv.SIP(), np.zeros((2, 7)), steps=1),
+    ("train-model-is-an-array", lambda: pdeinv.Trainer(_heat(), pdeinv.SIP(), np.zeros((2, 7)), steps=1,
+                                                       prior=None),
      TypeError, r"model is an array of shape \(2, 7\); expected a torch\.nn\.Module"),
     ("train-seed-negative", lambda: _trainer(seed=-1), ValueError,
      r"seed=-1 is not allowed; expected an integer from 0 to 4294967295"),
@@ -332,12 +335,12 @@ _RESULT = []
 def _result():
     """One tiny finished run, shared by the rows that need a Result."""
     if not _RESULT:
-        _RESULT.append(pdeinv.train(_heat(), "sip", n_train=8, n_test=4, steps=1, progress=False))
+        _RESULT.append(pdeinv.train(_heat(), "sip", n_train=8, n_test=4, steps=1, progress=False, prior=None))
     return _RESULT[0]
 
 
 def _trainer(**kw):
-    return pdeinv.Trainer(load("heat_1d", n=8), pdeinv.GD(), steps=1, **kw)
+    return pdeinv.Trainer(load("heat_1d", n=8), pdeinv.GD(), steps=1, **{"prior": None, **kw})
 
 
 def _hig_step(**kw):
@@ -362,6 +365,6 @@ def test_a_failing_run_keeps_what_was_written(files, tmp_path, capsys):
     before = {p.name: p.read_bytes() for p in run.iterdir()}
     for extra in (["--overwrite", "--set", "kappa=-1"], ["--resume", "--hidden", "4"],
                   ["--overwrite", "--method", "hig", "--eta=-1"]):
-        assert main(["train", "heat_1d", *SMALL, "--out", str(run), *extra]) == 2
+        assert main(["train", "--prior-fit", "0", "heat_1d", *SMALL, "--out", str(run), *extra]) == 2
     capsys.readouterr()
     assert {p.name: p.read_bytes() for p in run.iterdir()} == before

@@ -15,7 +15,8 @@ from pdeinv.cli import build_parser, main
 ROOT = Path(pdeinv.__file__).resolve().parent
 
 
-@pytest.mark.parametrize("command", ["train", "predict", "classical", "show", "bench", "stress", "demo"])
+@pytest.mark.parametrize("command", ["train", "--prior-fit", "0",
+                                     "predict", "classical", "show", "bench", "stress", "demo"])
 def test_every_flag_has_a_help_string(command):
     parser = build_parser()
     sub = next(a for a in parser._actions if a.dest == "command").choices[command]
@@ -26,7 +27,8 @@ def test_every_flag_has_a_help_string(command):
 
 def test_tiny_errors_are_printed_in_three_significant_digits(tmp_path, capsys):
     """wave_1d with the whitened default network: SIP solves it to rounding."""
-    assert main(["train", "wave_1d", "--set", "n=16", "--set", "steps=10", "--n-train", "32", "--n-test",
+    assert main(["train", "--prior-fit", "0",
+                 "wave_1d", "--set", "n=16", "--set", "steps=10", "--n-train", "32", "--n-test",
                  "8", "--threads", "1", "--export-samples", "0", "--out", str(tmp_path / "run")]) == 0
     line = capsys.readouterr().out.strip().splitlines()[-1]
     x_err = re.search(r"x_err (\S+),", line).group(1)
@@ -49,4 +51,4 @@ def test_quiet_and_verbose(flag, shown, capsys):
         build_problem("demo", "heat_1d", ["n=8"], after_s=0.0)
     err = capsys.readouterr().err
     assert [w for w in ("built", "backend") if w in err] == shown, err
-    assert build_parser().parse_args(["train", "x", "--out", "o", "-q"]).quiet
+    assert build_parser().parse_args(["train", "--prior-fit", "0", "x", "--out", "o", "-q"]).quiet

@@ -97,7 +97,7 @@ def test_training_with_the_torch_apply_equals_the_numpy_one():
     for p in (problem, on_torch):
         torch.manual_seed(0)
         runs.append(pdeinv.train(p, pdeinv.GD(), steps=8, n_train=32, n_test=8, batch_size=8,
-                                 eval_every=4, dtype=torch.float64))
+                                 eval_every=4, dtype=torch.float64, prior=None))
     a, b = ([h["loss"] for h in r.history] for r in runs)
     assert np.allclose(a, b, rtol=1e-10, atol=0) and runs[0].metrics["x_err"] == pytest.approx(
         runs[1].metrics["x_err"], rel=1e-10)
@@ -108,7 +108,7 @@ def test_resolve_refuses_devices_that_are_not_here(device):
     with pytest.raises(ValueError, match=repr(device)):
         resolve(device)
     with pytest.raises(ValueError, match=repr(device)):
-        pdeinv.Trainer(load("heat_1d", n=16, steps=10), pdeinv.GD(), steps=1, device=device)
+        pdeinv.Trainer(load("heat_1d", n=16, steps=10), pdeinv.GD(), steps=1, device=device, prior=None)
 
 
 def test_resolve_accepts_the_cpu():
@@ -132,6 +132,6 @@ def test_cuda_apply_agrees_with_numpy(case):
 def test_cuda_training_matches_the_cpu():
     problem = load("heat_1d", n=16, steps=10, backend="modal")
     runs = [pdeinv.train(problem, pdeinv.GD(), steps=8, n_train=32, n_test=8, batch_size=8, eval_every=4,
-                         dtype=torch.float64, device=d, seed=0) for d in ("cpu", "cuda")]
+                         dtype=torch.float64, device=d, seed=0, prior=None) for d in ("cpu", "cuda")]
     assert runs[1].metrics["device"].startswith("cuda")
     assert runs[1].metrics["x_err"] == pytest.approx(runs[0].metrics["x_err"], rel=1e-8)

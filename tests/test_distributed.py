@@ -36,7 +36,8 @@ from pdeinv.training import distributed
 from pdeinv.training.distributed import DataParallel, Single
 
 ROOT = Path(__file__).resolve().parents[1]
-RUN = ["train", "heat_1d", "--set", "n=16", "--set", "steps=10", "--hidden", "16", "--steps", "12",
+RUN = ["train", "--prior-fit", "0",
+       "heat_1d", "--set", "n=16", "--set", "steps=10", "--hidden", "16", "--steps", "12",
        "--n-train", "64", "--n-test", "16", "--batch-size", "8", "--eval-every", "4", "--seed", "3",
        "--export-samples", "0", "--threads", "1"]
 #: ``python FAULT MODE RANK STEP ARGV…``: on rank RANK at its STEP-th step, ``exit`` dies (os._exit(9))
@@ -238,7 +239,7 @@ class _Agreeing(Single):
 def test_the_trainer_stops_when_the_ranks_agree_and_only_the_writer_saves(tmp_path, heat):
     ckpt = pdeinv.Checkpoint(tmp_path / "c.pt", every=1)
     r = pdeinv.train(heat, pdeinv.GD(), steps=10, n_train=16, n_test=4, batch_size=4, checkpoint=ckpt,
-                     parallel=_Agreeing(3))
+                     parallel=_Agreeing(3), prior=None)
     assert r.metrics["steps"] == 3 and r.metrics["stopped_by"] == "another process"
     assert "y_err" in r.history[-1]  # evaluated at the agreed stop
     assert not ckpt.exists()

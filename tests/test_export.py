@@ -68,7 +68,8 @@ def test_bad_arguments(tmp_path):
 
 def test_cli_train_writes_paraview_files_and_show_draws_them(tmp_path, capsys):
     out = tmp_path / "run"
-    argv = ["train", "wave_sensors_2d", "--method", "adam", "--steps", "3", "--out", str(out),
+    argv = ["train", "--prior-fit", "0",
+            "wave_sensors_2d", "--method", "adam", "--steps", "3", "--out", str(out),
             "--set", "n=6", "--set", "steps=12", "--set", "sensors=8", "--n-train", "16", "--n-test", "4",
             "--batch-size", "4", "--hidden", "8", "--export-samples", "2"]
     assert main(argv) == 0
@@ -93,7 +94,8 @@ def test_cli_train_writes_paraview_files_and_show_draws_them(tmp_path, capsys):
     (["show", "{tmp}"], "holds no fields.vtu"),
     (["show", "{run}", "--samples", "5"], r"samples=\[5\] is not allowed; the file holds samples 0..1"),
     (["show", "{run}", "--samples", "a"], "not a comma-separated list"),
-    (["train", "heat_1d", "--out", "{tmp}/r", "--export-samples", "-1"], "--export-samples -1"),
+    (["train", "--prior-fit", "0",
+      "heat_1d", "--out", "{tmp}/r", "--export-samples", "-1"], "--export-samples -1"),
 ])
 def test_show_bad_input_exits_2_with_one_line(tmp_path, capsys, argv, match):
     run = tmp_path / "run"

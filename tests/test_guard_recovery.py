@@ -105,7 +105,8 @@ def test_resume_after_a_saved_blow_up_rolls_back_bitwise(heat, tmp_path):
 
 def test_cli_gd_with_lr_1e6_recovers_by_lowering_the_step(tmp_path, capsys):
     out = tmp_path / "run"
-    code = main(["train", "heat_1d", "--method", "gd", "--lr", "1e6", "--steps", "120", "--out", str(out),
+    code = main(["train", "--prior-fit", "0",
+                 "heat_1d", "--method", "gd", "--lr", "1e6", "--steps", "120", "--out", str(out),
                  "--n-train", "256", "--n-test", "32", "--export-samples", "0"])
     err = capsys.readouterr().err.splitlines()
     assert code == 0

@@ -84,7 +84,7 @@ def test_hig_defaults_beat_adam_defaults_at_equal_steps(scene, settings):
         rule, hp = make_rule(method, scene)
         torch.manual_seed(0)
         r = pdeinv.Trainer(p, rule, steps=50, n_train=256, n_test=64, batch_size=hp["batch_size"], seed=0,
-                           progress=False, eval_every=50).fit()
+                           progress=False, eval_every=50, prior=None).fit()
         errs[method] = r.metrics["x_err"]
         if method == "hig":
             assert r.history[-1]["route"] == "kronecker"
@@ -228,7 +228,7 @@ def test_hig_on_cuda_matches_the_cpu(scene):
     """The Kronecker route (and its kept-rows form) on a CUDA model: the same run as on the CPU."""
     problem = pdeinv.load_problem(scene, n=16)
     runs = [pdeinv.train(problem, HIG(), steps=6, n_train=64, n_test=8, batch_size=None, eval_every=3,
-                         dtype=torch.float64, device=d, seed=0) for d in ("cpu", "cuda")]
+                         dtype=torch.float64, device=d, seed=0, prior=None) for d in ("cpu", "cuda")]
     assert runs[1].metrics["device"].startswith("cuda")
     assert runs[1].metrics["x_err"] == pytest.approx(runs[0].metrics["x_err"], rel=1e-8)
 

@@ -154,7 +154,7 @@ def test_the_route_is_about_as_accurate_as_the_dense_route_at_a_tenth_of_its_ste
         model = nets.MLP(p.operator.n_out, p.operator.n_in, (16, 16))
         r = pdeinv.Trainer(p, dataclasses.replace(rule, route=route), model, steps=steps, n_train=128,
                            n_test=64, batch_size=hp["batch_size"], seed=0, progress=False,
-                           eval_every=steps).fit()
+                           eval_every=steps, prior=None).fit()
         errs[route] = r.metrics["x_err"]
         assert r.history[-1]["route"] == ("last_layer" if route == "last_layer" else "gram")
     assert errs["last_layer"] < factor * errs["auto"], errs

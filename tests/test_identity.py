@@ -90,27 +90,33 @@ def test_more_steps_and_a_guard_lowered_step_size_are_no_mismatch(tmp_path):
 
 def test_cli_refuses_another_lr_with_exit_2_and_extends_steps(tmp_path, capsys):
     out = str(tmp_path / "run")
-    assert main(["train", "heat_1d", "--method", "adam", "--lr", "1e-2", "--steps", "2", *SMALL,
+    assert main(["train", "--prior-fit", "0",
+                 "heat_1d", "--method", "adam", "--lr", "1e-2", "--steps", "2", *SMALL,
                  "--out", out]) == 0
     before = (tmp_path / "run" / "checkpoint.pt").read_bytes()
     capsys.readouterr()
-    assert main(["train", "heat_1d", "--method", "adam", "--lr", "1e-5", "--steps", "4", *SMALL,
+    assert main(["train", "--prior-fit", "0",
+                 "heat_1d", "--method", "adam", "--lr", "1e-5", "--steps", "4", *SMALL,
                  "--out", out, "--resume"]) == 2
     err = capsys.readouterr().err
     assert err.startswith("pdeinv train: error: ") and "lr=0.01 (checkpoint) vs 1e-05 (this run)" in err
     assert (tmp_path / "run" / "checkpoint.pt").read_bytes() == before
-    assert main(["train", "heat_1d", "--method", "sip", "--eta", "0.5", "--steps", "4", *SMALL,
+    assert main(["train", "--prior-fit", "0",
+                 "heat_1d", "--method", "sip", "--eta", "0.5", "--steps", "4", *SMALL,
                  "--out", out, "--resume"]) == 2
     assert "rule 'adam'; this run has 'sip'" in capsys.readouterr().err
-    assert main(["train", "heat_1d", "--method", "adam", "--lr", "1e-2", "--steps", "4", *SMALL,
+    assert main(["train", "--prior-fit", "0",
+                 "heat_1d", "--method", "adam", "--lr", "1e-2", "--steps", "4", *SMALL,
                  "--out", out, "--resume"]) == 0
     assert json.loads((tmp_path / "run" / "metrics.json").read_text())["steps"] == 4
 
 
 def test_cli_refuses_another_sip_eta(tmp_path, capsys):
     out = str(tmp_path / "run")
-    assert main(["train", "heat_1d", "--method", "sip", "--steps", "2", *SMALL, "--out", out]) == 0
+    assert main(["train", "--prior-fit", "0",
+                 "heat_1d", "--method", "sip", "--steps", "2", *SMALL, "--out", out]) == 0
     capsys.readouterr()
-    assert main(["train", "heat_1d", "--method", "sip", "--eta", "0.5", "--steps", "4", *SMALL,
+    assert main(["train", "--prior-fit", "0",
+                 "heat_1d", "--method", "sip", "--eta", "0.5", "--steps", "4", *SMALL,
                  "--out", out, "--resume"]) == 2
     assert "eta=1.0 (checkpoint) vs 0.5 (this run)" in capsys.readouterr().err

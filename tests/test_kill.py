@@ -26,7 +26,8 @@ from pdeinv.cli import main
 
 ROOT = Path(__file__).resolve().parents[1]
 STEPS = 100
-ARGS = ["train", "heat_1d", "--set", "n=16", "--set", "steps=10", "--hidden", "16", "--steps", str(STEPS),
+ARGS = ["train", "--prior-fit", "0",
+        "heat_1d", "--set", "n=16", "--set", "steps=10", "--hidden", "16", "--steps", str(STEPS),
         "--n-train", "64", "--n-test", "16", "--batch-size", "8", "--eval-every", "40", "--threads", "1",
         "--seed", "3"]
 

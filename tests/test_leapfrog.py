@@ -50,7 +50,8 @@ def test_dt_above_the_cfl_limit_is_refused_with_the_limit():
 
 
 def test_cli_refuses_dt_above_cfl_in_one_line(tmp_path, capsys):
-    argv = ["train", "wave_1d", "--set", "scheme=leapfrog", "--set", "steps=10", "--set", "T=0.5",
+    argv = ["train", "--prior-fit", "0",
+            "wave_1d", "--set", "scheme=leapfrog", "--set", "steps=10", "--set", "T=0.5",
             "--out", str(tmp_path / "r")]
     assert main(argv) == 2
     err = capsys.readouterr().err.strip()

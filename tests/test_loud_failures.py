@@ -38,7 +38,7 @@ def test_classical_refuses_data_of_other_settings_and_passes_its_own(files, caps
 
 
 def test_an_empty_data_path_is_refused(tmp_path, capsys):
-    assert main(["train", "heat_1d", "--data", "", "--out", str(tmp_path / "o")]) == 2
+    assert main(["train", "--prior-fit", "0", "heat_1d", "--data", "", "--out", str(tmp_path / "o")]) == 2
     err = capsys.readouterr().err
     assert "--data '' names no file" in err and "Traceback" not in err
     assert not (tmp_path / "o").exists()

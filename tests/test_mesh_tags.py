@@ -173,7 +173,7 @@ def test_plate_dirichlet_setting(tmp_path):
 
 
 def test_cli_unknown_boundary_name(tmp_path, capsys):
-    code = main(["train", "heat_plate", "--set", "refine=0", "--set", "dirichlet=rim",
+    code = main(["train", "--prior-fit", "0", "heat_plate", "--set", "refine=0", "--set", "dirichlet=rim",
                  "--out", str(tmp_path / "run"), "--steps", "1"])
     err = capsys.readouterr().err.strip()
     assert code == 2 and "\n" not in err and "'rim'" in err and "Traceback" not in err

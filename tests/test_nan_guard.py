@@ -104,7 +104,8 @@ def test_consecutive_failures_stop_with_the_last_good_checkpoint(tmp_path):
 
 def test_cli_gives_up_with_one_line_and_keeps_the_checkpoint(tmp_path, capsys):
     out = tmp_path / "run"
-    argv = ["train", FAULTS, "--method", "adam", "--set", "n=16", "--set", "steps=10", "--hidden", "16",
+    argv = ["train", "--prior-fit", "0",
+            FAULTS, "--method", "adam", "--set", "n=16", "--set", "steps=10", "--hidden", "16",
             "--n-train", "32", "--n-test", "16", "--batch-size", "8", "--steps", "8",
             "--checkpoint-every", "1", "--out", str(out), "--threads", "1"]
     code = main([*argv, "--set", "poison=4,5,6", "--max-failures", "3"])

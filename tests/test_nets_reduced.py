@@ -148,7 +148,8 @@ def test_a_run_with_the_reduced_default_resumes_and_predicts(tmp_path, monkeypat
     out = tmp_path / "run"
     # 4 SIP steps of batch 8 end at x_err 11.8 (pdeinv.training.verdict: exit 3), kept: resuming is the
     # point here
-    args = ["train", "heat_2d", "--set", "n=16", "--n-train", "64", "--n-test", "16", "--batch-size", "8",
+    args = ["train", "--prior-fit", "0",
+            "heat_2d", "--set", "n=16", "--n-train", "64", "--n-test", "16", "--batch-size", "8",
             "--threads", "1", "--export-samples", "0", "--checkpoint-every", "2", "--accept-bad",
             "--out", str(out)]
     assert main([*args, "--steps", "4"]) == 0
@@ -172,7 +173,7 @@ def test_short_sip_training_on_heat_2d_reaches_the_measured_error():
     torch.manual_seed(0)
     model = nets.reduced()(p)
     result = Trainer(p, rule, model, steps=300, eval_every=300, batch_size=hp["batch_size"],
-                     progress=False).fit()
+                     progress=False, prior=None).fit()
     assert result.metrics["x_err"] < 0.2
 
 

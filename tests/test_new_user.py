@@ -68,7 +68,7 @@ def test_cli_bad_input_exits_2_with_one_line(meshes, tmp_path, capsys, argv, mat
     extra = [x for k, v in zip(SMALL[4::2], SMALL[5::2]) if k not in argv for x in (k, v)]
     if argv[0] == "heat_1d":
         extra += ["--set", "n=16", "--set", "steps=10"]
-    code = main(["train", *argv, *extra, "--out", str(tmp_path / "o")])
+    code = main(["train", "--prior-fit", "0", *argv, *extra, "--out", str(tmp_path / "o")])
     err = capsys.readouterr().err
     assert code == 2, err
     assert err.count("\n") == 1 and err.startswith("pdeinv train: error: "), err
@@ -83,14 +83,15 @@ def test_time_budget_alone_is_not_cut_at_1000_steps():
     from pdeinv.cli import build_parser
     from pdeinv.cli.commands._checks import steps
 
-    args = build_parser().parse_args(["train", "heat_1d", "--out", "x", "--time-budget", "30"])
+    args = build_parser().parse_args(["train", "--prior-fit", "0",
+                                      "heat_1d", "--out", "x", "--time-budget", "30"])
     assert args.steps is None and steps(args) is None  # the budget alone decides
-    assert steps(build_parser().parse_args(["train", "heat_1d", "--out", "x"])) == 1000
+    assert steps(build_parser().parse_args(["train", "--prior-fit", "0", "heat_1d", "--out", "x"])) == 1000
 
 
 def test_export_samples_above_n_test_says_so(tmp_path, capsys):
     argv = [a if a != "0" else "50" for a in SMALL]  # --export-samples 50 with 8 test samples
-    assert main(["train", "heat_1d", *argv, "--out", str(tmp_path)]) == 0
+    assert main(["train", "--prior-fit", "0", "heat_1d", *argv, "--out", str(tmp_path)]) == 0
     assert "warning: --export-samples 50 is more than the 8 test samples" in capsys.readouterr().err
 
 
@@ -131,7 +132,7 @@ def test_optimizer_as_factory_class_or_instance_is_the_same():
     assert all(make_optimizer(s, p).param_groups[0]["params"][0] is p[0] for s in specs)
     heat = pdeinv.load_problem("heat_1d", n=8)
     res = pdeinv.train(heat, pdeinv.GD(optimizer=torch.optim.SGD([p[0]], lr=0.1)), steps=2, n_train=8,
-                       n_test=4, batch_size=4)
+                       n_test=4, batch_size=4, prior=None)
     assert np.isfinite(res.metrics["x_err"])
 
 
@@ -180,7 +181,8 @@ def test_gd_defaults_do_not_blow_up_on_the_sensor_scene(tmp_path):
     direction per 8 rows) takes 25 steps with no rejection, a falling loss and an error below the
     zero network's 1; run.json records the cap and the run reloads with it."""
     out = tmp_path / "o"
-    assert main(["train", "wave_sensors_2d", "--method", "gd", "--steps", "25", "--eval-every", "25",
+    assert main(["train", "--prior-fit", "0",
+                 "wave_sensors_2d", "--method", "gd", "--steps", "25", "--eval-every", "25",
                  "--out", str(out)]) == 0
     m = json.loads((out / "metrics.json").read_text())
     assert m["rejected_steps"] == 0 and m["x_err"] < 0.95, m

@@ -53,7 +53,7 @@ def test_gradient_methods_train_on_allen_cahn(method):
     torch.manual_seed(0)
     rule, hp = make_rule(method, p.name, p.noise)
     res = pdeinv.Trainer(p, rule, steps=60, seed=0, batch_size=16, n_train=64, n_test=16, eval_every=60,
-                         progress=False).fit()
+                         progress=False, prior=None).fit()
     assert res.metrics["x_err"] < 0.95
 
 
@@ -188,7 +188,7 @@ def test_noisy_data_on_a_nonlinear_map_fit_no_spectral_target():
     assert model.decoder is not None and not SpectralWiener().applies(p, 0.01, model)
     rule, hp = make_rule("sip", p, p.noise)
     res = pdeinv.Trainer(p, rule, steps=3, batch_size=hp["batch_size"], seed=0, n_train=64, n_test=16,
-                         progress=False).fit()
+                         progress=False, prior=None).fit()
     assert res.metrics["x_err"] < 0.95
 
 
@@ -238,5 +238,5 @@ def test_hig_at_its_nonlinear_preset_trains_allen_cahn_where_eta_one_diverged():
     torch.manual_seed(0)
     rule, hp = make_rule("hig", p, p.noise)
     res = pdeinv.Trainer(p, rule, steps=60, batch_size=hp["batch_size"], seed=0, n_train=256, n_test=64,
-                         eval_every=60, progress=False).fit()
+                         eval_every=60, progress=False, prior=None).fit()
     assert not res.metrics.get("failed") and res.metrics["x_err"] < 0.6

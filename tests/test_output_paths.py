@@ -23,7 +23,7 @@ READ_ONLY = "/proc"
 def run(tmp_path_factory):
     """A finished run (with fields.vtu) and an observation file of its problem."""
     d = tmp_path_factory.mktemp("paths")
-    assert main(["train", "heat_1d", *SMALL, "--out", str(d / "run")]) == 0
+    assert main(["train", "--prior-fit", "0", "heat_1d", *SMALL, "--out", str(d / "run")]) == 0
     x, y = pdeinv.load_problem("heat_1d", n=16, steps=10).sample(4, seed=5)
     np.savez(d / "obs.npz", x=x, y=y)
     return d
@@ -61,7 +61,8 @@ def _refused(capsys, argv, match, folder):
     (["classical", "heat_1d", "--set", "n=16", "--data", "{d}/obs.npz", "--out", f"{READ_ONLY}/c.json"],
      "is not a writable directory"),
     (["show", "{run}", "--png", "{d}/obs.npz/f.png"], "is not a writable directory (a file is in the way)"),
-    (["train", "heat_1d", *SMALL, "--out", f"{READ_ONLY}/run"], "is not a writable directory"),
+    (["train", "--prior-fit", "0",
+      "heat_1d", *SMALL, "--out", f"{READ_ONLY}/run"], "is not a writable directory"),
 ], ids=["show-training-png", "show-metrics", "show-its-input", "predict-vtu-run-file", "classical-metrics",
         "classical-its-data", "show-read-only", "predict-read-only", "predict-vtu-read-only",
         "classical-read-only", "show-under-a-file", "train-read-only"])
@@ -88,7 +89,7 @@ def test_missing_folders_are_created_for_every_command(run, tmp_path, capsys):
 
 def test_save_run_creates_its_folder_and_loads_back(tmp_path):
     p = pdeinv.load_problem("heat_1d", n=8)
-    result = pdeinv.train(p, "sip", n_train=8, n_test=4, steps=1, progress=False)
+    result = pdeinv.train(p, "sip", n_train=8, n_test=4, steps=1, progress=False, prior=None)
     out = pdeinv.save_run(tmp_path / "a" / "b", "heat_1d", {"n": 8}, model=result.model)
     problem, model = pdeinv.load_run(out)
     y = p.sample(2, seed=1)[1]

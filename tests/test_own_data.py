@@ -32,7 +32,7 @@ def pairs(heat):
 
 def fit(heat, data, **kw):
     kw = {"steps": 3, "n_test": 10, "batch_size": 8, "progress": False, **kw}
-    return Trainer(heat, GD(adam(1e-3)), data=data, **kw)
+    return Trainer(heat, GD(adam(1e-3)), data=data, **{"prior": None, **kw})
 
 
 @pytest.mark.parametrize("wrap", [np.asarray, torch.tensor, lambda y: torch.utils.data.TensorDataset(
@@ -92,7 +92,8 @@ def test_cli_train_predict_and_load_run(heat, pairs, tmp_path, capsys):
     np.savez(tmp_path / "train.npz", y=y[:50], x=x[:50])
     np.savez(tmp_path / "obs.npz", y=y[50:], x=x[50:])
     out = tmp_path / "run"
-    assert main(["train", "heat_1d", "--data", str(tmp_path / "train.npz"), *SMALL, "--out", str(out)]) == 0
+    assert main(["train", "--prior-fit", "0",
+                 "heat_1d", "--data", str(tmp_path / "train.npz"), *SMALL, "--out", str(out)]) == 0
     m = json.loads((out / "metrics.json").read_text())
     assert m["data"]["file"].endswith("train.npz") and m["data"]["rows"]["test"] == [40, 50]
     assert m["n_train"] == 40 and m["x_err"] is not None
@@ -143,11 +144,13 @@ def test_cli_bad_data_files_exit_2_with_one_line(heat, tmp_path, capsys, command
     if command == "predict":
         x, y = heat.sample(30, seed=1)
         np.savez(tmp_path / "ok.npz", y=y)
-        assert main(["train", "heat_1d", "--data", str(tmp_path / "ok.npz"), *SMALL, "--out", str(run)]) == 0
+        assert main(["train", "--prior-fit", "0",
+                     "heat_1d", "--data", str(tmp_path / "ok.npz"), *SMALL, "--out", str(run)]) == 0
         capsys.readouterr()
         argv = ["predict", str(run), "--data", str(tmp_path / file), "--out", str(tmp_path / "p.npz")]
     else:
-        argv = ["train", "heat_1d", "--data", str(tmp_path / file), *SMALL, "--out", str(run)]
+        argv = ["train", "--prior-fit", "0",
+                "heat_1d", "--data", str(tmp_path / file), *SMALL, "--out", str(run)]
     code = main(argv)
     err = capsys.readouterr().err.splitlines()
     assert code == 2 and len(err) == 1, err
@@ -173,7 +176,8 @@ def test_cli_predict_refuses_a_run_folder_without_a_model(heat, pairs, tmp_path,
     if setup != "none":
         run.mkdir()
     if setup in ("no_model", "ok"):
-        assert main(["train", "heat_1d", "--data", str(tmp_path / "obs.npz"), *SMALL, "--out", str(run)]) == 0
+        assert main(["train", "--prior-fit", "0",
+                     "heat_1d", "--data", str(tmp_path / "obs.npz"), *SMALL, "--out", str(run)]) == 0
         capsys.readouterr()
     if setup == "no_model":
         (run / "model.pt").unlink()
@@ -188,7 +192,8 @@ def test_cli_predict_refuses_a_run_folder_without_a_model(heat, pairs, tmp_path,
 
 def test_cli_n_train_with_data_is_refused(tmp_path, pairs, capsys):
     np.savez(tmp_path / "d.npz", y=pairs[1])
-    code = main(["train", "heat_1d", "--data", str(tmp_path / "d.npz"), "--n-train", "20", *SMALL,
+    code = main(["train", "--prior-fit", "0",
+                 "heat_1d", "--data", str(tmp_path / "d.npz"), "--n-train", "20", *SMALL,
                  "--out", str(tmp_path / "run")])
     assert code == 2 and "--n-train does not apply with --data" in capsys.readouterr().err
 
@@ -202,7 +207,7 @@ def test_cli_predict_never_writes_over_an_input(tmp_path, pairs, capsys, out, vt
     """``predict RUN --data F.npz --out F.npz`` once overwrote the user's observations (exit 0)."""
     x, y = pairs
     np.savez(tmp_path / "obs.npz", y=y)
-    assert main(["train", "heat_1d", "--data", str(tmp_path / "obs.npz"), *SMALL,
+    assert main(["train", "--prior-fit", "0", "heat_1d", "--data", str(tmp_path / "obs.npz"), *SMALL,
                  "--out", str(tmp_path / "run")]) == 0
     capsys.readouterr()
     before = {p: p.read_bytes() for p in tmp_path.rglob("*") if p.is_file()}
@@ -234,13 +239,13 @@ def test_data_from_another_discretization_is_measured_and_warned_about(heat, tmp
     np.savez(tmp_path / "own.npz", y=own_y, x=own_x)
     tail = ["--set", "n=16", "--set", "backend=steps", "--n-test", "10", "--batch-size", "8", "--steps", "2",
             "--export-samples", "0"]
-    assert main(["train", "heat_1d", "--data", str(tmp_path / "other.npz"), *tail,
+    assert main(["train", "--prior-fit", "0", "heat_1d", "--data", str(tmp_path / "other.npz"), *tail,
                  "--out", str(tmp_path / "a")]) == 3
     err = capsys.readouterr().err
     assert f"differ from this problem's P x by {mismatch:.3g}" in err and "noise level 0 explains" in err
     assert json.loads((tmp_path / "a" / "metrics.json").read_text())["data"]["model_mismatch"] == \
         pytest.approx(mismatch)
-    assert main(["train", "heat_1d", "--data", str(tmp_path / "own.npz"), *tail,
+    assert main(["train", "--prior-fit", "0", "heat_1d", "--data", str(tmp_path / "own.npz"), *tail,
                  "--out", str(tmp_path / "b")]) == 0
     assert "differ from this problem" not in capsys.readouterr().err
     # noisy data of our own simulator at its declared level: explained
@@ -255,7 +260,7 @@ def test_a_float32_file_trains_at_its_rounding_level(tmp_path, capsys):
     p = pdeinv.load_problem("heat_1d", n=16)
     x, y = p.sample(300, 1)
     np.savez(tmp_path / "f32.npz", y=y.astype(np.float32), x=x.astype(np.float32))
-    assert main(["train", "heat_1d", "--data", str(tmp_path / "f32.npz"), "--set", "n=16",
+    assert main(["train", "--prior-fit", "0", "heat_1d", "--data", str(tmp_path / "f32.npz"), "--set", "n=16",
                  "--export-samples", "0", "--out", str(tmp_path / "run")]) == 0
     err = capsys.readouterr().err
     assert "rounding is noise of relative level 6e-08" in err
@@ -275,12 +280,13 @@ def test_noisy_data_without_a_declared_level_trains_at_the_level_it_shows(tmp_pa
     x, y = p.sample(600, 7)
     np.savez(tmp_path / "noisy.npz", y=y, x=x)
     data = ["--data", str(tmp_path / "noisy.npz"), "--set", "n=16", "--export-samples", "0"]
-    assert main(["train", "heat_2d", *data, "--n-test", "100", "--out", str(tmp_path / "run")]) == 0
+    assert main(["train", "--prior-fit", "0",
+                 "heat_2d", *data, "--n-test", "100", "--out", str(tmp_path / "run")]) == 0
     assert "observations show noise of relative level 0.01 " in capsys.readouterr().err
     assert json.loads((tmp_path / "run" / "run.json").read_text())["overrides"]["noise"] == "0.01"
     oracle = references.tikhonov_best(p, y[-100:], x[-100:])["x_err"]
     assert json.loads((tmp_path / "run" / "metrics.json").read_text())["x_err"] < oracle
-    assert main(["train", "heat_2d", *data, "--set", "noise=0", "--steps", "1",
+    assert main(["train", "--prior-fit", "0", "heat_2d", *data, "--set", "noise=0", "--steps", "1",
                  "--out", str(tmp_path / "r0")]) == 3
     assert "observations show noise" not in capsys.readouterr().err
 
@@ -290,12 +296,14 @@ def test_a_small_file_says_what_the_default_splits_hold_out(tmp_path, capsys):
     p = pdeinv.load_problem("heat_1d", n=16)
     x, y = p.sample(150, 2)
     np.savez(tmp_path / "small.npz", y=y, x=x)
-    assert main(["train", "heat_1d", "--data", str(tmp_path / "small.npz"), "--set", "n=16",
+    assert main(["train", "--prior-fit", "0",
+                 "heat_1d", "--data", str(tmp_path / "small.npz"), "--set", "n=16",
                  "--export-samples", "0", "--out", str(tmp_path / "run")]) == 0
     err = capsys.readouterr().err.splitlines()
     assert err == ["pdeinv train: warning: the data's 150 rows: the last 128 are held out as the test set, "
                    "only 22 train; hold out fewer with --n-test (Trainer(n_test=...))"]
-    assert main(["train", "heat_1d", "--data", str(tmp_path / "small.npz"), "--set", "n=16", "--n-test", "30",
+    assert main(["train", "--prior-fit", "0",
+                 "heat_1d", "--data", str(tmp_path / "small.npz"), "--set", "n=16", "--n-test", "30",
                  "--export-samples", "0", "--out", str(tmp_path / "run2")]) == 0
     assert capsys.readouterr().err == ""
 
@@ -354,7 +362,8 @@ def test_a_file_may_carry_its_points_and_noise_level(tmp_path, capsys):
     when not); ``noise`` trains at the file's level (in run.json), and a different --set noise is refused."""
     p = pdeinv.load_problem("heat_1d", n=16, noise=0.02)
     x, y = p.sample(160, 3)
-    base = ["train", "heat_1d", "--set", "n=16", "--n-test", "32", "--steps", "2", "--export-samples", "0"]
+    base = ["train", "--prior-fit", "0",
+            "heat_1d", "--set", "n=16", "--n-test", "32", "--steps", "2", "--export-samples", "0"]
     np.savez(tmp_path / "ok.npz", y=y, x=x, points=p.points, noise=0.02)
     assert main([*base, "--data", str(tmp_path / "ok.npz"), "--out", str(tmp_path / "run")]) == 0
     assert json.loads((tmp_path / "run" / "run.json").read_text())["overrides"]["noise"] == "0.02"
@@ -386,7 +395,7 @@ def test_cli_predict_checks_the_observations_against_the_runs_physics(tmp_path, 
     np.savez(tmp_path / "train.npz", y=y, x=x)
     tail = ["--set", "n=64", "--set", "backend=modal", "--n-test", "10", "--batch-size", "8", "--steps", "2",
             "--export-samples", "0"]
-    assert main(["train", "heat_1d", "--data", str(tmp_path / "train.npz"), *tail,
+    assert main(["train", "--prior-fit", "0", "heat_1d", "--data", str(tmp_path / "train.npz"), *tail,
                  "--out", str(tmp_path / "run")]) == 0
     rough = np.random.default_rng(0).standard_normal(y.shape)
     files = {"own": dict(y=y, x=x), "own_y": dict(y=y), "shuffled": dict(y=y, x=x[::-1]),
@@ -421,7 +430,8 @@ def test_cli_reads_read_only_and_unicode_paths_and_refuses_an_unwritable_out(tmp
     before = data.read_bytes()
     run = folder / "run ü"
     # 3 steps on 50 rows: x_err 1.04, kept (--accept-bad): the paths are the point here
-    assert main(["train", "heat_1d", "--data", str(data), *SMALL, "--accept-bad", "--out", str(run)]) == 0
+    assert main(["train", "--prior-fit", "0",
+                 "heat_1d", "--data", str(data), *SMALL, "--accept-bad", "--out", str(run)]) == 0
     assert main(["predict", str(run), "--data", str(data), "--out", str(folder / "préd.npz")]) == 0
     assert data.read_bytes() == before and (folder / "préd.npz").exists()
     if os.geteuid() == 0:
@@ -431,7 +441,8 @@ def test_cli_reads_read_only_and_unicode_paths_and_refuses_an_unwritable_out(tmp
     locked.chmod(stat.S_IRUSR | stat.S_IXUSR)
     capsys.readouterr()
     try:
-        code = main(["train", "heat_1d", "--data", str(data), *SMALL, "--out", str(locked / "run")])
+        code = main(["train", "--prior-fit", "0",
+                     "heat_1d", "--data", str(data), *SMALL, "--out", str(locked / "run")])
     finally:
         locked.chmod(stat.S_IRWXU)
     err = capsys.readouterr().err.splitlines()
@@ -443,7 +454,7 @@ def test_cli_net_chooses_the_network_and_predict_rebuilds_it(tmp_path, capsys, n
     """``--net``: the whitened linear map or the prior decoder instead of the problem's default;
     run.json records it and ``predict`` rebuilds the same network (the same predictions)."""
     out = tmp_path / "run"
-    assert main(["train", "heat_1d", "--net", net, *SMALL, "--out", str(out)]) == 0
+    assert main(["train", "--prior-fit", "0", "heat_1d", "--net", net, *SMALL, "--out", str(out)]) == 0
     record = json.loads((out / "run.json").read_text())
     assert record["network"]["kind"] == net
     problem, model = pdeinv.load_run(out)
@@ -456,7 +467,7 @@ def test_cli_net_chooses_the_network_and_predict_rebuilds_it(tmp_path, capsys, n
 
 
 def test_cli_net_and_hidden_together_are_refused(tmp_path, capsys):
-    code = main(["train", "heat_1d", "--net", "reduced", "--hidden", "8", *SMALL,
+    code = main(["train", "--prior-fit", "0", "heat_1d", "--net", "reduced", "--hidden", "8", *SMALL,
                  "--out", str(tmp_path / "r")])
     err = capsys.readouterr().err.splitlines()
     assert code == 2 and len(err) == 1 and "--net reduced and --hidden 8" in err[0], err

@@ -148,7 +148,7 @@ def test_whitening_survives_state_dict_and_checkpoint_resume(tmp_path):
         torch.manual_seed(0)
         tr = pdeinv.Trainer(p, SIP(optimizer=adam(1e-3)), steps=steps, n_train=64, n_test=16,
                             batch_size=16, eval_every=5, checkpoint=Checkpoint(tmp_path / "c.pt", every=5),
-                            resume=resume, progress=False)
+                            resume=resume, progress=False, prior=None)
         return tr.fit()
 
     full = run(10, False)

@@ -102,5 +102,5 @@ def test_a_problem_module_imports_its_sibling_and_is_found_by_name_in_the_curren
     assert pdeinv.load_problem(str(tmp_path / "myscene.py")).N == 7
     monkeypatch.chdir(tmp_path)
     assert pdeinv.load_problem("myscene").N == 7 and "myscene" not in available()
-    assert main(["train", "myscene", "--steps", "1", "--n-train", "16", "--n-test", "4",
+    assert main(["train", "--prior-fit", "0", "myscene", "--steps", "1", "--n-train", "16", "--n-test", "4",
                  "--export-samples", "0", "--out", str(tmp_path / "run")]) == 0

@@ -48,9 +48,11 @@ def test_an_object_that_is_no_rule_is_refused_naming_what_it_lacks():
 def test_a_minimal_rule_trains_and_on_noisy_data_says_it_fits_the_noise():
     p = pdeinv.load_problem("heat_1d", n=16, noise=0.01)
     with pytest.warns(RuntimeWarning, match="takes no target=.*fits the noisy observations"):
-        r = pdeinv.Trainer(p, Minimal(), steps=3, n_train=32, n_test=8, batch_size=8, progress=False).fit()
+        r = pdeinv.Trainer(p, Minimal(), steps=3, n_train=32, n_test=8, batch_size=8, progress=False,
+                           prior=None).fit()
     assert r.metrics["method"] == "minimal"
     clean = pdeinv.load_problem("heat_1d", n=16)
     with warnings.catch_warnings():
         warnings.simplefilter("error", RuntimeWarning)
-        pdeinv.Trainer(clean, Minimal(), steps=3, n_train=32, n_test=8, batch_size=8, progress=False).fit()
+        pdeinv.Trainer(clean, Minimal(), steps=3, n_train=32, n_test=8, batch_size=8, progress=False,
+                       prior=None).fit()

@@ -58,15 +58,15 @@ def _snapshot(folder: Path) -> dict:
 def finished(tmp_path_factory):
     """A finished train run (metrics.json, checkpoint.pt, model.pt, ...) to copy."""
     run = tmp_path_factory.mktemp("lock") / "run"
-    assert main(["train", "heat_1d", *SMALL, "--steps", "2", "--checkpoint-every", "1",
+    assert main(["train", "--prior-fit", "0", "heat_1d", *SMALL, "--steps", "2", "--checkpoint-every", "1",
                  "--out", str(run)]) == 0
     assert not (run / NAME).exists()  # a finished run leaves no lock file behind
     return run
 
 
 @pytest.mark.parametrize("argv", [
-    ["train", "heat_1d", *SMALL, "--steps", "2", "--overwrite"],
-    ["train", "heat_1d", *SMALL, "--steps", "4", "--resume"],
+    ["train", "--prior-fit", "0", "heat_1d", *SMALL, "--steps", "2", "--overwrite"],
+    ["train", "--prior-fit", "0", "heat_1d", *SMALL, "--steps", "4", "--resume"],
     ["bench", "heat_1d", "--quick", "--set", "n=16"],
     ["stress", "heat_1d", "--quick"],
 ], ids=["train-overwrite", "train-resume", "bench", "stress"])
@@ -106,7 +106,8 @@ def test_a_sigkilled_holder_does_not_block_resume(finished, tmp_path, capsys):
     holder = _holder(run)
     _kill(holder)
     assert (run / NAME).exists()
-    assert main(["train", "heat_1d", *SMALL, "--steps", "4", "--checkpoint-every", "1", "--resume",
+    assert main(["train", "--prior-fit", "0",
+                 "heat_1d", *SMALL, "--steps", "4", "--checkpoint-every", "1", "--resume",
                  "--out", str(run)]) == 0, capsys.readouterr().err
     assert "4 steps" in capsys.readouterr().out
     assert not (run / NAME).exists()
@@ -114,7 +115,7 @@ def test_a_sigkilled_holder_does_not_block_resume(finished, tmp_path, capsys):
 
 def test_runs_one_after_another_on_one_folder(tmp_path, capsys):
     run = tmp_path / "run"
-    base = ["train", "heat_1d", *SMALL, "--checkpoint-every", "1", "--out", str(run)]
+    base = ["train", "--prior-fit", "0", "heat_1d", *SMALL, "--checkpoint-every", "1", "--out", str(run)]
     assert main([*base, "--steps", "2"]) == 0
     assert main([*base, "--steps", "3", "--resume"]) == 0
     assert main([*base, "--steps", "2", "--overwrite"]) == 0

@@ -22,7 +22,8 @@ from pdeinv import Checkpoint
 from pdeinv.cli.signals import INTERRUPTED, TERMINATED
 
 ROOT = Path(__file__).resolve().parents[1]
-ARGS = ["train", "heat_1d", "--set", "n=16", "--set", "steps=10", "--hidden", "8", "--steps", "40",
+ARGS = ["train", "--prior-fit", "0",
+        "heat_1d", "--set", "n=16", "--set", "steps=10", "--hidden", "8", "--steps", "40",
         "--n-train", "16", "--n-test", "8", "--batch-size", "8", "--threads", "1", "--export-samples", "0"]
 
 

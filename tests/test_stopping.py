@@ -104,20 +104,22 @@ def test_cli_defaults_on_noisy_data_fit_a_target_and_stop_only_without_one(tmp_p
     from pdeinv.cli import main
 
     out = tmp_path / "run"
-    assert main(["train", "heat_1d", "--set", "noise=0.01", "--method", "sip",
+    assert main(["train", "--prior-fit", "0", "heat_1d", "--set", "noise=0.01", "--method", "sip",
                  "--out", str(out), "--export-samples", "0"]) == 0
     m = json.loads((out / "metrics.json").read_text())
     assert m["stopped_by"] == "steps" and "stop_rule" not in m
     assert m["target"]["name"] == "spectral_wiener" and 0 < m["target"]["kept"] < m["target"]["modes"]
     assert m["x_err"] < 0.135  # best-α Tikhonov 0.127 on this test set (tests/test_accuracy.py)
     stopped = tmp_path / "stopped"
-    assert main(["train", "heat_1d", "--set", "noise=0.01", "--method", "sip", "--stop", "discrepancy",
+    assert main(["train", "--prior-fit", "0",
+                 "heat_1d", "--set", "noise=0.01", "--method", "sip", "--stop", "discrepancy",
                  "--out", str(stopped), "--export-samples", "0"]) == 0
     m = json.loads((stopped / "metrics.json").read_text())
     assert m["stopped_by"] == "discrepancy" and m["stop_rule"]["noise_source"] == "problem"
     assert "(discrepancy)" in capsys.readouterr().out
     quiet = tmp_path / "quiet"  # noise-free: no stopping rule unless asked for, only rounding to filter
-    assert main(["train", "heat_1d", "--method", "sip", "--steps", "20", "--out", str(quiet),
+    assert main(["train", "--prior-fit", "0",
+                 "heat_1d", "--method", "sip", "--steps", "20", "--out", str(quiet),
                  "--export-samples", "0"]) == 0
     m = json.loads((quiet / "metrics.json").read_text())
     assert m["stopped_by"] == "steps" and "stop_rule" not in m and m["target"]["name"] == "tikhonov_rounding"
@@ -126,7 +128,8 @@ def test_cli_defaults_on_noisy_data_fit_a_target_and_stop_only_without_one(tmp_p
 def test_cli_refuses_an_optimizer_for_a_rule_without_one(tmp_path, capsys):
     from pdeinv.cli import main
 
-    assert main(["train", "heat_1d", "--method", "adam", "--optimizer", "sgd", "--steps", "2",
+    assert main(["train", "--prior-fit", "0",
+                 "heat_1d", "--method", "adam", "--optimizer", "sgd", "--steps", "2",
                  "--out", str(tmp_path / "o")]) == 2
     assert "optimizer does not apply to method 'adam'" in capsys.readouterr().err
     assert not (tmp_path / "o" / "metrics.json").exists()
@@ -195,7 +198,7 @@ def test_cli_auto_stops_nonlinear_runs_on_the_plateau():
     assert STOPS["auto"](wave, 30).name == "discrepancy"
     assert STOPS["auto"](wave, 30, pdeinv.nets.reduced(k_in=8, k_out=16, k_max=16)(wave)) is None
     res = pdeinv.Trainer(ac, "sip", steps=30, n_train=64, n_test=8, seed=0, progress=False,
-                         stop="plateau").fit()
+                         stop="plateau", prior=None).fit()
     assert res.metrics["stopped_by"] == "plateau" and res.metrics["steps"] < 30
 
 

@@ -15,7 +15,8 @@ def test_supervised_fits_the_true_fields_and_reports_the_y_loss():
     training pairs (heat_1d: x_err measured 0.0026 after 10 steps; SIP 0.0040)."""
     p = pdeinv.load_problem("heat_1d")
     rule, hp = make_rule("supervised", p)
-    res = pdeinv.train(p, rule, steps=hp["steps"], batch_size=hp["batch_size"], seed=0, progress=False)
+    res = pdeinv.train(p, rule, steps=hp["steps"], batch_size=hp["batch_size"], seed=0, progress=False,
+                       prior=None)
     assert res.metrics["target"] == {"name": "true_fields", "rows": 1024}
     xs = [h["x_loss"] for h in res.history if "x_loss" in h]
     assert xs[1] < 1e-4 * xs[0] and abs(xs[-1] - xs[1]) <= 1e-6 * xs[0]
@@ -45,7 +46,7 @@ def test_supervised_without_x_is_refused_naming_x():
     p = pdeinv.load_problem("heat_1d")
     _, y = p.sample(100, 0)
     with pytest.raises(ValueError, match="needs the training rows' x"):
-        pdeinv.train(p, pdeinv.Supervised(), data=y, n_test=20, steps=1, progress=False)
+        pdeinv.train(p, pdeinv.Supervised(), data=y, n_test=20, steps=1, progress=False, prior=None)
     with pytest.raises(ValueError, match="true fields"):
         pdeinv.Supervised().update(None, torch.nn.Linear(2, 2), torch.zeros(1, 2))
     assert TrueFields().fit(p, y[:3], None, fields=lambda: y[:3]).info["rows"] == 3

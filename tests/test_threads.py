@@ -31,7 +31,8 @@ def test_cli_threads_1_holds_during_training_and_is_undone_after(tmp_path, monke
         return fit(self)
 
     monkeypatch.setattr(Trainer, "fit", spy)
-    assert main(["train", "heat_1d", "--set", "n=16", "--set", "steps=10", "--n-train", "16", "--n-test",
+    assert main(["train", "--prior-fit", "0",
+                 "heat_1d", "--set", "n=16", "--set", "steps=10", "--n-train", "16", "--n-test",
                  "8", "--steps", "2", "--threads", "1", "--export-samples", "0", "--out", str(tmp_path)]) == 0
     assert seen and set(seen[0].values()) == {1}
     assert _counts() == before

@@ -38,7 +38,7 @@ def run(problem, rule, hidden=(32, 32), steps=100, batch_size=8, **kw):
     torch.manual_seed(0)
     model = MLP(problem.operator.n_out, problem.operator.n_in, hidden=hidden)
     kw = {"n_train": 256, "n_test": 64, "seed": 0, "eval_every": steps or 50, "progress": False, **kw}
-    return Trainer(problem, rule, model, steps=steps, batch_size=batch_size, **kw).fit()
+    return Trainer(problem, rule, model, steps=steps, batch_size=batch_size, **{"prior": None, **kw}).fit()
 
 
 def test_loss(problem, result, n=64):
@@ -64,7 +64,7 @@ def test_history_metrics_and_determinism(heat):
     assert (m["steps"], m["method"], m["problem"]) == (12, "gd", "heat_1d")
     assert 0 < m["x_err"] < 1.0 and 0 < m["y_err"] < 1.0
     # x_err is the mean relative L²(Ω) error of the test set, recomputed here independently
-    _, _, (x, y, yt) = Trainer(heat, GD(), steps=1, n_train=256, n_test=64, seed=0)._data()
+    _, _, (x, y, yt) = Trainer(heat, GD(), steps=1, n_train=256, n_test=64, seed=0, prior=None)._data()
     with torch.no_grad():
         xhat = a.model(yt).double().numpy()
     M = heat.disc.M
@@ -88,7 +88,7 @@ def test_default_model_comes_from_the_problem_and_learns_input_scaling():
     problem = pdeinv.load_problem("heat_1d", n=16, backend="modal")
     problem.model_factory = mlp(hidden=(8,))
     trainer = Trainer(problem, GD(adam(1e-3)), steps=2, n_train=32, n_test=8, batch_size=8,
-                      progress=False)
+                      progress=False, prior=None)
     model = trainer.fit().model
     assert isinstance(model, MLP) and model.body[0].out_features == 8
     _, y_train, _ = trainer._data()
@@ -124,7 +124,7 @@ def test_divergence_without_the_growth_check_recovers_by_rolling_back(heat):
     torch.manual_seed(0)
     model = MLP(heat.operator.n_out, heat.operator.n_in, hidden=(32, 32))
     trainer = Trainer(heat, GD(sgd(1e6)), model, steps=50, n_train=64, n_test=8, batch_size=8,
-                      progress=False, max_failures=30, max_loss_growth=None)
+                      progress=False, max_failures=30, max_loss_growth=None, prior=None)
     with pytest.warns(RuntimeWarning, match=r"step \d+ \(gd\): .* not finite.*rolled back.*scaled by 0.5"):
         r = trainer.fit()
     bad = [h for h in r.history if "rejected" in h]
@@ -186,7 +186,8 @@ def test_every_rule_converges_on_wave_1d(wave, name, rule, steps):
 
 def test_cli_train_writes_metrics_history_and_plot(tmp_path, capsys):
     out = tmp_path / "run"
-    code = main(["train", "heat_1d", "--method", "adam", "--steps", "5", "--seed", "1", "--out",
+    code = main(["train", "--prior-fit", "0",
+                 "heat_1d", "--method", "adam", "--steps", "5", "--seed", "1", "--out",
                  str(out), "--set", "n=16", "--hidden", "16,16", "--n-train", "64", "--n-test", "8",
                  "--batch-size", "8"])
     assert code == 0
@@ -197,7 +198,7 @@ def test_cli_train_writes_metrics_history_and_plot(tmp_path, capsys):
     assert (out / "history.csv").read_text().count("\n") == 6
     assert (out / "training.png").stat().st_size > 1000
     # nothing written is lost: a second run into the same directory is refused
-    assert main(["train", "heat_1d", "--steps", "5", "--out", str(out)]) == 2
+    assert main(["train", "--prior-fit", "0", "heat_1d", "--steps", "5", "--out", str(out)]) == 2
     assert "exists" in capsys.readouterr().err
 
 
@@ -213,9 +214,10 @@ def test_cli_train_writes_metrics_history_and_plot(tmp_path, capsys):
     (["heat_1d", "--set", "n=16", "--resume"], "no checkpoint at .* to resume from"),
 ])
 def test_cli_bad_input_exits_2_with_one_line(tmp_path, capsys, argv, match):
-    code = main(["train", *argv, "--out", str(tmp_path / "o"), "--n-train", "64", "--n-test", "8",
+    code = main(["train", "--prior-fit", "0",
+                 *argv, "--out", str(tmp_path / "o"), "--n-train", "64", "--n-test", "8",
                  "--batch-size", "8", "--steps", "20"] if "--steps" not in argv else
-                ["train", *argv, "--out", str(tmp_path / "o")])
+                ["train", "--prior-fit", "0", *argv, "--out", str(tmp_path / "o")])
     *warned, err = capsys.readouterr().err.splitlines()
     assert code == 2
     assert "Traceback" not in err and err.startswith("pdeinv train: error: ")
@@ -231,7 +233,8 @@ def test_cli_numerical_failure_exits_1_with_one_line(tmp_path, capsys):
     from pathlib import Path
 
     faults = str(Path(__file__).with_name("faults.py"))  # heat_1d whose physics returns NaN 5 times
-    code = main(["train", faults, "--method", "gd", "--set", "poison=1,2,3,4,5", "--set", "n=16", "--out",
+    code = main(["train", "--prior-fit", "0",
+                 faults, "--method", "gd", "--set", "poison=1,2,3,4,5", "--set", "n=16", "--out",
                  str(tmp_path / "o"), "--n-train", "64", "--n-test", "16", "--batch-size", "8",
                  "--steps", "20"])
     *warned, err = capsys.readouterr().err.splitlines()

@@ -61,11 +61,12 @@ def test_a_run_whose_weights_never_moved_there_is_warned_about(heat):
             p.normal_(0, 1.0)
     with pytest.warns(RuntimeWarning, match="directions the physics cannot see"):
         r = pdeinv.train(heat, GD(optimizer=sgd(1e-3)), model, steps=2, n_train=64, n_test=16,
-                         batch_size=16, progress=False)
+                         batch_size=16, progress=False, prior=None)
     assert r.metrics["unseen_energy"]["prediction"] > FACTOR * r.metrics["unseen_energy"]["prior"]
     import warnings
 
     with warnings.catch_warnings():
         warnings.simplefilter("error", RuntimeWarning)
-        r = pdeinv.train(heat, pdeinv.SIP(), steps=3, n_train=64, n_test=16, batch_size=None, progress=False)
+        r = pdeinv.train(heat, pdeinv.SIP(), steps=3, n_train=64, n_test=16, batch_size=None, progress=False,
+                         prior=None)
     assert r.metrics["unseen_energy"]["prediction"] <= FACTOR * r.metrics["unseen_energy"]["prior"]

@@ -49,7 +49,8 @@ def test_cli_data_of_another_physics_without_x_fails(tmp_path, capsys):
     prior's size; the run ends with exit 3 naming the amplitude, not exit 0 with garbage."""
     x, y = pdeinv.load_problem("wave_1d", n=16).sample(200, 3)
     np.savez(tmp_path / "wave.npz", y=y)
-    assert main(["train", "heat_1d", "--set", "n=16", "--data", str(tmp_path / "wave.npz"), "--n-test", "32",
+    assert main(["train", "--prior-fit", "0",
+                 "heat_1d", "--set", "n=16", "--data", str(tmp_path / "wave.npz"), "--n-test", "32",
                  "--export-samples", "0", "--out", str(tmp_path / "run")]) == 3
     err = capsys.readouterr().err
     assert "the prior's rms amplitude" in err and "another physics" in err
@@ -61,7 +62,7 @@ def test_cli_a_run_worse_than_zero_ends_with_exit_3_and_keeps_its_files(tmp_path
     """One line on stderr naming the figure and the way out, no traceback; every file written and the
     verdict in metrics.json. With --accept-bad: exit 0, a warning, the verdict still recorded."""
     run = tmp_path / "run"
-    assert main(["train", "heat_1d", "--set", "n=16", *BAD, "--out", str(run)]) == 3
+    assert main(["train", "--prior-fit", "0", "heat_1d", "--set", "n=16", *BAD, "--out", str(run)]) == 3
     err = capsys.readouterr().err.splitlines()
     assert len(err) == 1 and err[0].startswith("pdeinv train: error: the run failed: ")
     assert "the held-out x_err is 1.9" in err[0]
@@ -71,7 +72,8 @@ def test_cli_a_run_worse_than_zero_ends_with_exit_3_and_keeps_its_files(tmp_path
     m = json.loads((run / "metrics.json").read_text())
     assert m["x_err"] > 1 and "x_err" in m["failed"] and m["accept_bad"] is False
     kept = tmp_path / "kept"
-    assert main(["train", "heat_1d", "--set", "n=16", *BAD, "--accept-bad", "--out", str(kept)]) == 0
+    assert main(["train", "--prior-fit", "0",
+                 "heat_1d", "--set", "n=16", *BAD, "--accept-bad", "--out", str(kept)]) == 0
     err = capsys.readouterr().err.splitlines()
     assert len(err) == 1 and err[0].startswith("pdeinv train: warning: the run failed") and "kept" in err[0]
     m = json.loads((kept / "metrics.json").read_text())
@@ -83,7 +85,8 @@ def test_cli_without_x_the_unseen_energy_test_ends_the_run(tmp_path, capsys):
     test stops the same bad run (exit 3, naming the test); a good run passes."""
     p = pdeinv.load_problem("heat_1d", n=16, kappa=0.2)
     np.savez(tmp_path / "y.npz", y=p.sample(200, 3)[1])
-    base = ["train", "heat_1d", "--set", "n=16", "--set", "kappa=0.2", "--data", str(tmp_path / "y.npz"),
+    base = ["train", "--prior-fit", "0",
+            "heat_1d", "--set", "n=16", "--set", "kappa=0.2", "--data", str(tmp_path / "y.npz"),
             "--n-test", "32"]
     assert main([*base, *BAD, "--out", str(tmp_path / "bad")]) == 3
     err = capsys.readouterr().err
@@ -111,5 +114,6 @@ def test_python_train_records_the_verdict_and_warns_never_raises():
     with pytest.warns(FailedRun, match="unseen-energy"):
         r = pdeinv.train(heat, GD(optimizer=sgd(1e-3)), model, data=y, **kw)
     assert r.metrics["x_err"] is None and "unseen-energy" in r.metrics["failed"]
-    r = pdeinv.train(heat, pdeinv.SIP(), steps=3, n_train=64, n_test=16, batch_size=None, progress=False)
+    r = pdeinv.train(heat, pdeinv.SIP(), steps=3, n_train=64, n_test=16, batch_size=None, progress=False,
+                     prior=None)
     assert r.metrics["failed"] is None

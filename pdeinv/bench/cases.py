@@ -78,7 +78,7 @@ def train(problem, rule, steps, hidden=(256, 256), batch=8, dtype=None) -> dict:
     model = model if dtype is None else model.to(dtype)
     theta0 = _norm(model)
     res = Trainer(problem, rule, model, steps=steps, n_train=64, n_test=16, batch_size=batch,
-                  eval_every=steps, progress=False, dtype=dtype).fit()
+                  eval_every=steps, progress=False, dtype=dtype, prior=None).fit()
     losses = [h["loss"] for h in res.history]
     out = {"x_err": res.metrics["x_err"], "y_err": res.metrics["y_err"],
            "loss_growth": float(np.mean(losses[-3:]) / np.mean(losses[:3]))}

@@ -82,7 +82,7 @@ def train_once(problem, cand: Candidate, scale: float, seed: int, budget_s: floa
     batch = None if hp["batch_size"] is None else min(hp["batch_size"], n_train)
     trainer = Trainer(problem, rule, model, steps=None, time_budget=budget_s, n_train=n_train,
                       n_test=n_test, batch_size=batch, seed=seed, eval_every=eval_every, progress=False,
-                      stop=STOPS["auto"](problem, None, model))
+                      stop=STOPS["auto"](problem, None, model), prior=None)  # the rules alone, at equal time
     try:
         with warnings.catch_warnings():  # rejected steps are counted in the result, not printed
             warnings.simplefilter("ignore", RuntimeWarning)
