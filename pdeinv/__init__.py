@@ -24,6 +24,8 @@ _WHERE = {
     "Checkpoint": "training.checkpoint",
     **dict.fromkeys(["DiscrepancyStop", "PlateauStop"], "training.stopping"),
     **dict.fromkeys(["load_run", "save_run"], "io.runs"),
+    **dict.fromkeys(["Plan", "plan"], "training.plan"),
+    "PriorStage": "training.stages",
 }
 
 #: the names a user calls; everything else is reached by its module path (``pdeinv.inverse.TikhonovCG``)

@@ -13,6 +13,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 from ..util.memory import GB
+from .stages import NEGLIGIBLE, PILOT
 from .trainset import N_TRAIN
 
 
@@ -56,7 +57,8 @@ def _stage_text(st: dict) -> str:
             return f"prior: none ({st['skipped']})"
         dc = ("then the data-consistency layer (P f(y) = y to the noise)" if st["consistency"]
               else "no data-consistency layer (the operator has no spectral basis)")
-        return (f"prior: {st['correction']} fitted on {st['draws']} prior draws ({st['prior']}), at most "
+        return (f"prior: unless the rule's estimate is within {NEGLIGIBLE:g} of {PILOT} pilot draws, "
+                f"{st['correction']} fitted on {st['draws']} prior draws ({st['prior']}), at most "
                 f"{st['max_steps']} steps of {st['batch']}, kept only if it lowers the held-out error; {dc}")
     return f"{st['name']}: the rule trains the network through the physics ({st['steps']} steps)"
 
@@ -65,17 +67,21 @@ def plan(problem, rule: str = "sip", *, net: str = "default", hidden=None, prior
          n_train: int = N_TRAIN, steps: int | None = None, batch_size: int | None = None, own=None,
          n_test: int = 128,
          **settings) -> Plan:
-    """The plan of ``Trainer(problem, rule, ...)`` / ``pdeinv train`` with these arguments (``rule`` a
-    method name; ``settings`` the rule's, as :func:`pdeinv.methods.presets.make_rule` takes them;
-    ``own``: a :class:`pdeinv.training.data.OwnData`, the user's rows). Builds nothing but the problem
-    (given) and the rule."""
+    """The plan of ``Trainer(problem, rule, ...)`` / ``pdeinv train`` with these arguments (``problem`` a
+    :class:`~pdeinv.Problem`, a name or a module path; ``rule`` a method name; ``settings`` the rule's, as
+    :func:`pdeinv.methods.presets.make_rule` takes them; ``own``: a
+    :class:`pdeinv.training.data.OwnData`, the user's rows). Builds nothing but the problem and the
+    rule."""
     from ..methods.presets import make_rule, run_defaults
     from ..nets import network_size
     from ..nets.defaults import correction_kind
     from ..physics.nonlinear import is_linear
+    from ..problem import Problem, load_problem
     from .budget import run_bytes
     from .stages import PriorStage
 
+    if not isinstance(problem, Problem):  # a name or a module path, as Trainer takes it
+        problem = load_problem(problem)
     if isinstance(prior, str) and prior == "auto":
         prior = PriorStage()
     rule_obj, hp = make_rule(rule, problem, problem.noise, hidden=hidden, **settings)
