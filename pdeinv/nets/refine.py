@@ -26,12 +26,12 @@ scene's sampler, or the rows of the user's file that carry ``x`` (never the test
 
 Adam, early-stopped on held-out draws (the first check is ``b_λ`` itself, ``g = 0``); the correction is
 kept only if it lowers the held-out relative L²(Ω) error (otherwise ``g`` stays zero, ``λ = 0`` and
-``f = b``): never worse than the base on draws
-from the prior. This is the post-processing design of learned reconstruction (Jin et al. 2017,
-FBPConvNet), with the physics-trained ``b`` in place of a fixed classical inverse. Measured
-(heat_boxes 64×64, ``pdeinv train heat_boxes``, SIP, one loaded thread): 0.159 → 0.044 noise-free
-(best-α Tikhonov 0.135, linear MMSE 0.199), 0.330 → 0.154 at 1 % (0.320, 0.322); 95×95: 0.600 → 0.047
-(0.108), where it ended at 0.136 without the blend; benchmarks/notes/results-history.md.
+``f = b``): never worse than the base on draws from the prior. Where the operator has a spectral basis, a
+kept correction is followed by the data-consistency layer ``D`` (:mod:`pdeinv.nets.consistency`), fitted on
+the held-out draws, so that ``f(y) = D(y, b_λ(y) + g(y, b(y)))`` reproduces the observations to the noise:
+the prior decides only what the data do not. This is the post-processing design of learned reconstruction
+(Jin et al. 2017, FBPConvNet), with the physics-trained ``b`` in place of a fixed classical inverse, and
+the null-space idea of Schwab, Antholzer & Haltmeier (2019) for what it may change.
 """
 
 from __future__ import annotations
@@ -106,8 +106,8 @@ class PriorFit:
 #: improving after ~55 passes of 3 584 draws; the plateau rule ends earlier fits)
 EPOCHS = 60
 
-#: the most steps of a default prior fit: a U-Net step on 4 k unknowns costs ~40 ms of one core, so this
-#: bounds the default stage at a few minutes there
+#: the most steps of a fit without a step count (the prior stage counts its own,
+#: :func:`pdeinv.training.stages.step_count`)
 MAX_STEPS = 8192
 
 
