@@ -19,13 +19,12 @@ DECODER_MAX_UNCAPTURED = 1e-6
 
 #: whitened components of the linear part where no decoder is used for the prior (:func:`linear_default`'s
 #: fallback, :func:`data_base`): ``N·k`` parameters, linear in the mesh. The training rows bound the
-#: whitening's rank anyway (heat_boxes 64×64, SIP noise-free: 0.1715 with 1024 or 2048 components and
-#: with all 3 969, which carry 2 945 dead columns; 4.1 M / 8.1 M / 15.8 M parameters)
+#: whitening's rank anyway: on heat_boxes 64×64 more components than rows only add dead columns
 FALLBACK_COMPONENTS = 2048
 
 
-#: unknowns above which :func:`default_model` builds :func:`reduced` even for a reversible operator
-#: (measured on heat_2d; the table is in :func:`reduced`)
+#: unknowns above which :func:`default_model` builds :func:`reduced` even for a reversible operator: above
+#: it the whitened linear map's step grows with ``N·m`` while its accuracy gain is small (heat_2d, n ≥ 46)
 REDUCED_ABOVE = 2_000
 
 #: the largest mesh whose correction is the dense MLP (:func:`correction_kind`): its first layer has
@@ -52,21 +51,14 @@ def default_model(problem, rows_per_component: float | None = None, refine: bool
       which only the prior can fill. It gets :func:`reduced`, whose fixed decoder is the prior's
       principal components: the rules then solve *in the decoder's span*
       (:class:`~pdeinv.inverse.decoder.DecoderTikhonov`) and the noisy target is the Wiener filter in
-      the basis of ``P D`` (:class:`~pdeinv.methods.targets.SpectralWiener`), which reaches the linear MMSE.
-      Measured in closed form (1024 training observations, 128 test pairs; relative L²(Ω)
-      x-errors, noise-free / 1 %; best-α Tikhonov and the MMSE fitted on the *training x* in
-      brackets): heat_2d 0.0085 / 0.0908 (0.037 / 0.117; MMSE 0.090 at 1 %), heat_sensors_2d
-      0.012 / 0.102 (0.045 / 0.147; 0.101), advection_diffusion_2d 0.0089 / 0.097 (0.034 / 0.124;
-      0.097), heat_sensors_3d 0.050 / 0.156 (0.064 / 0.206; 0.155), heat_cavity_3d 0.0099 / 0.070
-      (0.067 / 0.186; 0.072), heat_plate 0.0101 / 0.088 (0.066 / 0.142; 0.086), heat_1d 0.015 /
-      0.119 (0.024 / 0.127; 0.119).
+      the basis of ``P D`` (:class:`~pdeinv.methods.targets.SpectralWiener`), which reaches the linear MMSE
+      (below best-α Tikhonov on every heat scene: benchmarks/notes/results-history.md).
 
     ``rows_per_component`` caps the whitened directions for first-order rules
     (:class:`~pdeinv.nets.whitening.Whitening`; ``--method gd`` and ``adam`` use 8,
     :mod:`pdeinv.methods.presets`). Those rules keep the whitened linear map below
     :data:`REDUCED_ABOVE` on every scene: they stop far from the fit in the decoder's span that makes
-    the prior extrapolate. Measured (Adam, CLI defaults, 1000 steps): heat_cavity_3d 0.315 with the
-    decoder against 0.171, heat_sensors_2d 0.314 against 0.262 (heat_2d 0.263 against 0.286)."""
+    the prior extrapolate (Adam on heat_cavity_3d: x-error 0.315 with the decoder, 0.171 without)."""
     if base not in ("auto", "whitened"):
         raise ValueError(f"base={base!r} is not allowed; expected 'auto' or 'whitened'")
     net = _whitened_fallback(problem, rows_per_component) if base == "whitened" else \
@@ -77,9 +69,8 @@ def default_model(problem, rows_per_component: float | None = None, refine: bool
 def data_base(problem) -> str:
     """The linear part for a user's data file (``default_model``'s ``base``): ``'whitened'``, the whitening
     fitted on the file's ``y`` with at most :data:`FALLBACK_COMPONENTS` components, so that nothing comes
-    from the scene's sampler (a prior decoder would be the scene's prior: heat_2d files from other priors,
-    SIP 1.31–1.68× best-α Tikhonov with it, and the whitened map better in all six cases measured, issue
-    32)."""
+    from the scene's sampler (a prior decoder would be the scene's prior, and on heat_2d files drawn from
+    other priors it left SIP up to 1.7× best-α Tikhonov)."""
     return "whitened"
 
 
@@ -89,9 +80,8 @@ def _whitened_fallback(problem, rows_per_component=None) -> nn.Module:
 
 #: whitened directions of the linear map per training row where the physics is nonlinear: no linear map
 #: fits the rows exactly, and whatever residual the trailing directions absorb is amplified on new data
-#: (Marchenko–Pastur, as for GD and Adam in :mod:`pdeinv.methods.presets`). sine_gordon_2d (961 unknowns,
-#: 1 024 rows), SIP, held-out x-error of the linear part: 4.65 with all 961 directions, 0.558 with 128
-#: (this cap) and 0.559 with 256
+#: (Marchenko–Pastur, as for GD and Adam in :mod:`pdeinv.methods.presets`). 8: on sine_gordon_2d all
+#: directions left a held-out x-error of 4.65, this cap 0.56
 NONLINEAR_ROWS_PER_COMPONENT = 8
 
 
@@ -99,13 +89,11 @@ def linear_default(problem, rows_per_component: float | None = None) -> nn.Modul
     """The linear part of :func:`default_model` (the default before :mod:`pdeinv.nets.refine`; ``--net
     linear``): :func:`reduced` or :func:`whitened` as described there. A decoder that leaves more than
     :data:`DECODER_MAX_UNCAPTURED` of the prior's energy out has an error floor of its square root
-    (the SIP paper's boxes at 64×64: 512 components leave 1.3 %, SIP 1.07 against 0.14 for the whitened
-    map, its rounding-level solve amplifying the missing part): the whitened linear map with at most
+    (its rounding-level solve amplifies the missing part): the whitened linear map with at most
     :data:`FALLBACK_COMPONENTS` components is taken instead (parameters linear in the mesh). On nonlinear
     physics the whitened map, and above :data:`REDUCED_ABOVE` the reduced network's whitened input, keep one
-    direction per :data:`NONLINEAR_ROWS_PER_COMPONENT` rows (sine_gordon_2d at 16 129 unknowns, SIP: 1 024
-    input directions on 1 024 rows took the training loss down 12× in three steps and the held-out residual
-    up 2.8×)."""
+    direction per :data:`NONLINEAR_ROWS_PER_COMPONENT` rows (one direction per row fits the training rows
+    and amplifies the held-out residual)."""
     big = max(problem.operator.n_in, problem.operator.n_out) > REDUCED_ABOVE
     kw = {"rows_per_component": rows_per_component}
     nonlinear = rows_per_component is None and not is_linear(problem.operator)
@@ -130,18 +118,14 @@ def correction_kind(problem) -> str | None:
     ``'grid'`` (the U-Net on a grid) on any other mesh of dimension 1–3, ``None`` without a mesh.
 
     * A two-level 1-D U-Net sees about 20 neighbouring nodes, a wave or a reaction moves information
-      further: sine_gordon_1d (GD base 0.329 → U-Net 0.190, the dense MLP from the affine map 0.064),
-      allen_cahn_1d (U-Net 0.211; dense 0.140).
+      further: the dense MLP wins in 1-D (sine_gordon_1d: 0.064 against the U-Net's 0.190).
     * On nonlinear physics the linear base is far off everywhere (the inverse of a nonlinear map mixes the
-      domain), not just at the prior's edges: sine_gordon_2d (961 unknowns), the same SIP base (0.570) and
-      8 192 draws: U-Net 0.330 in its 300 s, dense 0.233 in 165 s (stopped on its plateau), on the 128 test
-      rows; per-sample Gauss–Newton with the oracle α 0.242. allen_cahn_2d (225 unknowns), a 5-step SIP base
-      (0.210), 20 480 draws: U-Net 0.107 in 300 s, dense 0.0905 in 82 s.
+      domain), not just at the prior's edges, so the dense MLP wins there too (benchmarks/notes/nonlinear.md).
     * On linear physics in 2-D and 3-D the base is the full linear estimate and what is left is local (the
-      edges of a box prior): the U-Net's locality is the right bias there (issue 32's heat_boxes).
+      edges of a box prior): the U-Net's locality is the right bias there (heat_boxes).
     * ``'span'`` (:class:`~pdeinv.nets.corrections.SpanCorrection`, the MLP in the base's decoder span) on
-      larger meshes with nonlinear physics: sine_gordon_2d at 16 129 unknowns, a reduced SIP base at 0.58:
-      0.20 on held-out draws in 52 s of fitting; the U-Net 0.56 in 546 s."""
+      larger meshes with nonlinear physics, where the dense MLP's first layer is too large and the U-Net
+      misses the mixing (sine_gordon_2d at 16 129 unknowns: 0.20 against the U-Net's 0.56)."""
     from ..physics.nonlinear import is_linear
 
     mesh = None if problem.disc is None else problem.disc.basis.mesh
@@ -161,8 +145,7 @@ def refined(problem, base: nn.Module, correction: str = "auto") -> nn.Module:
     decoder span; the grid where the base has no decoder). Where
     the operator has a modal basis (the heat scenes' modal backend) the correction also sees the
     physics' own Tikhonov estimate (:class:`pdeinv.nets.refine.SpectralFilter`, α at the noise level or at
-    rounding): full rank, where ``base`` is learned from the training rows and has at most their rank
-    (heat_boxes n=96: base 0.600 against best-α Tikhonov 0.108)."""
+    rounding): full rank, where ``base`` is learned from the training rows and has at most their rank."""
     from ..fem.grid import GridMap, spacing
     from ..inverse import NOISE_FREE_REL_ALPHA
     from ..physics.capabilities import modal_basis

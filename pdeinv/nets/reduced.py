@@ -2,35 +2,11 @@
 components with a fixed decoder ``Φ``
 (:class:`Decoder`, the prior's principal components, :func:`prior_basis`).
 
-**Measured** with ``python benchmarks/netsize.py`` (heat_2d, noise-free, the CLI's
-defaults: SIP (Adam 1e-3), 1000 steps, 1024 training and 128 test pairs, seed 0, one
-thread; 2 shared cores at load 4–6, so compare within a row pair; x-error: mean relative
-L²(Ω) on the test set; RSS: peak of the process):
-
-====  ======  ==============  ============  ========  ========  ======
-n     N       network         trained       x-error   s/step    RSS GB
-====  ======  ==============  ============  ========  ========  ======
-32    961     whitened lin.   924 482       0.0261    0.093     0.44
-32    961     reduced         65 792        0.0307    0.045     0.39
-64    3 969   whitened lin.   15 756 930    0.0298    1.19      1.17
-64    3 969   reduced         65 792        0.0337    0.127     0.66
-128   16 129  whitened lin.   260 160 770   (5 steps) 39.8      10.8
-128   16 129  reduced         65 792        0.0379    0.344     1.67
-====  ======  ==============  ============  ========  ========  ======
-
-With Adam through the physics (``--method adam``) at n = 32: 0.262 (reduced, 0.013 s/step)
-against 0.284 (whitened linear, 0.026 s/step); reduced at n = 64: 0.289 (0.020 s/step),
-n = 128: 0.304 (0.066 s/step).
-
-At n = 64 the whitened linear map is slightly more accurate (0.030 against 0.034) for 9x the
-step time; at n = 128 it would need ~11 h for the 1000 steps (its step is ~120x the
-reduced one and the memory 6.5x). The reduced network's error grows only
-slowly with N (0.031 → 0.038; the heat problem's recoverable content does not grow
-with the mesh) and its step time is the physics'. Hence :data:`~pdeinv.nets.defaults.REDUCED_ABOVE` = 2 000:
-heat_2d at its default n = 32 keeps the whitened linear map (better by 0.005 there),
-n ≥ 46 switches. Body: ``linear`` (at n = 32, with the decoder before its ``N``
-normalization: 0.042 against 0.094 for ``mlp`` (256, 256), as for the full-size
-networks). Decoder scaling: :func:`prior_basis`.
+Its trained size, ``k_in·k_out + k_out``, does not depend on the ``N`` unknowns (the whitened linear
+map's ``N·m`` does), so its step costs what the physics costs; the error floor is the prior's energy
+outside the span of ``Φ``. Used above :data:`~pdeinv.nets.defaults.REDUCED_ABOVE` unknowns, with a
+``linear`` body; the decoder's scaling: :func:`prior_basis`. Why: on heat_2d at n = 128 its step is ~120x
+cheaper than the whitened linear map's (``python benchmarks/netsize.py``).
 """
 
 from __future__ import annotations
@@ -43,19 +19,15 @@ from .protocol import Network
 from .whitening import Whitening
 
 #: at most this many decoder columns out of :func:`reduced` (``k_out``); fewer when they hold all but
-#: :data:`REDUCED_UNCAPTURED` of the prior's energy. Measured in closed form (the decoder's
-#: rounding-level solve on 128 noise-free test pairs): heat_3d 0.0209 with 256 columns (5.2e-5 of the
-#: prior's energy outside), 0.0122 with 512 (3.9e-7), 0.0119 with all 729; heat_2d, heat_plate and
-#: the sensor scenes need ~270 (below 1e-10 outside).
+#: :data:`REDUCED_UNCAPTURED` of the prior's energy. 512: heat_3d's decoder error nearly halves from 256
+#: columns to 512 and barely moves beyond; the 2-D scenes need ~270.
 REDUCED_K = 512
 
 
 #: the decoder's columns when :data:`REDUCED_K` are all kept and still leave more than
 #: :data:`REDUCED_UNCAPTURED` of the prior's energy out (:func:`decoder_basis`: drawn once more, from
-#: ``2·REDUCED_K_MAX`` fields). A 3-D prior fills more directions than a 2-D one; measured in closed form
-#: (the decoder's rounding-level solve, 128 noise-free test pairs): heat_3d n=16 (3 375 unknowns) 0.0135
-#: with 512 columns (2e-6 of the energy outside), 0.0024 with 1 024, 0.0021 with 1 689 (1e-10 outside);
-#: n=24 (12 167) 0.0015 with 1 555. heat_2d needs ~280 and never grows.
+#: ``2·REDUCED_K_MAX`` fields). A 3-D prior fills more directions than a 2-D one (heat_3d at 12 167
+#: unknowns needs ~1 560 columns); heat_2d needs ~280 and never grows.
 REDUCED_K_MAX = 2048
 
 
@@ -65,26 +37,21 @@ REDUCED_UNCAPTURED = 1e-10
 
 #: with observations carrying relative noise ``σ``, the decoder may leave out ``(NOISY_FLOOR·σ)²`` of the
 #: prior's energy (:func:`decoder_uncaptured`): an error floor of ``NOISY_FLOOR·σ``, added in quadrature to
-#: an error no linear estimate brings much below ``σ`` on these scenes. Measured at 1 % (SIP, no prior fit,
-#: held-out x-error; columns) with the floor 0 (1e-10) / 0.03 / 0.05 / 0.1: wave_2d at 3 969 unknowns 0.01078
-#: (278) / 0.01085 (175) / 0.01081 (161) / 0.01103 (140); wave_3d at 3 375 0.01191 (1 495) / — /
-#: 0.0121 (664) / 0.01229 (566)
+#: an error no linear estimate brings much below ``σ`` on these scenes. 0.05: at 1 % noise it halves
+#: wave_3d's decoder columns for under 2 % more x-error.
 NOISY_FLOOR = 0.05
 
 
 def decoder_uncaptured(noise: float | None) -> float:
     """The energy fraction a default decoder may leave out: :data:`REDUCED_UNCAPTURED`, or
     ``(NOISY_FLOOR·noise)²`` where that is larger. Every decoder column costs one forward solve before
-    training (``P D``); a 3-D prior needs ~1 560 columns for 1e-10 and ~660 for 1e-6 (12 167 unknowns)."""
+    training (``P D``)."""
     return max(REDUCED_UNCAPTURED, (NOISY_FLOOR * float(noise or 0.0)) ** 2)
 
 
 #: leading whitened components into :func:`reduced` (``k_in``). 1024 rather than 256: with noisy
 #: observations the denoised target depends on y's coordinates along the kept modes, which 256 data
-#: directions capture only in part. Measured (SIP, CLI defaults, 20 full-batch steps, one thread):
-#: heat_plate at 1 % noise 0.146 → 0.142 (best-α Tikhonov 0.141, the closed-form target 0.1405;
-#: k_in = 2560 gives 0.142 too: 1024 training rows span no more), wave_sensors_2d 0.0032 → 0.0028
-#: (noise-free 5e-5 → 4e-5), heat_plate noise-free 0.049 → 0.050.
+#: directions capture only in part; more than 1024 gains nothing, since 1024 training rows span no more.
 REDUCED_K_IN = 1024
 
 
@@ -124,10 +91,9 @@ def prior_basis(problem, k: int, samples: int | None = None, seed: int = 20_161,
     identity, which is the decoder of a network with nodal outputs): an optimizer step that
     moves every coefficient by ``ε`` moves the field by ``ε`` per node in the mean, whatever
     ``N`` (so Adam's learning rates keep their meaning across meshes), and mostly along the
-    directions the prior fills. Measured (heat_2d, SIP Adam 1e-3, n = 16, 300 steps): x-error
-    0.14 scaled against 1.0 with orthonormal columns (Adam's sign-like steps pushed the
-    low-variance, invisible directions as hard as the leading ones); without the ``N``
-    normalization the error at n = 64 was 6x that at n = 32. ``info``: the captured fraction.
+    directions the prior fills. Why: with orthonormal columns Adam's sign-like steps push the
+    low-variance, invisible directions as hard as the leading ones (heat_2d: x-error 1.0 against 0.14).
+    Returns ``(Φ, info)``; ``info``: the captured fraction, the components kept and the draws.
     Deterministic (``seed``), so a saved network rebuilds the same buffer.
     """
     import numpy as np
@@ -192,12 +158,9 @@ def reduced(k_in: int = REDUCED_K_IN, k_out: int = REDUCED_K, body: str = "linea
     observations); ``body``: a network ``k_in → k_out`` from :data:`BODIES` with a
     zero-initialized last layer; ``Φ``: a *fixed* decoder basis (``N × k_out``,
     :func:`prior_basis`: the leading principal components of the prior's fields, a buffer).
-    Parameters: ``k_in·k_out + k_out`` for the linear body (262 400 at the defaults; the table
-    below was measured with ``k_in`` = 256, 65 792),
+    Parameters: ``k_in·k_out + k_out`` for the linear body (262 400 at the defaults),
     whatever ``N``; buffers ``(m + N)·k`` grow linearly. Everything outside the span of
     ``Φ`` is out of reach: the error floor is the prior's uncaptured part.
-
-    Measured against the whitened linear map: the module docstring.
     """
     if body not in BODIES:
         raise ValueError(f"body={body!r} is not allowed; expected one of {', '.join(map(repr, BODIES))}")
