@@ -7,7 +7,7 @@ then ``solve_T`` is ``solve`` (SuperLU's ``trans='T'`` is ~40% slower for no gai
 otherwise SuperLU solves with the transposed factors, and the solvers that need a
 symmetric matrix (Cholesky, CG) refuse it.
 
-``default_solver(A, dim)`` takes AMG-CG for a symmetric matrix above the measured
+``default_solver(A, dim)`` takes AMG-CG for a symmetric matrix above the
 :data:`AMG_CROSSOVER` of the mesh dimension, below it a sparse Cholesky (cholespy) when
 installed, and SuperLU otherwise; ``solver_for(dim)`` binds the dimension (what
 :class:`pdeinv.physics.Heat` uses); ``amg_cg(rtol)`` asks for AMG-CG explicitly.
@@ -80,9 +80,8 @@ class SuperLU:
 class Cholesky:
     """Sparse Cholesky ``A = L Lᵀ`` (cholespy, CHOLMOD-style supernodal), for SPD ``A``.
 
-    Measured on 2 cores for the 2-D heat matrix, 64 right-hand sides: about 3x
-    faster than SuperLU at 961 unknowns and more at 3969 (see ``pdeinv bench``),
-    agreeing to ~1e-15. Optional dependency: ``pip install cholespy``.
+    Agrees with SuperLU to ~1e-15 and is ~3x faster on the 2-D heat matrices (``pdeinv bench``).
+    Optional dependency: ``pip install cholespy``.
     """
 
     name = "cholesky"
@@ -115,50 +114,10 @@ class Cholesky:
 
 
 #: Unknowns above which :func:`default_solver` takes AMG-CG instead of a direct factorization, by
-#: mesh dimension (``None``: never). Measured with ``python benchmarks/crossover.py --repeats 1``
-#: (2026-11-23, 2 shared cores at load 4–6, one BLAS thread; P1, unit square / cube, interior
-#: unknowns): seconds for one setup (factorization or hierarchy) + one solve of 32 right-hand
-#: sides, and a run = setup + 100 solves; AMG = block CG, rtol 1e-12 (it = CG iterations); MB =
-#: exact bytes of the SuperLU factors / of the AMG hierarchy (cholespy does not expose its factor).
-#:
-#: ====  =========  ======================  ======================  ==========  ============
-#: dim   N          Cholesky setup / solve  AMG setup / solve (it)  run C / A   MB LU / AMG
-#: ====  =========  ======================  ======================  ==========  ============
-#: 2     16 129     0.17 / 0.020            0.10 / 0.56 (18)        2.2 / 56    13 / 3
-#: 2     65 025     0.96 / 0.29             0.45 / 3.2 (21)         30 / 321    68 / 12
-#: 2     261 121    5.4 / 0.90              1.0 / 33 (24)           95 / 3270   360 / 47
-#: 2     588 289    17 / 3.1                4.6 / 118 (28)          327 / 11800 958 / 105
-#: 2     1 046 529  147 / 21                (skipped: > 60 s)       2210 / —    1908 / —
-#: 3     3 375      0.09 / 0.010            0.10 / 0.14 (11)        1.1 / 14    10 / 1
-#: 3     12 167     3.8 / 0.51              0.16 / 0.54 (8)         55 / 54     74 / 3
-#: 3     29 791     27 / 1.2                0.27 / 1.1 (9)          145 / 109   292 / 9
-#: 3     59 319     105 / 2.9               0.70 / 3.1 (11)         393 / 307   845 / 17
-#: 3     103 823    (over budget)           1.6 / 8.4 (12)          — / 842     — / 30
-#: ====  =========  ======================  ======================  ==========  ============
-#:
-#: The Newmark matrix (wave, 3-D) needs ~12 iterations instead of ~9 and moves the line up:
-#: run 45 / 94 at 12 167 and 158 / 231 at 29 791 (Cholesky / AMG; SuperLU, the wave default: 318).
-#: The load made these 3-D numbers noisy, so the deciding rows were re-measured interleaved (two
-#: rounds, minimum; load ~2; right-hand sides ``M x`` of smooth prior fields, as in a run):
-#:
-#: ======  =======================  =======================  ========================
-#: N       Cholesky setup / solve   AMG setup / solve        run of 100 solves C / A
-#: ======  =======================  =======================  ========================
-#: 12 167  0.45 / 0.064             0.024 / 0.081            6.8 / 8.1
-#: 29 791  5.8 / 0.21               0.081 / 0.32             27 / 32
-#: 59 319  24 / 0.52                0.15 / 0.59              75 / 59
-#: ======  =======================  =======================  ========================
-#:
-#: **3-D: 50 000** — a run of one factorization and 100 solves crosses between 29 791 and
-#: 59 319 (the factorization grows like N², its fill like N^{4/3}: SuperLU 292 MB at 29 791,
-#: 845 MB at 59 319); a training run reuses one factorization for thousands of solves, and
-#: per solve Cholesky stays ahead up to ~10⁵ (0.52 against 0.59 s at 59 319), so the line
-#: sits at the upper end of the run crossover, where the factorization already takes ~20 s.
-#: **2-D: 1 000 000** — on time alone the direct solve wins at every size measured (a 32-column
-#: Cholesky solve is 10–40x cheaper than ~25 CG iterations of V-cycles on these mass-dominated
-#: matrices); the line is set where the factorization takes minutes and its factors approach
-#: 2 GB (SuperLU: 958 MB at 588 289, 1.9 GB at 1 046 529), i.e. by memory, not by time.
-#: **1-D**: never (a tridiagonal factor is always cheapest).
+#: mesh dimension (``None``: never). 3-D 50 000: where one factorization plus 100 solves costs as much as
+#: AMG-CG (the factorization grows like N²); 2-D 1 000 000: where the factors approach 2 GB (the direct
+#: solve is faster at every 2-D size); 1-D never (a tridiagonal factor is always cheapest). The table of
+#: ``python benchmarks/crossover.py``: benchmarks/notes/scaling.md.
 AMG_CROSSOVER = {1: None, 2: 1_000_000, 3: 50_000}
 
 
@@ -221,7 +180,7 @@ class AMGCG:
     V-cycle is symmetric and a valid CG preconditioner) acts on all columns at once.
     ``block=False`` loops over the columns with ``scipy``'s CG and pyamg's own
     V-cycle (symmetric Gauss–Seidel): ~k times the Python and matrix traffic
-    (see ``benchmarks/crossover.py`` for the measured ratio).
+    (``benchmarks/crossover.py`` compares them).
 
     Reports: ``rtol``, ``operator_complexity`` (Σ nnz(A_l) / nnz(A)), ``nbytes``
     (the hierarchy: every ``A_l``, ``P_l``, ``R_l``), ``levels``, ``iterations``

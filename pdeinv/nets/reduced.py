@@ -6,7 +6,7 @@ Its trained size, ``k_in·k_out + k_out``, does not depend on the ``N`` unknowns
 map's ``N·m`` does), so its step costs what the physics costs; the error floor is the prior's energy
 outside the span of ``Φ``. Used above :data:`~pdeinv.nets.defaults.REDUCED_ABOVE` unknowns, with a
 ``linear`` body; the decoder's scaling: :func:`prior_basis`. Why: on heat_2d at n = 128 its step is ~120x
-cheaper than the whitened linear map's (``python benchmarks/netsize.py``).
+cheaper than the whitened linear map's (benchmarks/notes/scaling.md).
 """
 
 from __future__ import annotations
