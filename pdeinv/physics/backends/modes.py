@@ -11,18 +11,16 @@ Rayleigh–Ritz ``H y = μ y`` gives ``λ = σ + 1/μ`` and ``φ = Q y`` with th
 ``‖S φ − μ φ‖_M = ‖B y_last‖`` (no extra solve). ``σ`` sits just below 0, so a singular
 Neumann ``K`` is fine.
 
-**Cost** (heat_3d n=24: 12 167 unknowns, ~1 880 modes kept, a basis of 3 584 vectors, one thread):
-the first block is a random one after 8 block solves (:func:`_start_block`: ``K_j(S, S⁸R)`` damps the
-many high modes for no basis vectors; 3 904 vectors without); each new block is orthogonalized against
+**Cost**: the first block is a random one after 8 block solves (:func:`_start_block`: ``K_j(S, S⁸R)``
+damps the many high modes for no basis vectors); each new block is orthogonalized against
 the last two blocks, where the recurrence puts it, then once against the whole basis (``2Nm²`` flops in
-all; a second full pass changed nothing measurable and cost as much; only ``Q`` is stored, ``Qᵀ(MW)``
+all; a second full pass gains nothing; only ``Q`` is stored, ``Qᵀ(MW)``
 with a fresh sparse ``MW``); a check first counts the kept Ritz values by the inertia of ``H``'s band
 (``H`` is block tridiagonal up to the reorthogonalization's rounding-level coefficients; a block
 ``LDLᵀ``, :func:`_count_above`, ``O(m b²)``), reads the Ritz values from the band (``O(m² b)``) only once
 the count reaches the exact one, and the next check sits where the counts extrapolate to it; the kept
 vectors come from ``eigh`` by divide and conquer, of the leading 60 % of ``H`` first and then of what is
-left once its converged pairs are locked (:func:`_rayleigh_ritz`). Eigensolve 50.5 → 35.4 CPU s
-(benchmarks/notes/scaling.md, third session) → 24 s (fourth session).
+left once its converged pairs are locked (:func:`_rayleigh_ritz`). Timings: benchmarks/notes/scaling.md.
 
 **Stopping rule — accuracy of the operator, not of every eigenvector.** A caller passes
 ``log_gain(λ)``, the log of what each mode is multiplied by (``log|r(dtκλ)ⁿ|`` for heat),
@@ -34,9 +32,7 @@ cut-off only need to be roughly right, because they carry ``≈ tol``. A mode so
 the cut-off that the Krylov space has not found it yet carries ``≈ tol`` as well.
 
 Why not ARPACK (``eigsh``): it needs ``ncv ≈ 2k`` vectors and restarts with BLAS-2
-reorthogonalization; for the 281 modes of heat_2d at n=128 (16,129 unknowns) this method,
-with BLAS-3 block products, was 4.2–4.6× faster in the same run (11–14 s against 50–58 s,
-one thread on a machine loaded by four other jobs; eigsh alone took 22 s idle).
+reorthogonalization; this method's BLAS-3 block products were ~4× faster on heat_2d at n=128.
 ``tests/test_modes.py`` checks the modes against the dense solver and the operator against
 time stepping. Block starts are seeded: a build
 is reproducible.
@@ -53,24 +49,20 @@ from ...errors import TooManyModes
 
 DENSE_MAX = 1500
 #: unknowns up to which the dense solver is still offered when the Krylov basis would be too large
-#: (``k > N/2``, or :func:`krylov_flops` above the dense ``9N³``): a dense
-#: generalized ``eigh`` at 3 375 unknowns (heat_3d n=16, 1 417 of 3 375 modes kept) took 10 s on
-#: one loaded thread, against 43 s for the dense operator by stepping and 15 s for its SVD; the block
-#: Krylov method now takes 5.8 s there (6.4 s for the dense ``eigh`` in the same session) and is chosen
+#: (``k > N/2``, or :func:`krylov_flops` above the dense ``9N³``): up to this size a dense generalized
+#: ``eigh`` still costs less than the dense operator by stepping or its SVD (heat_3d n=16: 10 s against 43 s)
 DENSE_EIGH_MAX = 6000
 
 
 def krylov_flops(N: int, k: float) -> float:
     """Cost of the block Krylov method for ``k`` expected modes (the caller's count with its margin), in
     flops at the rate of the dense ``eigh`` (the ``9N³`` it is weighed against), block solves apart:
-    a basis of ``m = min(N, 1.7k)`` vectors (measured 1.6–1.73k), ``4.8Nm² + 5.3m³ + 2940Nm`` — the basis
+    a basis of ``m = min(N, 1.7k)`` vectors, ``4.8Nm² + 5.3m³ + 2940Nm`` — the basis
     orthogonalized once (``2Nm²``) and the Ritz vectors ``Q Y`` (``2Nmk``), the final ``eigh`` of ``H``
     (``m × m``, memory-bound), the per-vector work of blocks of 64 (Cholesky QR, the local pass, ``M``
-    products, fresh pages). Fitted (relative least squares) to the measured eigensolve less its solves,
-    one thread, the dense ``eigh`` of heat_3d n=16 (6.4 s) fixing the rate: heat_3d n=16 / 20 / 24 (``N``
-    3 375 / 6 859 / 12 167, ``k`` 1 571 / 1 808 / 2 075) 4.5 / 9.5 / 19.9 s, model 4.4 / 9.6 / 19.9;
-    heat_2d n=128 / 256 (16 129 / 65 025, ``k`` 317 / 320) 0.78 / 4.6 s, model 0.89 / 3.6. The previous
-    method's model, ``12Nk² + 160k³``, gave 13 / 23 / 38 s for the 3-D ones."""
+    products, fresh pages). The coefficients are a relative least-squares fit to the eigensolve's time
+    less its solves on heat_3d n=16–24 and heat_2d n=128–256 (benchmarks/notes/scaling.md), the dense
+    ``eigh`` of heat_3d n=16 fixing the rate."""
     m = min(N, 1.7 * k)
     return 4.8 * N * m**2 + 5.3 * m**3 + 2940 * N * m
 
@@ -237,10 +229,8 @@ def _start_block(R: np.ndarray, M, solve, powers: int | None = None) -> np.ndarr
     ``K_j(S, S^p R) ⊂ K_{j+p}(S, R)`` with ``jb`` instead of ``(j+p)b`` vectors: ``p`` more degrees of the
     Krylov polynomial for ``p`` block solves and no basis vectors. Mode ``i``'s component scales like
     ``μᵢ^p``: the thousands of high modes (small ``μ``) are damped before the basis has to resolve them.
-    Measured (one thread, ``at_least`` reached at): heat_3d n=24 3 904 vectors with ``p = 0``, 3 712 with
-    4, 3 584 with 8 and 10, 3 712 with 12; heat_2d n=128 832 with 0, 512–576 with 4–12. Too many powers
-    lose the modes near the cut-off: relative to the block's ``b``-th mode they fall like
-    ``(μ_c/μ_b)^p`` and drop to the rounding level."""
+    Too many powers lose the modes near the cut-off: relative to the block's ``b``-th mode they fall like
+    ``(μ_c/μ_b)^p`` and drop to the rounding level; ``p = 8`` needed the fewest vectors on heat_3d n=24."""
     V, _ = _cholqr(R, M)
     for _ in range(START_POWERS if powers is None else powers):
         try:
