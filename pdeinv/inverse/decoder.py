@@ -19,48 +19,31 @@ carried over unchanged. ``P x₀`` is one forward call, or none when the caller 
 (:meth:`DecoderTikhonov.local`; SIP does, it has computed ``P x`` for its loss): ``P̂ c₀`` from the
 SVD would do only for ``x₀ ∈ span D``, and even then leaves a rounding residue at ``y = P x₀``.
 
-Why it must be local (issue 32). The earlier map ``x̃ = D V diag(s/(s²+α)) Qᵀ y`` ignored ``x₀``: 4.5–11.6 %
-off ``x₀`` at ``y = P x₀`` on heat_2d, and SIP with η = 1 became a regression onto one fixed target
-(the trained default network equalled :func:`pdeinv.training.references.prior_wiener` to 3.3e-5). For
+Why it must be local: the global map ``x̃ = D V diag(s/(s²+α)) Qᵀ y`` ignores ``x₀``, is off ``x₀`` at
+``y = P x₀``, and turns SIP with η = 1 into a regression onto one fixed target. For
 ``x₀ = D c₀ ∈ span D`` the two differ by
 
-    x̃_local − x̃_old = D (I − V diag(s²/(s²+α)) Vᵀ) c₀  →  D (I − V Vᵀ) c₀   (α → 0),
+    x̃_local − x̃_global = D (I − V diag(s²/(s²+α)) Vᵀ) c₀  →  D (I − V Vᵀ) c₀   (α → 0),
 
-the component of ``c₀`` in the null space of ``P̂``, which the local map keeps and the old one zeroed
+the component of ``c₀`` in the null space of ``P̂``, which the local map keeps and the global one zeroes
 (plus the bias ``α/(s²+α)`` per kept mode, below 1e-2 for ``s`` above 1e-11·s_max at the default α).
-SIP's fixed point ``x̃ = x`` is now ``Qᵀ(y* − P x) = 0``: the least-squares fit through ``P̂``, with α
+SIP's fixed point ``x̃ = x`` is ``Qᵀ(y* − P x) = 0``: the least-squares fit through ``P̂``, with α
 setting only the speed (iterated Tikhonov), not a bias. On the reduced network the proxy gradient
 ``x − x̃ = −D Δc`` has no component along ``null P̂``, so coefficients there keep their initial value
-(zero: the head starts at zero), and the run differs from the old one only in the α bias, which
-iterating removes: the effective cut-off after ``k`` steps is ``≈ α/k``. Measured (``pdeinv train SCENE
---seed 0 --threads 1``, CLI defaults, SIP 30 steps; the old map → this): heat_2d 0.00156 → 0.00132 (at
-1 % 0.0896 both: the Wiener target regularizes), heat_plate 0.00199 → 0.00190, heat_sensors_2d 0.00389
-→ 0.00370, heat_1d 0.00397 → 0.00284, advection_diffusion_2d 0.00139 → 0.00116, heat_sensors_3d 0.0272
-→ 0.0258, wave_sensors_2d 2.29e-5 both, heat_boxes (n=32) 0.588 both; but heat_3d 0.00333 → 0.00424
-and heat_cavity_3d 0.00795 → 0.0127, where the regularized fixed point was better than the
-least-squares one (see the α paragraph: α = 0 gave 0.0047 on heat_3d). The noise-free target is
-therefore the rounding-level Tikhonov filter in the basis of ``P̂`` (``t = Q diag(s²/(s²+α)) Qᵀ y*``,
-:meth:`pdeinv.methods.targets.SpectralWiener.rounding`, the trainer's default): it puts that
-regularization back
-where the contract allows it, in what is matched, and gives the old figures to three digits (heat_3d 0.00333,
-heat_cavity_3d 0.00795, heat_2d 0.00156, heat_1d 0.00398).
+(zero: the head starts at zero); the effective cut-off after ``k`` steps is ``≈ α/k``. Where a
+regularized fixed point is better than the least-squares one (heat_3d, heat_cavity_3d), the noise-free
+target puts that regularization back where the contract allows it, in what is matched: the
+rounding-level Tikhonov filter in the basis of ``P̂`` (``t = Q diag(s²/(s²+α)) Qᵀ y*``,
+:meth:`pdeinv.methods.targets.SpectralWiener.rounding`, the trainer's default).
 
 α is rounding-level, ``α = rel_alpha · s_max²`` (1e-24: singular values resolved to 1e-12 of the
 largest, so float64 rounding in the residual (ε ≈ 2e-16 of ``‖y‖``) reaches a coefficient amplified by at
 most ``ε/(2·1e-12) ≈ 1e-4``; noisy observations are denoised before, by the trainer's target,
-:mod:`pdeinv.methods.targets`, in the same basis). Measured with the earlier global map (SIP, CLI defaults,
-noise-free, rel_alpha 1e-16 → 1e-24): heat_2d 0.0076 → 0.0016, heat_3d 0.0122 → 0.0033 (1e-20:
-0.0062; 0, i.e. every singular value above the SVD's rounding: 0.0047, rounding amplified), heat_1d
-0.0146 → 0.0040, heat_sensors_2d 0.0108 → 0.0039, heat_sensors_3d 0.048 → 0.027, heat_cavity_3d
-0.0099 → 0.0080, wave_sensors_2d 2.3e-5 both.
+:mod:`pdeinv.methods.targets`, in the same basis; 1e-16 left heat_2d's x-error ~5× higher).
 SIP with it converges to the least-squares fit *through the physics* inside the decoder's span:
 the prior's principal components then extrapolate into modes the observation barely sees, where the
-full-space inverse followed by SIP's Euclidean proxy projects a field that has nothing there.
-Measured in closed form (1024 training observations, 128 test pairs; projection of the full-space
-inverse → this): heat_plate noise-free 0.0519 → 0.0107 (best-α Tikhonov 0.0615), at 1 % noise with
-the Wiener target 0.1406 → 0.1255 (0.1405); wave_sensors_2d 9.8e-5 → 4.4e-5 and 0.00285 → 0.00258.
-Trained (``pdeinv train SCENE``, CLI defaults, SIP 30 full-batch steps): heat_plate 0.0496 → 0.0101
-and 0.142 → 0.127 at 1 %; wave_sensors_2d 4.4e-5 (unchanged) and 0.00277 → 0.00256.
+full-space inverse followed by SIP's Euclidean proxy projects a field that has nothing there
+(heat_plate noise-free: x-error 0.0101 against 0.0496).
 """
 
 from __future__ import annotations

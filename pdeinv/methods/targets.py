@@ -24,8 +24,7 @@ basis (no ``x`` produces it) is dropped, so that ``t`` lies in ``range(P)`` exac
 geometry of the loss: the basis is orthonormal in the problem's norms, and where ``M ≠ I`` the
 ``M``-complement of the basis has a Euclidean component along ``range(P)``; left in ``t``, that
 noise lands in the Euclidean losses of GD and HIG on weak modes, and HIG's near-Gauss–Newton steps
-amplify it by ``1/s``. Measured on heat_2d at 1 % (HIG, τ 1e-6, full batch): x-error 0.146 → 0.395
-over 60 steps with it, 0.1216 (= the closed form) without.
+amplify it by ``1/s`` (HIG on heat_2d at 1 %: x-error 0.395 with it left in, the closed form's 0.12 without).
 
 **The protocol** of a target strategy: ``name`` and ``fit(problem, y, noise, model=None,
 fields=None)`` returning a fitted target (``t(y)``, with ``info``) or ``None`` (nothing to fit);
@@ -35,11 +34,8 @@ returning the training rows' ``x`` or ``None``. A strategy uses what it needs an
 A mode is kept (``f_k > 0``) only where its signal is **significant**: ``mean(c_k²) − σ_k²`` above
 ``z = 3`` standard errors of the mean of ``c_k²`` *under no signal* (``c_ik ~ N(0, s_i²‖proj_k‖²)``
 with each sample's own noise variance ``s_i²`` of the relative noise model: ``√(2 Σ_i s_i⁴)‖proj_k‖²/n``).
-The empirical spread of ``c_k²``, used before, also holds the signal's own spread: on 172 clean
-heat_1d observations with a declared level of 6e-8 it dropped the leading mode, 1e15 above the
-noise (closed-form x-error 0.50 instead of 0.03); at 1 % it kept one mode fewer on heat_2d
-(0.1174 → 0.1170 with the null spread; 172 observations of heat_sensors_2d: 0.158 → 0.143).
-A mode is kept only if the x-energy
+(The empirical spread of ``c_k²`` would also hold the signal's own spread, and can drop a leading mode
+far above the noise.) A mode is kept only if the x-energy
 it implies, ``(mean(c_k²) − σ_k²)/g_k²``, is not above that of all *clearly* detected modes
 together. An estimated ``f_k`` of a mode with no signal is sampling error (~√(2/n)) which ``1/g_k``
 amplifies without bound on a smoothing operator; the energy guard stops such a fluke even at
@@ -47,20 +43,13 @@ amplifies without bound on a smoothing operator; the energy guard stops such a f
 no signal ``n·mean(c_k²)`` is ``Σ_i s_i² χ²₁ ≈ (Σs⁴/Σs²) χ²_ν`` with ``ν = (Σs²)²/Σs⁴`` (Satterthwaite;
 ``ν = n`` for equal levels), so ``mean(c_k²)/σ_k² ≈ χ²_ν/ν`` and a mode above the ``1 − p/K`` quantile
 (``K`` modes, ``p =`` :data:`FAMILY_P`; ≈ 4.4 standard errors for K = 64, n ≈ 1000) is noise with
-probability below ``p`` whichever of the ``K`` it is: it is kept whatever its energy. A fixed 10
-standard errors, used before, made the verdict on a real mode depend on the row count: in the prior
-decoder's basis every mode carries about the prior's energy, and a mode 8.6 standard errors out of the
-noise was dropped with 872 rows (its energy a hair above the one clear mode's) and kept with 1000
-(heat_1d, κ = 0.24, 1 %: x-error 0.80 against 0.71, the MMSE's; tests/test_targets.py). Only modes between
-``z`` and the family-wise level, whose signal *may* be a fluke, are weighed by their energy.
-Measured in closed form (1024 training observations at 1 % noise, 128 test pairs, relative
-L²(Ω) errors, z = 3; best-α Tikhonov with the oracle α in brackets): heat_2d 0.1170 (0.1173),
-heat_3d 0.1058 (0.1069), heat_cavity_3d 0.1853 (0.1857), heat_sensors_2d 0.1418 (0.1420),
-heat_sensors_3d 0.2030 (0.2031), heat_plate 0.1405 (0.1405), advection_diffusion_2d 0.1236
-(0.1244), heat_1d 0.127 (0.127), wave_2d **0.0131 (0.024)**, wave_sensors_2d **0.0068 (0.0118)**.
-Where ``P`` smooths, the best spectral filter
+probability below ``p`` whichever of the ``K`` it is: it is kept whatever its energy (a fixed number
+of standard errors would make the verdict on a real mode depend on the row count: tests/test_targets.py).
+Only modes between ``z`` and the family-wise level, whose signal *may* be a fluke, are weighed by their
+energy. Where ``P`` smooths, the best spectral filter
 is about the best Tikhonov filter (y alone cannot say more about modes it cannot see); where it
-does not (wave), a filter that knows each mode's signal level beats one α for all modes.
+does not (wave), a filter that knows each mode's signal level beats one α for all modes (wave_2d at
+1 %: x-error 0.013 against best-α Tikhonov's 0.024).
 
 **In a decoder's span.** A network with a fixed decoder ``x = D c`` (:func:`pdeinv.nets.reduced`: the
 prior's principal components, column ``j`` scaled by the prior's rms amplitude along it) sees the
@@ -68,9 +57,8 @@ physics ``P̂ = P D = Q diag(s) Vᵀ``. Where the prior makes ``c`` white (``E[c
 scaling) and the noise is white, ``Qᵀy = diag(s) Vᵀc + Qᵀε`` has independent components, and the
 Wiener filter per mode of this basis *is* the linear MMSE estimator in ``span D``: ``f_k =
 s_k²/(s_k² + σ²κ²) = 1 − σ²/E[(Qᵀy)_k²]``, again estimated from ``y`` alone (the prior chooses the
-basis, the data each mode's signal level). Measured in closed form at 1 % (the MMSE fitted on the
-*training x* in brackets): heat_2d 0.0908 (0.0897), heat_sensors_2d 0.1017 (0.1007),
-advection_diffusion_2d 0.0971 (0.0968), heat_sensors_3d 0.156 (0.155), heat_1d 0.1190 (0.1186).
+basis, the data each mode's signal level); at 1 % on the heat scenes it comes within ~1 % of the MMSE
+fitted on the training ``x``.
 
 A target is a strategy object::
 
@@ -178,8 +166,7 @@ class SpectralWiener:
         rounding-level ``α = REL_ALPHA·s_max²`` of :mod:`pdeinv.inverse.decoder`. SIP's local inverse
         keeps the contract, so its fixed point is the least-squares fit of its target: this target makes
         it the rounding-level Tikhonov solve in ``span D`` (the decoder's missing prior energy and y's
-        rounding are not fitted). Measured (SIP, CLI defaults): heat_3d 0.00424 → 0.00333 and
-        heat_cavity_3d 0.0127 → 0.00795 against fitting ``y`` itself (heat_2d 0.00132 → 0.00156)."""
+        rounding are not fitted; on heat_cavity_3d it took SIP from 0.0127 to 0.0080)."""
         from ..inverse.decoder import REL_ALPHA
 
         basis = self._basis(problem, model)
