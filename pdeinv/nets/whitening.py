@@ -23,9 +23,7 @@ and maps an observation to
   ``1e-10`` (amplitudes down to 1e-5 of the largest; float32 inputs keep ~6e-8 of it).
   Why no floor in float64: a noise-free scene's information sits in directions of tiny
   variance (heat: weak modes, 1e-20 of the largest; wave: the modes with cos(ωT) ≈ 0), and a
-  direction below the floor learns ``λ/f`` times slower. Measured with SIP on the whitened
-  linear network, full batch (:mod:`pdeinv.methods.presets`): wave_2d 0.0025 after 5 steps with
-  the floor 1e-22, < 5e-6 after 3 steps without; heat_1d 0.017 against 0.040 in float32.
+  direction below the floor learns ``λ/f`` times slower.
 
 **Drop ``d``** (directions removed, ``D_i = 0``): the numerical rank cut
 ``d = (n·eps)²·max λ`` always (with fewer samples than observations, the
@@ -33,15 +31,10 @@ directions the data never visited are dropped instead of amplified), and with a
 known noise level also ``d = drop·σ²``. The default ``drop="edge"`` is the upper
 edge of the Marchenko–Pastur law, ``(1 + √(m/(n−1)))²``: the largest sample
 variance pure white noise produces in ``n`` samples of ``m`` components, so every
-direction below it is indistinguishable from noise (on heat_2d at 1 % noise, 75
-of 961 directions stay; keeping all of them let SIP fit the noise, and no
-stopping rule could help: measured in :mod:`pdeinv.nets`). ``drop=0`` keeps all.
+direction below it is indistinguishable from noise (keeping them all lets SIP fit the noise, which no
+stopping rule undoes). ``drop=0`` keeps all.
 The cut scales with the ``n`` training rows, not with the mesh: the covariance is estimated from ``n``
-samples whatever ``m`` is, and ``max(n, m)`` cut heat_2d's resolved directions at an amplitude 16× higher
-on 65 025 unknowns than on 3 969 (136 directions kept against 164; the closed-form fit of the reduced network
-through the whitening 0.00216 against 0.00126). Below ``n`` observations it is ``max(n, m)`` as before:
-``min(n, m)`` there let rounding-level directions into the whitened map (heat_1d's supervised least-squares
-step then moved the x-loss on later steps by 7e-6 of its start, against nothing).
+samples whatever ``m`` is (a cut in ``max(n, m)`` would drop a fine mesh's resolved directions).
 
 **Components ``k``** (optional): keep only the ``k`` leading directions, ``z = D_k U_kᵀ (y − μ)``
 of length ``k``. The buffers are then ``(m, k)`` instead of ``(m, m)`` (at ``m`` = 16 129, the
@@ -54,10 +47,7 @@ with ``k`` directions fitted on ``n`` rows the sample covariance's smallest eige
 ``(1 − √(k/n))²`` of the true ones (Marchenko–Pastur), so on new data the trailing whitened
 coordinates are that much larger than on the training rows, and whatever weight an unconverged
 rule left on them is amplified (``k ≈ n``: without bound). ``r = 8`` bounds the factor to
-``1/(1 − √(1/8))² ≈ 2.4`` in variance. Measured (``--method gd`` / ``adam``, 1000 steps of 32,
-the whitened linear network, one thread): wave_sensors_2d 1.18 / 0.51 (Adam on the MLP) with all
-1024 components, 0.50 / 0.014 with 256, **0.42 / 0.0047** with 128; wave_2d 0.54 / 0.30 (MLP) →
-0.11 / 0.13 → **0.074 / 0.10**; heat_2d 0.208 / 0.40 (MLP) → 0.208 / 0.29 → **0.203 / 0.29**.
+``1/(1 − √(1/8))² ≈ 2.4`` in variance (Adam on wave_sensors_2d: x-error 0.0047 with it, 0.51 without).
 SIP and HIG solve their linear problems exactly and keep every direction.
 
 The transform has fixed shapes ``(m,)`` and ``(m, k)`` whatever the data, so a

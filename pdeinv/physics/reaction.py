@@ -24,9 +24,8 @@ diag(f'(ξ) − c) e``, contraction factor ``ρ ≤ θ dt · max|f' − c| · �
 decreases up to the midpoint and increases after it (its derivative there has the sign of ``1 + θ dt
 f'_min > 0``): ``c`` is the midpoint of ``f'`` over the batch's current values, ``ρ ≈ θ dt (f'_max −
 f'_min)/2 / (1 + θ dt c)``, rounded to the grid ``−r + (r/2)ℤ`` so that a run factorizes a handful
-of ``A_c`` (sparse LU of one ``N × N`` matrix each, cached). allen_cahn_1d (``θ dt r = 0.01``):
-measured ``ρ ≈ 0.025``, 7–11 chord iterations per step (mean 7.6); r = 5, 40 steps: ``ρ ≈ 0.2``,
-16–30 (mean 18). **Stopping, relative to rounding**: a column stops when its update ``‖δ_k‖∞ ≤
+of ``A_c`` (sparse LU of one ``N × N`` matrix each, cached); on allen_cahn_1d ``ρ ≈ 0.025``.
+**Stopping, relative to rounding**: a column stops when its update ``‖δ_k‖∞ ≤
 rtol·‖w‖∞`` (``rtol = 1e-14``, 45 ulp; the error left is ``≈ ρ·rtol``). **Fallback**: a column whose
 measured contraction ``‖δ_k‖∞/‖δ_{k−1}‖∞`` exceeds ½, whose update is not finite, or which is not
 done after 30 iterations, is solved by block-LU Newton (from the predictor; a tangent solve: by its
@@ -146,8 +145,8 @@ _TINY = np.finfo(float).tiny
 def _contract(update, X, rtol: float, max_iterations: int, max_ratio: float, history=None):
     """The fixed-point iteration ``X[:, a] += update(X[:, a], a)`` on the columns ``a`` not yet done,
     in place. A column is done when its update ``‖δ_k‖∞ ≤ rtol·‖x‖∞`` (the error left is then about
-    ``q·rtol·‖x‖∞``; stopping earlier on the predicted error ``q/(1−q)·‖δ_k‖∞`` saved one iteration
-    in seven but left 1e-12 between chord and Newton tangents at r = 5); it *fails* when the measured
+    ``q·rtol·‖x‖∞``; stopping on the predicted error ``q/(1−q)·‖δ_k‖∞`` instead would leave chord and
+    Newton tangents 1e-12 apart); it *fails* when the measured
     contraction ``q_k = ‖δ_k‖∞/‖δ_{k−1}‖∞ > max_ratio``, its update is not finite, or it is not done
     after ``max_iterations``. Returns (iterations, failed column indices)."""
     active, prev, failed, its = np.arange(X.shape[1]), np.full(X.shape[1], np.inf), [], 0

@@ -9,22 +9,18 @@ what to change when the estimate exceeds the budget.
 **Budget:** ``set_budget(gb)`` (the CLI's ``--max-memory-gb``) or the environment variable
 ``PDEINV_MAX_MEMORY_GB``; otherwise 90 % of the memory available now (``MemAvailable`` in
 ``/proc/meminfo``, else ``os.sysconf``; :data:`AVAILABLE_SHARE`): the estimates are upper bounds, so
-the machine's free memory itself is the limit (it was half of it, which refused runs that fit).
+the machine's free memory itself is the limit.
 Without any of these (other systems) nothing is refused.
 
 **Estimates** are rough upper bounds, good to a small factor, not exact accounting:
 
 * mesh and physics: :data:`BYTES_PER_NODE` per mesh node by dimension — the mesh arrays,
   the assembled P1 mass and stiffness matrices with their assembly temporaries, one sparse
-  factorization and the modal basis. Measured on ``heat_2d`` (P1, modal backend):
-  n = 128 (16 129 unknowns) raised the peak RSS by 300 MB, ~19 kB per node; 1-D and 3-D
-  are scaled by the factorization fill. P2 has ~4× the nodes of P1 on the same mesh.
-  The factorization part, measured by ``benchmarks/crossover.py`` (SuperLU's exact
-  ``nnz(L + U)``; cholespy needs about half): 2-D 0.8–1.9 kB per node up to 10⁶ nodes,
-  3-D 6 kB at 12 167 nodes, 10 kB at 29 791, 14 kB at 59 319 (fill grows like N^{1/3} per
-  node), so the per-node constants stay upper bounds up to ~10⁵ 3-D nodes; above
-  :data:`pdeinv.fem.solvers.AMG_CROSSOVER` the heat operators use AMG-CG, whose hierarchy is
-  ~0.3 kB per node (2-D and 3-D).
+  factorization and the modal basis (heat_2d: ~19 kB per node of peak RSS); 1-D and 3-D are
+  scaled by the factorization fill. P2 has ~4× the nodes of P1 on the same mesh. A 3-D factor's fill
+  per node grows like ``N^{1/3}``, so the per-node constants stay upper bounds up to ~10⁵ 3-D nodes;
+  above :data:`pdeinv.fem.solvers.AMG_CROSSOVER` the heat operators use AMG-CG, whose hierarchy is far
+  smaller (``benchmarks/crossover.py``).
 * sensors: the observation vector of one sample (records × sensors) and the sensor matrix.
 * training (:func:`run_bytes`): the data sets and the prior fit's draws, the network that ``--net`` /
   ``--hidden`` actually builds (value, gradient and two Adam moments per parameter in its dtype, its
@@ -45,8 +41,8 @@ HIG_JACOBIAN_GB = 4.0
 #: bytes per mesh node (P1) for the mesh, matrices, factorization and modal basis, by dimension
 BYTES_PER_NODE = {1: 2_000, 2: 20_000, 3: 60_000}
 
-#: the default budget's share of the memory available now (``MemAvailable``): the machine's free memory
-#: (issue 35), less a margin for what the estimates do not count (Python, torch, the OS's caches)
+#: the default budget's share of the memory available now (``MemAvailable``): the machine's free memory,
+#: less a margin for what the estimates do not count (Python, torch, the OS's caches)
 AVAILABLE_SHARE = 0.9
 
 _budget_gb: float | None = None
