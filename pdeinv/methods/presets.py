@@ -19,12 +19,10 @@ No per-scene table: every step size follows from the maths.
   the operator's spectral basis at rounding-level α, :func:`pdeinv.inverse.default_inverse`),
   plain SGD at lr 1 on the proxy gradient normalized by its largest curvature (the Landweber step,
   :class:`~.sip.SIP`), **every training row in each step** (``batch_size=None``) and 30 steps (the
-  training loss is at 1e-24 of its start by step 5 on every full-rank scene; from step 50 to 100
-  the test x-error moved by < 1 %).
+  training loss reaches rounding within a few steps on every full-rank scene).
   On the whitened linear default network the full-batch proxy's Hessian is the identity on the
-  kept directions, so one step solves it; with minibatches of 32 the test variance along the
-  trailing whitened directions was 1e4–1e7 times the batch's on wave_2d and the unconverged
-  error was amplified by as much (x-error 0.35 against < 5e-6 full batch, 3 steps). Noisy data
+  kept directions, so one step solves it; minibatches leave an unconverged error along the trailing
+  whitened directions, which test data amplify (wave_2d: x-error 0.35 against < 5e-6 full batch). Noisy data
   need no other setting: the trainer fits a denoised target (:mod:`pdeinv.methods.targets`).
   On a network that is not linear in θ (``--hidden``) the proxy is a nonconvex fit: Adam at 1e-3 on
   minibatches of 32 for 1000 steps, the SIP paper's optimizer (:data:`SIP_MLP`).
@@ -36,38 +34,20 @@ No per-scene table: every step size follows from the maths.
   far from the least-squares map, and whatever weight it leaves on the trailing whitened
   directions is amplified on new data wherever the observations fill about as many directions
   as there are training rows (wave_2d: 961 of 1024; the sample covariance's smallest eigenvalues
-  are then ~1e-3 of the true ones, Marchenko–Pastur). Measured, 1000 steps of 32, one thread
-  (all directions / the tanh MLP (256, 256) / the cap): Adam on wave_2d 42.3 / 0.298 / **0.101**,
-  wave_sensors_2d – / 0.506 / **0.0047**, heat_2d – / 0.395 / **0.286**; GD on wave_2d 0.537 /
-  0.787 / **0.074**, wave_sensors_2d 1.18 / 0.275 (lr 0.5) / **0.42**, heat_2d 0.208 / 0.736 /
-  **0.203**, heat_plate 0.419 / 1.10 / **0.416**. SIP and HIG solve their linear problems exactly
-  and generalize with every direction.
+  are then ~1e-3 of the true ones, Marchenko–Pastur; Adam on wave_2d: x-error 42 with all directions,
+  0.10 with the cap). SIP and HIG solve their linear problems exactly and generalize with every
+  direction.
 * **hig**: the exact Kronecker route on the default network (:mod:`.hig_kron`), every training row
   in each step, η 1 on the normalized step (the leading direction solved per step, :class:`~.hig.HIG`),
   τ 1e-6 of σ_max (the HIG reference code's range), 1000 steps. The rows are the same in every step,
-  so after the first a step costs no feature map and no physics (:mod:`.hig_fixed`): heat_2d 0.011
-  s/step against Adam's 0.045, wave_2d 0.050 against 0.050 (``benchmarks/hig_step.py``, one thread,
-  interleaved; wave_2d's steps stop computing once below the weights' resolution, ~step 380). The
-  half-inverse moves a direction of relative singular value ρ by ``ρ^½`` of the way per step, so the
-  weak modes of the smoothing scenes keep converging long after the strong ones: noise-free x-error
-  at 100 / 300 / 1000 steps, heat_1d 0.053 / 0.040 / 0.035, heat_2d 0.043 / 0.027 / 0.021, heat_3d
-  0.047 / 0.033 / 0.027; wave_2d 3.6e-7 / 4.7e-9 / 4.7e-9 (rounding from step 300). Earlier
-  measurements, with 100 steps as the preset, on wave_2d (one thread):
-  batch 32 ends at 0.49 after 300 steps (η 1; 2.98 at η 0.5), the full batch at 2.5e-4 after 30
-  and < 1e-8 after 100; heat_2d 0.061 (batch 32, 300 steps) against 0.052 (full, 100).
-  Re-measured with the minibatch Gram route (:func:`.hig_kron.direction_rows`), 1000 steps,
-  (batch, η): wave_2d (32, 0.3) 0.74, (64, 0.3) 0.065, (64, 1) 0.25, (128, 0.5) 0.13 — a
-  minibatch leaves weight on the trailing whitened directions, which test data amplify
-  (Marchenko–Pastur, as for Adam) —; heat_2d (prior decoder) (32, 0.3) 0.063, (64, 0.3) 0.048,
-  (64, 1) 0.031, (128, 0.5) 0.032 against 0.0425 full batch. At batch 32–64 a step costs
-  0.03–0.11 s on one shared thread, about Adam's. Batches of 64 and 1000 steps on every
-  prior-decoder scene were tried as a preset: heat_2d 0.031, heat_sensors_2d 0.0305, heat_plate
-  0.0351, heat_cavity_3d 0.0367 noise-free (full batch: 0.0425, 0.0421, 0.0469, 0.0342), equal at
-  1 %, but wave_sensors_2d blew up at step 50 (test y-error 32× its start): the full batch stays
-  the preset on every scene (and, since :mod:`.hig_fixed`, the cheaper step as well).
+  so after the first a step costs no feature map and no physics (:mod:`.hig_fixed`).
+  The half-inverse moves a direction of relative singular value ρ by ``ρ^½`` of the way per step, so the
+  weak modes of the smoothing scenes keep converging long after the strong ones (hence 1000 steps).
+  Minibatches (the Gram route, :func:`.hig_kron.direction_rows`) leave weight on the trailing whitened
+  directions, which test data amplify (Marchenko–Pastur, as for Adam), and batches of 64 made
+  wave_sensors_2d blow up: the full batch is the preset on every scene.
 
-Measured with ``benchmarks/accuracy.py`` (CLI defaults, one thread) against best-α Tikhonov on
-the same 128 test pairs: see ``benchmarks/notes/results-history.md``.
+Accuracy against best-α Tikhonov (``benchmarks/accuracy.py``): benchmarks/notes/results-history.md.
 """
 
 from __future__ import annotations

@@ -60,7 +60,7 @@ class HIG(Rule):
 
     * ``"svd"``: float64 thin SVD of ``J``;
     * ``"gram"``: float64 ``eigh(J Jᵀ) = U Λ² Uᵀ``, update ``−η Jᵀ U Λ^(e−1) Uᵀ g``
-      (``V = Jᵀ U Λ⁻¹``): ~10–20× faster when rows ≪ parameters (measured), but
+      (``V = Jᵀ U Λ⁻¹``): ~10–20× faster when rows ≪ parameters, but
       squaring doubles the condition number's exponent, so small kept σ lose
       accuracy (relative error ≈ 2e-16 · cond²);
     * ``"randomized"``: matrix-free, ``J`` is never formed: a rank-``probes``
@@ -72,14 +72,14 @@ class HIG(Rule):
       :class:`~pdeinv.nets.Net` with such a body; others are refused): the exact step of its last
       ``nn.Linear`` on the hidden features (``J_LᵀJ_L = (P̂ᵀP̂) ⊗ (H̃ᵀH̃)``, :mod:`.hig_kron`'s algebra),
       ``J`` never formed; **the hidden layers take no step** (:mod:`pdeinv.methods.hig.layers`: a
-      Kronecker-factored step for them was measured to diverge); τ and ``σ_max`` are the last layer's;
+      Kronecker-factored step for them diverges); τ and ``σ_max`` are the last layer's;
     * ``"auto"``: ``gram`` when rows ≤ parameters and the kept part's condition
       number ``σ_max/σ_min,kept`` is at most ``gram_cond_max`` (1e6: relative error
       ≲ 2e-4 in the smallest kept direction), else ``svd`` (recorded as
       ``"svd"``; ``info["gram_rejected"]`` says the Gram route was tried first);
       when the dense Jacobian would exceed ``max_jacobian_gb``, ``last_layer`` for a dense
-      network (measured better than ``randomized`` at equal steps and at equal wall time:
-      heat_2d and wave_2d, MLP (64, 64), :mod:`pdeinv.methods.hig.layers`), else ``randomized``.
+      network (better than ``randomized`` at equal steps and at equal wall time,
+      :mod:`pdeinv.methods.hig.layers`), else ``randomized``.
 
     **Compressed rows.** With a spectral basis of rank ``r < m`` (the modal heat backend, a
     compiled SVD: ``P = Out diag(g) Inᵀ`` exactly) and ``Out = Q R`` (Euclidean QR), each
