@@ -34,10 +34,8 @@ from .time_reversal import StateReversal, TimeReversal
 
 #: default relative α without noise: cut-off at amplification 1e-10·max g, from float64 rounding: the
 #: residual ``y − P x₀`` carries rounding ~1e-16·‖y‖, amplified by at most ``1/(2√α)`` = 5e9 (relative
-#: to max g), i.e. ~5e-7 of the field, below what any scene's accuracy asks. Measured with SIP (SGD,
-#: normalized) on the float64 whitened linear default network, 1000 steps, one thread: heat_1d 0.017
-#: at 1e-20 against 0.019 at 1e-16 (best-α Tikhonov 0.021); the float32 networks before needed 1e-10
-#: (their targets' rounding 6e-8 amplified by 1/(2√α)).
+#: to max g), i.e. ~5e-7 of the field, below what any scene's accuracy asks (float64 networks; a float32
+#: target's rounding 6e-8 would need 1e-10).
 NOISE_FREE_REL_ALPHA = 1e-20
 
 
@@ -77,9 +75,8 @@ def default_inverse(op, disc=None, noise: float = 0.0, alpha=None):
 
     Why the filter wins where both exist: time reversal from ``(y, v_T(x₀))`` changes each mode
     by ``cos(ω_k T)·Δy_k``, i.e. it applies ``Pᵀ`` (scaled by the singular value, not by its
-    inverse): SIP with it is a gradient step in disguise. Measured on wave_2d (SIP, 1000 steps,
-    whitened linear network): 0.13 with time reversal, 0.0014 with the filter (float32 network),
-    6e-4 with the filter, the float64 network and batch 128. Time reversal stays the inverse of
+    inverse): SIP with it is a gradient step in disguise (wave_2d: x-error 0.13 against the filter's
+    0.0014). Time reversal stays the inverse of
     a time-stepping wave forward (``backend='steps'``), where an SVD would need the dense map;
     * a nonlinear operator (declared ``linear = False``) → :class:`~.gauss_newton.GaussNewtonInverse`,
       ``rel_alpha = max(noise, 0.01)²`` (:func:`pdeinv.nonlinear_scenes.allen_cahn` says why), CG to

@@ -21,61 +21,17 @@ a random-feature network whose readout is trained by HIG's exact step). ``τ``, 
 ``normalize`` are those of ``J_L`` (``info["sigma_max"]``). A network with one ``nn.Linear`` (or with
 its hidden layers frozen) therefore gets exactly :class:`~.hig.HIG`'s step (``tests/test_hig_layers.py``).
 
-**Why not the hidden layers too.** The first version of this route (commit b1ce274) stepped every
-layer with a Kronecker-factored block, ``J_ℓᵀJ_ℓ ≈ Ḡ_ℓ ⊗ A_ℓ`` (K-FAC, Martens & Grosse 2015:
-``A_ℓ = H̃ᵀH̃``, ``Ḡ_ℓ`` the exact batch mean of ``E_iᵀE_i``, ``E_i = diag(s)Vᵀ ∂f_i/∂a_{i,ℓ}``),
-``ΔW̃_ℓ = −η Q_G [(Q_Gᵀ ∇_ℓ Q_A) ⊙ σ^(e−1)] Q_Aᵀ``. Against the exact per-layer HIG step (the dense SVD
-route with only that layer trainable; heat_1d, MLP (64, 64), batch 32, after 20 steps) its hidden
-steps were 40–60× longer and nearly orthogonal (cosine 0.04): the factorization spans directions
-``J_ℓ`` does not have (``E_i`` of one sample with ``h̃_j`` of another) with small ``σ``, which
-``σ^(e−1) = σ^-3/2`` amplifies. Measured x-error after 100 steps on heat_1d: 0.59 (η 1), 0.42 (η 0.3),
-0.40 (η 0.1), 0.18 with the hidden blocks cut at τ = 0.1; a Landweber step on the hidden layers
-instead (1000 steps) 0.138; the hidden layers left alone 0.146 (100 steps) and 0.116 (1000 steps),
-against today's exact dense route 0.127 after 100 steps (82 s).
-
-The K-FAC code computed that step exactly where the factorization is exact (batch 1: equal to the
-dense route to 1e-9); the factorization, not the code, failed (batch 4: cosine 0.08-0.16).
-
-**Measured** with ``benchmarks/hig_mlp.py`` (the CLI's HIG preset, η 1, τ 1e-6, batch 32, the same
-1024 training and 128 test pairs, seed 0, one thread on a 2-core machine shared with another
-engineer's jobs, so times carry ~±30 %; x-error: mean relative L²(Ω) after the steps given).
-"auto before": the dense Jacobian from ``torch.func`` (1-D); ``randomized``: what ``auto`` took on
-the 2-D scenes before this route (their dense ``J`` exceeds 4 GB). "auto now": the dense route with
-``J`` from the layer structure (:mod:`.hig_structured`, the same step). ``last=t``: this route for the
-wall time of the first row of its scene.
-
-=======  =======  ==================  =======  =======  ==========
-scene    hidden   route               steps    ms/step  x-error
-=======  =======  ==================  =======  =======  ==========
-heat_1d  64,64    auto before (gram)  100      1025     0.1271
-heat_1d  64,64    auto now (gram)     100      73       0.1271
-heat_1d  64,64    last_layer          100      2.3      0.1462
-heat_1d  64,64    last=t (7.6 s)      3730     2.0      0.1144
-wave_1d  64,64    auto now (gram)     100      3321     0.0296
-wave_1d  64,64    last_layer          100      2.5      0.0662
-wave_1d  64,64    last=t (333 s)      125108   2.7      0.0583
-heat_2d  64,64    randomized          100      2385     0.4596
-heat_2d  64,64    last_layer          100      11       0.2313
-heat_2d  64,64    last=t (312 s)      21322    11       0.2141
-wave_2d  64,64    randomized          100      3817     0.8469
-wave_2d  64,64    last_layer          100      28       0.2555
-wave_2d  64,64    last=t (386 s)      16763    22       0.2376
-heat_1d  256,256  auto now (gram)     20       197      0.1760
-heat_1d  256,256  last_layer          20       4.1      0.1870
-heat_1d  256,256  last=t (3.8 s)      389      9.3      0.1174
-heat_2d  256,256  randomized          20       15012    0.4506
-heat_2d  256,256  last_layer          20       30       0.2424
-heat_2d  256,256  last=t (296 s)      17635    16       0.1457
-wave_2d  256,256  randomized          20       9818     0.8483
-wave_2d  256,256  last_layer          20       27       0.1982
-wave_2d  256,256  last=t (196 s)      7387     27       0.1043
-=======  =======  ==================  =======  =======  ==========
+**Why not the hidden layers too.** A Kronecker-factored block per hidden layer,
+``J_ℓᵀJ_ℓ ≈ Ḡ_ℓ ⊗ A_ℓ`` (K-FAC, Martens & Grosse 2015: ``A_ℓ = H̃ᵀH̃``, ``Ḡ_ℓ`` the exact batch mean of
+``E_iᵀE_i``, ``E_i = diag(s)Vᵀ ∂f_i/∂a_{i,ℓ}``), with the step
+``ΔW̃_ℓ = −η Q_G [(Q_Gᵀ ∇_ℓ Q_A) ⊙ σ^(e−1)] Q_Aᵀ``, is exact only for a batch of one: otherwise the
+factorization spans directions ``J_ℓ`` does not have (``E_i`` of one sample with ``h̃_j`` of another) with
+small ``σ``, which ``σ^(e−1) = σ^-3/2`` amplifies, and the training diverges.
 
 Hence ``auto`` (:data:`.hig_routes.ROUTES`): where the dense ``J`` fits, HIG's exact step (it trains
-every layer; on wave_1d twice as accurate as this route at equal wall time); where it does not, this
-route: 100-500x faster per step than the matrix-free route, and more accurate at equal steps and at
-equal wall time on heat_2d and wave_2d. A narrow MLP's random features limit it: wave_1d with
-(16, 16), 100 steps 0.209 against the exact route's 0.105 after 10 (``tests/test_hig_layers.py``).
+every layer); where it does not, this route, 100–500× faster per step than the matrix-free route and more
+accurate at equal wall time (``benchmarks/hig_mlp.py``; benchmarks/notes/scaling.md). A narrow MLP's
+random features limit it (``tests/test_hig_layers.py``).
 """
 
 from __future__ import annotations
