@@ -28,11 +28,9 @@ basis (orthonormal in the observation norm) the residual and the noise it is com
     ρ(α)² = Σ_k (α/(g_k²+α))² c_k²,        E‖ε‖² over the basis = σ² Σ_k ‖proj_k‖²,
 
 both in closed form. The part of ``y − y₀`` outside span Φ is left out of both: no α changes
-it, and counting it (as the full residual does) let its own fluctuation decide α. Measured on
-heat_1d at 1 % noise, 1000 samples, τ = 1.1: with the full residual its unfittable part alone
-exceeded τ times the expected noise on a few percent of samples, α fell to its floor and those
-reconstructions were up to 946× the median norm (mean x-error 1.97, median 0.134); projected,
-the largest is within a few times the median (``tests/test_inverse.py``).
+it, and counting it (as the full residual does) would let its own fluctuation decide α: on a few percent
+of samples the unfittable part alone exceeds τ times the expected noise and α falls to its floor
+(``tests/test_inverse.py``).
 """
 
 from __future__ import annotations

@@ -9,7 +9,7 @@ i.e. ``x̃ = x₀ + Δx`` with ``Δx`` a (regularized) inverse of the residual `
 regularization acts on the change ``Δx``, never on ``x̃`` itself. SIP relies on it: its update
 ``x̃ = P⁻¹_(x, Px)(Px + η(y* − Px))`` is then a step from the current prediction ``x``, and the
 training fixed point is where the residual vanishes (Holl, Koltun, Thuerey 2022, §3). An inverse
-that ignored ``x₀`` would make SIP a regression onto one fixed closed-form target (issue 32).
+that ignored ``x₀`` would make SIP a regression onto one fixed closed-form target.
 
 :class:`ReusesForward` is the capability of an inverse whose first act is computing ``y₀ = P x₀``:
 SIP has computed it already (for its loss), and passes it, saving one forward call per step.

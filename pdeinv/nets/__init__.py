@@ -26,16 +26,10 @@ Three kinds of network:
 Both default networks are linear in their parameters after a fixed feature map
 (:meth:`Net.linear_in_parameters`): SIP's proxy step is then a Newton step
 (:meth:`Net.gauss_newton_diagonal`) and HIG has an exact Kronecker-factored step
-(:mod:`pdeinv.methods.hig.kron`). Measured against best-α Tikhonov on every scene with
-``benchmarks/accuracy.py``: the table is in ``benchmarks/notes/results-history.md``. The whitening is fitted
-by the trainer on the training observations only (:func:`fit_preconditioning`), never on ``x``,
-and travels with the state dict.
-
-History: an earlier sweep (SIP with Adam on the proxy, float32, 20 s per run) picked the
-whitened linear map for heat (0.032 on heat_2d against 0.073 for the whitened MLP and 0.191
-for the standardized MLP) and kept the MLP for the wave scenes, where time reversal made SIP
-a gradient step; with the spectral local inverse and the curvature-normalized proxy step the
-linear map wins there too (SIP on wave_2d: 5e-9, 1000× below the 0.2–0.3 of the MLP runs).
+(:mod:`pdeinv.methods.hig.kron`). The whitening is fitted by the trainer on the training observations
+only (:func:`fit_preconditioning`), never on ``x``, and travels with the state dict. Why linear: with the
+spectral local inverse and the curvature-normalized proxy step SIP solves the linear map's proxy exactly,
+and it beats the MLPs on heat and wave alike (against best-α Tikhonov: benchmarks/notes/results-history.md).
 """
 
 from .defaults import (

@@ -33,8 +33,7 @@ def run_bytes(problem, n_train: int, n_test: int, batch: int, hidden=None, net: 
     * ``HIG Jacobian``: HIG's stacked Jacobian on a network that is not linear in its parameters, at most
       its budget (:data:`HIG_JACOBIAN_GB`; HIG refuses or goes matrix-free above it).
 
-    Measured against the peak RSS of ``pdeinv train heat_2d --set n=256`` (one SIP step, the reduced
-    default network): 7.2 GB, this estimate 11 GB (benchmarks/notes/scaling.md).
+    An upper bound (heat_2d at n=256: ~1.5× the peak RSS, benchmarks/notes/scaling.md).
     """
     m, n = problem.operator.n_out, problem.operator.n_in
     size = network_size(problem, "mlp" if hidden else net, hidden)

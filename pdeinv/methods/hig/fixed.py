@@ -20,26 +20,23 @@ so :class:`Carried` updates ``M`` elementwise and recomputes it exactly (two flo
 (a roll-back to an older state, a resumed run, an edit): checked on the weights to 64 ulps.
 
 **Dead features.** A feature column of ``Z̃`` that is zero on every row (a whitened direction the
-whitening dropped: gain 0; wave_2d keeps 677 of 961, heat_2d 144) has a zero column in every ``J_i``,
-so ``ΔW̃`` is zero there: ``G``, ``W`` and ``A₁`` are taken on the live columns only (``G``'s zero rows
-are exact, so this is the same step), and the second product shrinks by the dead fraction (wave_2d:
-961·678·678 instead of 961·678·962 multiply-adds). When the live features are uncorrelated to
-rounding (every correlation ``|G_ij|/√(G_ii G_jj)`` ≤ :data:`UNCORRELATED`, 1e-10: the whitening
-fitted on these rows with a noise floor makes them so, 3e-13 on wave_2d at 1 %, while the noise-free
-whitening's trailing directions carry rounding, 2e-4), ``W = I``: ``A₁ = a^½`` is diagonal and the
-second product is a column scaling.
+whitening dropped: gain 0) has a zero column in every ``J_i``, so ``ΔW̃`` is zero there: ``G``, ``W`` and
+``A₁`` are taken on the live columns only (``G``'s zero rows are exact, so this is the same step), and
+the second product shrinks by the dead fraction. When the live features are uncorrelated to rounding
+(every correlation ``|G_ij|/√(G_ii G_jj)`` ≤ :data:`UNCORRELATED`, 1e-10: the whitening fitted on these
+rows with a noise floor makes them so, while the noise-free whitening's trailing directions carry
+rounding), ``W = I``: ``A₁ = a^½`` is diagonal and the second product is a column scaling.
 
-**Work a step does not need.** ``‖ΔW̃‖² = η² Σ_kl (M ⊙ S)²_kl a_k c_l`` (``V`` and ``W`` orthonormal)
-is known before any product, per observation mode ``l``. A step whose norm is below the weights'
-resolution (``‖ΔW̃‖ ≤ ε‖W̃‖``, ε the weights' machine epsilon: it changes the network's output by less
-than the rounding of evaluating it) is not computed: the direction is ``None`` and ``M`` keeps its value
-(wave_2d noise-free reaches that at step ~380 of the preset 1000; its x-error is 4.71e-9 from step
-300 on either way). The weakest modes, whose energies add up to at most ``(u‖ΔW̃‖)²`` (``u`` the unit
-roundoff of the products: float32's 6e-8, below the products' own rounding), are left out of the
-products and stay in ``M`` (wave_2d: 961 modes at step 1, 516 at 10, ~250 from 40 to 130).
+**Work a step does not need.** ``‖ΔW̃‖² = η² Σ_kl (M ⊙ S)²_kl a_k c_l`` (``V`` and ``W`` orthonormal) is
+known before any product, per observation mode ``l``. A step whose norm is below the weights' resolution
+(``‖ΔW̃‖ ≤ ε‖W̃‖``, ε the weights' machine epsilon: it changes the network's output by less than the
+rounding of evaluating it) is not computed: the direction is ``None`` and ``M`` keeps its value
+(noise-free wave_2d gets there within the preset's 1000 steps). The weakest modes, whose energies add up
+to at most ``(u‖ΔW̃‖)²`` (``u`` the unit roundoff of the products: float32's 6e-8, below the products'
+own rounding), are left out of the products and stay in ``M``.
 
 **float32 products.** Above :data:`FLOAT32_ABOVE` multiply-adds ``ΔW̃``'s two products run in float32
-(half the time on one core: 0.049 s against 0.099 s for a 961³ product, measured); their rounding,
+(half the time of float64 on one core); their rounding,
 ~1e-6 of the step, reaches ``M`` at the next refresh and the iteration corrects it like any other
 residual. ``M`` itself is always computed in float64 (it is a small difference of large terms).
 

@@ -22,10 +22,8 @@ refused (kept condition number above ``gram_cond_max``) or the rows outnumber th
 routes to float64 rounding (``tests/test_hig_layers.py``); the trainable layers' order is the
 model's.
 
-Measured (``benchmarks/hig_mlp.py``, one shared thread): heat_1d, MLP (64, 64), batch 32 (576 rows x
-12 351 parameters, the Gram route): 73 ms per step against 1 025 ms with ``torch.func``'s ``J`` and
-``J Jᵀ`` (the ``(B·k)² · n_params`` product was 0.94 s of it), the same x-error after 100 steps
-(0.1271); wave_1d (2 016 rows): 3.3 s per step, mostly the ``eigh`` of the ``2016 × 2016`` Gram.
+Why: ``torch.func``'s ``J Jᵀ`` costs ``(B·k)² · n_params``; on heat_1d with an MLP (64, 64) this is ~14×
+faster per step (``benchmarks/hig_mlp.py``).
 """
 
 from __future__ import annotations
