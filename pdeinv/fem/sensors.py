@@ -282,9 +282,7 @@ def place(mesh, spec, where: str = "boundary", inset: float = 0.0) -> np.ndarray
     :func:`boundary_points` (``where='boundary'``, moved ``inset`` inward) or
     :func:`interior_points` (``where='inside'``); coordinates pass through. Refused first
     (:mod:`pdeinv.util.memory`) when the sensors would not fit: ~2 kB per sensor to place, locate
-    and probe them in chunks (measured, peak of the whole process: 10⁶ boundary sensors on
-    wave_sensors_2d 0.23 GB in 2 s; 3·10⁵ interior ones on heat_sensors_2d 0.51 GB in 31 s;
-    before the chunks, 10⁶ sensors took 11.7 GB and 6 min)."""
+    and probe them in chunks (10⁶ boundary sensors on wave_sensors_2d peak at 0.23 GB)."""
     from ..util import memory
 
     n = int(spec) if isinstance(spec, Integral) else len(spec)
