@@ -5,20 +5,18 @@ Three strategies, chosen by what the mesh is (:func:`pdeinv.nets.defaults.correc
 
 * :class:`GridCorrection`: a U-Net (:class:`UNet`) on a regular grid reached through the
   finite-element interpolation (:class:`~pdeinv.fem.grid.GridMap`), ``g = E U(Ê b(y) [, Ê x_T(y)])``:
-  parameters independent of the mesh, a local (convolutional) prior, any 2-D/3-D mesh. The SIP
-  paper's boxes at 64×64: 0.159 → 0.044 (from the blend of the base and ``x_T``;
-  benchmarks/notes/results-history.md).
+  parameters independent of the mesh, a local (convolutional) prior, any 2-D/3-D mesh (the SIP
+  paper's boxes at 64×64: x-error 0.159 → 0.044, benchmarks/notes/results-history.md).
 * :class:`DenseCorrection`: a GELU MLP on the whole observation and estimate,
   ``g = σ_x · MLP([y/σ_y, b(y)/σ_x [, x_T(y)/σ_x]])``: every unknown sees every observation, which a
   nonlinear inverse of a wave or reaction map needs (information travels across the domain), at
   ``O((m + 2N)·h + h² + h·N)`` parameters — for 1-D meshes of at most
-  :data:`~pdeinv.nets.defaults.DENSE_MAX_UNKNOWNS` unknowns. Fitted on 16 384 sine_gordon_1d prior
-  draws for 2 minutes from the affine least-squares map: 0.194 → 0.064; the 1-D U-Net on the same
-  scene's GD base stopped at 0.190.
+  :data:`~pdeinv.nets.defaults.DENSE_MAX_UNKNOWNS` unknowns (sine_gordon_1d: x-error 0.064 where the
+  1-D U-Net stops at 0.190).
 
 * :class:`SpanCorrection`: a GELU MLP in the orthonormalized coordinates of the base's decoder, for
-  nonlinear physics on meshes too large for the dense MLP (sine_gordon_2d at 16 129 unknowns: 0.58 → 0.20
-  on held-out draws).
+  nonlinear physics on meshes too large for the dense MLP (sine_gordon_2d at 16 129 unknowns: x-error
+  0.58 → 0.20).
 
 All start at ``g ≡ 0`` (a zero last layer) and run in float32; ``inputs`` is computed once per
 fit (the base is frozen), ``forward(inputs)`` is the ``(B, N)`` correction.

@@ -61,10 +61,10 @@ def parameters(model: torch.nn.Module) -> torch.Tensor:
 def converged(before: torch.Tensor, after: torch.Tensor, loss: float, first: float, m: int) -> bool:
     """Whether a step found the rule at its fixed point: it left every trainable parameter where it was (to
     :data:`STILL` of the largest) at a loss at float64 rounding of the first (``loss ≤ (ROUNDING_ULPS·eps)²
-    · m · first``, ``m`` observations). wave_3d at 29 791 unknowns and 1 %: SIP's loss 237 → 5e-22 → 1e-27 in
-    three steps, then 27 full-batch steps (3 s each) that changed nothing. Neither test alone: noise-free
-    heat reaches a rounding-level loss by step 5 while its weak modes still improve x by 1–3 % over the next
-    25 steps (heat_1d 0.00411 → 0.00398), and a diverged network's huge weights make any step look still."""
+    · m · first``, ``m`` observations). Why: full-batch steps after the fixed point change nothing (SIP on
+    wave_3d reaches it in three of its 30). Neither test alone: noise-free heat reaches a rounding-level loss
+    while its weak modes still improve ``x``, and a diverged network's huge weights make any step look
+    still."""
     if before.numel() == 0 or before.shape != after.shape or not at_rounding(loss, first, m):
         return False
     scale = float(after.abs().max())
@@ -197,14 +197,13 @@ class PlateauStop:
     steps, on ``n_val`` held-out observations; never looks at ``x``).
 
     For rules whose steps are expensive and converge in a few (SIP on nonlinear physics: every step
-    linearizes the physics and solves for every training row). allen_cahn_2d, SIP's 30 full-batch steps
-    (one thread, loaded): the loss fell 8.9, 0.20, 0.020 in the first three steps and then stayed at
-    0.027–0.029 for 27 more, 75 s each, 1 900 s of a 2 583-s run. On noisy data the held-out residual
+    linearizes the physics and solves for every training row; on allen_cahn_2d the loss stops falling
+    after three of SIP's 30). On noisy data the held-out residual
     stops falling once the network fits the training rows' noise (it cannot fit the held-out noise): an
     early stop on held-out data, as the discrepancy principle is. When it fires, the network is put back
-    to its parameters at the lowest residual (one copy of its state dict is kept): SIP on sine_gordon_2d at
-    16 129 unknowns raised the held-out residual from its first step on (y-error 0.51 → 0.66 in three steps,
-    x-error 0.74 → 0.81) while its training loss fell. The state restarts on a resumed run."""
+    to its parameters at the lowest residual (one copy of its state dict is kept): a run's held-out
+    residual can rise from its first step on while its training loss falls (SIP on sine_gordon_2d at 16 129
+    unknowns). The state restarts on a resumed run."""
 
     min_gain: float = 0.01
     patience: int = 3
