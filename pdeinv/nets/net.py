@@ -120,8 +120,8 @@ class LinearInParameters(NamedTuple):
 
 #: the default networks' dtype. They are linear estimators fitted to float64 physics: noise-free, what
 #: they can recover is bounded by their arithmetic (float32 rounds inputs at ~6e-8 of the largest
-#: amplitude; a heat scene's weak modes sit far below). A float64 product costs about twice the float32
-#: one on CPU (heat_1d: x-error 0.017 in float64 against 0.040 in float32).
+#: amplitude; a heat scene's weak modes sit far below: heat_1d 0.017 in float64 against 0.040). A float64
+#: product costs about twice the float32 one on CPU.
 DTYPE = torch.float64
 
 
