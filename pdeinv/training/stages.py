@@ -36,8 +36,7 @@ ENTRIES_4K = 50_000_000
 
 #: multiply-adds a default stage's fit may spend (forward and backward, ~3× a forward pass per draw), a
 #: count, the same on every machine: ~1 000 U-Net steps of 32 draws on heat_boxes' 63×63 grid (0.64 s each
-#: on one core of the 2-core machine, ~1.5·10¹⁰ multiply-adds per second); half of it ended at 0.050
-#: there (0.060 before the data-consistency layer), where the same fit had reached 0.044 before
+#: on one core, ~1.5·10¹⁰ multiply-adds per second), which reach 0.042 there; half of it reached 0.050
 FIT_MACS = 9e12
 
 
