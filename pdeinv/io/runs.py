@@ -67,13 +67,6 @@ def _with_correction(spec: dict, model) -> dict:
     return {**spec, "correction": model.correction_kind}
 
 
-def _legacy_correction(problem, spec: dict) -> dict:
-    """A default network written before the dense correction existed (no ``correction``) had the U-Net."""
-    if spec.get("kind") != "default" or "correction" in spec or problem.model_factory is not None:
-        return spec
-    return {**spec, "correction": "grid"}
-
-
 def network(problem, spec: dict):
     """A fresh network of ``spec`` (``{"kind": ..., **settings}``) for ``problem``."""
     spec = dict(spec)
@@ -166,7 +159,7 @@ def load_run(run_dir):
     except (ValueError, AssertionError, AttributeError):
         raise ValueError(f"{where}: {RUN_FILE} is not a pdeinv run record; rerun `pdeinv train`") from None
     problem = load_problem(record["problem"], **record["overrides"])
-    model = network(problem, _legacy_correction(problem, record["network"]))
+    model = network(problem, record["network"])
     try:
         state = torch.load(run / MODEL_FILE, map_location="cpu", weights_only=True)
         model.load_state_dict(state)
