@@ -195,7 +195,7 @@ class _Called(Exception):
     pass
 
 
-@pytest.mark.parametrize("command", ["train", "--prior-fit", "0", "bench", "stress"])
+@pytest.mark.parametrize("command", ["train", "bench", "stress"])
 def test_no_cache_flag_switches_the_cache_off(folder, monkeypatch, tmp_path, command):
     import importlib
 

@@ -15,7 +15,7 @@ from pdeinv.cli import build_parser, main
 ROOT = Path(pdeinv.__file__).resolve().parent
 
 
-@pytest.mark.parametrize("command", ["train", "--prior-fit", "0",
+@pytest.mark.parametrize("command", ["train",
                                      "predict", "classical", "show", "bench", "stress", "demo"])
 def test_every_flag_has_a_help_string(command):
     parser = build_parser()
@@ -51,4 +51,4 @@ def test_quiet_and_verbose(flag, shown, capsys):
         build_problem("demo", "heat_1d", ["n=8"], after_s=0.0)
     err = capsys.readouterr().err
     assert [w for w in ("built", "backend") if w in err] == shown, err
-    assert build_parser().parse_args(["train", "--prior-fit", "0", "x", "--out", "o", "-q"]).quiet
+    assert build_parser().parse_args(["train", "x", "--out", "o", "-q"]).quiet

@@ -86,7 +86,7 @@ def test_time_budget_alone_is_not_cut_at_1000_steps():
     args = build_parser().parse_args(["train", "--prior-fit", "0",
                                       "heat_1d", "--out", "x", "--time-budget", "30"])
     assert args.steps is None and steps(args) is None  # the budget alone decides
-    assert steps(build_parser().parse_args(["train", "--prior-fit", "0", "heat_1d", "--out", "x"])) == 1000
+    assert steps(build_parser().parse_args(["train", "heat_1d", "--out", "x"])) == 1000
 
 
 def test_export_samples_above_n_test_says_so(tmp_path, capsys):
