@@ -11,6 +11,7 @@ import warnings
 from pathlib import Path
 
 from . import (
+    FAILED,
     UsageError,
     _checks,
     add_set_argument,
@@ -23,8 +24,6 @@ from . import (
 )
 
 ORDER = 1
-#: exit code of a run that failed its verdict (pdeinv.training.verdict) without --accept-bad
-FAILED = 3
 
 
 def _discrepancy(problem, steps=None, model=None):
