@@ -268,16 +268,17 @@ def test_a_feed_computed_per_batch_fits_the_same_correction(monkeypatch, name, k
     np.testing.assert_allclose(out_a, out_b, rtol=1e-4, atol=atol * np.abs(out_a).max())
 
 
-def test_prior_draws_are_a_count_of_the_unknowns_and_the_same_for_the_same_seed():
+def test_prior_draws_are_a_count_of_the_unknowns_and_the_same_for_the_same_seed(monkeypatch):
     from pdeinv.training.stages import draw_count
-    from pdeinv.training.trainset import PRIOR_CHUNK, prior_rows
+    from pdeinv.training.trainset import prior_rows
 
     assert draw_count(63) == 65536 and draw_count(3969) == 5039 and draw_count(29929) == 1670
     assert draw_count(10**6) == 256
     p = pdeinv.load_problem("heat_1d", n=16)
-    (x0, _), source = prior_rows(p, None, PRIOR_CHUNK + 8, 0)
-    (x1, _), _ = prior_rows(p, None, PRIOR_CHUNK + 8, 0)
-    assert x0.shape == (PRIOR_CHUNK + 8, p.N) and source.startswith(f"{PRIOR_CHUNK + 8} draws")
+    monkeypatch.setattr("pdeinv.training.trainset.PRIOR_CHUNK", 64)
+    (x0, _), source = prior_rows(p, None, 64 + 8, 0)
+    (x1, _), _ = prior_rows(p, None, 64 + 8, 0)
+    assert x0.shape == (64 + 8, p.N) and source.startswith("72 draws")
     assert np.array_equal(x0, x1)
     (x2, _), _ = prior_rows(p, None, 8, 0, stream=1)  # the stage's pilot draws: their own stream
     assert not np.array_equal(x2, x0[:8])

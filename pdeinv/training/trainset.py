@@ -66,15 +66,20 @@ def prior_rows(problem, own, n: int, seed: int, stream: int = 0) -> tuple[tuple 
             return None, "none: the data file has no x"
         return (own.x, own.y), f"the data file's x ({len(own.x)} training rows)"
     prior = problem.settings.get("prior", "the scene's sampler")
-    base = seed_stream(seed_stream(seed, PRIOR_DATA), stream)
+    first = seed_stream(seed, PRIOR_DATA)
+
+    def chunk_seed(i):  # the first chunk of stream 0 is the stream itself
+        return first if stream == 0 and i == 0 else seed_stream(seed_stream(first, stream), i)
+
     sizes = [min(PRIOR_CHUNK, n - i) for i in range(0, n, PRIOR_CHUNK)]
-    parts = [problem.sample(k, seed_stream(base, i)) for i, k in enumerate(sizes)]
+    parts = [problem.sample(k, chunk_seed(i)) for i, k in enumerate(sizes)]
     x, y = (np.concatenate(a) for a in zip(*parts, strict=True))
     return (x, y), f"{len(x)} draws of the scene's prior ({prior})"
 
 
-#: prior draws are made in chunks of this many rows (bounded memory of one call to the sampler)
-PRIOR_CHUNK = 4096
+#: prior draws are made in chunks of this many rows (bounded memory of one call to the sampler; the
+#: default stage draws at most this many)
+PRIOR_CHUNK = 65_536
 
 
 def training_fields(problem, own, n_train: int, seed: int):
