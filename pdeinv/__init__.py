@@ -25,7 +25,7 @@ _WHERE = {
     **dict.fromkeys(["DiscrepancyStop", "PlateauStop"], "training.stopping"),
     **dict.fromkeys(["load_run", "save_run"], "io.runs"),
     **dict.fromkeys(["Plan", "plan"], "training.plan"),
-    "PriorStage": "training.stages",
+    "PriorStage": "training.plan",
 }
 
 #: the names a user calls; everything else is reached by its module path (``pdeinv.inverse.TikhonovCG``)

@@ -9,7 +9,7 @@ import torch
 import pdeinv
 from pdeinv import nets
 from pdeinv.inverse import TikhonovCG
-from pdeinv.training import budget
+from pdeinv.training import plan as budget
 from pdeinv.util import memory
 
 

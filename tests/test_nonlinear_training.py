@@ -137,8 +137,8 @@ def test_the_default_network_beats_gauss_newton_on_sine_gordon_1d():
     (the CLI's 300-s fit on 65 536 draws: 0.054 on its 128 test rows)."""
     from pdeinv.methods.presets import make_rule
     from pdeinv.nets.refine import PriorFit
+    from pdeinv.training.plan import PriorStage
     from pdeinv.training.references import levenberg_marquardt
-    from pdeinv.training.stages import PriorStage
 
     p = pdeinv.load_problem("sine_gordon_1d")
     rule, hp = make_rule("sip", p, p.noise)
@@ -160,8 +160,8 @@ def test_the_default_network_beats_gauss_newton_on_allen_cahn_1d():
     (α 1e-4; 1e-3: 0.125)."""
     from pdeinv.methods.presets import make_rule
     from pdeinv.nets.refine import PriorFit
+    from pdeinv.training.plan import PriorStage
     from pdeinv.training.references import levenberg_marquardt
-    from pdeinv.training.stages import PriorStage
     from pdeinv.training.stopping import PlateauStop
 
     p = pdeinv.load_problem("allen_cahn_1d")

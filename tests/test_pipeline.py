@@ -10,7 +10,7 @@ import torch
 import pdeinv
 from pdeinv.cli import main
 from pdeinv.nets.refine import PriorFit
-from pdeinv.training.stages import NEGLIGIBLE, PriorStage, draw_count
+from pdeinv.training.plan import NEGLIGIBLE, PriorStage, draw_count
 from pdeinv.training.trainer import Trainer
 
 
@@ -42,8 +42,7 @@ def test_explain_prints_the_plan_and_writes_nothing(tmp_path, capsys):
 
 def test_the_plan_prices_what_the_guard_checks():
     """One size model: the plan's memory is the guard's estimate of that same run, with the stage's draws."""
-    from pdeinv.training.budget import run_bytes
-    from pdeinv.training.plan import plan
+    from pdeinv.training.plan import plan, run_bytes
 
     p = pdeinv.load_problem("heat_boxes", n=16)
     chosen = plan(p, "sip")

@@ -9,7 +9,7 @@ from pdeinv.fem.grid import GridMap, spacing
 from pdeinv.methods.presets import make_rule
 from pdeinv.nets.refine import PriorFit, Refined
 from pdeinv.problem.sampling import boxes, gaussian_random_field
-from pdeinv.training.stages import PriorStage
+from pdeinv.training.plan import PriorStage
 
 
 @pytest.mark.parametrize("name, kw", [("heat_1d", {}), ("heat_boxes", {"n": 8}), ("heat_3d", {"n": 4})])
@@ -111,7 +111,7 @@ def test_cli_runs_the_prior_stage_by_default_and_records_it(tmp_path):
     import json
 
     from pdeinv.cli import main
-    from pdeinv.training.stages import draw_count
+    from pdeinv.training.plan import draw_count
 
     p = pdeinv.load_problem("heat_1d", n=16)
     assert main(["train", "heat_1d", "--set", "n=16", "--steps", "3", "--prior-fit", "30", "--out",
@@ -269,7 +269,7 @@ def test_a_feed_computed_per_batch_fits_the_same_correction(monkeypatch, name, k
 
 
 def test_prior_draws_are_a_count_of_the_unknowns_and_the_same_for_the_same_seed(monkeypatch):
-    from pdeinv.training.stages import draw_count
+    from pdeinv.training.plan import draw_count
     from pdeinv.training.trainset import prior_rows
 
     assert draw_count(63) == 65536 and draw_count(3969) == 5039 and draw_count(29929) == 1670

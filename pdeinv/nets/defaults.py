@@ -184,7 +184,7 @@ def _prior_decoded(problem, rows_per_component) -> bool:
 
 def default_size(problem) -> tuple[int, int]:
     """``(parameters + buffers, widest layer)`` of :func:`default_model`'s network for ``problem``,
-    without building it (the memory guard, :func:`pdeinv.training.budget.check_training`; an upper bound:
+    without building it (the memory guard, :func:`pdeinv.training.plan.check_training`; an upper bound:
     the decoder may keep fewer than :data:`REDUCED_K_MAX` columns); a problem
     with its own ``model_factory`` gets the dense bound ``m² + m n + n`` (an upper bound for
     the scenes' MLP)."""
@@ -207,7 +207,7 @@ def network_size(problem, kind: str = "default", hidden=None) -> dict:
     building it: ``params`` (trained), ``buffers`` (fixed arrays: whitening basis, decoder, grid maps),
     ``build`` (bytes its construction needs on top: the prior draws and Gram matrix of
     :func:`prior_basis`), ``widest`` (its widest layer) and ``dtype_bytes``. Upper bounds (a decoder may
-    keep fewer columns); the memory guard (:func:`pdeinv.training.budget.check_training`) adds the
+    keep fewer columns); the memory guard (:func:`pdeinv.training.plan.check_training`) adds the
     training state per parameter. ``kind``: 'default', 'linear', 'whitened', 'reduced' or 'mlp'
     (``hidden`` given)."""
     m, n = problem.operator.n_out, problem.operator.n_in

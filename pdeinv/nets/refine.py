@@ -107,7 +107,7 @@ class PriorFit:
 EPOCHS = 60
 
 #: the most steps of a fit without a step count (the prior stage counts its own,
-#: :func:`pdeinv.training.stages.step_count`)
+#: :func:`pdeinv.training.plan.step_count`)
 MAX_STEPS = 8192
 
 

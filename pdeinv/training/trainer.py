@@ -31,7 +31,7 @@ from .checkpoint import Checkpoint, Position
 from .data import OwnData, own_data
 from .distributed import Single
 from .evaluation import check_evaluation, evaluate, metrics
-from .stages import PriorStage
+from .plan import PriorStage
 from .stopping import STILL_STEPS, at_rounding, converged, finished, parameters
 from .trainset import (
     BATCH_ORDER,
@@ -139,7 +139,7 @@ class Trainer:
 
     **Stages.** The rule's stage is the loop above. Then, where the network has a part fitted on the prior
     (:class:`~pdeinv.nets.refine.PriorFitted`: the default network's correction and data-consistency
-    layer), ``prior`` (a :class:`~pdeinv.training.stages.PriorStage`; ``"auto"``: the default one, as
+    layer), ``prior`` (a :class:`~pdeinv.training.plan.PriorStage`; ``"auto"``: the default one, as
     ``pdeinv train``; ``None``: none) fits it on draws of the scene's prior, or on own data's training rows
     when they carry ``x``, unless it decides beforehand that it cannot help (and says why).
     ``metrics["stages"]`` lists each stage with its held-out ``x_err``, ``y_err``, steps and seconds.
@@ -179,7 +179,7 @@ class Trainer:
     data: object = None  # own observations (B, m): array, tensor or torch Dataset
     data_x: object = None  # their true fields (B, N), for errors only
     parallel: object = field(default_factory=Single)  # pdeinv.training.distributed: Single or DataParallel
-    prior: PriorStage | None | str = "auto"  # the stage after the rule's (pdeinv.training.stages)
+    prior: PriorStage | None | str = "auto"  # the stage after the rule's (pdeinv.training.plan)
     history: list[dict] = field(default_factory=list, init=False)
     _target_info: dict | None = field(default=None, init=False, repr=False)
     _own: OwnData | None = field(default=None, init=False, repr=False)
@@ -234,7 +234,7 @@ class Trainer:
             self.prior = PriorStage()
         elif self.prior is not None and not isinstance(self.prior, PriorStage):
             raise TypeError(f"prior={self.prior!r} is not allowed; expected 'auto', None or a "
-                            "pdeinv.training.stages.PriorStage")
+                            "pdeinv.training.plan.PriorStage")
         self._preset = run_defaults(self.rule, self.model, self.problem)
         if self.steps == PRESET:
             self.steps = None if self.time_budget is not None else self._preset["steps"]
@@ -424,7 +424,7 @@ class Trainer:
                 **{k: last[k] for k in ("x_err", "y_err") if k in last}}
 
     def _prior_stage(self, run: _Run) -> dict:
-        """The prior stage (:class:`~pdeinv.training.stages.PriorStage`) after the rule's: decided on, run,
+        """The prior stage (:class:`~pdeinv.training.plan.PriorStage`) after the rule's: decided on, run,
         and reported with the refined network's test errors; its time counts as training time."""
         stage, t0 = self.prior, time.perf_counter()
         why = stage.why_not(self.problem, run.model, self._own, self.seed, self.problem.relative_error)

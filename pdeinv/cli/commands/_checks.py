@@ -60,10 +60,10 @@ def n_parameters(problem, hidden) -> int:
 
 
 def check_run(problem, args, hp: dict) -> None:
-    """Refuse a run that would not fit in memory (:func:`pdeinv.training.budget.check_training`) or a HIG
+    """Refuse a run that would not fit in memory (:func:`pdeinv.training.plan.check_training`) or a HIG
     run whose step would take longer than :data:`HIG_MAX_STEP_S` (unless ``--allow-slow``);
     warn when ``--export-samples`` is above ``--n-test``."""
-    from pdeinv.training.budget import check_training
+    from pdeinv.training.plan import check_training
     from pdeinv.training.trainset import N_TRAIN
 
     n_train = args.n_train or N_TRAIN
@@ -110,8 +110,8 @@ def check_run(problem, args, hp: dict) -> None:
 
 def _prior_draws(problem, args) -> int:
     """The prior draws the trainer will hold for the default network's prior stage (0 without one):
-    :func:`pdeinv.training.stages.draw_count`."""
-    from pdeinv.training.stages import draw_count
+    :func:`pdeinv.training.plan.draw_count`."""
+    from pdeinv.training.plan import draw_count
 
     if args.prior_fit == 0 or getattr(args, "net", "default") != "default" or args.hidden:
         return 0

@@ -262,10 +262,10 @@ def _network_spec(problem, hp: dict, net: str = "default", data: bool = False) -
 
 
 def _prior_stage(args):
-    """``--prior-fit N``: the prior stage (:class:`pdeinv.training.stages.PriorStage`) with at most N steps;
+    """``--prior-fit N``: the prior stage (:class:`pdeinv.training.plan.PriorStage`) with at most N steps;
     0: none; not given: the default stage, its counts derived from the problem."""
     from pdeinv.nets.refine import PriorFit
-    from pdeinv.training.stages import PriorStage
+    from pdeinv.training.plan import PriorStage
 
     if args.prior_fit is None:
         return PriorStage(PriorFit())
