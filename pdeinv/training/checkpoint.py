@@ -44,9 +44,8 @@ import torch
 from .._checks import count
 from ..util.files import atomic_write, plain, remove_stale_temporaries
 
-#: re-exported for one release: import them from :mod:`pdeinv.util.files`
-__all__ = ["Checkpoint", "atomic_write", "check_identity", "network_identity", "load_to_resume", "plain",
-           "Position", "check_resumable", "restore", "rng_states", "save", "run_identity", "set_rng_states"]
+__all__ = ["Checkpoint", "check_identity", "network_identity", "load_to_resume", "Position", "check_resumable",
+           "restore", "rng_states", "save", "run_identity", "set_rng_states"]
 
 FORMAT = "pdeinv-checkpoint"
 VERSION = 2  # 2: rule state = transformation + steps; identity with hyper-parameters
