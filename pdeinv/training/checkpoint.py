@@ -44,8 +44,8 @@ import torch
 from .._checks import count
 from ..util.files import atomic_write, plain, remove_stale_temporaries
 
-__all__ = ["Checkpoint", "check_identity", "network_identity", "load_to_resume", "Position", "check_resumable",
-           "restore", "rng_states", "save", "run_identity", "set_rng_states"]
+__all__ = ["Checkpoint", "check_identity", "network_identity", "load_to_resume", "Position",
+           "check_resumable", "restore", "rng_states", "save", "run_identity", "set_rng_states"]
 
 FORMAT = "pdeinv-checkpoint"
 VERSION = 2  # 2: rule state = transformation + steps; identity with hyper-parameters
