@@ -36,10 +36,10 @@ def one_line(capsys, head):
 
 def test_overwrite_clears_the_previous_runs_files_and_only_those(tmp_path, capsys):
     out = tmp_path / "run"
-    assert train(out, "--export-samples", "2", prior=None) == 0
+    assert train(out, "--export-samples", "2") == 0
     assert {"fields.vtu", "fields.png", "checkpoint.pt"} <= {p.name for p in out.iterdir()}
     (out / "notes.txt").write_text("mine")
-    assert train(out, "--export-samples", "0", "--checkpoint-every", "0", "--overwrite", prior=None) == 0
+    assert train(out, "--export-samples", "0", "--checkpoint-every", "0", "--overwrite") == 0
     names = {p.name for p in out.iterdir()}
     assert names == {"metrics.json", "history.csv", "training.png", "model.pt", "run.json", "notes.txt"}
     capsys.readouterr()
@@ -49,16 +49,15 @@ def test_a_stale_picture_alone_is_a_previous_run(tmp_path, capsys):
     out = tmp_path / "run"
     out.mkdir()
     (out / "fields.vtu").write_text("stale")
-    assert train(out, prior=None) == 2
+    assert train(out) == 2
     assert "fields.vtu exists; " in one_line(capsys, "pdeinv train: error: ")
 
 
 def test_a_failed_overwrite_run_never_names_the_old_checkpoint(tmp_path, capsys):
     out = tmp_path / "run"
-    assert train(out, "--checkpoint-every", "1", "--export-samples", "0", prior=None) == 0
+    assert train(out, "--checkpoint-every", "1", "--export-samples", "0") == 0
     capsys.readouterr()
-    code = train(out, "--set", "poison=1,2,3", "--max-failures", "3", "--overwrite", problem=FAULTS,
-                 prior=None)
+    code = train(out, "--set", "poison=1,2,3", "--max-failures", "3", "--overwrite", problem=FAULTS)
     err = capsys.readouterr().err.splitlines()[-1]
     assert code == 1 and "no checkpoint was written yet" in err and "last good checkpoint" not in err
     assert not (out / "checkpoint.pt").exists() and not (out / "metrics.json").exists()
@@ -66,19 +65,19 @@ def test_a_failed_overwrite_run_never_names_the_old_checkpoint(tmp_path, capsys)
 
 
 def test_resume_with_overwrite_is_refused(tmp_path, capsys):
-    assert train(tmp_path / "run", "--resume", "--overwrite", prior=None) == 2
+    assert train(tmp_path / "run", "--resume", "--overwrite") == 2
     assert "--resume and --overwrite conflict" in one_line(capsys, "pdeinv train: error: ")
 
 
 def test_resume_with_fewer_steps_than_done_is_refused(tmp_path, capsys):
     out = tmp_path / "run"
-    assert train(out, "--export-samples", "0", steps=6, prior=None) == 0
+    assert train(out, "--export-samples", "0", steps=6) == 0
     capsys.readouterr()
     before = (out / "metrics.json").read_bytes()
-    assert train(out, "--resume", "--export-samples", "0", steps=3, prior=None) == 2
+    assert train(out, "--resume", "--export-samples", "0", steps=3) == 2
     assert "6 steps done; steps=3 is below that" in one_line(capsys, "pdeinv train: error: ")
     assert (out / "metrics.json").read_bytes() == before
-    assert train(out, "--resume", "--export-samples", "0", steps=8, prior=None) == 0  # extending is fine
+    assert train(out, "--resume", "--export-samples", "0", steps=8) == 0  # extending is fine
     assert json.loads((out / "metrics.json").read_text())["steps"] == 8
 
 
@@ -86,7 +85,7 @@ def test_resume_with_fewer_steps_than_done_is_refused(tmp_path, capsys):
 def test_outputs_respect_the_umask(tmp_path, capsys, umask):
     old = os.umask(umask)
     try:
-        assert train(tmp_path / "run", "--export-samples", "1", prior=None) == 0
+        assert train(tmp_path / "run", "--export-samples", "1") == 0
     finally:
         os.umask(old)
     modes = {p.name: stat.S_IMODE(p.stat().st_mode) for p in (tmp_path / "run").iterdir()}
@@ -109,7 +108,7 @@ def test_a_full_disk_during_a_checkpoint_keeps_the_previous_one(tmp_path, capsys
         return real(obj, fh, *a, **kw)
 
     monkeypatch.setattr(pdeinv.training.checkpoint.torch, "save", save)
-    code = train(out, "--checkpoint-every", "1", "--export-samples", "0", steps=5, prior=None)
+    code = train(out, "--checkpoint-every", "1", "--export-samples", "0", steps=5)
     line = one_line(capsys, "pdeinv train: cannot write: checkpoint ")
     assert code == 1 and "No space left on device" in line and "previous checkpoint is intact" in line
     assert "--resume" in line
