@@ -22,7 +22,7 @@ def _run(problem, stop, steps=STEPS, **kw):
     inverse = default_inverse(problem.operator, alpha=default_alpha(problem.noise))
     rule = SIP(inverse=inverse, optimizer=sgd(1.0), normalize=True)
     return pdeinv.Trainer(problem, rule, steps=steps, seed=0, eval_every=10, progress=False,
-                          batch_size=32, stop=stop, target=None, **kw).fit()
+                          batch_size=32, stop=stop, target=None, **{"prior": None, **kw}).fit()
 
 
 @pytest.fixture(scope="module")

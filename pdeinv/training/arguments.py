@@ -212,3 +212,16 @@ def dtype(value):
         return value
     raise TypeError(f"dtype={_short(value)} is not allowed; expected None or a torch floating dtype "
                     "(torch.float32, torch.float64)")
+
+
+def prior(value):
+    """``prior=``: ``"auto"`` (the default :class:`~pdeinv.training.plan.PriorStage`), ``None`` (no prior
+    stage) or a stage object."""
+    from .plan import PriorStage
+
+    if isinstance(value, str) and value == "auto":
+        return PriorStage()
+    if value is not None and not isinstance(value, PriorStage):
+        raise TypeError(f"prior={_short(value)} is {_kind(value)}; expected 'auto', None or a "
+                        "pdeinv.PriorStage")
+    return value

@@ -230,11 +230,7 @@ class Trainer:
         self.fit_scaling = args.flag(self.fit_scaling, "fit_scaling")
         self.resume = args.flag(self.resume, "resume")
         self.progress = args.flag(self.progress, "progress", optional=True)
-        if isinstance(self.prior, str) and self.prior == "auto":
-            self.prior = PriorStage()
-        elif self.prior is not None and not isinstance(self.prior, PriorStage):
-            raise TypeError(f"prior={self.prior!r} is not allowed; expected 'auto', None or a "
-                            "pdeinv.training.plan.PriorStage")
+        self.prior = args.prior(self.prior)
         self._preset = run_defaults(self.rule, self.model, self.problem)
         if self.steps == PRESET:
             self.steps = None if self.time_budget is not None else self._preset["steps"]
