@@ -30,6 +30,8 @@ import numpy as np
 import torch
 from torch import nn
 
+from .corrections import SpectralFilter
+
 
 class DataConsistency(nn.Module):
     """``x ↦ x + synth (w ⊙ (y proj / g − x In))`` (module docstring); float64 throughout."""
@@ -45,12 +47,9 @@ class DataConsistency(nn.Module):
         self.register_buffer("synth", as64(modes.synth), persistent=False)
         self.register_buffer("weight", as64(g**2 / (g**2 + alpha)))
 
-    def _apply(self, fn, recurse=True):
-        """Moves with its network (a device) but stays float64: ``1/g`` reaches the basis' tolerance."""
-        for k, v in self._buffers.items():
-            moved = fn(v)
-            self._buffers[k] = v.to(moved.device) if moved.dtype != v.dtype else moved
-        return self
+    #: moves with its network (a device) but stays float64, as the filter does: ``1/g`` reaches the
+    #: basis' tolerance
+    _apply = SpectralFilter._apply
 
     def gaps(self, y: torch.Tensor, x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """``(d − c, c)``: the data's coefficients minus ``x``'s, and ``x``'s, per mode ``(B, k)``."""

@@ -427,10 +427,6 @@ class Trainer:
         if why is not None:
             return {"name": stage.name, "kept": False, "skipped": why, "seconds": time.perf_counter() - t0}
         info = stage.run(self.problem, run.model, self._own, self.seed)
-        if info.get("skipped") and self.parallel.is_writer:
-            warnings.warn(f"the network's prior part was not fitted: {info['skipped']}; it stays the rule's "
-                          "estimate (give x in the file to learn the prior from it)", RuntimeWarning,
-                          stacklevel=3)
         run.at.wall += time.perf_counter() - t0
         errors = {}
         if info.get("kept"):  # the run's last record: the refined network's test errors
