@@ -135,6 +135,7 @@ def files(tmp_path_factory):
     (d / "corrupt").mkdir()
     good = (d / "run" / "checkpoint.pt").read_bytes()
     (d / "corrupt" / "checkpoint.pt").write_bytes(good[: len(good) // 3])
+    (d / "corrupt" / ".pdeinv-run").write_bytes((d / "run" / ".pdeinv-run").read_bytes())  # a run's folder
     return d
 
 

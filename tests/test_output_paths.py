@@ -98,7 +98,7 @@ def test_save_run_creates_its_folder_and_loads_back(tmp_path):
 
 def test_the_policy_functions(tmp_path):
     (tmp_path / "run").mkdir()
-    (tmp_path / "run" / "run.json").write_text("{}")
+    (tmp_path / "run" / "run.json").write_text('{"format": "pdeinv-run"}')  # pdeinv's own record
     (tmp_path / "run" / "model.pt").write_text("weights")
     (tmp_path / "run" / "notes.txt").write_text("a user's notes")
     with pytest.raises(OutputPathError, match=r"out '' is empty"):

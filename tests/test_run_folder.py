@@ -14,6 +14,7 @@ import pytest
 
 from pdeinv import Checkpoint
 from pdeinv.cli import main
+from pdeinv.util.outpaths import RUN_MARKER
 
 FAULTS = str(Path(__file__).with_name("faults.py"))
 SMALL = ["--set", "n=16", "--n-train", "32", "--n-test", "16", "--batch-size", "8",
@@ -41,16 +42,19 @@ def test_overwrite_clears_the_previous_runs_files_and_only_those(tmp_path, capsy
     (out / "notes.txt").write_text("mine")
     assert train(out, "--export-samples", "0", "--checkpoint-every", "0", "--overwrite") == 0
     names = {p.name for p in out.iterdir()}
-    assert names == {"metrics.json", "history.csv", "training.png", "model.pt", "run.json", "notes.txt"}
+    assert names == {"metrics.json", "history.csv", "training.png", "model.pt", "run.json", "notes.txt",
+                     RUN_MARKER}
     capsys.readouterr()
 
 
-def test_a_stale_picture_alone_is_a_previous_run(tmp_path, capsys):
+def test_a_picture_alone_is_no_run_and_is_not_replaced(tmp_path, capsys):
     out = tmp_path / "run"
     out.mkdir()
     (out / "fields.vtu").write_text("stale")
-    assert train(out) == 2
-    assert "fields.vtu exists; " in one_line(capsys, "pdeinv train: error: ")
+    for extra in ([], ["--overwrite"]):  # a file with a run's name in an unmarked folder is the user's
+        assert train(out, *extra) == 2
+        assert "holds fields.vtu and is not a pdeinv run folder" in one_line(capsys, "pdeinv train: error: ")
+    assert (out / "fields.vtu").read_text() == "stale"
 
 
 def test_a_failed_overwrite_run_never_names_the_old_checkpoint(tmp_path, capsys):

@@ -13,7 +13,10 @@ builds the network from :data:`NETWORKS` and loads the state dict (strict). Both
 files are written atomically (:func:`pdeinv.util.files.atomic_write`).
 
 :data:`OUTPUTS` lists every file ``pdeinv train`` writes into ``DIR``;
-:func:`clear_outputs` removes those (and their stale temporaries), never other files.
+:func:`clear_outputs` removes those (and their stale temporaries), never other files. Before its first
+file, ``pdeinv train`` marks ``DIR`` as a run (:data:`pdeinv.util.outpaths.RUN_MARKER`): only a folder so
+marked (or holding a ``run.json`` of this format) is a run that ``--overwrite`` may replace
+(:func:`pdeinv.util.outpaths.run_folder`).
 """
 
 from __future__ import annotations
@@ -23,11 +26,13 @@ import os
 from pathlib import Path
 
 from ..util.files import atomic_write, remove_stale_temporaries
+from ..util.outpaths import RUN_FORMAT
 
-FORMAT, VERSION = "pdeinv-run", 1
+FORMAT, VERSION = RUN_FORMAT, 1
 RUN_FILE, MODEL_FILE = "run.json", "model.pt"
 
-#: every file ``pdeinv train`` writes into its ``--out`` folder (``.lock`` is the run lock's own)
+#: every file ``pdeinv train`` writes into its ``--out`` folder (``.lock`` is the run lock's own, the
+#: marker :data:`pdeinv.util.outpaths.RUN_MARKER` the folder's: it stays when ``--overwrite`` clears these)
 OUTPUTS = ("metrics.json", "history.csv", "training.png", MODEL_FILE, RUN_FILE, "checkpoint.pt",
            "fields.vtu", "fields.xdmf", "fields.png", "sensors.vtu")
 
@@ -103,14 +108,15 @@ def save_run(out: str | os.PathLike, problem, overrides: dict | None = None, net
     stands for its ``name``), ``overrides`` its settings (default none), ``network_spec`` the network's
     :data:`NETWORKS` entry (default ``{"kind": "default"}``, ``problem.model()``), ``model`` the trained
     network (``result.model``), e.g. ``save_run("runs/a", "heat_2d", model=result.model)``. ``out`` follows
-    the output-path policy (:mod:`pdeinv.util.outpaths`): created with its parents, refused in one line when
-    it cannot be written.
+    the output-path policy (:mod:`pdeinv.util.outpaths`, :func:`~pdeinv.util.outpaths.run_folder`): created
+    with its parents; refused in one line when it cannot be written or is a non-empty folder that holds no
+    pdeinv run (a run's ``run.json`` and ``model.pt`` are replaced).
     """
     import torch
 
     from ..problem.definition import Problem
     from ..training import arguments as _arguments
-    from ..util.outpaths import output_folder
+    from ..util.outpaths import run_folder
 
     if isinstance(problem, Problem):
         problem = problem.name
@@ -126,7 +132,7 @@ def save_run(out: str | os.PathLike, problem, overrides: dict | None = None, net
         raise ValueError(f"network_spec={network_spec!r} is not allowed; expected a dict with 'kind' one of "
                          f"{', '.join(map(repr, NETWORKS))}")
     network_spec = _with_correction(network_spec, model)
-    out = output_folder(out, "out")
+    out = run_folder(out, "out", replace=True, outputs=OUTPUTS)
     record = {"format": FORMAT, "version": VERSION, "problem": problem_spec(problem),
               "overrides": {k: str(v) for k, v in overrides.items()}, "network": network_spec}
     text = json.dumps(record, indent=2).encode()

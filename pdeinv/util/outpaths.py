@@ -1,13 +1,22 @@
 """One policy for every path pdeinv writes to (``train --out``, ``predict --out/--vtu``, ``show --png``,
 ``classical --out``, :func:`pdeinv.save_run`), checked before any work:
 
+* every path is **resolved first** (symbolic links, ``..``; :func:`resolve`): ``out/new/../../runs/h1``,
+  where ``out/new`` does not exist yet, is ``runs/h1``, and a link to a run is that run; every check
+  below and the write itself use the resolved path, and a refusal names both;
 * an empty path is refused (it would silently mean the current folder);
 * a path that resolves to an input of the command (``--data``, the run's ``model.pt``, the fields file
   being drawn) is refused: writing it would destroy that input;
-* an existing file inside a run folder (one holding ``run.json`` or ``metrics.json``): the run's own
-  outputs (:data:`pdeinv.io.runs.OUTPUTS`: ``training.png``, ``metrics.json``, ``model.pt``, …) and
-  whatever else is kept there, is refused unless the command owns that file (``pdeinv show`` redraws
-  ``fields.png``);
+* **a run folder** is one pdeinv marked as its own (:func:`is_run_folder`: the :data:`RUN_MARKER` file
+  ``pdeinv train`` writes before its first file, or a ``run.json`` with pdeinv's own ``"format"`` key),
+  never merely a folder holding a file named ``metrics.json``. ``train --out`` (:func:`run_folder`)
+  takes a new or empty folder, or a run folder; a run folder holding a run's files only with
+  ``--overwrite`` (which then removes only :data:`pdeinv.io.runs.OUTPUTS`) or ``--resume``. Any other
+  non-empty folder is refused, ``--overwrite`` or not, naming what it holds;
+* a single file (:func:`output_file`): an existing file inside a run folder (the run's own outputs and
+  whatever else is kept there) is refused unless the command owns that file (``pdeinv show`` redraws
+  ``fields.png``); any other existing file is replaced only with ``--overwrite``; something that is not a
+  regular file (a device, a pipe) never;
 * missing parent folders are created; a folder that cannot be created or written (read-only, under a
   file, no permission) is refused, naming the folder;
 * a file path that is an existing folder is refused (and the other way round).
@@ -18,6 +27,7 @@ with 2) that names the flag, the path and what to do.
 
 from __future__ import annotations
 
+import json
 import os
 import tempfile
 from collections.abc import Iterable
@@ -28,17 +38,74 @@ class OutputPathError(ValueError):
     """An output path pdeinv will not write to; the message names the flag and the path."""
 
 
-#: files whose presence makes a folder a run folder (``pdeinv train --out``)
-RUN_MARKERS = ("run.json", "metrics.json")
+#: the file ``pdeinv train`` writes into its ``--out`` folder before any other: the folder is a pdeinv run
+RUN_MARKER = ".pdeinv-run"
+#: ``run.json``'s ``"format"`` (:mod:`pdeinv.io.runs`): a run folder written before :data:`RUN_MARKER` existed
+RUN_FORMAT = "pdeinv-run"
+#: what an otherwise empty folder may hold: a killed run's lock (:mod:`pdeinv.util.runlock`), Finder's file
+IGNORED = (".lock", ".DS_Store")
+#: names a refusal lists before "and N more"
+LISTED = 6
 
 
 def _text(path) -> str:
     return os.fspath(path)
 
 
-def _writable(folder: Path, flag: str, path) -> None:
+def _named(flag: str, path, target: Path) -> str:
+    """``--out 'a/../b'`` and, where it differs, what it resolves to: ``(= '/home/u/b')``."""
+    text = _text(path)
+    plain = ".." not in Path(text).parts and os.path.abspath(text) == str(target)
+    return f"{flag} {text!r}" + ("" if plain else f" (= {str(target)!r})")
+
+
+def _empty(path, flag: str) -> None:
+    if path is None or not _text(path).strip():
+        raise OutputPathError(f"{flag} {'' if path is None else _text(path)!r} is empty; expected a path")
+
+
+def resolve(path, flag: str = "out") -> Path:
+    """``path`` absolute, with its links followed and its ``..`` taken, whether or not it exists: the
+    file or folder a write would reach. ``out/new/../../runs/h1`` is ``runs/h1`` even where ``out/new``
+    does not exist (where the operating system would create ``out/new`` on the way and then reach
+    ``runs/h1`` anyway)."""
+    _empty(path, flag)
+    return Path(os.path.realpath(os.path.abspath(os.fspath(path))))
+
+
+def is_run_folder(folder) -> bool:
+    """Whether ``folder`` holds a pdeinv run: :data:`RUN_MARKER`, or a ``run.json`` whose ``"format"``
+    is pdeinv's (a folder with a user's own ``metrics.json`` or ``run.json`` is not one)."""
+    folder = Path(folder)
+    if (folder / RUN_MARKER).is_file():
+        return True
+    try:
+        record = json.loads((folder / "run.json").read_text())
+    except (OSError, ValueError, UnicodeDecodeError):
+        return False
+    return isinstance(record, dict) and record.get("format") == RUN_FORMAT
+
+
+def mark_run_folder(folder) -> None:
+    """Write :data:`RUN_MARKER` into ``folder`` (before a run's first file)."""
+    marker = Path(folder) / RUN_MARKER
+    if not marker.is_file():
+        marker.write_text(json.dumps({"format": RUN_FORMAT}) + "\n")
+
+
+def contents(folder) -> list[str]:
+    """The names in ``folder`` (sorted, :data:`IGNORED` left out)."""
+    return sorted(p.name for p in Path(folder).iterdir() if p.name not in IGNORED)
+
+
+def _listing(names: list[str]) -> str:
+    more = len(names) - LISTED
+    return ", ".join(names[:LISTED]) + (f" and {more} more" if more > 0 else "")
+
+
+def _writable(folder: Path, flag: str, named: str, target: Path) -> None:
     """Create ``folder`` (and its parents) and prove it writable, or refuse in one line."""
-    where = "" if Path(path) == folder else f": {_text(folder)!r}"
+    where = "" if target == folder else f": {str(folder)!r}"
     try:
         folder.mkdir(parents=True, exist_ok=True)
         with tempfile.TemporaryFile(dir=folder):
@@ -46,58 +113,90 @@ def _writable(folder: Path, flag: str, path) -> None:
     except OSError as err:
         why = "a file is in the way" if isinstance(err, (FileExistsError, NotADirectoryError)) else \
             err.strerror or str(err)
-        raise OutputPathError(f"{flag} {_text(path)!r}{where} is not a writable directory ({why}); "
+        raise OutputPathError(f"{named}{where} is not a writable directory ({why}); "
                               f"choose another {flag}") from None
 
 
-def _not_an_input(path: Path, flag: str, inputs: Iterable) -> None:
-    target = path.resolve()
+def _not_an_input(target: Path, named: str, flag: str, inputs: Iterable) -> None:
     for name, p in inputs:
-        if p and Path(p).resolve() == target:
-            raise OutputPathError(f"{flag} {_text(path)!r} is the same file as {name}: writing it would "
+        if p and _text(p).strip() and resolve(p) == target:
+            raise OutputPathError(f"{named} is the same file as {name}: writing it would "
                                   f"destroy that input; choose another {flag}")
 
 
 def run_output(path) -> bool:
-    """Whether ``path`` is an existing file of a run folder (one holding :data:`RUN_MARKERS`): the run's
+    """Whether ``path`` (resolved) is an existing file of a run folder (:func:`is_run_folder`): the run's
     own results (``training.png``, ``metrics.json``, ``model.pt``, … :data:`pdeinv.io.runs.OUTPUTS`) or
     anything else kept there."""
-    path = Path(path)
-    return path.is_file() and any((path.parent / m).is_file() for m in RUN_MARKERS)
+    path = resolve(path)
+    return path.is_file() and is_run_folder(path.parent)
 
 
 def output_file(path, flag: str = "out", inputs: Iterable = (), owns: Iterable[str] = (),
-                suffixes: Iterable[str] | None = None) -> Path:
-    """``path`` as a file this command may write (module docstring), its folder created.
+                suffixes: Iterable[str] | None = None, overwrite: bool = False) -> Path:
+    """``path`` resolved (:func:`resolve`), as a file this command may write (module docstring), its
+    folder created; write the path returned.
 
     ``inputs``: ``(name, path)`` pairs the command reads; ``owns``: run-output names the command
-    itself writes (allowed inside a run folder); ``suffixes``: the allowed endings (``None``: any).
+    itself writes (replaced inside a run folder); ``suffixes``: the allowed endings (``None``: any);
+    ``overwrite``: an existing file outside a run folder may be replaced (``--overwrite``).
     """
-    if path is None or not _text(path).strip():
-        raise OutputPathError(f"{flag} {'' if path is None else _text(path)!r} is empty; expected a path")
-    path = Path(path)
-    _not_an_input(path, flag, inputs)
-    if path.name not in set(owns) and run_output(path):
-        raise OutputPathError(f"{flag} {_text(path)!r} is one of that run's own files ({path.name}); "
+    target = resolve(path, flag)
+    named = _named(flag, path, target)
+    _not_an_input(target, named, flag, inputs)
+    in_run = is_run_folder(target.parent)
+    if target.is_file() and in_run and target.name not in set(owns):
+        raise OutputPathError(f"{named} is one of that run's own files ({target.name}); "
                               f"writing it would replace the run's result; choose another {flag}")
     suffixes = tuple(suffixes) if suffixes is not None else None
-    if suffixes and path.suffix not in suffixes:
-        raise OutputPathError(f"{flag} {_text(path)!r}: expected a file name ending in "
-                              f"{' or '.join(suffixes)}")
-    if path.is_dir():
-        raise OutputPathError(f"{flag} {_text(path)!r} is a directory; expected a file name"
+    if suffixes and target.suffix not in suffixes:
+        raise OutputPathError(f"{named}: expected a file name ending in {' or '.join(suffixes)}")
+    if target.is_dir():
+        raise OutputPathError(f"{named} is a directory; expected a file name"
                               + (f" ending in {' or '.join(suffixes)}" if suffixes else ""))
-    _writable(path.parent, flag, path)
-    return path
+    if target.exists() and not target.is_file():
+        raise OutputPathError(f"{named} is not a regular file (a device, a pipe or a socket); "
+                              f"choose another {flag}")
+    if target.is_file() and not in_run and not overwrite:
+        raise OutputPathError(f"{named} exists; pass --overwrite to replace it, or choose another {flag}")
+    _writable(target.parent, flag, named, target)
+    return target
 
 
 def output_folder(path, flag: str = "out", inputs: Iterable = ()) -> Path:
-    """``path`` as a folder this command may write into (module docstring), created."""
-    if path is None or not _text(path).strip():
-        raise OutputPathError(f"{flag} {'' if path is None else _text(path)!r} is empty; expected a path")
-    path = Path(path)
-    if path.exists() and not path.is_dir():
-        raise OutputPathError(f"{flag} {_text(path)!r} is a file; expected a directory")
-    _not_an_input(path, flag, inputs)
-    _writable(path, flag, path)
-    return path
+    """``path`` resolved (:func:`resolve`), as a folder this command may write into (module docstring),
+    created."""
+    target = resolve(path, flag)
+    named = _named(flag, path, target)
+    if target.exists() and not target.is_dir():
+        raise OutputPathError(f"{named} is a file; expected a directory")
+    _not_an_input(target, named, flag, inputs)
+    _writable(target, flag, named, target)
+    return target
+
+
+def run_folder(path, flag: str = "out", replace: bool = False, outputs: Iterable[str] = (),
+               create: bool = True) -> Path:
+    """``path`` resolved (:func:`resolve`) as the folder of a pdeinv run (``pdeinv train --out``,
+    :func:`pdeinv.save_run`): new, empty, or a run folder (:func:`is_run_folder`) whose ``outputs``
+    (:data:`pdeinv.io.runs.OUTPUTS`) may be replaced only with ``replace`` (``--overwrite``,
+    ``--resume``); any other non-empty folder is refused, naming what it holds. ``create``: create it
+    now (else only check it; :func:`output_folder` creates it later)."""
+    target = resolve(path, flag)
+    named = _named(flag, path, target)
+    if target.exists() and not target.is_dir():
+        raise OutputPathError(f"{named} is a file; expected a directory")
+    held = contents(target) if target.is_dir() else []
+    if held and not is_run_folder(target):
+        raise OutputPathError(f"{named} holds {_listing(held)} and is not a pdeinv run folder (no "
+                              f"{RUN_MARKER}, no run.json of pdeinv's): pdeinv writes a run only into a new "
+                              f"or empty folder, and --overwrite replaces only a pdeinv run; choose another "
+                              f"{flag}")
+    found = [name for name in outputs if (target / name).is_file()]
+    if found and not replace:
+        raise OutputPathError(f"{named}: {found[0]} exists; choose another {flag}, pass --resume to "
+                              f"continue that run or --overwrite to replace it (a previous run's files: "
+                              f"{', '.join(found)})")
+    if create:
+        _writable(target, flag, named, target)
+    return target

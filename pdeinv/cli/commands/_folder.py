@@ -9,12 +9,13 @@ from __future__ import annotations
 
 
 class Fresh:
-    """``--overwrite``: delete the previous run's files once, just before this run writes its first
-    file, so a run refused while setting up (a bad setting, a memory estimate) leaves them intact and
-    one that trained never leaves a mix of two runs."""
+    """Called just before this run writes its first file: marks the folder as a pdeinv run
+    (:func:`pdeinv.util.outpaths.mark_run_folder`, what lets a later ``--overwrite`` replace it) and, with
+    ``--overwrite``, deletes the previous run's files once, so a run refused while setting up (a bad
+    setting, a memory estimate) leaves them intact and one that trained never leaves a mix of two runs."""
 
     def __init__(self, out, enabled: bool):
-        self.out, self.pending = out, enabled
+        self.out, self.pending, self.marked = out, enabled, False
 
     def __call__(self) -> None:
         if self.pending:
@@ -22,6 +23,11 @@ class Fresh:
 
             clear_outputs(self.out)
             self.pending = False
+        if not self.marked:
+            from pdeinv.util.outpaths import mark_run_folder
+
+            mark_run_folder(self.out)
+            self.marked = True
 
 
 class FolderCheckpoint:

@@ -46,8 +46,10 @@ def cmd_classical(args) -> int:
     from pdeinv.training.data import read_meta, read_npz
     from pdeinv.util.files import atomic_write
 
-    # the one output-path policy (pdeinv.util.outpaths): folder created, never the --data file
-    out = None if args.out is None else output_file(args.out, "--out", [("--data", args.data)])
+    # the one output-path policy (pdeinv.util.outpaths): resolved, folder created, never the --data file, a
+    # run's file or (without --overwrite) any existing file
+    out = None if args.out is None else output_file(args.out, "--out", [("--data", args.data)],
+                                                    overwrite=args.overwrite)
     set_threads(args.threads)
     problem = build_problem("classical", args.problem, args.set)
     y, x = read_npz(args.data, problem.operator.n_out, problem.N)
@@ -179,6 +181,7 @@ def add_parser(sub) -> None:
     c.add_argument("problem")
     c.add_argument("--data", required=True, metavar="FILE.npz", help="y (B, m), optionally x (B, N)")
     c.add_argument("--out", default=None, metavar="FILE.json", help="also write the numbers as JSON")
+    c.add_argument("--overwrite", action="store_true", help="replace an existing --out file")
     add_set_argument(c)
     c.add_argument("--threads", type=int, default=1, help="threads of torch and of numpy/scipy's BLAS")
     c.add_argument("--accept-bad", action="store_true",

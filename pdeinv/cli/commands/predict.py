@@ -34,10 +34,13 @@ def cmd_predict(args) -> int:
 
     run = Path(args.run)
     run_files = [("the run's model", run / "model.pt"), ("the run's record", run / "run.json")]
-    out = output_file(args.out, "--out", [("--data", args.data), *run_files], suffixes=(".npz",))
-    if args.vtu is not None:  # the one output-path policy (pdeinv.util.outpaths)
-        output_file(args.vtu, "--vtu", [("--data", args.data), *run_files, ("--out", args.out)],
-                    suffixes=(".vtu", ".xdmf"))
+    # the one output-path policy (pdeinv.util.outpaths): resolved, never an input, a run's file or (without
+    # --overwrite) any existing file
+    out = output_file(args.out, "--out", [("--data", args.data), *run_files], suffixes=(".npz",),
+                      overwrite=args.overwrite)
+    vtu = None if args.vtu is None else output_file(
+        args.vtu, "--vtu", [("--data", args.data), *run_files, ("--out", args.out)],
+        suffixes=(".vtu", ".xdmf"), overwrite=args.overwrite)
     set_threads(args.threads)
     problem, model = load_run(args.run)
     y, x = read_npz(args.data, problem.operator.n_out, problem.N)
@@ -55,10 +58,11 @@ def cmd_predict(args) -> int:
     buffer = io.BytesIO()
     np.savez(buffer, x=xhat)
     atomic_write(out, lambda fh: fh.write(buffer.getvalue()))
-    if args.vtu:
-        write_fields(args.vtu, problem, x, xhat, y, problem.operator.forward(xhat))
+    if vtu is not None:
+        write_fields(vtu, problem, x, xhat, y, problem.operator.forward(xhat))
     error = "" if x is None else f", x_err {float(np.mean(problem.relative_error(xhat, x))):.3g}"
-    print(f"{problem.name}: {len(xhat)} predictions{error} -> {out}" + (f", {args.vtu}" if args.vtu else ""))
+    print(f"{problem.name}: {len(xhat)} predictions{error} -> {args.out}"
+          + (f", {args.vtu}" if args.vtu else ""))
     return 0
 
 
@@ -70,6 +74,8 @@ def add_parser(sub) -> None:
     p.add_argument("--out", required=True, metavar="FILE.npz", help="where to write x (B, N)")
     p.add_argument("--vtu", default=None, metavar="FILE.vtu",
                    help="also write the predicted fields (and true ones and errors, with x) for ParaView")
+    p.add_argument("--overwrite", action="store_true",
+                   help="replace an existing --out or --vtu file (never a run's own files nor an input)")
     p.add_argument("--threads", type=int, default=1,
                    help="threads of torch and of numpy/scipy's BLAS (default 1)")
     p.set_defaults(func=cmd_predict)

@@ -37,10 +37,10 @@ def cmd_show(args) -> int:
     # the one output-path policy (pdeinv.util.outpaths): never the fields file drawn, nor another of the
     # run's files (--png RUN/training.png once replaced the run's training curves)
     png = output_file(args.png if args.png is not None else run / "fields.png", "--png",
-                      [("the fields file drawn", found[0])], owns=("fields.png",))
+                      [("the fields file drawn", found[0])], owns=("fields.png",), overwrite=args.overwrite)
     points, cells, fields = read_fields(found[0])
     save_fields_png(png, points, cells, fields, samples=_samples(args.samples), title=run.name)
-    print(f"wrote {png}")
+    print(f"wrote {args.png if args.png is not None else run / 'fields.png'}")
     return 0
 
 
@@ -51,4 +51,6 @@ def add_parser(sub) -> None:
     s.add_argument("--png", default=None, metavar="FILE.png",
                    help="output file (default DIR/fields.png; its folder is created; never another of the "
                         "run's files)")
+    s.add_argument("--overwrite", action="store_true",
+                   help="replace an existing --png file (the run's own fields.png is redrawn without it)")
     s.set_defaults(func=cmd_show)

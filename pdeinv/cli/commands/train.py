@@ -17,7 +17,6 @@ from . import (
     add_set_argument,
     build_problem,
     no_cache,
-    out_path,
     parse_sets,
     prepare_out,
     set_threads,
@@ -83,17 +82,17 @@ def _one_line(message, category, filename, lineno, file=None, line=None) -> None
     print(f"pdeinv train: warning: {message}", file=sys.stderr)
 
 
-def _check_flags(args, out) -> None:
-    """Refuse conflicting flags and an ``--out`` holding another run's files, before any work."""
-    from pdeinv.io.runs import existing_outputs
+def _check_flags(args) -> Path:
+    """Refuse conflicting flags, and an ``--out`` holding another run's files (without ``--resume`` or
+    ``--overwrite``) or anything not a pdeinv run's (:func:`pdeinv.util.outpaths.run_folder`), before any
+    work; the resolved ``--out``."""
+    from pdeinv.io.runs import OUTPUTS
+    from pdeinv.util.outpaths import run_folder
 
     if args.resume and args.overwrite:
         raise UsageError("--resume and --overwrite conflict: --resume continues the run in --out, "
                          "--overwrite deletes it; pass one of them")
-    found = existing_outputs(out) if out.is_dir() else []
-    if found and not (args.overwrite or args.resume):
-        raise UsageError(f"{out / found[0]} exists; choose another --out, pass --resume to continue that "
-                         f"run or --overwrite to replace it (a previous run's files: {', '.join(found)})")
+    out = run_folder(args.out, "--out", replace=args.overwrite or args.resume, outputs=OUTPUTS, create=False)
     if args.checkpoint_every < 0:
         raise UsageError(f"--checkpoint-every {args.checkpoint_every} is not allowed; "
                          "expected an integer >= 1, or 0 for no checkpoints")
@@ -112,6 +111,7 @@ def _check_flags(args, out) -> None:
     if args.data and args.n_train is not None:
         raise UsageError("--n-train does not apply with --data: the file's rows train, except the last "
                          "--n-test (and the stopping rule's) rows, which are held out")
+    return out
 
 
 class _Heartbeat:
@@ -168,9 +168,8 @@ def _train(args) -> int:
     if args.out is None:
         raise UsageError("--out DIR is required: the folder for the run's files (or --explain to see the "
                          "plan without training)")
-    out = out_path(args.out)
+    out = _check_flags(args)  # resolved: links and `..` taken (pdeinv.util.outpaths)
     ckpt = out / "checkpoint.pt"
-    _check_flags(args, out)
     try:
         device = resolve(args.device)
     except ValueError as err:
@@ -413,7 +412,7 @@ def _run(args, out, problem, overrides, net, hp, trainer, fresh, setup=None, cho
             written |= {Path(p).name for p in files.values()}
         clear_outputs(out, keep=written)  # e.g. fields.vtu of an earlier run or a resumed one
         print(f"{problem.name} {'; '.join(_stage_line(st) for st in metrics['stages'])}; "
-              f"{metrics['wall_s']:.2f} s -> {out}")
+              f"{metrics['wall_s']:.2f} s -> {args.out}")
         return _verdict(metrics["failed"], args.accept_bad, out)
 
 
@@ -560,7 +559,8 @@ def _run_arguments(t) -> None:
                    help="write fields.vtu (ParaView) and fields.png for K test samples (0: none)")
     t.add_argument("--overwrite", action="store_true",
                    help="delete the previous run's files in DIR first (only files pdeinv train writes: "
-                        "metrics.json, checkpoint.pt, model.pt, fields.vtu, ...); not with --resume")
+                        "metrics.json, checkpoint.pt, model.pt, fields.vtu, ...; only in a folder pdeinv "
+                        "marked as a run's, never another non-empty folder); not with --resume")
     t.add_argument("--checkpoint-every", type=int, default=100, metavar="K",
                    help="save DIR/checkpoint.pt atomically every K steps and at the end (0: never)")
     t.add_argument("--resume", action="store_true",
