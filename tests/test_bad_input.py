@@ -149,7 +149,7 @@ CLI = [
     ("unknown-problem", ["heat_4d"], r"unknown problem 'heat_4d'; available: .*heat_1d"),
     ("missing-module", ["{d}/nope.py"], r"problem module '.*nope\.py' does not exist"),
     ("module-without-make", ["{d}/nomake.py"], r"has no function make"),
-    ("make-returns-wrong-type", ["{d}/wrongtype.py"], r"make\(\) returned int; expected pdeinv\.Problem"),
+    ("make-returns-wrong-type", ["{d}/wrongtype.py"], r"make\(\) returned int; expected a pdeinv\.Problem"),
     ("unknown-override", ["heat_1d", "--set", "kapa=1"], r"unknown setting.*'kapa'.*allowed:.*kappa"),
     ("override-not-a-number", ["heat_1d", "--set", "T=soon"], r"T='soon' is not a number"),
     ("override-not-key-value", ["heat_1d", "--set", "kappa"], r"--set 'kappa' is not KEY=VALUE"),

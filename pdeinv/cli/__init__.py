@@ -1,7 +1,8 @@
 """Command line: ``pdeinv demo | train | ...``, one module per subcommand in :mod:`pdeinv.cli.commands`.
 
 Errors a user can fix (bad settings, missing files, an ``--out`` folder another run
-holds) end with exit code 2 and a one-line message on stderr, never a traceback; a
+holds, a user's problem module that fails) end with exit code 2 and a one-line message on stderr, never a
+traceback (``-v`` prints the traceback of what a user's module raised before that line); a
 numerical failure on valid input (:mod:`pdeinv.errors`) or running out of memory ends
 with exit code 1 and one line that says what to change; a training run that failed its
 final check (:mod:`pdeinv.training.verdict`: worse than predicting zero) ends with exit code 3 and one
@@ -90,6 +91,10 @@ def _main(argv=None) -> int:
         print(f"pdeinv {args.command}: numerical failure: {err}", file=sys.stderr)
         return 1
     except (UsageError, FolderLocked, ValueError, FileNotFoundError, NotImplementedError) as err:
+        if getattr(args, "verbose", False) and err.__cause__ is not None:  # e.g. a user's problem module
+            import traceback
+
+            traceback.print_exception(err.__cause__, file=sys.stderr)
         print(f"pdeinv {args.command}: error: {err}", file=sys.stderr)
         return 2
     except OSError as err:  # a folder that went away or became read-only after the checks, a full disk

@@ -145,32 +145,98 @@ def find_module(name_or_path: str | os.PathLike) -> Path:
     return path
 
 
+class ProblemModuleError(ValueError):
+    """A user's problem module that cannot be imported, whose ``make`` raises or exits, or that returns no
+    :class:`Problem`. The message is one line: the module's file, the line that failed (the innermost in
+    the module's own file, or the syntax error's) and the exception's type and message; ``__cause__`` is
+    the exception itself (the CLI prints its traceback with ``-v``)."""
+
+
+def _failure(path: Path, err: BaseException, where: str) -> ProblemModuleError:
+    """``err`` raised while importing ``path`` or calling its ``make``, as one line naming file and line."""
+    import traceback
+
+    mine = [f for f in traceback.extract_tb(err.__traceback__) if Path(f.filename) == path]
+    line = f", line {mine[-1].lineno}, in {mine[-1].name}" if mine else ""
+    if isinstance(err, SyntaxError):  # its own file and line (the module's, or a helper it imports)
+        other = "" if err.filename and Path(err.filename) == path else f" in {err.filename!r}"
+        line = f", line {err.lineno}" if not other else line
+        what = f"SyntaxError{other}: {err.msg}" + (f" (line {err.lineno})" if other else "")
+    elif isinstance(err, SystemExit):
+        what = f"called sys.exit({err.code!r}); expected make(**overrides) to return a pdeinv.Problem"
+    else:
+        text = (str(err).strip().splitlines() or [""])[0][:300]
+        what = f"{type(err).__name__}: {text}" if text else type(err).__name__
+    return ProblemModuleError(f"problem module {where}{line}: {what}")
+
+
+def _pdeinvs_own(path: Path, err: Exception) -> bool:
+    """Whether ``err`` is one of pdeinv's own one-line errors (a setting refused, a mesh file missing, a
+    numerical failure) raised in pdeinv's code that the module's ``make`` called: its message stands."""
+    import traceback
+
+    from ..errors import numerical_types
+
+    package, loader = Path(__file__).resolve().parent.parent, Path(__file__).resolve()
+    for frame in reversed(traceback.extract_tb(err.__traceback__)):
+        here = Path(frame.filename)
+        if here == path or here == loader:  # the module's own code, or its import (a null byte: ValueError)
+            return False
+        if here.is_relative_to(package):
+            return isinstance(err, (ValueError, FileNotFoundError, NotImplementedError, MemoryError,
+                                    *numerical_types()))
+    return False
+
+
+def _run_module(path: Path, overrides: dict, where: str) -> Problem:
+    """Import the module at ``path`` and call its ``make(**overrides)``. A user's module that fails is a
+    :class:`ProblemModuleError` in one line; a built-in's failure keeps its own exception (a bug)."""
+    builtin = path.parent == builtin_dir().resolve()
+    mod_spec = importlib.util.spec_from_file_location(f"pdeinv_problem_{path.stem}", path)
+    module = importlib.util.module_from_spec(mod_spec)
+    try:
+        mod_spec.loader.exec_module(module)
+        make = getattr(module, "make", None)
+        if not callable(make):
+            raise ProblemModuleError(f"problem module {where} has no function make(**overrides)")
+        problem = make(**overrides)
+    except (Exception, SystemExit) as err:
+        if builtin or isinstance(err, ProblemModuleError) or (
+                isinstance(err, Exception) and _pdeinvs_own(path, err)):
+            raise
+        raise _failure(path, err, where) from err
+    if not isinstance(problem, Problem):
+        raise ProblemModuleError(f"problem module {where}: make() returned {type(problem).__name__}; "
+                                 "expected a pdeinv.Problem")
+    return problem
+
+
 def load_problem(name_or_path: str | os.PathLike, **overrides) -> Problem:
     """Import ``problems/<name>.py`` (or a module file by path) and call ``make(**overrides)``.
 
     ``name_or_path``: a built-in or user problem name (:func:`available` lists them; looked up as
     :func:`find_module` says) or the path of a module file with ``make(**overrides)``; ``overrides``
-    are the problem's settings (``pdeinv problems`` lists them), strings coerced.
+    are the problem's settings (``pdeinv problems`` lists them), strings coerced. A user's module that
+    cannot be imported, whose ``make`` raises or calls ``sys.exit``, or that returns no :class:`Problem`
+    raises :class:`ProblemModuleError` (a ``ValueError``), one line naming its file and line; pdeinv's own
+    errors raised inside ``make`` (a setting refused, a mesh file missing) keep their message.
     """
     if isinstance(name_or_path, Problem):
         raise TypeError(f"name_or_path is already a Problem ({name_or_path.name!r}); use it as it is, or "
                         f"load_problem({name_or_path.name!r}, **overrides) for other settings")
-    if not isinstance(name_or_path, (str, os.PathLike)) or not os.fspath(name_or_path).strip():
-        raise TypeError(f"name_or_path={name_or_path!r} is not allowed; expected a problem name (str: "
-                        f"{', '.join(map(repr, available()[:4]))}, ...; pdeinv.available() lists them) or "
-                        "the path of a module file with make(**overrides)")
-    path = find_module(name_or_path)
-    folder = str(path.resolve().parent)
-    if folder not in sys.path and path.resolve().parent != builtin_dir().resolve():
+    expected = (f"expected a problem name (str: {', '.join(map(repr, available()[:4]))}, ...; "
+                "pdeinv.available() lists them) or the path of a module file with make(**overrides)")
+    if not isinstance(name_or_path, (str, os.PathLike)):
+        raise TypeError(f"name_or_path={name_or_path!r} is not allowed; {expected}")
+    if not os.fspath(name_or_path).strip():
+        raise ValueError(f"name_or_path={name_or_path!r} is empty; {expected}")
+    path = find_module(name_or_path).resolve()
+    spec = os.fspath(name_or_path)
+    by_name = not (spec.endswith(".py") or os.sep in spec or "/" in spec)
+    where = repr(str(path)) + (" (found by name in the current folder)"
+                               if by_name and path.parent == Path.cwd().resolve() else "")
+    folder = str(path.parent)
+    if folder not in sys.path and path.parent != builtin_dir().resolve():
         # a user's module: its siblings import as a script's do (a helper next to the module)
         sys.path.insert(0, folder)
-    mod_spec = importlib.util.spec_from_file_location(f"pdeinv_problem_{path.stem}", path)
-    module = importlib.util.module_from_spec(mod_spec)
-    mod_spec.loader.exec_module(module)
-    make = getattr(module, "make", None)
-    if not callable(make):
-        raise ValueError(f"problem module {str(path)!r} has no function make(**overrides)")
-    problem = make(**overrides)
-    if not isinstance(problem, Problem):
-        raise ValueError(f"{str(path)}: make() returned {type(problem).__name__}; expected pdeinv.Problem")
-    return problem
+    return _run_module(path, overrides, where)

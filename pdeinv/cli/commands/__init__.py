@@ -53,6 +53,9 @@ def build_problem(command: str, name: str, sets: list[str], after_s: float = 1.0
     import pdeinv
     from pdeinv.physics.backends.compiled import expecting
 
+    if not str(name).strip():
+        raise UsageError(f"PROBLEM {name!r} is empty; expected a problem name (pdeinv problems lists them) "
+                         "or the path of a module file with make(**overrides)")
     overrides = parse_sets(sets)
     what = f"{name} ({', '.join(f'{k}={v}' for k, v in overrides.items())})" if overrides else name
     t0 = time.perf_counter()
