@@ -92,8 +92,26 @@ class Discretization:
         return np.sqrt(np.einsum("bi,bi->b", X, (self.M @ X.T).T).clip(min=0))
 
     def relative_error(self, Xhat: np.ndarray, X: np.ndarray) -> np.ndarray:
-        """Relative L²(Ω) error per sample, ``‖x̂ − x‖_M / ‖x‖_M``."""
-        return self.norm(np.asarray(Xhat) - np.asarray(X)) / self.norm(X)
+        """Relative L²(Ω) error per sample, ``‖x̂ − x‖_M / ‖x‖_M``; a row with ``x = 0`` is measured
+        against the batch's scale instead (:func:`relative_norms`)."""
+        return relative_norms(self.norm(np.asarray(Xhat) - np.asarray(X)), self.norm(X))
+
+
+def relative_norms(diff, ref) -> np.ndarray:
+    """``diff_b / ref_b`` per row: the relative error of each row of a batch from its norms.
+
+    A row whose reference is zero (an empty box: valid data) has no relative error of its own; it is
+    divided by the root-mean-square of the batch's nonzero reference norms instead, so its error is on
+    the data's scale, finite, and 0 when the row is reproduced exactly. A batch with no nonzero
+    reference gives the absolute norms ``diff``. NaN stays NaN (never replaced by the scale).
+    """
+    diff, ref = np.asarray(diff, dtype=float), np.asarray(ref, dtype=float)
+    zero = ref == 0
+    if not zero.any():
+        return diff / ref
+    nonzero = ref[~zero & np.isfinite(ref)]
+    scale = float(np.sqrt(np.mean(nonzero**2))) if nonzero.size else 1.0
+    return diff / np.where(zero, scale, ref)
 
 
 def discretize(

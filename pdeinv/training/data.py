@@ -257,15 +257,18 @@ class OwnData:
                          "the last n_test rows test"}
 
 
-def _no_repeats(y: np.ndarray) -> None:
-    """Refuse observations that are one row repeated; warn when rows repeat (a row in both the training
-    and the test set makes the test errors optimistic)."""
+def _no_repeats(y: np.ndarray, warn: bool = True) -> None:
+    """Refuse observations that are one row repeated; warn (``warn``) when rows repeat (a row in both the
+    training and the test set makes the test errors optimistic). All-zero rows are not counted as
+    repeats: every empty field (an empty box) is observed as zero, and such rows are valid data."""
     distinct = len(np.unique(y, axis=0))
     if distinct == 1 and len(y) > 1:
         raise ValueError(f"data: all {len(y)} rows are the same observation; expected distinct samples (a "
                          "network trained on one observation learns nothing about the others)")
-    if distinct < len(y):
-        warnings.warn(f"data: {len(y) - distinct} of {len(y)} rows repeat an earlier row; a row both in the "
+    nonzero = y[np.any(y != 0, axis=1)]
+    repeats = len(nonzero) - len(np.unique(nonzero, axis=0))
+    if repeats and warn:
+        warnings.warn(f"data: {repeats} of {len(y)} rows repeat an earlier row; a row both in the "
                       "training and in the test set makes the test errors optimistic: drop the repeats",
                       RuntimeWarning, stacklevel=4)
 
@@ -284,7 +287,7 @@ def own_data(problem, data, data_x, n_test: int, n_val: int = 0, warn: bool = Tr
                       f"‖P x − y‖/‖y‖ over the file's rows), more than its noise level "
                       f"{problem.noise:g} explains: another simulator, grid or column order? "
                       "(--set noise=… declares noisy data)", RuntimeWarning, stacklevel=3)
-    _no_repeats(y)
+    _no_repeats(y, warn)
     train, val, test = split(len(y), n_test, n_val)
     held = len(y) - train.stop
     if train.stop < held and warn:  # say what the default splits took

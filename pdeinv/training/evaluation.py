@@ -7,7 +7,8 @@ L²(Ω) errors on the held-out test set,
     x_err = mean_i ‖f(y*_i) − x_i‖_M / ‖x_i‖_M,   y_err = mean_i ‖P f(y*_i) − y*_i‖_M / ‖y*_i‖_M
 
 (``y_err`` falls back to the Euclidean norm when observations are not fields on the mesh, e.g. sensor
-time series; no ``x_err`` when the test set has no ``x``).
+time series; no ``x_err`` when the test set has no ``x``). A test row that is all zero (an empty box) is
+measured against the test set's rms norm (:func:`pdeinv.fem.forms.relative_norms`).
 """
 
 from __future__ import annotations
@@ -19,6 +20,7 @@ import numpy as np
 import torch
 
 from ..errors import NonFiniteError
+from ..fem.forms import relative_norms
 from ..methods.guard import ADVICE
 from ..physics.capabilities import observes_field
 from .stopping import observe
@@ -35,7 +37,7 @@ def evaluate(problem, model, test) -> dict:
     if observes_field(problem.operator):  # declared, never guessed from shapes
         y_err = problem.disc.relative_error(yhat, y)
     else:
-        y_err = np.linalg.norm(yhat - y, axis=1) / np.linalg.norm(y, axis=1)
+        y_err = relative_norms(np.linalg.norm(yhat - y, axis=1), np.linalg.norm(y, axis=1))
     if x is None:
         return {"y_err": float(np.mean(y_err))}
     return {"x_err": float(np.mean(problem.relative_error(xhat, x))), "y_err": float(np.mean(y_err))}

@@ -41,6 +41,7 @@ ORDER = 2
 def cmd_classical(args) -> int:
     import numpy as np
 
+    from pdeinv.fem.forms import relative_norms
     from pdeinv.inverse.noise import estimate_noise
     from pdeinv.physics.nonlinear import is_linear
     from pdeinv.training.data import read_meta, read_npz
@@ -65,7 +66,8 @@ def cmd_classical(args) -> int:
 
     def err(xh) -> dict:
         """x-error (with x), the relative residual ``mean ‖P x̂ − y‖/‖y‖`` and the rms amplitude."""
-        res = np.linalg.norm(problem.operator.forward(xh) - y, axis=1) / np.linalg.norm(y, axis=1)
+        res = relative_norms(np.linalg.norm(problem.operator.forward(xh) - y, axis=1),
+                             np.linalg.norm(y, axis=1))  # a zero row: against the rows' rms norm
         return {"x_err": None if x is None else float(np.mean(problem.relative_error(xh, x))),
                 "residual": float(np.mean(res)), "amplitude": float(np.sqrt(np.mean(np.sum(xh**2, axis=1))))}
 

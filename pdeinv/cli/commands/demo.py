@@ -12,11 +12,16 @@ ORDER = 0
 def cmd_demo(args) -> int:
     """Build a problem, run forward and adjoint on a batch, print what happened.
 
-    ``y_over_x_L2`` compares L²(Ω) norms when the problem observes fields on the mesh and
-    Euclidean norms otherwise (sensor time series: the observation is not a field)."""
+    The adjoint of linear physics is ``Pᵀ r``; of nonlinear physics (Allen–Cahn, sine-Gordon), the
+    adjoint of its linearization at the batch, ``P'(x)ᵀ r`` (``vjp``). ``dot_product_test`` is
+    ``|⟨A v, r⟩ − ⟨v, Aᵀ r⟩| / (‖A v‖ ‖r‖)`` for that ``A`` (``P``, or ``P'(x)`` with ``v`` random):
+    rounding-level when the adjoint is exact. ``y_over_x_L2`` compares L²(Ω) norms when the problem
+    observes fields on the mesh and Euclidean norms otherwise (sensor time series: the observation is
+    not a field)."""
     import numpy as np
 
     from pdeinv.physics.capabilities import observes_field
+    from pdeinv.physics.nonlinear import is_linear
     from pdeinv.util import memory
 
     if args.batch < 1:
@@ -31,15 +36,22 @@ def cmd_demo(args) -> int:
     t0 = time.perf_counter()
     y = op.forward(x)
     t_fwd = time.perf_counter() - t0
-    r = np.random.default_rng(1).standard_normal(y.shape)
+    rng = np.random.default_rng(1)
+    r = rng.standard_normal(y.shape)
+    linear = is_linear(op)
+    v, av = (x, y) if linear else (rng.standard_normal(x.shape), None)
+    if av is None:
+        av = op.jvp(x, v)
     t0 = time.perf_counter()
-    a = op.adjoint(r)
+    a = op.adjoint(r) if linear else op.vjp(x, r)
     t_adj = time.perf_counter() - t0
-    dot = abs(np.vdot(y, r) - np.vdot(x, a)) / (np.linalg.norm(y) * np.linalg.norm(r))
+    dot = abs(np.vdot(av, r) - np.vdot(v, a)) / (np.linalg.norm(av) * np.linalg.norm(r))
     report = {
         "problem": problem.name,
         "unknowns": problem.N,
         "operator": repr(op),
+        "physics": "linear (adjoint: P^T r)" if linear else
+                   "nonlinear (adjoint: P'(x)^T r, of the linearization at the batch)",
         "backend_choice": getattr(op, "choice", None),
         "batch": args.batch,
         "build_s": t_build,
