@@ -100,3 +100,14 @@ def test_predict_on_zero_rows(zeros, capsys):
     assert code == 0, cap.err
     assert "inf" not in cap.out and "nan" not in cap.out and "RuntimeWarning" not in cap.err, cap
     assert float(cap.out.split("x_err ")[1].split()[0]) < 0.5
+
+
+def test_classical_never_prints_nan(monkeypatch, zeros, capsys):
+    from pdeinv.cli.commands import classical
+
+    real = classical._solves
+    monkeypatch.setattr(classical, "_solves", lambda *a: {**real(*a), "broken": {"x_err": float("nan")}})
+    assert main(["classical", "heat_1d", "--set", "n=16", "--data", str(zeros / "zeros.npz")]) == 1
+    cap = capsys.readouterr()
+    assert cap.out == "" and cap.err == "pdeinv classical: numerical failure: the broken x_err is nan: " \
+        "that solve failed on this file (non-finite rows? check the data with numpy.isfinite)\n"

@@ -72,6 +72,7 @@ def cmd_classical(args) -> int:
                 "residual": float(np.mean(res)), "amplitude": float(np.sqrt(np.mean(np.sum(xh**2, axis=1))))}
 
     rows = _solves(problem, y, x, noise, source, err)
+    _finite(rows)
     for name, value in rows.items():
         print(f"{problem.name} {name}: {json.dumps(value)}")
     rows["failed"] = _failed(problem, rows, x, y, noise)
@@ -144,6 +145,21 @@ def _nonlinear_solves(problem, y, x, noise: float, source: str, err) -> dict:
         rows["gauss_newton_best_common_alpha"] = {**best, **info}
         rows["model_mismatch"] = model_mismatch(problem.operator, x, y)
     return rows
+
+def _finite(rows: dict) -> None:
+    """Refuse to print NaN or Infinity (not JSON): a solve whose number is not finite is a numerical
+    failure (exit 1), named."""
+    import math
+
+    from pdeinv.errors import NumericalError
+
+    for name, value in rows.items():
+        for key, v in (value.items() if isinstance(value, dict) else [("", value)]):
+            if isinstance(v, float) and not math.isfinite(v):
+                what = f"{name} {key}".strip()
+                raise NumericalError(f"the {what} is {v}: that solve failed on this file (non-finite rows? "
+                                     "check the data with numpy.isfinite)")
+
 
 #: model mismatch ``mean ‖P x − y‖/‖y‖`` above this many times the noise level (and above
 #: :data:`MISMATCH_FLOOR`) means the file's y are not this problem's P x
