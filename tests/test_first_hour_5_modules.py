@@ -14,7 +14,8 @@ from pdeinv.problem.definition import ProblemModuleError
 
 pytestmark = pytest.mark.usefixtures("one_thread")
 
-HEAT = "from pdeinv import load_problem\n\n\ndef make(**overrides):\n    return load_problem('heat_1d', n=8)\n"
+HEAT = ("from pdeinv import load_problem\n\n\n"
+        "def make(**overrides):\n    return load_problem('heat_1d', n=8)\n")
 
 #: name -> (module text, what the line says after the file and line)
 MODULES = {

@@ -50,6 +50,30 @@ def build_parser() -> argparse.ArgumentParser:
     return p
 
 
+#: the largest value of an integer flag (``--steps``, ``--threads``, ``--prior-fit``, ...; ``--seed`` has
+#: its own range): a count beyond int32 is a typo, and overflows C integers where it is used
+INT_MAX = 2**31 - 1
+
+
+def check_numbers(parser, args) -> None:
+    """Every numeric flag of the command, checked once before any work: a float flag finite (``nan``,
+    ``inf`` refused), an integer flag at most :data:`INT_MAX` in magnitude; the one line names the flag.
+    Each flag's own range (``--lr`` > 0, ``--threads`` >= 1, ...) is checked where it is used."""
+    import math
+
+    subparsers = next(a for a in parser._actions if isinstance(a, argparse._SubParsersAction))
+    for action in subparsers.choices[args.command]._actions:
+        value = getattr(args, action.dest, None)
+        if value is None or action.type not in (int, float) or not action.option_strings \
+                or action.dest == "seed":  # --seed: 0 to 2^32 - 1 (check_common)
+            continue
+        flag = max(action.option_strings, key=len)
+        if action.type is float and not math.isfinite(value):
+            raise UsageError(f"{flag} {value} is not allowed; expected a finite number")
+        if action.type is int and abs(value) > INT_MAX:
+            raise UsageError(f"{flag} {value} is out of range; expected an integer of at most {INT_MAX}")
+
+
 def check_common(args) -> None:
     """Options several subcommands share, checked once before any work: ``--seed`` in
     ``0..2³²−1``, ``--max-memory-gb`` > 0 (set as :mod:`pdeinv.util.memory`'s budget)."""
@@ -79,6 +103,7 @@ def _main(argv=None) -> int:
     from .logs import cli_logging
 
     try:
+        check_numbers(parser, args)
         check_common(args)
         with cli_logging(args):
             return args.func(args)

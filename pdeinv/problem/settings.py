@@ -12,9 +12,28 @@ import os
 
 from .. import _checks
 
+#: the largest integer setting (``n``, ``steps``, ...): beyond int32 it is a typo and overflows C integers
+INT_MAX = 2**31 - 1
+#: the largest magnitude of a real setting (``kappa``, ``T``, ``noise``, ...): its square stays finite
+FLOAT_MAX = 1e150
+
+
+def _in_range(value, name, text):
+    """``value`` unless an integer beyond :data:`INT_MAX` or a real beyond :data:`FLOAT_MAX` in
+    magnitude (NaN and Inf are left to the rule's own check, which names them)."""
+    if isinstance(value, bool):
+        return value
+    if isinstance(value, int) and abs(value) > INT_MAX:
+        raise ValueError(f"{name}={text!r} is out of range; expected an integer of at most {INT_MAX}")
+    if isinstance(value, float) and math.isfinite(value) and abs(value) > FLOAT_MAX:
+        raise ValueError(f"{name}={text!r} is out of range; expected a number of magnitude at most "
+                         f"{FLOAT_MAX:g}")
+    return value
+
 
 def _number(cast, check):
     def rule(value, name):
+        text = value
         if isinstance(value, str):
             try:
                 value = float(value)  # "1e2" is a number too; an int rule takes it if it is whole
@@ -25,7 +44,7 @@ def _number(cast, check):
                 raise ValueError(f"{name}={value!r} is not allowed; expected an integer (not {kind})")
         if cast is int and isinstance(value, float) and value.is_integer():
             value = int(value)
-        return check(value, name)
+        return check(_in_range(value, name, text), name)
 
     return rule
 

@@ -136,15 +136,7 @@ def read_npz(path, m: int, n: int) -> tuple[np.ndarray, np.ndarray | None]:
         raise ValueError(f"{where} is not a file; expected an .npz with array 'y'")
     if path.stat().st_size == 0:
         raise ValueError(f"{where} is empty; expected an .npz with array 'y' (np.savez(file, y=y))")
-    try:
-        with np.load(path, allow_pickle=False) as f:
-            if not isinstance(f, np.lib.npyio.NpzFile):
-                raise ValueError("a single .npy array")
-            arrays = {k: f[k] for k in f.files if k in ("x", "y")}
-    except Exception as err:  # noqa: BLE001  (zip, pickle, header errors differ by content)
-        first = (str(err).strip().splitlines() or [type(err).__name__])[0][:100]
-        raise ValueError(f"{where} is not an .npz archive ({first}); expected np.savez(file, y=y[, x=x])") \
-            from None
+    arrays = _arrays(path, ("x", "y"))
     if "y" not in arrays:
         raise ValueError(f"{where} has no array 'y'; expected np.savez(file, y=y[, x=x]) with y (B, {m})")
     y = _rows(arrays["y"], m, f"{where}: y")
@@ -156,14 +148,48 @@ def read_npz(path, m: int, n: int) -> tuple[np.ndarray, np.ndarray | None]:
     return y, x
 
 
+def _first(err: BaseException, n: int) -> str:
+    return (str(err).strip().splitlines() or [type(err).__name__])[0][:n]
+
+
+def _arrays(path, keys) -> dict:
+    """The arrays ``keys`` of the ``.npz`` at ``path`` that it holds, each a numpy array of numbers or
+    text (checked by the caller), never a pickle: a file that is no ``.npz``, a member that is no
+    ``.npy`` (a zip of text) or an object array is a ``ValueError`` in one line naming the file."""
+    where = f"data file {os.fspath(path)!r}"
+    try:
+        f = np.load(path, allow_pickle=False)
+    except Exception as err:  # noqa: BLE001  (zip, pickle, header errors differ by content)
+        # numpy takes a file with neither magic for a pickle, which allow_pickle=False refuses
+        why = "not a zip of .npy arrays" if "pickle" in str(err) else _first(err, 100)
+        raise ValueError(f"{where} is not an .npz archive ({why}); expected np.savez(file, y=y[, x=x])") \
+            from None
+    if not isinstance(f, np.lib.npyio.NpzFile):
+        raise ValueError(f"{where} is not an .npz archive (a single .npy array); expected np.savez(file, "
+                         "y=y[, x=x])")
+    out = {}
+    with f:
+        for k in (k for k in f.files if k in keys):
+            try:
+                value = f[k]
+            except Exception as err:  # noqa: BLE001  (an object array, a damaged member)
+                why = "an object array (pickled Python objects)" if "Object arrays" in str(err) else \
+                    f"a damaged array ({_first(err, 80)})"
+                raise ValueError(f"{where}: {k} is {why}; expected an array of numbers") from None
+            if not isinstance(value, np.ndarray):
+                raise ValueError(f"{where}: {k} is not a numpy array (the archive's {k}.npy is not in .npy "
+                                 "format); expected np.savez(file, y=y[, x=x])")
+            out[k] = value
+    return out
+
+
 def read_meta(path, points) -> dict:
     """The optional keys of a data file, checked: ``noise`` (one number ≥ 0, the relative level, as
     ``--set noise=``) and ``points`` (the coordinates of the columns of ``x``, ``(dim, N)``, which must
     be the problem's ``points`` to 1e-9 of their largest coordinate: the same unknowns in the same
     order). ``{"noise": δ}`` when the file declares a level; a mismatch is a ``ValueError`` naming it."""
     where = f"data file {os.fspath(path)!r}"
-    with np.load(path, allow_pickle=False) as f:
-        meta = {k: f[k] for k in f.files if k in ("noise", "points")}
+    meta = _arrays(path, ("noise", "points"))
     out = {}
     if "noise" in meta:
         v = meta["noise"]
