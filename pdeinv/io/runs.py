@@ -58,6 +58,7 @@ NETWORKS = {
     "linear": lambda problem, **settings: __import__("pdeinv.nets").nets.linear_default(problem, **settings),
     "mlp": _mlp,
     "reduced": _from_nets("reduced"),
+    "unet": _from_nets("unet"),
     "whitened": _from_nets("whitened"),
 }
 

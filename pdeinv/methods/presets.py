@@ -146,26 +146,30 @@ def preset_steps(hp: dict | None, time_budget: float | None) -> int | None:
 
 def run_defaults(rule, model=None, problem=None) -> dict:
     """``{"steps", "batch_size", "rows_per_component"}`` of ``rule``'s preset (looked up by
-    ``rule.name``), what :class:`pdeinv.Trainer` uses for the arguments it was not given. HIG on a
-    network that is not linear in its parameters (an MLP) takes :data:`HIG_MLP_BATCH` rows, as
-    ``pdeinv train --method hig --hidden W`` does; on nonlinear physics also
-    :data:`HIG_NONLINEAR_STEPS` steps."""
+    ``rule.name``), what :class:`pdeinv.Trainer` uses for the arguments it was not given. On a network
+    that is not linear in its parameters (an MLP, the U-Net) HIG takes :data:`HIG_MLP_BATCH` rows and SIP
+    :data:`SIP_MLP`'s minibatches and steps, as ``pdeinv train --hidden W`` / ``--net unet`` do; HIG on
+    nonlinear physics also :data:`HIG_NONLINEAR_STEPS` steps."""
     name = declared(rule).name
     hp = GENERIC.get(name)
     if hp is None:
         return {"steps": DEFAULT_STEPS, "batch_size": DEFAULT_BATCH, "rows_per_component": None}
     batch, steps = hp.get("batch_size"), hp.get("steps") or DEFAULT_STEPS
-    if name == "hig" and model is not None:
-        if nets_declared(model).linear_in_parameters() is None:  # its stacked Jacobian grows with the batch
-            batch = HIG_MLP_BATCH
+    nonlinear_net = model is not None and nets_declared(model).linear_in_parameters() is None
+    if name == "hig" and nonlinear_net:  # its stacked Jacobian grows with the batch
+        batch = HIG_MLP_BATCH
+    if name == "sip" and nonlinear_net:  # the paper's optimizer on a network not linear in θ (SIP_MLP)
+        batch, steps = SIP_MLP["batch_size"], SIP_MLP["steps"]
     if name == "hig" and _nonlinear(problem):
         batch, steps = HIG_MLP_BATCH, HIG_NONLINEAR_STEPS
     return {"steps": steps, "batch_size": batch, "rows_per_component": hp.get("rows_per_component")}
 
 
-def hyperparameters(method: str, problem, noise: float = 0.0, **overrides) -> dict:
+def hyperparameters(method: str, problem, noise: float = 0.0, linear_net: bool = True, **overrides) -> dict:
     """Defaults for ``method`` on ``problem`` (a :class:`~pdeinv.Problem` or its name) with observation
-    ``noise``, ``overrides`` applied (unknown keys refused)."""
+    ``noise``, ``overrides`` applied (unknown keys refused). ``linear_net=False``: the network is not
+    linear in its parameters (``--net unet``; the MLP of ``hidden`` always), which takes the presets of
+    :data:`SIP_MLP` and :data:`HIG_MLP_BATCH`."""
     if method not in METHODS:
         raise ValueError(f"method={method!r} is not allowed; expected one of "
                          f"{', '.join(map(repr, METHODS))}")
@@ -177,9 +181,10 @@ def hyperparameters(method: str, problem, noise: float = 0.0, **overrides) -> di
         raise ValueError(f"{', '.join(bad)} does not apply to method {method!r} "
                          f"(its settings: {', '.join(sorted(hp))})")
     hp.update({k: v for k, v in overrides.items() if v is not None})
-    if method == "hig" and hp["hidden"] is not None and overrides.get("batch_size") is None:
+    nonlinear_net = hp["hidden"] is not None or not linear_net
+    if method == "hig" and nonlinear_net and overrides.get("batch_size") is None:
         hp["batch_size"] = HIG_MLP_BATCH  # an MLP's stacked Jacobian grows with the batch (HIG_MLP_BATCH)
-    if method == "sip" and hp["hidden"] is not None:  # the paper's optimizer on an MLP (SIP_MLP)
+    if method == "sip" and nonlinear_net:  # the paper's optimizer on an MLP or a U-Net (SIP_MLP)
         hp.update({k: v for k, v in SIP_MLP.items() if overrides.get(k) is None})
     if method == "hig" and _nonlinear(problem):  # no Kronecker route (HIG_NONLINEAR_STEPS, _ETA)
         hp["batch_size"] = overrides.get("batch_size") or HIG_MLP_BATCH
@@ -196,7 +201,7 @@ def hyperparameters(method: str, problem, noise: float = 0.0, **overrides) -> di
     return hp
 
 
-def make_rule(method: str, problem, noise: float = 0.0, **overrides):
-    """``(rule, hyper-parameters)`` for a method name."""
-    hp = hyperparameters(method, problem, noise, **overrides)
+def make_rule(method: str, problem, noise: float = 0.0, linear_net: bool = True, **overrides):
+    """``(rule, hyper-parameters)`` for a method name (``linear_net``: :func:`hyperparameters`)."""
+    hp = hyperparameters(method, problem, noise, linear_net, **overrides)
     return METHODS[method](hp), hp

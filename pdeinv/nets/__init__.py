@@ -19,6 +19,9 @@ Three kinds of network:
   with a fixed decoder basis ``Φ`` (:class:`Decoder`, the prior's principal components) on the
   output: ``x = Φ body(z)``; its trained size does not depend on the mesh, and the prior fills
   what the observations do not see.
+* :class:`MeshUNet` (:mod:`.unet`, ``--net unet``): the SIP paper's U-Net on a grid reached through the
+  finite-element interpolation, on the observations and the physics' own linear estimate, trained by the
+  rules end to end; parameters independent of the mesh.
 * :class:`MLP` (:mod:`.mlp`): a tanh MLP (256, 256) on per-node standardized input, what ``--method adam``
   trains (:mod:`pdeinv.methods.presets` says why: a first-order rule leaves weight on the
   trailing whitened directions, which new data amplify).
@@ -58,12 +61,17 @@ from .reduced import (
            prior_basis,
            reduced,
 )
+from .unet import MeshUNet, unet
 
 __all__ = ["BODIES", "DECODER_MAX_UNCAPTURED", "DENSE_MAX_UNKNOWNS", "DTYPE", "FALLBACK_COMPONENTS", "MLP",
            "REDUCED_ABOVE",
            "REDUCED_K", "REDUCED_K_IN", "REDUCED_K_MAX", "REDUCED_UNCAPTURED", "Decoder",
-           "LinearInParameters", "Net", "decoder_basis",
+           "LinearInParameters", "MeshUNet", "Net", "decoder_basis",
            "Residual", "correction_kind", "data_base", "default_model", "default_size", "dense",
            "fit_preconditioning",
            "linear_default", "mlp", "network_size", "prior_basis", "reduced", "refined", "refined_size",
-           "whitened", "zero_last_layer"]
+           "unet", "whitened", "zero_last_layer"]
+
+#: network kinds that are not linear in their parameters (SIP takes the paper's optimizer, HIG its
+#: minibatch routes: :mod:`pdeinv.methods.presets`); ``--hidden`` (the MLP) is one too
+NONLINEAR_KINDS = ("unet",)

@@ -208,8 +208,8 @@ def network_size(problem, kind: str = "default", hidden=None) -> dict:
     ``build`` (bytes its construction needs on top: the prior draws and Gram matrix of
     :func:`prior_basis`), ``widest`` (its widest layer) and ``dtype_bytes``. Upper bounds (a decoder may
     keep fewer columns); the memory guard (:func:`pdeinv.training.plan.check_training`) adds the
-    training state per parameter. ``kind``: 'default', 'linear', 'whitened', 'reduced' or 'mlp'
-    (``hidden`` given)."""
+    training state per parameter. ``kind``: 'default', 'linear', 'whitened', 'reduced', 'unet'
+    (:mod:`pdeinv.nets.unet`) or 'mlp' (``hidden`` given)."""
     m, n = problem.operator.n_out, problem.operator.n_in
     itemsize = torch.finfo(DTYPE).bits // 8
 
@@ -222,6 +222,10 @@ def network_size(problem, kind: str = "default", hidden=None) -> dict:
         return {"params": k_in * k_out + k_out, "buffers": m * k_in + k_in + m + 1 + n * k_out,
                 "build": 8 * (draws * n + draws**2 + 2 * n * k_out)}
 
+    if kind == "unet":
+        from .unet import size as unet_size
+
+        return {**unet_size(problem), "build": 0, "dtype_bytes": 4}
     if hidden:
         from ..util.memory import network_parameters
 
@@ -245,8 +249,8 @@ def network_size(problem, kind: str = "default", hidden=None) -> dict:
         if kind == "default":  # the correction (.refine): U-Net parameters (trained) and grid maps
             size["params"] += refined_size(problem)
     else:
-        raise ValueError(f"kind={kind!r} is not allowed; expected 'default', 'linear', 'whitened' or "
-                         "'reduced' (or hidden widths for the MLP)")
+        raise ValueError(f"kind={kind!r} is not allowed; expected 'default', 'linear', 'whitened', "
+                         "'reduced' or 'unet' (or hidden widths for the MLP)")
     return {**size, "widest": max(m, n), "dtype_bytes": itemsize}
 
 

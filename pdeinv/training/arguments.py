@@ -81,17 +81,20 @@ def problem(value, where: str = "train"):
                     f"(pdeinv.load_problem('heat_2d')) or a problem name such as 'heat_2d'{hint}")
 
 
-def rule(value, problem_):
+def rule(value, problem_, model_=None):
     """An update rule, or a method name (``"sip"``, ``"gd"``, ``"adam"``, ``"hig"``, ``"supervised"``)
-    built with its preset (:func:`pdeinv.methods.presets.make_rule`, what ``pdeinv train --method``
-    builds)."""
+    built with its preset for ``model_`` (:func:`pdeinv.methods.presets.make_rule`, what ``pdeinv train
+    --method`` builds; a network not linear in its parameters takes the paper's SIP optimizer)."""
     from ..methods.presets import METHODS, make_rule
 
     if isinstance(value, str):
         if value not in METHODS:
             raise ValueError(f"rule={value!r} is not a method name; expected one of "
                              f"{', '.join(map(repr, METHODS))} or an update rule such as pdeinv.SIP()")
-        return make_rule(value, problem_)[0]
+        from ..nets.protocol import declared
+
+        linear = model_ is None or declared(model_).linear_in_parameters() is not None
+        return make_rule(value, problem_, linear_net=linear)[0]
     if isinstance(value, type) and _is_rule_class(value):
         raise TypeError(f"rule={value.__name__} is a class; expected an instance: pdeinv.{value.__name__}()")
     if _is_rule(value):

@@ -174,7 +174,8 @@ class Plan:
                  f"backend   {p['backend']}",
                  f"inverse   {p['inverse']}",
                  f"rule      {r['name']}: {r['steps']} steps of {r['batch']} rows on {r['n_train']} training "
-                 f"observations ({', '.join(f'{k}={v}' for k, v in r['settings'].items())})",
+                 f"observations ({', '.join(f'{k}={v}' for k, v in r['settings'].items())})"
+                 + (f"; route {r['route']}" if r.get("route") else ""),
                  f"network   {net['kind']}: {net['params']:,} trained parameters, {net['buffers']:,} fixed "
                  f"numbers ({net['why']})"]
         for i, st in enumerate(self.stages, 1):
@@ -222,7 +223,10 @@ def plan(problem, rule: str = "sip", *, net: str = "default", hidden=None, prior
         problem = load_problem(problem)
     if isinstance(prior, str) and prior == "auto":
         prior = PriorStage()
-    rule_obj, hp = make_rule(rule, problem, problem.noise, hidden=hidden, **settings)
+    from ..nets import NONLINEAR_KINDS
+
+    linear_net = not hidden and net not in NONLINEAR_KINDS
+    rule_obj, hp = make_rule(rule, problem, problem.noise, linear_net=linear_net, hidden=hidden, **settings)
     preset = run_defaults(rule_obj, None, problem)
     steps = steps if steps is not None else hp.get("steps") or preset["steps"]
     batch = batch_size or hp.get("batch_size") or n_train
@@ -243,13 +247,40 @@ def plan(problem, rule: str = "sip", *, net: str = "default", hidden=None, prior
     memory = run_bytes(problem, n_train, n_test, batch, hidden, kind if kind != "mlp" else "default",
                        rule, 128, prior_draws, hp.get("optimizer") or "adam")
     why = ("the MLP of --hidden" if hidden else
+           "a U-Net on the observations and the physics' linear estimate, trained by the rule end to end"
+           if kind == "unet" else
            "the problem's default: a linear estimate trained by the rule" + (
                ", plus a nonlinear correction and a data-consistency layer for the prior stage" if refined
                else ""))
-    return Plan(info, {"name": rule_obj.name, "steps": steps, "batch": batch, "n_train": n_train,
-                       "settings": {k: v for k, v in hp.items() if v is not None and k not in ("steps",)}},
+    rule_info = {"name": rule_obj.name, "steps": steps, "batch": batch, "n_train": n_train,
+                 "settings": {k: v for k, v in hp.items() if v is not None and k not in ("steps",)}}
+    if rule_obj.name == "hig":
+        rule_info["route"] = hig_route(problem, batch, int(size["params"]), linear_net, bool(hidden))
+    return Plan(info, rule_info,
                 {"kind": kind, "params": int(size["params"]), "buffers": int(size["buffers"]), "why": why},
                 stages, memory)
+
+
+def hig_route(problem, batch: int, params: int, linear: bool, dense_net: bool) -> str:
+    """Which route HIG's ``"auto"`` takes (:data:`pdeinv.methods.hig.routes.ROUTES`), from the sizes alone:
+    the exact Kronecker step on a network linear in its parameters; else the dense Jacobian of ``batch ·
+    rank`` rows where it fits :data:`~pdeinv.util.memory.HIG_JACOBIAN_GB`, else the last layer's exact step
+    (a dense MLP) or the matrix-free randomized route."""
+    from ..methods.hig.routes import SVD
+    from ..methods.hig.rule import HIG
+    from ..physics.capabilities import modal_basis
+
+    if linear:
+        return "Kronecker: the exact step, no Jacobian formed"
+    basis = modal_basis(problem.operator)
+    per_sample = min(problem.operator.n_out, len(basis.g)) if basis is not None else problem.operator.n_out
+    rows = batch * per_sample
+    if SVD.bytes_per_entry * rows * params <= HIG_JACOBIAN_GB * 2**30:
+        return f"dense Jacobian {rows} x {params}, decomposed"
+    if dense_net:
+        return f"the last layer's exact step (the Jacobian {rows} x {params} exceeds {HIG_JACOBIAN_GB:g} GB)"
+    return (f"matrix-free: rank-{HIG.probes} randomized SVD from Jacobian products (the Jacobian "
+            f"{rows} x {params} exceeds {HIG_JACOBIAN_GB:g} GB)")
 
 
 #: copies per trained parameter in its dtype: value, gradient and, with Adam, two moments
@@ -293,7 +324,9 @@ def run_bytes(problem, n_train: int, n_test: int, batch: int, hidden=None, net: 
     inverse = problem.inverse_simulator
     if method in (None, "sip") and isinstance(inverse, TikhonovCG):
         parts["inverse"] = inverse.memory_bytes(rows)
-    linear_net = not hidden and problem.model_factory is None
+    from ..nets import NONLINEAR_KINDS
+
+    linear_net = not hidden and problem.model_factory is None and net not in NONLINEAR_KINDS
     if method == "hig" and not linear_net:  # the default networks take the Kronecker route: no J
         parts["HIG Jacobian"] = min(8.0 * batch * m * size["params"], HIG_JACOBIAN_GB * 2**30)
     return parts

@@ -220,8 +220,8 @@ class Trainer:
         rule's preset for ``steps`` / ``batch_size`` left at ``"preset"``."""
         self.problem = args.problem(self.problem, type(self).__name__)
         # a name or a rule object, then what it can do, declared once (pdeinv.methods.protocol)
-        self.rule = declared(args.rule(self.rule, self.problem))
         self.model = args.model(self.model)
+        self.rule = declared(args.rule(self.rule, self.problem, self.model))
         self.seed = args.seed(self.seed)
         self.stop = args.stop(self.stop, self.problem)
         self.checkpoint = args.checkpoint(self.checkpoint)

@@ -52,10 +52,13 @@ def hig_step_seconds(n_out: int, n_params: int, batch: int) -> float:
     return svd * rows * n_params * min(rows, n_params) / HIG_FLOPS_PER_S
 
 
-def n_parameters(problem, hidden) -> int:
+def n_parameters(problem, hidden, net: str = "default") -> int:
+    from pdeinv.nets import network_size
     from pdeinv.util.memory import network_parameters
 
     m, n = problem.operator.n_out, problem.operator.n_in
+    if net == "unet":
+        return network_size(problem, net)["params"]
     return network_parameters(m, n, hidden) if hidden else m * m + m * n + n
 
 
@@ -72,7 +75,10 @@ def check_run(problem, args, hp: dict) -> None:
                           prior_draws=_prior_draws(problem, args), optimizer=hp.get("optimizer") or "adam")
     # the default networks (no --hidden, no network of the problem's own) are linear in θ: HIG takes
     # its Kronecker route there, which never forms J (pdeinv.methods.hig.kron): nothing to estimate
-    default_net = not hp["hidden"] and problem.model_factory is None
+    from pdeinv.nets import NONLINEAR_KINDS
+
+    net = getattr(args, "net", "default")
+    default_net = not hp["hidden"] and problem.model_factory is None and net not in NONLINEAR_KINDS
     if args.method == "hig" and not default_net and not getattr(args, "allow_slow", False):
         from pdeinv.physics.capabilities import modal_basis
 
@@ -80,7 +86,7 @@ def check_run(problem, args, hp: dict) -> None:
         m = problem.operator.n_out
         per_sample = min(m, len(basis.g)) if basis is not None else m
         batch = hp["batch_size"] or n_train
-        rows, cols = batch * per_sample, n_parameters(problem, hp["hidden"])
+        rows, cols = batch * per_sample, n_parameters(problem, hp["hidden"], net)
         from pdeinv.methods.hig.randomized import memory_bytes
         from pdeinv.methods.hig.routes import SVD
         from pdeinv.methods.hig.rule import HIG

@@ -234,7 +234,7 @@ def _lost_peer(err: RuntimeError) -> bool:
 
 
 #: ``--net``: the network kinds a user chooses by name (run.json's ``network.kind``, pdeinv.io.runs.NETWORKS)
-NETS = ("default", "linear", "whitened", "reduced")
+NETS = ("default", "linear", "whitened", "reduced", "unet")
 
 
 def _network_spec(problem, hp: dict, net: str = "default", data: bool = False) -> dict:
@@ -252,7 +252,10 @@ def _network_spec(problem, hp: dict, net: str = "default", data: bool = False) -
     if own and net != "default":
         raise UsageError(f"--net {net}: problem {problem.name!r} builds its own network (model_factory); "
                          "only --net default applies")
-    spec = {"kind": net, **({"rows_per_component": cap} if cap and not own else {})}
+    from pdeinv.nets import NONLINEAR_KINDS
+
+    capped = cap and not own and net not in NONLINEAR_KINDS  # the cap is the whitened map's
+    spec = {"kind": net, **({"rows_per_component": cap} if capped else {})}
     if data and net == "default" and not own:  # the file's prior, never the scene's (pdeinv.nets.data_base)
         from pdeinv.nets import data_base
 
@@ -292,8 +295,11 @@ def _parallel_train(args, out, ckpt, device, parallel) -> int:
     # metrics.json "setup" (wall seconds) and "setup_cpu" (CPU seconds), with the trainer's phases
     setup = {"build": time.perf_counter() - t_build}
     setup_cpu = {"build": time.process_time() - c_build}
-    rule, hp = make_rule(args.method, problem, problem.noise, lr=args.lr, eta=args.eta, tau=args.tau,
-                         batch_size=args.batch_size, hidden=hidden, optimizer=args.optimizer)
+    from pdeinv.nets import NONLINEAR_KINDS
+
+    rule, hp = make_rule(args.method, problem, problem.noise, linear_net=args.net not in NONLINEAR_KINDS,
+                         lr=args.lr, eta=args.eta, tau=args.tau, batch_size=args.batch_size, hidden=hidden,
+                         optimizer=args.optimizer)
     _checks.check_run(problem, args, hp)  # memory, HIG step time, --export-samples (before allocating)
     logging.getLogger("pdeinv").debug(f"pdeinv train: --method {args.method} with {hp}")
     torch.manual_seed(args.seed)
@@ -515,7 +521,9 @@ def _network_arguments(t) -> None:
                    help="network (default: the problem's: a linear estimate (the prior decoder where the "
                         "operator is not reversible, else the whitened linear map) trained by the rule, "
                         "plus a nonlinear correction fitted on the prior (--prior-fit); linear: the "
-                        "linear estimate alone; pdeinv.nets.default_model)")
+                        "linear estimate alone; unet: the SIP paper's U-Net on the observations and the "
+                        "physics' linear estimate, trained by the rule end to end, pdeinv.nets.unet; "
+                        "pdeinv.nets.default_model)")
     t.add_argument("--prior-fit", type=int, default=None, metavar="N",
                    help="the prior stage after the rule: fit the default network's nonlinear correction on "
                         "draws of the prior (the scene's sampler, or the rows of --data that carry x) for at "
