@@ -201,13 +201,13 @@ def _stage_text(st: dict) -> str:
         return (f"prior: unless the rule's estimate is within {NEGLIGIBLE:g} of {PILOT} pilot draws, "
                 f"{st['correction']} fitted on {st['draws']} prior draws ({st['prior']}), at most "
                 f"{st['max_steps']} steps of {st['batch']}, kept only if it lowers the held-out error; {dc}")
-    return f"{st['name']}: the rule trains the network through the physics ({st['steps']} steps)"
+    data = " on new prior draws each step, x in no loss" if st.get("fresh") else ""
+    return f"{st['name']}: the rule trains the network through the physics ({st['steps']} steps{data})"
 
 
 def plan(problem, rule: str = "sip", *, net: str = "default", hidden=None, prior="auto",
          n_train: int = N_TRAIN, steps: int | None = None, batch_size: int | None = None, own=None,
-         n_test: int = 128,
-         **settings) -> Plan:
+         n_test: int = 128, fresh: bool = False, **settings) -> Plan:
     """The plan of ``Trainer(problem, rule, ...)`` / ``pdeinv train`` with these arguments (``problem`` a
     :class:`~pdeinv.Problem`, a name or a module path; ``rule`` a method name; ``settings`` the rule's, as
     :func:`pdeinv.methods.presets.make_rule` takes them; ``own``: a
@@ -237,7 +237,7 @@ def plan(problem, rule: str = "sip", *, net: str = "default", hidden=None, prior
             "noise": float(problem.noise or 0.0),
             "backend": getattr(op, "choice", None) or type(op).__name__,
             "inverse": repr(problem.inverse_simulator)}
-    stages = [{"name": rule_obj.name, "steps": steps, "batch": batch}]
+    stages = [{"name": rule_obj.name, "steps": steps, "batch": batch, "fresh": bool(fresh)}]
     refined = kind == "default" and problem.model_factory is None and correction_kind(problem) is not None
     prior_draws = 0
     if refined and prior is not None:

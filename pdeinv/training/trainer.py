@@ -37,6 +37,7 @@ from .trainset import (
     BATCH_ORDER,
     N_TRAIN,
     fit_inputs,
+    fresh_rows,
     seed_stream,
     stop_rows,
     test_rows,
@@ -91,7 +92,9 @@ class Trainer:
     rule's ``stop.n_val`` before them, the rest train (:func:`pdeinv.training.data.own_data`). Batches are
     drawn
     without replacement, reshuffled every epoch (``batch_size=None``: every training row in order, each
-    step).
+    step). ``fresh=True`` (the SIP paper's protocol) trains each step on ``batch_size`` new draws of the
+    scene's prior instead (:func:`~pdeinv.training.trainset.fresh_rows`, seeded per step; their ``x``
+    enters no loss); the ``n_train`` rows then only fit the input transform and the target.
     ``model=None`` takes ``problem.model()`` after ``torch.manual_seed(seed)`` (with the preset's
     ``rows_per_component`` for gd and adam, as ``pdeinv train``); ``fit_scaling`` fits its
     input transform on the training observations at the problem's noise level (never on ``x``).
@@ -180,8 +183,10 @@ class Trainer:
     data_x: object = None  # their true fields (B, N), for errors only
     parallel: object = field(default_factory=Single)  # pdeinv.training.distributed: Single or DataParallel
     prior: PriorStage | None | str = "auto"  # the stage after the rule's (pdeinv.training.plan)
+    fresh: bool = False  # each step's batch: new draws of the scene's prior (the SIP paper's protocol)
     history: list[dict] = field(default_factory=list, init=False)
     _target_info: dict | None = field(default=None, init=False, repr=False)
+    _target_of: Callable | None = field(default=None, init=False, repr=False)  # fresh rows' targets
     _own: OwnData | None = field(default=None, init=False, repr=False)
     _saved_step: int | None = field(default=None, init=False, repr=False)
     _rule: object = field(default=None, init=False, repr=False)
@@ -203,6 +208,9 @@ class Trainer:
             self._own = own_data(self.problem, self.data, self.data_x, self.n_test,
                                  self.stop.n_val if self.stop is not None else 0, self.parallel.is_writer)
             self.n_train = len(self._own.y)
+            if self.fresh:
+                raise ValueError("fresh=True draws new observations of the scene's prior each step; data= "
+                                 "gives fixed rows: drop one of them")
         self.n_train = count(self.n_train, "n_train")
         self.batch_size = self.n_train if self.batch_size is None else count(self.batch_size, "batch_size")
         if self.batch_size > self.n_train:
@@ -231,6 +239,7 @@ class Trainer:
         self.resume = args.flag(self.resume, "resume")
         self.progress = args.flag(self.progress, "progress", optional=True)
         self.prior = args.prior(self.prior)
+        self.fresh = args.flag(self.fresh, "fresh")
         self._preset = run_defaults(self.rule, self.model, self.problem)
         if self.steps == PRESET:
             self.steps = None if self.time_budget is not None else self._preset["steps"]
@@ -259,7 +268,8 @@ class Trainer:
             "seed": self.seed, "n_train": self.n_train, "n_test": self.n_test, "batch_size": self.batch_size,
             "dtype": str(self.dtype),
             "target": self.target if self.target is None or self.target == "auto" else self.target.name,
-            **({} if self._own is None else {"data": self._own.fingerprint})})
+            **({} if self._own is None else {"data": self._own.fingerprint}),
+            **({"fresh": True} if self.fresh else {})})
 
     def _network_settings(self) -> dict:
         """``problem.model``'s settings: with own data, the linear part takes nothing from the scene's
@@ -301,8 +311,8 @@ class Trainer:
         y_np, y_train, test = self._data()
         lap("samples")
         fields = lambda: training_fields(self.problem, self._own, self.n_train, self.seed)  # noqa: E731
-        t_train, self._target_info = fit_inputs(self.problem, self.rule, self.target, model, y_np, y_train,
-                                                self.fit_scaling, fields)
+        t_train, self._target_info, self._target_of = fit_inputs(
+            self.problem, self.rule, self.target, model, y_np, y_train, self.fit_scaling, fields)
         lap("fit")
         stop_state = None if self.stop is None else self.stop.init(
             self.problem, y_np, stop_rows(self.problem, self._own, self.stop.n_val, self.seed))
@@ -382,7 +392,8 @@ class Trainer:
         bar = progress(self.steps, self.progress if self.parallel.is_writer else False, run.at.step)
         done = finished(run.at, self.steps, self.time_budget)  # a resumed run that had finished
         while not done:
-            at, batch, t0 = run.at, run.batch(self.batch_size, self.n_train), time.perf_counter()
+            at, t0 = run.at, time.perf_counter()
+            batch = self._fresh(at.step + 1) if self.fresh else run.batch(self.batch_size, self.n_train)
             before = parameters(run.model)
             try:  # one guarded step
                 run.state, info = run.guard.step(self._rule, run.state, run.model, *batch)
@@ -411,13 +422,19 @@ class Trainer:
             warnings.warn(warning, RuntimeWarning, stacklevel=2)
         return Result(run.model, self.history, record, run.state)
 
+    def _fresh(self, step: int) -> tuple[torch.Tensor, torch.Tensor | None]:
+        """Step ``step``'s batch of new prior draws and its target (:func:`~.trainset.fresh_rows`)."""
+        y = fresh_rows(self.problem, self.batch_size, self.seed, step)
+        return (torch.as_tensor(y, dtype=self.dtype, device=self.device), self._target_of(y))
+
     def _rule_stage(self, run: _Run) -> dict:
         """The rule's stage as ``metrics["stages"]`` reports it: its steps, seconds and held-out errors."""
         last = self.history[-1] if self.history else self.evaluate(run.model, run.test)
         done = self.steps is not None and run.at.step >= self.steps
         by = run.at.stopped_by or ("steps" if done else "time_budget")
+        data = {"data": "fresh", "draws": run.at.step * self.batch_size} if self.fresh else {}
         return {"name": self.rule.name, "steps": run.at.step, "seconds": run.at.wall, "stopped_by": by,
-                **{k: last[k] for k in ("x_err", "y_err") if k in last}}
+                **data, **{k: last[k] for k in ("x_err", "y_err") if k in last}}
 
     def _prior_stage(self, run: _Run) -> dict:
         """The prior stage (:class:`~pdeinv.training.plan.PriorStage`) after the rule's: decided on, run,

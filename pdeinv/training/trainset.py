@@ -17,8 +17,9 @@ import warnings
 
 # numpy and torch are imported where used: the CLI's help reads N_TRAIN without them
 
-#: the trainer's seed streams: training data, test data, batch order, held-out observations, prior draws
-TRAIN_DATA, TEST_DATA, BATCH_ORDER, VAL_DATA, PRIOR_DATA = 1, 2, 3, 4, 5
+#: the trainer's seed streams: training data, test data, batch order, held-out observations, prior draws,
+#: fresh draws per step (``Trainer(fresh=True)``)
+TRAIN_DATA, TEST_DATA, BATCH_ORDER, VAL_DATA, PRIOR_DATA, FRESH_DATA = 1, 2, 3, 4, 5, 6
 
 #: training samples when not given (``Trainer(n_train=)``, ``pdeinv train --n-train``)
 N_TRAIN = 1024
@@ -39,6 +40,16 @@ def seed_stream(seed: int, stream: int) -> int:
 def training_rows(problem, own, n_train: int, seed: int):
     """The training observations (numpy): own data's first rows, or ``n_train`` seeded samples."""
     return own.y if own is not None else problem.sample(n_train, seed_stream(seed, TRAIN_DATA))[1]
+
+
+def fresh_rows(problem, size: int, seed: int, step: int):
+    """Step ``step``'s ``size`` new observations of the scene's prior (``Trainer(fresh=True)``, the SIP
+    paper's protocol): stream ``[seed, FRESH_DATA, step]``, so a resumed or repeated run draws the same;
+    their ``x`` is discarded."""
+    import numpy as np
+
+    sub = int(np.random.SeedSequence([seed, FRESH_DATA, step]).generate_state(1)[0])
+    return problem.sample(size, sub)[1]
 
 
 def test_rows(problem, own, n_test: int, seed: int) -> tuple:
@@ -91,22 +102,23 @@ def training_fields(problem, own, n_train: int, seed: int):
 
 
 def fit_inputs(problem, rule, target, model, y_np, y_train, fit_scaling: bool, fields=None):
-    """What the network sees and must match: ``(goal, info)`` of :func:`fit_target`, and with
+    """What the network sees and must match: ``(goal, info, of)`` of :func:`fit_target`, and with
     ``fit_scaling`` the model's input transform fitted on ``y_np`` at the problem's noise level
     (:func:`pdeinv.nets.fit_preconditioning`; never on ``x``)."""
     from ..nets import fit_preconditioning
 
-    goal, info = fit_target(problem, rule, target, y_np, y_train, model, fields)
+    goal, info, of = fit_target(problem, rule, target, y_np, y_train, model, fields)
     if fit_scaling:  # a fitted target is denoised: the input keeps every direction (drop=0), each scaled
         # at most to the noise floor σ² (clean data's rounding-level directions stay small)
         noise = problem.noise or None
         fit_preconditioning(model, y_np, noise, **({"drop": 0} if info else {}))
-    return goal, info
+    return goal, info, of
 
 
 def fit_target(problem, rule, target, y_np, y_train, model=None, fields=None):
-    """``(goal, info)``: what ``P f(y)`` must match when it is not ``y_train`` itself (``goal`` None) and
-    the fitted target's description (None without one).
+    """``(goal, info, of)``: what ``P f(y)`` must match when it is not ``y_train`` itself (``goal`` None),
+    the fitted target's description (None without one), and ``of(y_np)``, the same for other rows (fresh
+    draws: ``Trainer(fresh=True)``; a float64 tensor or None).
 
     ``target(y)`` when the target strategy fits one (:mod:`pdeinv.methods.targets`, whose protocol
     passes it the network and the training rows' fields; ``"auto"`` is the rule's own
@@ -143,7 +155,11 @@ def fit_target(problem, rule, target, y_np, y_train, model=None, fields=None):
                           RuntimeWarning, stacklevel=5)
         fitted = None
     info = None if fitted is None else fitted.info
-    if fitted is None and (y_train.dtype == torch.float64 or not rule.accepts_target):
-        return None, info
-    goal = np.asarray(y_np, dtype=float) if fitted is None else fitted(y_np)
-    return torch.as_tensor(goal, dtype=torch.float64, device=y_train.device), info
+
+    def of(rows):
+        if fitted is None and (y_train.dtype == torch.float64 or not rule.accepts_target):
+            return None
+        goal = np.asarray(rows, dtype=float) if fitted is None else fitted(rows)
+        return torch.as_tensor(goal, dtype=torch.float64, device=y_train.device)
+
+    return of(y_np), info, of

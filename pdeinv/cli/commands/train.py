@@ -111,6 +111,9 @@ def _check_flags(args) -> Path:
     if args.data and args.n_train is not None:
         raise UsageError("--n-train does not apply with --data: the file's rows train, except the last "
                          "--n-test (and the stopping rule's) rows, which are held out")
+    if args.data and args.fresh_draws:
+        raise UsageError("--fresh-draws draws new observations of the scene's prior each step; --data gives "
+                         "fixed rows: drop one of them")
     return out
 
 
@@ -219,6 +222,7 @@ def _plan(args, problem, y=None, x=None):
         own = own_data(problem, y, x, args.n_test, 0, False)
     hidden = _hidden(args.hidden) if args.hidden is not None else None
     return plan(problem, args.method, net=args.net, hidden=hidden, prior=_prior_stage(args),
+                fresh=args.fresh_draws,
                 n_train=args.n_train or (len(own.y) if own is not None else N_TRAIN), steps=args.steps,
                 batch_size=args.batch_size, own=own, n_test=args.n_test, lr=args.lr, eta=args.eta,
                 tau=args.tau, optimizer=args.optimizer)
@@ -315,7 +319,8 @@ def _parallel_train(args, out, ckpt, device, parallel) -> int:
                       checkpoint=FolderCheckpoint(ckpt, args.checkpoint_every, fresh) if args.checkpoint_every
                       else None,
                       resume=args.resume, stop=stop, data=y, data_x=x, device=device, parallel=parallel,
-                      prior=_prior_stage(args), progress=False if getattr(args, "quiet", False) else None,
+                      prior=_prior_stage(args), fresh=args.fresh_draws,
+                      progress=False if getattr(args, "quiet", False) else None,
                       callbacks=[] if sys.stderr.isatty() else [_Heartbeat(_checks.steps(args, hp))])
     if not parallel.is_writer:  # trains its shard; rank 0 writes everything
         failed = trainer.fit().metrics["failed"]
@@ -544,6 +549,9 @@ def _data_arguments(t) -> None:
                         "level is the problem's (--set noise=...)")
     t.add_argument("--n-train", type=int, default=None,
                    help=f"training samples (default {N_TRAIN}; not with --data)")
+    t.add_argument("--fresh-draws", action="store_true",
+                   help="train each step on new draws of the scene's prior, x in no loss (the SIP paper's "
+                        "protocol; not with --data): the --n-train rows then only fit the input scaling")
     t.add_argument("--n-test", type=int, default=128,
                    help="test samples; with --data the last N rows of the file (default 128)")
     t.add_argument("--eval-every", type=int, default=50, metavar="K",
