@@ -24,7 +24,7 @@ demo: install
 
 test: install
 	$(BIN)/ruff check pdeinv problems tests benchmarks
-	$(BIN)/python -m pytest -q
+	$(BIN)/python -m pytest -q -n auto --maxprocesses 4 --dist worksteal
 
 # the API reference from the docstrings (pdoc; in the test extra): docs/api/index.html
 docs: install
