@@ -155,9 +155,9 @@ def test_the_default_network_beats_gauss_newton_on_allen_cahn_1d():
     """The acceptance's training regression on the nonlinear heat: SIP's preset with the plateau stop
     (``--stop auto`` on nonlinear physics) on 256 training rows, then the dense correction fitted on 16 384
     prior draws (4 000 steps), on 32 held-out rows, against per-sample regularized Gauss–Newton
-    (10 iterations from 0) at the x-free α (rel. 1e-2) and at the best of rel. α 1e-2, 1e-3, 1e-4 chosen with
-    the true x (the oracle). Measured: 0.113 (SIP stopped at step 5) against 0.161 and the oracle's 0.1155
-    (α 1e-4; 1e-3: 0.125)."""
+    (10 iterations from 0) at the x-free α (rel. 1e-2) and at the better of rel. α 1e-2 and 1e-4 chosen with
+    the true x (the oracle; 1e-3 gave 0.125, each α ~30 s). Measured: 0.102 (SIP stopped at step 5) against
+    0.161 and the oracle's 0.1155 (α 1e-4); a fit of 1 500 steps on 8 192 draws reached only 0.133."""
     from pdeinv.methods.presets import make_rule
     from pdeinv.nets.refine import PriorFit
     from pdeinv.training.plan import PriorStage
@@ -171,7 +171,7 @@ def test_the_default_network_beats_gauss_newton_on_allen_cahn_1d():
                              stop=PlateauStop())
     res = trainer.fit()
     xt, yt = trainer.held_out()
-    alphas = (1e-2, 1e-3, 1e-4)
+    alphas = (1e-2, 1e-4)
     gn = {a: float(np.mean(p.relative_error(levenberg_marquardt(p, yt, a)[0], xt))) for a in alphas}
     assert res.metrics["stages"][1]["kept"] and res.metrics["stopped_by"] == "plateau"
     assert res.metrics["x_err"] < 0.75 * gn[1e-2] and res.metrics["x_err"] < 1.05 * min(gn.values())
