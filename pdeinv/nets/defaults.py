@@ -225,7 +225,8 @@ def network_size(problem, kind: str = "default", hidden=None) -> dict:
     if kind == "unet":
         from .unet import size as unet_size
 
-        return {**unet_size(problem), "build": 0, "dtype_bytes": 4}
+        size = unet_size(problem)  # and the prior stage's correction (refined), trained parameters too
+        return {**size, "params": size["params"] + refined_size(problem), "build": 0, "dtype_bytes": 4}
     if hidden:
         from ..util.memory import network_parameters
 

@@ -110,12 +110,15 @@ def size(problem, channels: int = CHANNELS) -> dict:
             "widest": 3 * channels * 4 * problem.N}
 
 
-def unet(channels: int = CHANNELS, residual: bool | None = None):
+def unet(channels: int = CHANNELS, residual: bool | None = None, refine: bool = True):
     """``problem -> MeshUNet`` for a problem whose unknowns are nodal values on a mesh of dimension 1–3:
     the physics estimate where the operator has a spectral basis, the observations where ``m = N``.
     ``residual`` (``None``: no, the paper's form) adds the physics estimate to the output. Noise-free, that
     estimate already reproduces ``y`` to rounding: a residual network then starts at a rounding-level loss
-    and the rule has nothing left to fit; from zero the rule trains the whole map."""
+    and the rule has nothing left to fit; from zero the rule trains the whole map. ``refine`` wraps it as
+    the default network's base (:func:`pdeinv.nets.defaults.refined`): a correction and a data-consistency
+    layer, off and untrained, for the prior stage to fit on top of what the rule trained (``prior=None`` /
+    ``--prior-fit 0``: the U-Net alone)."""
     def build(problem) -> MeshUNet:
         from ..fem.grid import GridMap, spacing
         from ..inverse import NOISE_FREE_REL_ALPHA
@@ -134,5 +137,10 @@ def unet(channels: int = CHANNELS, residual: bool | None = None):
                              "unknowns and its operator has no spectral basis for a physics estimate; use "
                              "--net default")
         res = False if residual is None else residual
-        return MeshUNet(GridMap(problem.points, spacing(mesh)), physics, observed, channels, res)
+        net = MeshUNet(GridMap(problem.points, spacing(mesh)), physics, observed, channels, res)
+        if not refine:
+            return net
+        from .defaults import refined
+
+        return refined(problem, net)
     return build

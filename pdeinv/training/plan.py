@@ -238,7 +238,8 @@ def plan(problem, rule: str = "sip", *, net: str = "default", hidden=None, prior
             "backend": getattr(op, "choice", None) or type(op).__name__,
             "inverse": repr(problem.inverse_simulator)}
     stages = [{"name": rule_obj.name, "steps": steps, "batch": batch, "fresh": bool(fresh)}]
-    refined = kind == "default" and problem.model_factory is None and correction_kind(problem) is not None
+    refined = kind in ("default", "unet") and problem.model_factory is None and \
+        correction_kind(problem) is not None
     prior_draws = 0
     if refined and prior is not None:
         st = prior.planned(problem, correction_kind(problem), own)
@@ -248,7 +249,8 @@ def plan(problem, rule: str = "sip", *, net: str = "default", hidden=None, prior
                        rule, 128, prior_draws, hp.get("optimizer") or "adam")
     why = ("the MLP of --hidden" if hidden else
            "a U-Net on the observations and the physics' linear estimate, trained by the rule end to end"
-           if kind == "unet" else
+           + (", plus a nonlinear correction and a data-consistency layer for the prior stage" if refined
+              else "") if kind == "unet" else
            "the problem's default: a linear estimate trained by the rule" + (
                ", plus a nonlinear correction and a data-consistency layer for the prior stage" if refined
                else ""))

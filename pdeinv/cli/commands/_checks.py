@@ -119,7 +119,7 @@ def _prior_draws(problem, args) -> int:
     :func:`pdeinv.training.plan.draw_count`."""
     from pdeinv.training.plan import draw_count
 
-    if args.prior_fit == 0 or getattr(args, "net", "default") != "default" or args.hidden:
+    if args.prior_fit == 0 or getattr(args, "net", "default") not in ("default", "unet") or args.hidden:
         return 0
     return draw_count(problem.N)
 
