@@ -20,7 +20,7 @@ through the finite-element interpolation (:class:`~pdeinv.fem.grid.GridMap`: ``�
 The network is not linear in its parameters: SIP fits its proxy with Adam on minibatches (the paper's
 optimizer, :data:`pdeinv.methods.presets.SIP_MLP`), HIG takes its matrix-free route
 (:mod:`pdeinv.methods.hig.randomized`), and GD / Adam the plain gradient. Parameters
-``~60 c²·3^dim/9`` (16 channels in 2-D: about 84 000), buffers ``O(N·2^dim)``; initialisation is
+``~60 c²·3^dim/9`` (16 channels in 2-D, two inputs: 106 561), buffers ``O(N·2^dim)``; initialisation is
 seeded by ``torch.manual_seed`` like every pdeinv network.
 """
 
@@ -47,7 +47,7 @@ class MeshUNet(Network):
     (``m = N``) and enters as a channel."""
 
     def __init__(self, grid, physics: SpectralFilter | None, observed: bool, channels: int = CHANNELS,
-                 residual: bool = True):
+                 residual: bool = False):
         super().__init__()
         if physics is None and not observed:
             raise ValueError("MeshUNet needs an input: observations on the unknowns (m = N) or a physics "
@@ -65,7 +65,7 @@ class MeshUNet(Network):
         y = torch.as_tensor(y)
         with torch.no_grad():
             self.y_scale.fill_(_rms(y))
-            self.x_scale.fill_(_rms(self.physics(y)) if self.physics is not None else _rms(y) * 1.0)
+            self.x_scale.fill_(_rms(self.physics(y)) if self.physics is not None else _rms(y))
         return self
 
     def _apply(self, fn, recurse=True):
@@ -111,7 +111,8 @@ def size(problem, channels: int = CHANNELS) -> dict:
 
 
 def unet(channels: int = CHANNELS, residual: bool | None = None, refine: bool = True):
-    """``problem -> MeshUNet`` for a problem whose unknowns are nodal values on a mesh of dimension 1–3:
+    """``problem -> network``: a :class:`MeshUNet` (in :func:`~pdeinv.nets.defaults.refined`'s wrapper with
+    ``refine``) for a problem whose unknowns are nodal values on a mesh of dimension 1–3:
     the physics estimate where the operator has a spectral basis, the observations where ``m = N``.
     ``residual`` (``None``: no, the paper's form) adds the physics estimate to the output. Noise-free, that
     estimate already reproduces ``y`` to rounding: a residual network then starts at a rounding-level loss
@@ -119,7 +120,7 @@ def unet(channels: int = CHANNELS, residual: bool | None = None, refine: bool = 
     the default network's base (:func:`pdeinv.nets.defaults.refined`): a correction and a data-consistency
     layer, off and untrained, for the prior stage to fit on top of what the rule trained (``prior=None`` /
     ``--prior-fit 0``: the U-Net alone)."""
-    def build(problem) -> MeshUNet:
+    def build(problem) -> torch.nn.Module:
         from ..fem.grid import GridMap, spacing
         from ..inverse import NOISE_FREE_REL_ALPHA
         from ..physics.capabilities import modal_basis
