@@ -44,12 +44,9 @@ def training_rows(problem, own, n_train: int, seed: int):
 
 def fresh_rows(problem, size: int, seed: int, step: int):
     """Step ``step``'s ``size`` new observations of the scene's prior (``Trainer(fresh=True)``, the SIP
-    paper's protocol): stream ``[seed, FRESH_DATA, step]``, so a resumed or repeated run draws the same;
-    their ``x`` is discarded."""
-    import numpy as np
-
-    sub = int(np.random.SeedSequence([seed, FRESH_DATA, step]).generate_state(1)[0])
-    return problem.sample(size, sub)[1]
+    paper's protocol): sub-stream ``step`` of stream ``FRESH_DATA`` (:func:`seed_stream`), so a resumed or
+    repeated run draws the same; their ``x`` is discarded."""
+    return problem.sample(size, seed_stream(seed_stream(seed, FRESH_DATA), step))[1]
 
 
 def test_rows(problem, own, n_test: int, seed: int) -> tuple:
