@@ -27,6 +27,8 @@ from ..problem.definition import Problem
 from ..util.progress import progress
 from . import arguments as args
 from . import checkpoint as ckpts
+from .calibration import CalibrationStage
+from .calibration import stage as calibration_stage
 from .checkpoint import Checkpoint, Position
 from .data import OwnData, own_data
 from .distributed import Single
@@ -60,6 +62,7 @@ class Result:
     history: list[dict]
     metrics: dict
     state: object = None
+    posterior: object = None  # a pdeinv.posterior.conformal.Calibration from the calibration stage, or None
 
 
 @dataclass
@@ -184,6 +187,7 @@ class Trainer:
     parallel: object = field(default_factory=Single)  # pdeinv.training.distributed: Single or DataParallel
     prior: PriorStage | None | str = "auto"  # the stage after the rule's (pdeinv.training.plan)
     fresh: bool = False  # each step's batch: new draws of the scene's prior (the SIP paper's protocol)
+    calibration: CalibrationStage | None | str = "auto"  # the last stage: the posterior (.calibration)
     history: list[dict] = field(default_factory=list, init=False)
     _target_info: dict | None = field(default=None, init=False, repr=False)
     _target_of: Callable | None = field(default=None, init=False, repr=False)  # fresh rows' targets
@@ -240,6 +244,7 @@ class Trainer:
         self.progress = args.flag(self.progress, "progress", optional=True)
         self.prior = args.prior(self.prior)
         self.fresh = args.flag(self.fresh, "fresh")
+        self.calibration = calibration_stage(self.calibration)
         self._preset = run_defaults(self.rule, self.model, self.problem)
         if self.steps == PRESET:
             self.steps = None if self.time_budget is not None else self._preset["steps"]
@@ -415,12 +420,18 @@ class Trainer:
         stages = [self._rule_stage(run)]
         if self.prior is not None and self.prior.applies(run.model):
             stages.append(self._prior_stage(run))
+        posterior = None
+        if self.calibration is not None:
+            posterior, info = self.calibration.run(self.problem, run.model, self._own, self.seed, run.test)
+            stages.append(info)
         record = metrics(self, run)
         record["stages"] = stages
+        if posterior is not None and "test" in stages[-1]:
+            record["posterior"] = stages[-1]["test"]
         record["unseen_energy"], warning = of_predictions(self.problem, run.model, run.test, self.seed)
         if warning and self.parallel.is_writer:  # energy where the physics cannot see (.verdict)
             warnings.warn(warning, RuntimeWarning, stacklevel=2)
-        return Result(run.model, self.history, record, run.state)
+        return Result(run.model, self.history, record, run.state, posterior)
 
     def _fresh(self, step: int) -> tuple[torch.Tensor, torch.Tensor | None]:
         """Step ``step``'s batch of new prior draws and its target (:func:`~.trainset.fresh_rows`)."""

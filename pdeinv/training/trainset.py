@@ -18,8 +18,8 @@ import warnings
 # numpy and torch are imported where used: the CLI's help reads N_TRAIN without them
 
 #: the trainer's seed streams: training data, test data, batch order, held-out observations, prior draws,
-#: fresh draws per step (``Trainer(fresh=True)``)
-TRAIN_DATA, TEST_DATA, BATCH_ORDER, VAL_DATA, PRIOR_DATA, FRESH_DATA = 1, 2, 3, 4, 5, 6
+#: fresh draws per step (``Trainer(fresh=True)``), the calibration stage's held-out draws
+TRAIN_DATA, TEST_DATA, BATCH_ORDER, VAL_DATA, PRIOR_DATA, FRESH_DATA, CALIBRATION_DATA = 1, 2, 3, 4, 5, 6, 7
 
 #: training samples when not given (``Trainer(n_train=)``, ``pdeinv train --n-train``)
 N_TRAIN = 1024

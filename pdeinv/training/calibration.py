@@ -1,0 +1,105 @@
+"""The calibration stage: the last stage of a run, which gives its network a calibrated posterior.
+
+After the rule's stage (and the prior stage), the trained network ``f`` is applied to ``rows`` held-out
+pairs ``(x, y)`` that no stage saw: draws of the scene's prior from their own seed stream
+(:data:`~pdeinv.training.trainset.CALIBRATION_DATA`). Their residuals ``x − f(y)`` fit a
+:class:`pdeinv.posterior.conformal.Calibration` (the first half: the per-node scale and correlation; the
+second half: the split-conformal quantiles), and its coverage, credible-ball coverage, SBC p-values and
+interval width are measured on the run's test rows (:func:`pdeinv.posterior.diagnostics.report`), which
+took no part in it. The stage reports them in ``metrics["stages"]`` and ``metrics["posterior"]``.
+
+Without a prior to draw from (own data without ``x``) there is nothing to calibrate against: the stage
+says so and the run has no posterior. Own data *with* ``x`` is not yet split for calibration either.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+
+import numpy as np
+import torch
+
+from ..posterior.conformal import Calibration
+from ..posterior.diagnostics import report
+from .trainset import CALIBRATION_DATA, seed_stream
+
+#: held-out prior draws of the default stage: half fix the spread, half the conformal quantiles (2048
+#: rows give the 90 % ball's radius to ±0.7 % coverage and each node's scale to ±1.6 %)
+ROWS = 4096
+#: stored residuals for samples: at most this many numbers (float16: 8 MB), 256 to 2048 rows. Every
+#: sample of every observation is one of them, so their count bounds how well samples are calibrated
+#: (SBC against ``k`` references errs by about ``1/√k``)
+KEEP_NUMBERS, KEEP_ROWS = 4_000_000, (256, 2048)
+
+
+@torch.no_grad()
+def predict(model, y: np.ndarray, chunk: int = 1024) -> np.ndarray:
+    """``f(y)`` as float64 numpy, ``chunk`` rows at a time, in the model's dtype and device."""
+    param = next(iter(model.parameters()), None)
+    dtype = param.dtype if param is not None else torch.float32
+    device = param.device if param is not None else None
+    parts = [model(torch.as_tensor(y[i:i + chunk], dtype=dtype, device=device)).double().cpu().numpy()
+             for i in range(0, len(y), chunk)]
+    return np.concatenate(parts) if parts else np.zeros((0, 0))
+
+
+@dataclass(frozen=True)
+class CalibrationStage:
+    """Calibrate the trained network on ``rows`` held-out prior draws (module docstring); ``keep`` of the
+    spread rows' residuals are stored for samples (``None``: :data:`KEEP_NUMBERS` numbers)."""
+
+    rows: int = ROWS
+    keep: int | None = None
+    name: str = "calibration"
+
+    def __post_init__(self):
+        for key, low in (("rows", 4), ("keep", 1)):
+            value = getattr(self, key)
+            if key == "keep" and value is None:
+                continue
+            if isinstance(value, bool) or not isinstance(value, int) or value < low:
+                raise ValueError(f"CalibrationStage({key}={value!r}) is not allowed; expected an integer "
+                                 f">= {low}")
+
+    def why_not(self, problem, own) -> str | None:
+        if own is not None:
+            return ("own data: calibration rows are drawn from the scene's prior, and the file's rows are "
+                    "not yet split for it" if own.x is not None else
+                    "no prior: the data file has no x, so no error can be measured")
+        return None
+
+    def planned(self, problem, own=None) -> dict:
+        why = self.why_not(problem, own)
+        if why is not None:
+            return {"name": self.name, "skipped": why}
+        return {"name": self.name, "rows": self.rows, "prior": problem.settings.get("prior", "the scene's")}
+
+    def run(self, problem, model, own, seed: int, test) -> tuple[Calibration | None, dict]:
+        """``(calibration or None, what the stage reports)``; ``test = (x, y, ...)`` the run's test rows."""
+        t0 = time.perf_counter()
+        why = self.why_not(problem, own)
+        if why is not None:
+            return None, {"name": self.name, "skipped": why, "seconds": time.perf_counter() - t0}
+        x, y = problem.sample(self.rows, seed_stream(seed, CALIBRATION_DATA))
+        residual = x - predict(model, y)
+        half = self.rows // 2
+        mass = problem.disc.M if problem.disc is not None else None
+        lo, hi = KEEP_ROWS
+        keep = self.keep or int(np.clip(KEEP_NUMBERS // problem.N, lo, hi))
+        cal = Calibration.fit(residual[:half], residual[half:], mass, keep)
+        info = {"name": self.name, "rows": self.rows, "spread_rows": half, "conformal_rows": self.rows - half}
+        x_test, y_test = test[0], test[1]
+        if x_test is not None:
+            info["test"] = report(cal, predict(model, y_test), x_test, mass, seed)
+        return cal, {**info, "seconds": time.perf_counter() - t0}
+
+
+def stage(value):
+    """``calibration=``: ``"auto"`` (the default :class:`CalibrationStage`), ``None`` (none) or a stage."""
+    if isinstance(value, str) and value == "auto":
+        return CalibrationStage()
+    if value is not None and not isinstance(value, CalibrationStage):
+        raise TypeError(f"calibration={value!r} is not allowed; expected 'auto', None or a "
+                        "pdeinv.training.calibration.CalibrationStage")
+    return value
