@@ -30,11 +30,14 @@ from ..util.outpaths import RUN_FORMAT
 
 FORMAT, VERSION = RUN_FORMAT, 1
 RUN_FILE, MODEL_FILE = "run.json", "model.pt"
+#: the calibrated posterior of the run's network (:class:`pdeinv.posterior.conformal.Calibration`), when the
+#: run had a calibration stage
+POSTERIOR_FILE = "posterior.npz"
 
 #: every file ``pdeinv train`` writes into its ``--out`` folder (``.lock`` is the run lock's own, the
 #: marker :data:`pdeinv.util.outpaths.RUN_MARKER` the folder's: it stays when ``--overwrite`` clears these)
-OUTPUTS = ("metrics.json", "history.csv", "training.png", MODEL_FILE, RUN_FILE, "checkpoint.pt",
-           "fields.vtu", "fields.xdmf", "fields.png", "sensors.vtu")
+OUTPUTS = ("metrics.json", "history.csv", "training.png", MODEL_FILE, RUN_FILE, POSTERIOR_FILE,
+           "checkpoint.pt", "fields.vtu", "fields.xdmf", "fields.png", "sensors.vtu")
 
 
 def _mlp(problem, hidden):
@@ -102,8 +105,9 @@ def problem_spec(name_or_path: str) -> str:
 
 
 def save_run(out: str | os.PathLike, problem, overrides: dict | None = None, network_spec: dict | None = None,
-             model=None) -> Path:
-    """Write ``out/run.json`` and ``out/model.pt`` (module docstring); returns ``out``.
+             model=None, posterior=None) -> Path:
+    """Write ``out/run.json`` and ``out/model.pt`` (module docstring), and ``out/posterior.npz`` when
+    ``posterior`` (``result.posterior``) is given; returns ``out``.
 
     ``problem``: the name or module path the run's problem is loaded from (a :class:`~pdeinv.Problem`
     stands for its ``name``), ``overrides`` its settings (default none), ``network_spec`` the network's
@@ -139,7 +143,31 @@ def save_run(out: str | os.PathLike, problem, overrides: dict | None = None, net
     text = json.dumps(record, indent=2).encode()
     atomic_write(out / MODEL_FILE, lambda fh: torch.save(model.state_dict(), fh))
     atomic_write(out / RUN_FILE, lambda fh: fh.write(text))
+    if posterior is not None:
+        data = posterior.to_bytes()
+        atomic_write(out / POSTERIOR_FILE, lambda fh: fh.write(data))
+    elif (out / POSTERIOR_FILE).is_file():  # an earlier run's: not this model's
+        (out / POSTERIOR_FILE).unlink()
     return out
+
+
+def load_posterior(run_dir, problem=None):
+    """The run's :class:`~pdeinv.posterior.conformal.Calibration`, or ``None`` when it has none; a file
+    that does not fit the run's problem (``problem``) is a ``ValueError``."""
+    from ..posterior.conformal import Calibration
+
+    path = Path(run_dir) / POSTERIOR_FILE
+    if not path.is_file():
+        return None
+    try:
+        cal = Calibration.load(path)
+    except Exception as err:  # noqa: BLE001  (a truncated or foreign file)
+        raise ValueError(f"{os.fspath(path)!r} is not a pdeinv posterior ({type(err).__name__}); rerun "
+                         "`pdeinv train`") from None
+    if problem is not None and cal.scale.shape != (problem.N,):
+        raise ValueError(f"{os.fspath(path)!r} is for {cal.scale.shape[0]} unknowns; the run's problem has "
+                         f"{problem.N}: rerun `pdeinv train`")
+    return cal
 
 
 def load_run(run_dir):

@@ -377,7 +377,7 @@ def _run(args, out, problem, overrides, net, hp, trainer, fresh, setup=None, cho
     import torch
 
     from pdeinv.errors import NonFiniteError
-    from pdeinv.io.runs import RUN_FILE, clear_outputs, save_run
+    from pdeinv.io.runs import POSTERIOR_FILE, RUN_FILE, clear_outputs, save_run
     from pdeinv.util.files import atomic_write, write_csv
     from pdeinv.util.runlock import RunLock
 
@@ -412,8 +412,9 @@ def _run(args, out, problem, overrides, net, hp, trainer, fresh, setup=None, cho
         atomic_write(out / "metrics.json", lambda fh: fh.write(text))
         write_csv(result.history, out / "history.csv")
         training_curves(result.history, out / "training.png", f"{problem.name}, {args.method}")
-        save_run(out, args.problem, overrides, net, result.model)
-        written = {"metrics.json", "history.csv", "training.png", "model.pt", RUN_FILE, "checkpoint.pt"}
+        save_run(out, args.problem, overrides, net, result.model, result.posterior)
+        written = {"metrics.json", "history.csv", "training.png", "model.pt", RUN_FILE, "checkpoint.pt",
+                   *([POSTERIOR_FILE] if result.posterior is not None else [])}
         x_test, y_test = trainer.held_out()
         if args.export_samples:  # ParaView files and a picture of a few held-out samples
             from pdeinv.io.export import export_run
@@ -432,6 +433,11 @@ def _stage_line(stage: dict) -> str:
     name = stage["name"]
     if stage.get("skipped"):
         return f"{name}: skipped ({stage['skipped']})"
+    if "conformal_rows" in stage:  # the calibration stage (pdeinv.training.calibration)
+        test = stage.get("test")
+        cover = "" if test is None else (f", 90 % intervals cover {test['coverage_90']:.3g} of the test "
+                                         f"values (ball {test['ball_coverage_90']:.3g})")
+        return f"{name}: {stage['rows']} held-out draws{cover}"
     if "kept" in stage and not stage["kept"]:
         return f"{name}: not kept ({stage.get('steps', 0)} steps did not lower the held-out error)"
     # %.3g, never %.4f: "x_err 0.0000" once hid 6e-11
