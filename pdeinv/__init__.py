@@ -31,9 +31,10 @@ _WHERE = {
 #: the names a user calls; everything else is reached by its module path (``pdeinv.inverse.TikhonovCG``)
 __all__ = sorted(_WHERE)
 
-#: the short names a problem module imports (``from pdeinv import mesh, scenes, settings``), not in __all__
+#: the short names a problem module imports (``from pdeinv import mesh, scenes, settings``), not in __all__,
+#: and the posterior layer (``pdeinv.posterior.predictive``)
 _WHERE.update({"scenes": "=problem.scenes", "nonlinear_scenes": "=problem.nonlinear_scenes",
-               "settings": "=problem.settings", "observe": "=fem.sensors"})
+               "settings": "=problem.settings", "observe": "=fem.sensors", "posterior": "=posterior"})
 __version__ = "0.1.0"
 
 

@@ -2,9 +2,12 @@
 
 * :mod:`.gaussian`: the exact linear-Gaussian posterior, low-rank through the adjoint (the reference);
 * :mod:`.conformal`: a trained network's calibrated posterior (split-conformal on held-out rows);
-* :mod:`.diagnostics`: coverage, credible balls and simulation-based calibration on test rows.
+* :mod:`.diagnostics`: coverage, credible balls and simulation-based calibration on test rows;
+* :mod:`.predictive`: mean, std, intervals and samples of new observations.
 """
 
+from .conformal import Calibration
 from .gaussian import GaussianPrior, LinearGaussian
+from .predictive import predictive
 
-__all__ = ["GaussianPrior", "LinearGaussian"]
+__all__ = ["Calibration", "GaussianPrior", "LinearGaussian", "predictive"]

@@ -18,10 +18,10 @@ import time
 from dataclasses import dataclass
 
 import numpy as np
-import torch
 
 from ..posterior.conformal import Calibration
 from ..posterior.diagnostics import report
+from ..posterior.predictive import forward as predict
 from .trainset import CALIBRATION_DATA, seed_stream
 
 #: held-out prior draws of the default stage: half fix the spread, half the conformal quantiles (2048
@@ -31,17 +31,6 @@ ROWS = 4096
 #: sample of every observation is one of them, so their count bounds how well samples are calibrated
 #: (SBC against ``k`` references errs by about ``1/√k``)
 KEEP_NUMBERS, KEEP_ROWS = 4_000_000, (256, 2048)
-
-
-@torch.no_grad()
-def predict(model, y: np.ndarray, chunk: int = 1024) -> np.ndarray:
-    """``f(y)`` as float64 numpy, ``chunk`` rows at a time, in the model's dtype and device."""
-    param = next(iter(model.parameters()), None)
-    dtype = param.dtype if param is not None else torch.float32
-    device = param.device if param is not None else None
-    parts = [model(torch.as_tensor(y[i:i + chunk], dtype=dtype, device=device)).double().cpu().numpy()
-             for i in range(0, len(y), chunk)]
-    return np.concatenate(parts) if parts else np.zeros((0, 0))
 
 
 @dataclass(frozen=True)
