@@ -4,7 +4,10 @@ Reads ``y`` ``(B, m)`` (and ``x`` ``(B, N)`` if present, to report the error) fr
 ``--data`` (:func:`pdeinv.training.data.read_npz`), rebuilds the run's problem and network
 (:func:`pdeinv.io.runs.load_run`) and writes ``x`` ``(B, N)`` to ``--out`` atomically;
 ``--vtu FILE`` also writes every prediction (and true field and error, when ``x`` is
-given) at the mesh vertices for ParaView (:func:`pdeinv.io.export.write_fields`). The observations
+given) at the mesh vertices for ParaView (:func:`pdeinv.io.export.write_fields`). When the run has a
+calibrated posterior (``posterior.npz``, :mod:`pdeinv.training.calibration`), ``--out`` also holds
+``std``, ``lo`` and ``hi`` (the central interval at ``--level``, 0.9 by default) and, with
+``--samples K``, ``samples`` ``(B, K, N)`` (:func:`pdeinv.posterior.predictive`). The observations
 are checked against the run's physics first (:func:`pdeinv.training.data.against`): refused (exit 2) when
 half of them or more is unexplained (another problem's data of the same shapes), a warning when
 they are off by more than the run's noise level explains.
@@ -28,7 +31,8 @@ def cmd_predict(args) -> int:
     import numpy as np
 
     from pdeinv.io.export import predict, write_fields
-    from pdeinv.io.runs import load_run
+    from pdeinv.io.runs import load_posterior, load_run
+    from pdeinv.posterior import predictive
     from pdeinv.training.data import FOREIGN, against, explained, read_meta, read_npz
     from pdeinv.util.files import atomic_write
 
@@ -41,8 +45,20 @@ def cmd_predict(args) -> int:
     vtu = None if args.vtu is None else output_file(
         args.vtu, "--vtu", [("--data", args.data), *run_files, ("--out", args.out)],
         suffixes=(".vtu", ".xdmf"), overwrite=args.overwrite)
+    level = 0.9 if args.level is None else args.level
+    if not 0 < level < 1:
+        raise UsageError(f"--level {args.level:g} is not allowed; expected a number in (0, 1), e.g. 0.9 for "
+                         "90 % intervals")
+    if args.samples is not None and args.samples < 1:
+        raise UsageError(f"--samples {args.samples} is not allowed; expected a count >= 1 (leave it out "
+                         "for no samples)")
     set_threads(args.threads)
     problem, model = load_run(args.run)
+    posterior = load_posterior(args.run, problem)
+    if posterior is None and (args.level is not None or args.samples is not None):
+        raise UsageError(f"run {args.run!r} has no calibrated posterior (no posterior.npz: trained on a file "
+                         "without x, or before calibration existed), so --level and --samples have nothing "
+                         "to give; retrain it with `pdeinv train`")
     y, x = read_npz(args.data, problem.operator.n_out, problem.N)
     read_meta(args.data, problem.points)  # the file's points, if any, are the run's problem's
     what, figure = against(problem, y, x, args.data)  # checked against the run's physics
@@ -55,12 +71,17 @@ def cmd_predict(args) -> int:
                       f"{problem.noise:g} explains: the predictions are outside what it was trained for",
                       RuntimeWarning, stacklevel=2)
     xhat = predict(model, y)
+    arrays = {"x": xhat} if posterior is None else \
+        predictive(model, posterior, y, level, args.samples or 0, seed=args.seed)
     buffer = io.BytesIO()
-    np.savez(buffer, x=xhat)
+    np.savez(buffer, **arrays)
     atomic_write(out, lambda fh: fh.write(buffer.getvalue()))
     if vtu is not None:
         write_fields(vtu, problem, x, xhat, y, problem.operator.forward(xhat))
     error = "" if x is None else f", x_err {float(np.mean(problem.relative_error(xhat, x))):.3g}"
+    if posterior is not None:
+        error += f", {round(100 * level)} % intervals" + ("" if x is None else (
+            f" cover {float(np.mean((arrays['lo'] <= x) & (x <= arrays['hi']))):.3g} of the true values"))
     print(f"{problem.name}: {len(xhat)} predictions{error} -> {args.out}"
           + (f", {args.vtu}" if args.vtu else ""))
     return 0
@@ -71,11 +92,17 @@ def add_parser(sub) -> None:
     p.add_argument("run", metavar="RUN_DIR", help="the --out DIR of a finished `pdeinv train`")
     p.add_argument("--data", required=True, metavar="FILE.npz",
                    help="observations: an .npz with y (B, m); x (B, N) if present reports the error")
-    p.add_argument("--out", required=True, metavar="FILE.npz", help="where to write x (B, N)")
+    p.add_argument("--out", required=True, metavar="FILE.npz",
+                   help="where to write x (B, N), and std, lo, hi when the run is calibrated")
     p.add_argument("--vtu", default=None, metavar="FILE.vtu",
                    help="also write the predicted fields (and true ones and errors, with x) for ParaView")
     p.add_argument("--overwrite", action="store_true",
                    help="replace an existing --out or --vtu file (never a run's own files nor an input)")
+    p.add_argument("--level", type=float, default=None, metavar="L",
+                   help="central interval level in (0, 1) for lo and hi (default 0.9)")
+    p.add_argument("--samples", type=int, default=None, metavar="K",
+                   help="also write K posterior samples per observation, samples (B, K, N)")
+    p.add_argument("--seed", type=int, default=0, help="seed of the samples (default 0)")
     p.add_argument("--threads", type=int, default=1,
                    help="threads of torch and of numpy/scipy's BLAS (default 1)")
     p.set_defaults(func=cmd_predict)
