@@ -57,6 +57,7 @@ class Calibration:
     quantiles: np.ndarray    # (QUANTILE_POINTS,) Q at 0, …, 1 of the pooled signed scores
     ball: np.ndarray         # (n,) sorted ball scores t_(1..n)
     pooled: int              # n·N: the number of pooled signed scores
+    rms: float               # rms(s) of the pooled signed scores
 
     @classmethod
     def fit(cls, spread: np.ndarray, conformal: np.ndarray, mass=None, keep: int = 256) -> Calibration:
@@ -72,14 +73,9 @@ class Calibration:
         scores = (conformal / scale).ravel()
         q = np.quantile(scores, np.linspace(0, 1, QUANTILE_POINTS))
         ball = np.sort(_rms_norm(mass, conformal) / _rms_norm(mass, scale[None])[0])
-        return cls(scale, z, q, ball, scores.size)
+        return cls(scale, z, q, ball, scores.size, float(np.sqrt(np.mean(scores**2))))
 
     # -- what users read -----------------------------------------------------------------------------
-    @property
-    def rms(self) -> float:
-        """``rms(s)`` of the pooled scores (from the stored quantile function)."""
-        return float(np.sqrt(np.mean(self.quantiles**2)))
-
     @property
     def std(self) -> np.ndarray:
         return self.scale * self.rms
@@ -115,14 +111,14 @@ class Calibration:
     def to_bytes(self) -> bytes:
         buffer = io.BytesIO()
         np.savez(buffer, scale=self.scale, residuals=self.residuals,
-                 quantiles=self.quantiles, ball=self.ball, pooled=self.pooled)
+                 quantiles=self.quantiles, ball=self.ball, pooled=self.pooled, rms=self.rms)
         return buffer.getvalue()
 
     @classmethod
     def load(cls, path) -> Calibration:
         with np.load(path) as f:
             return cls(f["scale"], f["residuals"], f["quantiles"], f["ball"],
-                       int(f["pooled"]))
+                       int(f["pooled"]), float(f["rms"]))
 
 
 def _level(level) -> float:
