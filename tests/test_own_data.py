@@ -386,7 +386,7 @@ def test_a_file_may_carry_its_points_and_noise_level(tmp_path, capsys):
 
 
 def test_cli_predict_checks_the_observations_against_the_runs_physics(tmp_path, capsys):
-    """Observations of another problem with the same shapes are refused (exit 2, one line, nothing
+    """Observations of another problem with the same shapes are refused (exit 3, one line, nothing
     written): with x, by the model mismatch (x of other rows); without x, by the noise level the
     observations show outside range(P) (rough fields no heat run can produce). The run's own data:
     accepted, no warning."""
@@ -411,7 +411,7 @@ def test_cli_predict_checks_the_observations_against_the_runs_physics(tmp_path, 
         if name.startswith("own"):
             assert code == 0 and out.exists() and not err, (name, err)
         else:
-            assert code == 2 and len(err) == 1 and "is not of this run's physics" in err[0], (name, err)
+            assert code == 3 and len(err) == 1 and "is not of this run's physics" in err[0], (name, err)
             assert not out.exists()
 
 

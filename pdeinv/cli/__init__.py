@@ -6,9 +6,11 @@ traceback (``-v`` prints the traceback of what a user's module raised before tha
 numerical failure on valid input (:mod:`pdeinv.errors`) or running out of memory ends
 with exit code 1 and one line that says what to change; a training run that failed its
 final check (:mod:`pdeinv.training.verdict`: worse than predicting zero) ends with exit code 3 and one
-line after writing its files, unless ``--accept-bad``; Ctrl-C ends with 130 and one
-line, SIGTERM the same way with 143 (:mod:`pdeinv.cli.signals`), and Ctrl-C before the command started
-(imports, parsing) with 130 and no output. Any other exception is a bug and keeps its traceback.
+line after writing its files, and data that cannot be right (:class:`~pdeinv.cli.commands.BadData`:
+another physics' observations, no signal) with exit code 3 and one line before any work, unless
+``--accept-bad``; Ctrl-C ends with 130 and one line, SIGTERM the same way with 143
+(:mod:`pdeinv.cli.signals`), and Ctrl-C before the command started (imports, parsing) with 130 and no
+output. Any other exception is a bug and keeps its traceback.
 """
 
 from __future__ import annotations
@@ -22,7 +24,7 @@ from ..errors import numerical_types
 from ..training.arguments import SEED_MAX
 from ..util.runlock import FolderLocked
 from . import commands
-from .commands import UsageError, parse_sets
+from .commands import FAILED, BadData, UsageError, parse_sets
 
 __all__ = ["UsageError", "build_parser", "main", "parse_sets"]
 
@@ -112,6 +114,9 @@ def _main(argv=None) -> int:
 
         print(f"pdeinv {args.command}: {what(err)}", file=sys.stderr)
         return exit_code(err)
+    except BadData as err:
+        print(f"pdeinv {args.command}: error: {err}", file=sys.stderr)
+        return FAILED
     except numerical_types() as err:  # before ValueError: numpy's LinAlgError is one
         print(f"pdeinv {args.command}: numerical failure: {err}", file=sys.stderr)
         return 1

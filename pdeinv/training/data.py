@@ -16,7 +16,8 @@ rows of ``‖P x − y‖ / ‖y‖`` (Euclidean on the observation coefficients
 simulator (or instrument) is from ours; with noise of relative level ``δ``
 (:func:`pdeinv.problem.sampling.add_noise`: ``y + δ·rms(y)·ε``) it is about ``δ`` from the noise alone.
 The trainer records it (``metrics["data"]["model_mismatch"]``) and warns when it exceeds what the
-run's noise level explains (:data:`MISMATCH_SLACK`).
+run's noise level explains (:data:`MISMATCH_SLACK`); beyond :data:`MISMATCH_FACTOR` times that level
+(:func:`beyond_noise`) the CLI refuses the file (exit 3, ``--accept-bad`` keeps it).
 
 Refused with a ``ValueError`` naming the file and what was expected: not an npz,
 an empty file, a missing ``y``, a wrong shape (``y`` must have the problem's ``m``
@@ -231,16 +232,37 @@ def explained(mismatch: float, noise: float) -> bool:
     return mismatch <= (MISMATCH_SLACK[0] * noise if noise else MISMATCH_SLACK[1])
 
 
-#: a figure of :func:`against` above this: the observations are not of the problem's physics at all
-#: (half the observation or more unexplained: made by another problem of the same shapes)
-FOREIGN = 0.5
+#: a figure of :func:`against` above ``MISMATCH_FACTOR`` times the noise level (and above ``MISMATCH_FLOOR``)
+#: is more than noise: the data come from another physics or other settings (κ, T, the mesh). The one
+#: limit (:func:`beyond_noise`) of ``pdeinv classical`` (exit 3), ``train --data`` and ``predict`` (refused,
+#: exit 3; ``--accept-bad`` keeps the run)
+MISMATCH_FACTOR = 5.0
+MISMATCH_FLOOR = 0.05
+
+
+def mismatch_limit(noise: float) -> float:
+    """The largest figure of :func:`against` noise of relative level ``noise`` explains (above
+    :func:`explained`'s, which only warns): ``max(MISMATCH_FACTOR·noise, MISMATCH_FLOOR)``."""
+    return max(MISMATCH_FACTOR * noise, MISMATCH_FLOOR)
+
+
+def beyond_noise(what: str, figure: float, noise: float) -> str | None:
+    """Why observations whose ``what`` (of :func:`against`) is ``figure`` are not of a problem at noise
+    level ``noise`` — ``figure`` above :func:`mismatch_limit` (or not a number) —, in one clause; None
+    within it."""
+    limit = mismatch_limit(noise)
+    if figure <= limit:
+        return None
+    return (f"its {what} is {figure:.3g}, above {limit:.3g}, the most noise of level {noise:g} explains "
+            f"({MISMATCH_FACTOR:g}× the level, at least {MISMATCH_FLOOR:g}): the data come from another "
+            "physics or other settings (κ, T, the mesh?)")
 
 
 def against(problem, y: np.ndarray, x: np.ndarray | None, path=None) -> tuple[str, float]:
     """``(what, figure)``: how far observations from elsewhere are from ``problem``'s physics — with
     ``x``, :func:`model_mismatch`; else the noise level they show outside ``range(P)``
     (:func:`undeclared_noise`, 0 where it cannot be read). Compare it with the level the problem
-    assumes (:func:`explained`) and with :data:`FOREIGN`."""
+    assumes (:func:`explained`: a warning) and with its limit (:func:`beyond_noise`: refused)."""
     if x is not None:
         return "model mismatch mean ‖P x − y‖/‖y‖", model_mismatch(problem.operator, x, y)
     return "noise level outside the range of P", undeclared_noise(path, y, problem) if path else 0.0

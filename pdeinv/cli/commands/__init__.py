@@ -19,6 +19,11 @@ class UsageError(Exception):
     """A user mistake the CLI reports in one line (exit code 2)."""
 
 
+class BadData(Exception):
+    """Input whose results cannot be right (data of another physics, no signal), refused before any work:
+    one line, exit code :data:`FAILED`; the command's ``--accept-bad`` lets it through."""
+
+
 def parse_sets(pairs: list[str]) -> dict:
     """``["kappa=0.02", "mesh=f.msh"]`` -> ``{"kappa": "0.02", ...}`` (problems coerce types)."""
     out = {}

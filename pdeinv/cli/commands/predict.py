@@ -8,9 +8,10 @@ given) at the mesh vertices for ParaView (:func:`pdeinv.io.export.write_fields`)
 calibrated posterior (``posterior.npz``, :mod:`pdeinv.training.calibration`), ``--out`` also holds
 ``std``, ``lo`` and ``hi`` (the central interval at ``--level``, 0.9 by default) and, with
 ``--samples K``, ``samples`` ``(B, K, N)`` (:func:`pdeinv.posterior.predictive`). The observations
-are checked against the run's physics first (:func:`pdeinv.training.data.against`): refused (exit 2) when
-half of them or more is unexplained (another problem's data of the same shapes), a warning when
-they are off by more than the run's noise level explains.
+are checked against the run's physics first (:func:`pdeinv.training.data.against`): refused (exit 3, one
+line; ``--accept-bad`` predicts anyway) beyond the limit ``pdeinv classical`` and ``train`` apply
+(:func:`pdeinv.training.data.beyond_noise`), a warning when they are off by more than the run's noise
+level explains.
 """
 
 from __future__ import annotations
@@ -19,21 +20,21 @@ from pathlib import Path
 
 from pdeinv.util.outpaths import output_file
 
-from . import UsageError, set_threads
+from . import BadData, UsageError, set_threads
 
 ORDER = 2
 
 
 def cmd_predict(args) -> int:
     import io
-    import warnings
+    import logging
 
     import numpy as np
 
     from pdeinv.io.export import predict, write_fields
     from pdeinv.io.runs import load_posterior, load_run
     from pdeinv.posterior import predictive
-    from pdeinv.training.data import FOREIGN, against, explained, read_meta, read_npz
+    from pdeinv.training.data import against, beyond_noise, explained, read_meta, read_npz
     from pdeinv.util.files import atomic_write
 
     run = Path(args.run)
@@ -62,14 +63,15 @@ def cmd_predict(args) -> int:
     y, x = read_npz(args.data, problem.operator.n_out, problem.N)
     read_meta(args.data, problem.points)  # the file's points, if any, are the run's problem's
     what, figure = against(problem, y, x, args.data)  # checked against the run's physics
-    if not figure <= FOREIGN:
-        raise UsageError(f"--data {args.data!r} is not of this run's physics: its {what} is {figure:.3g} "
-                         f"(run {problem.name}, trained at noise {problem.noise:g}); observations made by "
-                         "another problem of the same shapes? predict with that problem's run")
+    why = beyond_noise(what, figure, problem.noise)
+    if why is not None and not args.accept_bad:
+        raise BadData(f"--data {args.data!r} is not of this run's physics (run {problem.name}): {why}; "
+                      "--accept-bad predicts anyway")
     if not explained(figure, problem.noise):
-        warnings.warn(f"--data {args.data!r}: its {what} is {figure:.3g}, above what the run's noise level "
-                      f"{problem.noise:g} explains: the predictions are outside what it was trained for",
-                      RuntimeWarning, stacklevel=2)
+        logging.getLogger("pdeinv").warning(
+            f"pdeinv predict: warning: --data {args.data!r}: its {what} is {figure:.3g}, above what the "
+            f"run's noise level {problem.noise:g} explains: the predictions are outside what it was trained "
+            "for")
     xhat = predict(model, y)
     arrays = {"x": xhat} if posterior is None else \
         predictive(model, posterior, y, level, args.samples or 0, seed=args.seed)
@@ -103,6 +105,9 @@ def add_parser(sub) -> None:
     p.add_argument("--samples", type=int, default=None, metavar="K",
                    help="also write K posterior samples per observation, samples (B, K, N)")
     p.add_argument("--seed", type=int, default=0, help="seed of the samples (default 0)")
+    p.add_argument("--accept-bad", action="store_true",
+                   help="predict even on observations beyond what the run's noise explains (another physics "
+                        "or settings: else exit code 3 and one line), with a warning")
     p.add_argument("--threads", type=int, default=1,
                    help="threads of torch and of numpy/scipy's BLAS (default 1)")
     p.set_defaults(func=cmd_predict)
