@@ -21,6 +21,10 @@ reconstructs every row with what needs no training:
   rows) and the data's **model mismatch** ``mean ‖P x − y‖/‖y‖``
   (:func:`pdeinv.training.data.model_mismatch`).
 
+Observations with no signal (no noise level declared, and the one estimated from the file makes Morozov's
+principle accept the estimate 0: :func:`pdeinv.inverse.noise.signal_free`) are refused before any solve
+(exit 3, one line; ``--accept-bad``: a warning, exit 0).
+
 Prints one line per solve (x-error with x, and the relative residual ``mean ‖P x̂ − y‖/‖y‖``) and
 writes them to ``--out`` (JSON) if given; x-errors are relative L²(Ω) over all the file's rows
 (a run's ``x_err`` is over its test rows: compare on the same rows).
@@ -33,7 +37,7 @@ import sys
 
 from pdeinv.util.outpaths import output_file
 
-from . import FAILED, add_set_argument, build_problem, set_threads
+from . import FAILED, BadData, add_set_argument, build_problem, set_threads
 
 ORDER = 2
 
@@ -42,7 +46,8 @@ def cmd_classical(args) -> int:
     import numpy as np
 
     from pdeinv.fem.forms import relative_norms
-    from pdeinv.inverse.noise import estimate_noise
+    from pdeinv.inverse import Discrepancy
+    from pdeinv.inverse.noise import NoSignal, estimate_noise, signal_free
     from pdeinv.physics.nonlinear import is_linear
     from pdeinv.training.data import read_meta, read_npz
     from pdeinv.util.files import atomic_write
@@ -57,7 +62,12 @@ def cmd_classical(args) -> int:
     declared = read_meta(args.data, problem.points).get("noise")
     # the estimate reads noise off the spectral tail a linear smoothing map leaves; a nonlinear map makes
     # its own fine scales (sine_gordon_1d, noise-free: "0.135"), so it is not estimated there
-    guess = estimate_noise(y) if min(y.shape) >= 4 and is_linear(problem.operator) else 0.0
+    try:
+        guess = estimate_noise(y) if min(y.shape) >= 4 and is_linear(problem.operator) else 0.0
+    except NoSignal:
+        guess = float("inf")
+    if not (problem.noise or declared) and signal_free(guess, Discrepancy(1.0).tau):
+        return _no_signal(args, guess)
     noise = problem.noise or declared or guess
     source = "the problem's" if problem.noise else "the file's" if declared else \
         "estimated from the file" if is_linear(problem.operator) else "the problem's"
@@ -85,6 +95,19 @@ def cmd_classical(args) -> int:
         print(f"pdeinv classical: {kind}: {rows['failed']}" + ("" if args.accept_bad else
               "; --accept-bad ends with exit code 0"), file=sys.stderr)
         return 0 if args.accept_bad else FAILED
+    return 0
+
+
+def _no_signal(args, level: float) -> int:
+    """Observations that are noise all through (:func:`pdeinv.inverse.noise.signal_free`): exit 3 and one
+    line (:class:`BadData`), or with ``--accept-bad`` a warning and exit 0; nothing is solved."""
+    read = "more than all of ‖y‖" if level == float("inf") else f"{level:.3g}"
+    why = (f"--data {args.data!r} shows no signal: the noise level read from its observations ({read}) "
+           "accounts for all of them (Morozov's principle accepts the estimate 0), so no estimate here means "
+           "anything: pure noise? (--set noise=… declares a level instead)")
+    if not args.accept_bad:
+        raise BadData(f"{why}; --accept-bad ends with exit code 0")
+    print(f"pdeinv classical: warning: {why}; nothing solved (--accept-bad)", file=sys.stderr)
     return 0
 
 
@@ -161,22 +184,18 @@ def _finite(rows: dict) -> None:
                                      "check the data with numpy.isfinite)")
 
 
-#: model mismatch ``mean ‖P x − y‖/‖y‖`` above this many times the noise level (and above
-#: :data:`MISMATCH_FLOOR`) means the file's y are not this problem's P x
-MISMATCH_FACTOR = 5.0
-MISMATCH_FLOOR = 0.05
-
-
 def _failed(problem, rows: dict, x, y, noise: float) -> str | None:
     """Why the classical solves cannot be right, or None: with x, a model mismatch far above the noise
-    (another physics or other settings, e.g. κ) or every estimate no better than zero (x_err ≥ 1);
+    (beyond :func:`pdeinv.training.data.mismatch_limit`, the limit of ``train`` and ``predict`` too: another
+    physics or other settings, e.g. κ) or every estimate no better than zero (x_err ≥ 1);
     without x, estimates over :data:`pdeinv.training.verdict.AMPLITUDE` times the prior's rms amplitude."""
     import numpy as np
 
+    from pdeinv.training.data import mismatch_limit
     from pdeinv.training.verdict import AMPLITUDE, WORSE_THAN_ZERO
 
     mismatch = rows.get("model_mismatch")
-    if mismatch is not None and mismatch > max(MISMATCH_FACTOR * noise, MISMATCH_FLOOR):
+    if mismatch is not None and not mismatch <= mismatch_limit(noise):
         return (f"the file's y differ from this problem's P x by {mismatch:.3g} (mean ‖P x − y‖/‖y‖), far "
                 f"above its noise level {noise:g}: the data come from another physics or other settings (κ, "
                 "T, the mesh?), so no estimate here means anything")
@@ -204,7 +223,7 @@ def add_parser(sub) -> None:
     c.add_argument("--threads", type=int, default=1, help="threads of torch and of numpy/scipy's BLAS")
     c.add_argument("--accept-bad", action="store_true",
                    help="exit 0 even when the solves cannot be right (else exit code 3 and one line: a model "
-                        "mismatch far above the noise, every estimate no better than zero, or estimates over "
-                        "100x the prior's amplitude without x); the numbers are printed and written either "
-                        "way")
+                        "mismatch far above the noise, every estimate no better than zero, estimates over "
+                        "100x the prior's amplitude without x, or observations with no signal); the numbers "
+                        "are printed and written either way (none for observations with no signal)")
     c.set_defaults(func=cmd_classical)

@@ -12,6 +12,7 @@ from pathlib import Path
 
 from . import (
     FAILED,
+    BadData,
     UsageError,
     _checks,
     add_set_argument,
@@ -155,6 +156,8 @@ def cmd_train(args) -> int:
         return 1
     except (UsageError, ValueError, FileNotFoundError, NotImplementedError):
         return 2
+    except BadData:
+        return FAILED
     except KeyboardInterrupt as err:
         from pdeinv.cli.signals import exit_code
 
@@ -296,6 +299,7 @@ def _parallel_train(args, out, ckpt, device, parallel) -> int:
     no_cache(args)
     t_build, c_build = time.perf_counter(), time.process_time()
     problem, overrides, y, x = _problem_and_data(args)  # says so when the build is slow
+    _refuse_mismatch(args, problem, y, x)  # exit 3 before anything is written
     # metrics.json "setup" (wall seconds) and "setup_cpu" (CPU seconds), with the trainer's phases
     setup = {"build": time.perf_counter() - t_build}
     setup_cpu = {"build": time.process_time() - c_build}
@@ -370,6 +374,19 @@ def _problem_and_data(args):
         overrides = parse_sets(args.set)
         problem = build_problem("train", args.problem, args.set, steps=args.steps)
     return problem, overrides, y, x
+
+
+def _refuse_mismatch(args, problem, y, x) -> None:
+    """``--data`` whose y are beyond what the run's noise explains (:func:`pdeinv.training.data.beyond_noise`,
+    the limit of ``classical`` and ``predict`` too): :class:`BadData` (exit 3, one line), unless
+    ``--accept-bad``, which trains on it with the trainer's warning."""
+    if x is None or args.accept_bad:
+        return
+    from pdeinv.training.data import against, beyond_noise
+
+    why = beyond_noise(*against(problem, y, x), problem.noise)
+    if why is not None:
+        raise BadData(f"--data {args.data!r}: {why}; --accept-bad trains on it anyway")
 
 
 def _run(args, out, problem, overrides, net, hp, trainer, fresh, setup=None, chosen=None) -> int:
