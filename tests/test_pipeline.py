@@ -54,7 +54,7 @@ def test_a_rule_already_within_the_negligible_error_skips_the_stage_before_drawi
     """Noise-free heat_1d: SIP's linear estimate is ~0.004 from the truth; the stage says why it does not
     run, from 64 pilot draws, and the network stays the rule's."""
     res = pdeinv.train(pdeinv.load_problem("heat_1d", n=16), "sip", n_train=256, n_test=32, progress=False)
-    rule, prior = res.metrics["stages"]
+    rule, prior, _ = res.metrics["stages"]
     assert rule["name"] == "sip" and rule["x_err"] < NEGLIGIBLE
     assert prior["name"] == "prior" and not prior["kept"] and "too little is left" in prior["skipped"]
     assert not bool(res.model.active)
@@ -81,7 +81,7 @@ def test_the_default_pipeline_on_a_ci_sized_box_scene(tmp_path, capsys):
                  "--export-samples", "0"]) == 0
     line = capsys.readouterr().out
     m = json.loads((out / "metrics.json").read_text())
-    rule, prior = m["stages"]
+    rule, prior, _ = m["stages"]
     assert (rule["name"], prior["name"]) == ("sip", "prior") and prior["kept"]
     assert 0.30 < rule["x_err"] < 0.45 and rule["y_err"] < 1e-9
     assert prior["x_err"] < 0.28 and prior["y_err"] < 1e-6 and prior["draws"] == draw_count(225)
@@ -93,7 +93,7 @@ def test_the_default_pipeline_on_a_ci_sized_box_scene(tmp_path, capsys):
 def test_with_noise_the_final_estimate_fits_the_observations_to_the_noise_level(tmp_path):
     p = pdeinv.load_problem("heat_boxes", n=16, noise=0.01)
     res = pdeinv.train(p, "sip", progress=False, prior=PriorStage(PriorFit(steps=400), draws=8192))
-    rule, prior = res.metrics["stages"]
+    rule, prior, _ = res.metrics["stages"]
     assert prior["kept"] and prior["x_err"] < rule["x_err"]
     assert prior["y_err"] <= 1.5 * 0.01
     assert np.isfinite(prior["error_after"]) and prior["error_after"] <= prior["error_corrected"] * 1.01

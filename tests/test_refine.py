@@ -117,7 +117,7 @@ def test_cli_runs_the_prior_stage_by_default_and_records_it(tmp_path):
     assert main(["train", "heat_1d", "--set", "n=16", "--set", "noise=0.02", "--steps", "3", "--prior-fit",
                  "30", "--out", str(tmp_path / "r"), "--threads", "1"]) == 0  # noisy: SIP not within 1 %
     stages = json.loads((tmp_path / "r" / "metrics.json").read_text())["stages"]
-    assert [s["name"] for s in stages] == ["sip", "prior"]
+    assert [s["name"] for s in stages] == ["sip", "prior", "calibration"]
     assert stages[1]["prior"] == f"{draw_count(p.N)} draws of the scene's prior (bumps)"
     assert stages[1]["draws"] == draw_count(p.N) and stages[1]["steps"] <= 30
     assert main(["train", "heat_1d", "--steps", "3", "--prior-fit", "-1", "--out", str(tmp_path / "s")]) == 2

@@ -150,6 +150,6 @@ def test_the_prior_stage_adds_to_the_rule_trained_unet(boxes):
     torch.manual_seed(0)
     r = pdeinv.train(boxes, "sip", model=unet()(boxes), steps=30, progress=False, n_train=256, n_test=32,
                      prior=PriorStage(PriorFit(steps=150), draws=2048))
-    rule, prior = r.metrics["stages"]
+    rule, prior, _ = r.metrics["stages"]
     assert prior["name"] == "prior" and prior["kept"], prior
     assert prior["x_err"] < 0.6 * rule["x_err"] and prior["y_err"] < 1e-5, (rule, prior)
