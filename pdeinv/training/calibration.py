@@ -25,8 +25,14 @@ from ..posterior.predictive import forward as predict
 from .trainset import CALIBRATION_DATA, seed_stream
 
 #: held-out prior draws of the default stage: half fix the spread, half the conformal quantiles (2048
-#: rows give the 90 % ball's radius to ±0.7 % coverage and each node's scale to ±1.6 %)
-ROWS = 4096
+#: rows give the 90 % ball's radius to ±0.7 % coverage and each node's scale to ±1.6 %); fewer on large
+#: meshes, so that the residuals held at once stay within ROW_NUMBERS numbers (160 MB), at least MIN_ROWS
+ROWS, ROW_NUMBERS, MIN_ROWS = 4096, 20_000_000, 512
+
+
+def row_count(N: int) -> int:
+    """The default stage's held-out draws for ``N`` unknowns (:data:`ROWS`)."""
+    return int(min(ROWS, max(MIN_ROWS, ROW_NUMBERS // N)))
 #: stored residuals for samples: at most this many numbers (float16: 8 MB), 256 to 2048 rows. Every
 #: sample of every observation is one of them, so their count bounds how well samples are calibrated
 #: (SBC against ``k`` references errs by about ``1/√k``)
@@ -35,17 +41,18 @@ KEEP_NUMBERS, KEEP_ROWS = 4_000_000, (256, 2048)
 
 @dataclass(frozen=True)
 class CalibrationStage:
-    """Calibrate the trained network on ``rows`` held-out prior draws (module docstring); ``keep`` of the
-    spread rows' residuals are stored for samples (``None``: :data:`KEEP_NUMBERS` numbers)."""
+    """Calibrate the trained network on ``rows`` held-out prior draws (``None``: :func:`row_count`; module
+    docstring); ``keep`` of the spread rows' residuals are stored for samples (``None``:
+    :data:`KEEP_NUMBERS` numbers)."""
 
-    rows: int = ROWS
+    rows: int | None = None
     keep: int | None = None
     name: str = "calibration"
 
     def __post_init__(self):
         for key, low in (("rows", 4), ("keep", 1)):
             value = getattr(self, key)
-            if key == "keep" and value is None:
+            if value is None:
                 continue
             if isinstance(value, bool) or not isinstance(value, int) or value < low:
                 raise ValueError(f"CalibrationStage({key}={value!r}) is not allowed; expected an integer "
@@ -62,7 +69,8 @@ class CalibrationStage:
         why = self.why_not(problem, own)
         if why is not None:
             return {"name": self.name, "skipped": why}
-        return {"name": self.name, "rows": self.rows, "prior": problem.settings.get("prior", "the scene's")}
+        return {"name": self.name, "rows": self.rows or row_count(problem.N),
+                "prior": problem.settings.get("prior", "the scene's")}
 
     def run(self, problem, model, own, seed: int, test) -> tuple[Calibration | None, dict]:
         """``(calibration or None, what the stage reports)``; ``test = (x, y, ...)`` the run's test rows."""
@@ -70,14 +78,15 @@ class CalibrationStage:
         why = self.why_not(problem, own)
         if why is not None:
             return None, {"name": self.name, "skipped": why, "seconds": time.perf_counter() - t0}
-        x, y = problem.sample(self.rows, seed_stream(seed, CALIBRATION_DATA))
+        rows = self.rows or row_count(problem.N)
+        x, y = problem.sample(rows, seed_stream(seed, CALIBRATION_DATA))
         residual = x - predict(model, y)
-        half = self.rows // 2
+        half = rows // 2
         mass = problem.disc.M if problem.disc is not None else None
         lo, hi = KEEP_ROWS
         keep = self.keep or int(np.clip(KEEP_NUMBERS // problem.N, lo, hi))
         cal = Calibration.fit(residual[:half], residual[half:], mass, keep)
-        info = {"name": self.name, "rows": self.rows, "spread_rows": half, "conformal_rows": self.rows - half}
+        info = {"name": self.name, "rows": rows, "spread_rows": half, "conformal_rows": rows - half}
         x_test, y_test = test[0], test[1]
         if x_test is not None:
             info["test"] = report(cal, predict(model, y_test), x_test, mass, seed)

@@ -34,6 +34,7 @@ from ..methods.sip import CHUNK_ENTRIES
 from ..nets import network_size
 from ..nets.refine import PriorFit, PriorFitted, Refined
 from ..util.memory import GB, HIG_JACOBIAN_GB, check
+from .calibration import stage as calibration_stage
 from .trainset import N_TRAIN, prior_rows
 
 #: prior draws for the stage's decision, before any fitting (their own seed stream)
@@ -193,6 +194,12 @@ class Plan:
 
 
 def _stage_text(st: dict) -> str:
+    if st["name"] == "calibration":
+        if st.get("skipped"):
+            return f"calibration: none ({st['skipped']})"
+        return (f"calibration: the network's residuals on {st['rows']} held-out draws of the prior "
+                f"({st['prior']}) give its posterior: per-node scale from half, split-conformal quantiles "
+                "from the other half (std, intervals at any level, samples: posterior.npz)")
     if st["name"] == "prior":
         if st.get("skipped"):
             return f"prior: none ({st['skipped']})"
@@ -207,7 +214,7 @@ def _stage_text(st: dict) -> str:
 
 def plan(problem, rule: str = "sip", *, net: str = "default", hidden=None, prior="auto",
          n_train: int = N_TRAIN, steps: int | None = None, batch_size: int | None = None, own=None,
-         n_test: int = 128, fresh: bool = False, **settings) -> Plan:
+         n_test: int = 128, fresh: bool = False, calibration="auto", **settings) -> Plan:
     """The plan of ``Trainer(problem, rule, ...)`` / ``pdeinv train`` with these arguments (``problem`` a
     :class:`~pdeinv.Problem`, a name or a module path; ``rule`` a method name; ``settings`` the rule's, as
     :func:`pdeinv.methods.presets.make_rule` takes them; ``own``: a
@@ -245,6 +252,9 @@ def plan(problem, rule: str = "sip", *, net: str = "default", hidden=None, prior
         st = prior.planned(problem, correction_kind(problem), own)
         stages.append(st)
         prior_draws = 0 if st.get("skipped") else st["draws"]
+    calibration = calibration_stage(calibration)
+    if calibration is not None:
+        stages.append(calibration.planned(problem, own))
     memory = run_bytes(problem, n_train, n_test, batch, hidden, kind if kind != "mlp" else "default",
                        rule, 128, prior_draws, hp.get("optimizer") or "adam")
     why = ("the MLP of --hidden" if hidden else
