@@ -2,7 +2,8 @@
 
 ``PDEINV_PAUSE=step:N`` pauses right after the N-th update of this process was applied (parameters
 changed, that step not yet saved); ``save:N`` pauses in the N-th atomic write, after half of the new
-file's bytes went into its temporary. Pausing writes ``PDEINV_MARKER`` and sleeps: the test kills the
+file's bytes went into its temporary (the rest follows when the pause ends). Pausing writes
+``PDEINV_MARKER`` and waits until the test deletes it (at most 600 s): the test kills or signals the
 process when the marker appears, so every kill lands exactly there, on any machine speed.
 """
 
@@ -26,7 +27,9 @@ calls = {"step": 0, "save": 0}
 
 def pause():
     MARKER.write_text(f"{KIND}:{N}")
-    time.sleep(600)
+    deadline = time.monotonic() + 600
+    while MARKER.exists() and time.monotonic() < deadline:
+        time.sleep(0.01)
 
 
 def counted(kind):
@@ -56,6 +59,7 @@ def atomic_write(path, write):
         fh.flush()
         os.fsync(fh.fileno())
         pause()
+        fh.write(data[len(data) // 2:])
 
     return real_write(path, half)
 

@@ -1,5 +1,5 @@
-"""SIGTERM is handled as Ctrl-C is (pdeinv.cli.signals): in the middle of a checkpoint save it removes the
-half-written temporary, names the last checkpoint, exits 143, and the run resumes; Ctrl-C or SIGTERM
+"""SIGTERM is handled as Ctrl-C is (pdeinv.cli.signals): in the middle of a checkpoint save it waits for
+the save (pdeinv.util.critical), names the checkpoint, exits 143, and the run resumes; Ctrl-C or SIGTERM
 during start-up (imports, parsing, building the problem) exits 130 / 143 with at most one line and
 no traceback (Ctrl-C at 0.6 s once crashed the interpreter re-importing a half-imported torch).
 
@@ -31,7 +31,7 @@ def _env(**extra):
     return {**os.environ, "PYTHONPATH": str(ROOT), "OMP_NUM_THREADS": "1", **extra}
 
 
-def test_sigterm_during_a_checkpoint_save_cleans_up_and_resumes(tmp_path):
+def test_sigterm_during_a_checkpoint_save_waits_for_it_and_resumes(tmp_path):
     out, marker = tmp_path / "run", tmp_path / "paused"
     env = _env(PDEINV_PAUSE="save:4", PDEINV_MARKER=str(marker))
     proc = subprocess.Popen([sys.executable, str(ROOT / "tests" / "pausing.py"), *ARGS, "--out", str(out),
@@ -44,13 +44,16 @@ def test_sigterm_during_a_checkpoint_save_cleans_up_and_resumes(tmp_path):
         time.sleep(0.01)
     assert any(n.endswith(".tmp") for n in os.listdir(out))  # the half-written temporary is there
     proc.send_signal(signal.SIGTERM)
+    time.sleep(0.2)  # the signal is in, held back
+    assert proc.poll() is None
+    marker.unlink()  # the save goes on
     _, err = proc.communicate(timeout=60)
     err = err.decode()
     assert proc.returncode == TERMINATED == 143, err
     assert "Traceback" not in err and err.strip().splitlines()[-1] == (
         f"pdeinv train: terminated (SIGTERM); continue from {out / 'checkpoint.pt'} with --resume"), err
-    assert not [n for n in os.listdir(out) if n.endswith(".tmp")]  # removed as Ctrl-C removes it
-    assert Checkpoint(out / "checkpoint.pt").load()["position"]["step"] == 3  # the last whole save
+    assert not [n for n in os.listdir(out) if n.endswith(".tmp")]  # in place, whole
+    assert Checkpoint(out / "checkpoint.pt").load()["position"]["step"] == 4  # the save it waited for
     done = subprocess.run([sys.executable, "-m", "pdeinv", *ARGS, "--out", str(out), "--resume"],
                           cwd=tmp_path, capture_output=True, env=_env(), timeout=120)
     assert done.returncode == 0, done.stderr.decode()

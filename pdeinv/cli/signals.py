@@ -3,7 +3,9 @@
 its temporary (:func:`pdeinv.util.files.atomic_write`), the run lock is released, ``pdeinv train`` names its
 last checkpoint — and the command exits with 143 (128 + SIGTERM; Ctrl-C: 130). Both are held back
 while a module is being imported (an interrupted C-extension import broke every later import of numpy
-and torch) and raised as soon as the import is done.
+and torch) and while a file is being written (:mod:`pdeinv.util.critical`: an interrupt inside
+``torch.save``'s C++ writer came out as ``RuntimeError: [enforce fail at inline_container.cc]``, exit 1),
+and raised as soon as the import or the write is done.
 
 Python's default for SIGTERM is to die on the spot: no cleanup, a stale ``.<name>.<random>.tmp`` left
 beside the file being written, and nothing said. ``kill``, ``timeout``, a batch scheduler's
@@ -15,6 +17,8 @@ from __future__ import annotations
 import contextlib
 import signal
 import threading
+
+from ..util import critical
 
 #: exit codes of a command stopped by Ctrl-C (SIGINT) and by SIGTERM: 128 + the signal's number
 INTERRUPTED, TERMINATED = 128 + signal.SIGINT, 128 + signal.SIGTERM
@@ -40,12 +44,16 @@ def _importing(frame) -> bool:
 
 
 def _deliver(kind: type[BaseException], frame) -> None:
-    """Raise ``kind`` here, unless a module is being imported: an exception inside a C extension's
-    import leaves it half-initialised, and the next import of numpy or torch then fails or crashes the
-    interpreter (measured: Ctrl-C 0.5 s into ``pdeinv train`` gave "cannot load module more than once
-    per process", at 0.6 s SIGSEGV). Then it is held back and tried again every :data:`RETRY_S`
-    seconds (SIGALRM) until the import is done."""
+    """Raise ``kind`` here, unless a critical section runs (:func:`pdeinv.util.critical.inside`: a file
+    being written; then it is raised as the section ends) or a module is being imported: an exception
+    inside a C extension's import leaves it half-initialised, and the next import of numpy or torch then
+    fails or crashes the interpreter (measured: Ctrl-C 0.5 s into ``pdeinv train`` gave "cannot load module
+    more than once per process", at 0.6 s SIGSEGV). Then it is held back and tried again every
+    :data:`RETRY_S` seconds (SIGALRM) until the import is done."""
     global _pending
+    if critical.inside():
+        critical.hold(lambda: _deliver(kind, None))
+        return
     if _importing(frame) and hasattr(signal, "setitimer"):
         _pending = kind
         signal.setitimer(signal.ITIMER_REAL, RETRY_S)
@@ -86,6 +94,7 @@ def terminate_as_interrupt():
         if hasattr(signal, "setitimer"):
             signal.setitimer(signal.ITIMER_REAL, 0)
         _pending = None
+        critical.hold(None)
         for sig, handler in previous.items():
             signal.signal(sig, handler)
 

@@ -9,7 +9,8 @@ Guarantees:
   leaves the previous checkpoint or the new one, never a mix or a partial file;
   after the folder's ``fsync`` the new one also survives a power loss. A save
   that fails (a full disk) raises ``OSError`` saying so and leaves the previous
-  checkpoint intact. A
+  checkpoint intact. SIGTERM and Ctrl-C during a save wait for it (:mod:`pdeinv.util.critical`: inside
+  torch's C++ writer they came out as ``RuntimeError: [enforce fail …]``). A
   temporary left behind by a killed save is removed by the next save.
 * **Safe to load.** Files are read with ``torch.load(weights_only=True)``: a
   checkpoint can hold tensors, numbers, strings, lists and dicts, never code.

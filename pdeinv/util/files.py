@@ -6,9 +6,10 @@ and Windows) and ``fsync``\\ s the folder, so after it returns the new file also
 survives a power loss. The file gets the permissions of a plain ``open``
 (``0o666`` minus the umask), not :func:`tempfile.mkstemp`'s ``0o600``. On an error
 (a full disk: ``OSError`` ENOSPC) the temporary is removed and the old file stays
-as it was. A temporary left behind by a killed writer is named
-``.<name>.<random>.tmp``; :func:`remove_stale_temporaries` deletes them (one writer
-per target assumed).
+as it was. SIGTERM and Ctrl-C arriving during the write are held back until it is done
+(:mod:`pdeinv.util.critical`; the command then stops as usual); a SIGKILL leaves the old file. A
+temporary left behind by a killed writer is named ``.<name>.<random>.tmp``;
+:func:`remove_stale_temporaries` deletes them (one writer per target assumed).
 """
 
 from __future__ import annotations
@@ -22,10 +23,17 @@ from pathlib import Path
 
 import numpy as np
 
+from . import critical
+
 
 def atomic_write(path, write) -> None:
-    """``write(fh)`` into a temporary file beside ``path``, fsync, ``os.replace``, fsync the folder."""
-    path = Path(path)
+    """``write(fh)`` into a temporary file beside ``path``, fsync, ``os.replace``, fsync the folder; in a
+    :func:`~pdeinv.util.critical.section`, so SIGTERM and Ctrl-C wait until the file is in place."""
+    with critical.section():
+        _atomic_write(Path(path), write)
+
+
+def _atomic_write(path: Path, write) -> None:
     try:
         fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
     except OSError as err:  # name the target and its folder, never the temporary's random name
