@@ -152,3 +152,17 @@ def test_predict_without_posterior(run, capsys):
     assert main(argv) == 0  # the mean alone
     with np.load(run / "q.npz") as f:
         assert set(f.files) == {"x"}
+
+
+def test_fields_show_the_std_and_where_the_truth_falls_outside(run):
+    from pdeinv.io.export import read_fields
+
+    out = run / "fields.vtu"
+    assert main(["predict", str(run / "run"), "--data", str(run / "obs.npz"), "--out", str(run / "f.npz"),
+                 "--vtu", str(out)]) == 0
+    _, _, fields = read_fields(out)
+    assert {"x_std", "x_lo", "x_hi", "x_outside"} <= set(fields)
+    inside = fields["x_outside"] == 0
+    assert 0.8 < inside.mean() < 0.97 and set(np.unique(fields["x_outside"])) <= {-1.0, 0.0, 1.0}
+    assert (fields["x_true"][~inside] < fields["x_lo"][~inside]).sum() + \
+        (fields["x_true"][~inside] > fields["x_hi"][~inside]).sum() == (~inside).sum()

@@ -29,7 +29,7 @@ from ..physics.capabilities import observes_field
 from .plots import save_fields_png
 
 #: what :func:`write_fields` writes per sample, in order
-KINDS = ("x_true", "x_pred", "x_error", "y_obs", "y_pred")
+KINDS = ("x_true", "x_pred", "x_error", "y_obs", "y_pred", "x_std", "x_lo", "x_hi", "x_outside")
 
 
 def vertex_values(disc, X: np.ndarray) -> np.ndarray:
@@ -43,8 +43,12 @@ def _cells(mesh) -> list:
     return [(cell_type(mesh).cell, mesh.t.T)]
 
 
-def write_fields(path, problem, x_true, x_pred, y_obs=None, y_pred=None) -> Path:
+def write_fields(path, problem, x_true, x_pred, y_obs=None, y_pred=None, bars=None) -> Path:
     """Write true/predicted/error initial fields (and field observations) of a few samples.
+
+    ``bars`` (:func:`pdeinv.posterior.predictive`'s ``{"std", "lo", "hi"}``, rows as ``x_pred``) adds
+    ``x_std``, ``x_lo``, ``x_hi`` and, with ``x_true``, ``x_outside``: +1 where the truth lies above the
+    interval, −1 below, 0 inside.
 
     ``x_*`` have shape ``(B, N)`` on the free unknowns; ``x_true=None`` (observations
     without true fields, e.g. ``pdeinv predict``) writes ``x_pred_<k>`` only. ``y_*`` are
@@ -65,6 +69,10 @@ def write_fields(path, problem, x_true, x_pred, y_obs=None, y_pred=None) -> Path
         if x_true.shape != x_pred.shape:
             raise ValueError(f"x_true has shape {x_true.shape} but x_pred has {x_pred.shape}")
         fields = {"x_true": x_true, "x_pred": x_pred, "x_error": x_pred - x_true}
+    if bars is not None:
+        fields.update(x_std=bars["std"], x_lo=bars["lo"], x_hi=bars["hi"])
+        if x_true is not None:
+            fields["x_outside"] = (x_true > bars["hi"]).astype(float) - (x_true < bars["lo"])
     for name, y in (("y_obs", y_obs), ("y_pred", y_pred)):
         if y is not None and observes_field(problem.operator):
             fields[name] = batch(y, disc.N, name)[0]
@@ -155,8 +163,9 @@ def predict(model, y, problem=None) -> np.ndarray:
     return out[0] if single else out
 
 
-def export_run(out, problem, model, x, y, samples: int = 3, png: bool = True) -> dict:
-    """A run's pictures and ParaView files for the first ``samples`` of ``(x, y)``.
+def export_run(out, problem, model, x, y, samples: int = 3, png: bool = True, posterior=None) -> dict:
+    """A run's pictures and ParaView files for the first ``samples`` of ``(x, y)``; with the run's
+    ``posterior``, its std and 90 % intervals too (:func:`write_fields`' ``bars``).
 
     Writes ``out/fields.vtu`` (see :func:`write_fields`), ``out/sensors.vtu`` when
     the problem has ``settings['sensor_points']``, and ``out/fields.png`` (only with true
@@ -169,7 +178,12 @@ def export_run(out, problem, model, x, y, samples: int = 3, png: bool = True) ->
     y = np.asarray(y)[:samples]
     xhat = predict(model, y)
     yhat = problem.operator.forward(xhat)
-    written = {"fields": write_fields(out / "fields.vtu", problem, x, xhat, y, yhat)}
+    bars = None
+    if posterior is not None:
+        from ..posterior import predictive
+
+        bars = predictive(model, posterior, y)
+    written = {"fields": write_fields(out / "fields.vtu", problem, x, xhat, y, yhat, bars)}
     points = problem.settings.get("sensor_points") if isinstance(problem.settings, dict) else None
     if points is not None:
         written["sensors"] = write_sensors(out / "sensors.vtu", points)

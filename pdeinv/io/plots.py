@@ -106,7 +106,9 @@ def plot_fields(points, cells, fields: dict, samples=None, title: str = "", sens
     three rows per sample, one per mid-plane slice (3-D, :func:`mid_slice`).
 
     ``points`` ``(nv, ≥dim)``, ``cells`` ``(ne, 4)`` tetrahedra, ``(ne, 3)`` triangles or ``(ne, 2)`` lines,
-    ``fields`` ``{"x_true": (B, nv), "x_pred": ..., "x_error": ...}``; ``sensors``
+    ``fields`` ``{"x_true": (B, nv), "x_pred": ..., "x_error": ...}`` and, from a calibrated run,
+    ``"x_lo"``, ``"x_hi"`` (the credible band, shaded on the 1-D error panel) and ``"x_outside"``
+    (nodes whose truth lies outside it, dotted on the 2-D error panel); ``sensors``
     ``(n, dim)`` coordinates are drawn as black dots on every panel (1-D and 2-D). Axes keep their ticks
     (domain coordinates).
     """
@@ -125,16 +127,17 @@ def plot_fields(points, cells, fields: dict, samples=None, title: str = "", sens
     if cells.shape[1] == 4:
         fig = _plot_slices(plt, np.asarray(points, dtype=float), cells, true, pred, err, rows)
     elif one_d:
-        fig = _plot_lines(plt, points, true, pred, err, rows)
+        fig = _plot_lines(plt, points, true, pred, err, rows, fields)
     else:
-        fig = _plot_triangles(plt, points, cells, true, pred, err, rows, sensors)
+        fig = _plot_triangles(plt, points, cells, true, pred, err, rows, sensors, fields.get("x_outside"))
     if title:
         fig.suptitle(title)
     return fig
 
 
-def _plot_lines(plt, points, true, pred, err, rows):
-    """1-D: true and predicted over x, and the error, one row per sample."""
+def _plot_lines(plt, points, true, pred, err, rows, fields):
+    """1-D: true and predicted over x, and the error (with the credible band around it), one row per
+    sample."""
     fig, axes = plt.subplots(len(rows), 2, figsize=(9, 2.6 * len(rows)), squeeze=False,
                              layout="constrained")
     order = np.argsort(points[:, 0])
@@ -146,13 +149,19 @@ def _plot_lines(plt, points, true, pred, err, rows):
         a.set(ylabel=f"sample {k}", xlabel="x")
         a.legend(fontsize=8)
         b.plot(x, err[k, order], "C3-", lw=1)
+        if "x_lo" in fields and "x_hi" in fields:  # the interval around the estimate, as an error band
+            p = pred[k, order]
+            b.fill_between(x, fields["x_lo"][k, order] - p, fields["x_hi"][k, order] - p, color="C0",
+                           alpha=0.2, lw=0, label="interval − predicted")
+            b.legend(fontsize=8)
         b.axhline(0, color="0.7", lw=0.5)
         b.set(title="error" if r == 0 else "", xlabel="x")
     return fig
 
 
-def _plot_triangles(plt, points, cells, true, pred, err, rows, sensors):
-    """2-D: true | predicted | error on the triangulation, one row per sample, sensors as dots."""
+def _plot_triangles(plt, points, cells, true, pred, err, rows, sensors, outside=None):
+    """2-D: true | predicted | error on the triangulation, one row per sample, sensors as dots; the
+    nodes whose truth lies outside the credible interval (``outside`` ≠ 0) as dots on the error."""
     from matplotlib.tri import Triangulation
 
     tri = Triangulation(points[:, 0], points[:, 1], cells)
@@ -171,6 +180,10 @@ def _plot_triangles(plt, points, cells, true, pred, err, rows, sensors):
             if sensors is not None and len(sensors):
                 s = np.asarray(sensors, dtype=float).reshape(len(sensors), -1)
                 ax.plot(s[:, 0], s[:, 1], "k.", ms=3, label="sensors")
+            if c == 2 and outside is not None:
+                out = outside[k] != 0
+                ax.plot(points[out, 0], points[out, 1], "k.", ms=1.5)
+                name = f"error ({out.mean():.0%} outside the interval: dots)"
             ax.set_title(f"sample {k}: {name}" if c == 0 else name, fontsize=9)
             fig.colorbar(im, ax=ax, shrink=0.8)
     return fig

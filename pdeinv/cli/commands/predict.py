@@ -79,7 +79,8 @@ def cmd_predict(args) -> int:
     np.savez(buffer, **arrays)
     atomic_write(out, lambda fh: fh.write(buffer.getvalue()))
     if vtu is not None:
-        write_fields(vtu, problem, x, xhat, y, problem.operator.forward(xhat))
+        write_fields(vtu, problem, x, xhat, y, problem.operator.forward(xhat),
+                     None if posterior is None else arrays)
     error = "" if x is None else f", x_err {float(np.mean(problem.relative_error(xhat, x))):.3g}"
     if posterior is not None:
         error += f", {round(100 * level)} % intervals" + ("" if x is None else (

@@ -437,7 +437,7 @@ def _run(args, out, problem, overrides, net, hp, trainer, fresh, setup=None, cho
             from pdeinv.io.export import export_run
 
             files = export_run(out, problem, result.model, x_test, y_test,
-                               samples=min(args.export_samples, len(y_test)))
+                               samples=min(args.export_samples, len(y_test)), posterior=result.posterior)
             written |= {Path(p).name for p in files.values()}
         clear_outputs(out, keep=written)  # e.g. fields.vtu of an earlier run or a resumed one
         print(f"{problem.name} {'; '.join(_stage_line(st) for st in metrics['stages'])}; "
