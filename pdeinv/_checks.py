@@ -45,6 +45,13 @@ def batch(X, n: int, name: str = "X") -> tuple[np.ndarray, bool]:
     return A, single
 
 
+def flag(value, name: str) -> bool:
+    """``True`` or ``False`` (not a truthy string such as ``'yes'``)."""
+    if not isinstance(value, bool):
+        raise TypeError(f"{name}={value!r} is {type(value).__name__}; expected True or False")
+    return value
+
+
 def positive(value, name: str) -> float:
     """A finite real number > 0."""
     if isinstance(value, bool) or not isinstance(value, Real) or not math.isfinite(value):

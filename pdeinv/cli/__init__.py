@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import argparse
 import importlib
+import os
 import pkgutil
 import sys
 
@@ -78,10 +79,16 @@ def check_numbers(parser, args) -> None:
 
 def check_common(args) -> None:
     """Options several subcommands share, checked once before any work: ``--seed`` in
-    ``0..2³²−1``, ``--max-memory-gb`` > 0 (set as :mod:`pdeinv.util.memory`'s budget)."""
+    ``0..2³²−1``, ``--max-memory-gb`` > 0 (set as :mod:`pdeinv.util.memory`'s budget), and
+    ``$PDEINV_CACHE_MAX_GB`` where set (:func:`pdeinv.util.cache.max_bytes`, read only when the cache
+    writes: a value that is no number went unnoticed on small scenes)."""
     seed = getattr(args, "seed", None)
     if seed is not None and not 0 <= seed <= SEED_MAX:
         raise UsageError(f"--seed {seed} is not allowed; expected an integer from 0 to {SEED_MAX}")
+    if os.environ.get("PDEINV_CACHE_MAX_GB") is not None:
+        from ..util.cache import max_bytes
+
+        max_bytes()
     from ..util import memory
 
     memory.set_budget(getattr(args, "max_memory_gb", None))  # None: the default (each call anew)

@@ -31,6 +31,7 @@ the one place that does it for every rule; :mod:`.guard` imports nothing from he
 from __future__ import annotations
 
 from collections.abc import Callable
+from dataclasses import dataclass
 from functools import partial
 from typing import Any, ClassVar, NamedTuple, Protocol
 
@@ -117,7 +118,36 @@ def make_optimizer(factory, params: list) -> torch.optim.Optimizer:
     if not isinstance(opt, torch.optim.Optimizer):
         raise ValueError(f"optimizer factory returned {type(opt).__name__}; "
                          "expected a torch.optim.Optimizer (e.g. partial(torch.optim.Adam, lr=1e-3))")
+    given = {id(p) for p in params}
+    held = {id(p) for group in opt.param_groups for p in group["params"]}
+    if not held & given or held - given:  # it would step tensors the model does not have: trains nothing
+        raise ValueError(f"optimizer {factory!r} built a {type(opt).__name__} over {len(held - given)} "
+                         f"tensors not among the parameters it was given ({len(given)} of the model); "
+                         "expected a "
+                         "factory of the parameters it gets: params -> torch.optim.SGD(params, lr=…) "
+                         "(pdeinv.sgd(lr), pdeinv.adam(lr))")
     return opt
+
+
+@dataclass(frozen=True)
+class WithLR:
+    """``factory``'s optimizer at learning rate ``lr`` in every parameter group (a rule's ``lr=``: the
+    CLI's ``--lr``)."""
+
+    factory: OptimizerFactory
+    lr: float
+
+    def __call__(self, params: list) -> torch.optim.Optimizer:
+        opt = make_optimizer(self.factory, params)
+        opt.defaults["lr"] = self.lr
+        for group in opt.param_groups:
+            group["lr"] = self.lr
+        return opt
+
+
+def at_lr(factory: OptimizerFactory, lr: float | None) -> OptimizerFactory:
+    """``factory`` (``lr`` None) or :class:`WithLR` (``lr`` a finite number > 0, checked here)."""
+    return factory if lr is None else WithLR(factory, positive(lr, "lr"))
 
 
 def optimizer_hyperparameters(factory: OptimizerFactory) -> dict:

@@ -7,8 +7,9 @@ from dataclasses import dataclass, field
 
 import torch
 
+from .._checks import flag
 from ..physics.bridge import apply
-from .base import OptimizerFactory, Rule, State, Update, gradient, prediction, sgd, y_loss
+from .base import OptimizerFactory, Rule, State, Update, at_lr, gradient, prediction, sgd, y_loss
 from .curvature import checked, gauss_newton_max, operator_norm2
 from .transforms import OptimizerStep
 
@@ -32,7 +33,8 @@ class GD(Rule):
     ``--method adam`` (scale-invariant: the normalization changes nothing but its ε). The context
     is the problem's operator and the curvature.
 
-    ``normalize=True`` (default) divides the gradient by ``λ̂ = λ_max(PᵀP) · λ_max((1/B) JᵀJ)`` on
+    ``lr`` sets the optimizer's learning rate (``GD(lr=0.5)``: ``--method gd --lr 0.5``; ``None``: its
+    own). ``normalize=True`` (default) divides the gradient by ``λ̂ = λ_max(PᵀP) · λ_max((1/B) JᵀJ)`` on
     the run's first batch (:mod:`.curvature`: the loss's largest curvature for a network linear in
     θ, an upper bound otherwise), set by :meth:`calibrate` and saved with the state: plain SGD's lr
     is then in units of the stable step ``1/λ_max`` (lr 1 is stable whatever the physics' scale and
@@ -42,10 +44,15 @@ class GD(Rule):
     optimizer: OptimizerFactory = field(default_factory=lambda: sgd(GD_LR))
     normalize: bool = True
     name: str = "gd"
+    lr: float | None = None  # the optimizer's learning rate (the CLI's --lr); None: the optimizer's own
+
+    def __post_init__(self):
+        flag(self.normalize, "normalize")
+        at_lr(self.optimizer, self.lr)  # checks lr
 
     @property
     def transform(self) -> OptimizerStep:
-        return OptimizerStep(self.optimizer)
+        return OptimizerStep(at_lr(self.optimizer, self.lr))
 
     def settings(self) -> dict:
         return {"normalize": self.normalize}

@@ -11,14 +11,25 @@ from typing import NamedTuple
 import numpy as np
 import torch
 
-from .._checks import positive
+from .._checks import flag, positive
 from ..inverse.decoder import DecoderTikhonov
 from ..inverse.protocol import ReusesForward
 from ..nets.protocol import declared
 from ..physics.base import LinearOperator
 from ..physics.nonlinear import is_linear
 from ..problem.definition import Problem
-from .base import OptimizerFactory, Rule, State, Update, check_finite, gradient, prediction, sgd, y_loss
+from .base import (
+    OptimizerFactory,
+    Rule,
+    State,
+    Update,
+    at_lr,
+    check_finite,
+    gradient,
+    prediction,
+    sgd,
+    y_loss,
+)
 from .curvature import checked, gauss_newton_max
 from .transforms import OptimizerStep
 
@@ -109,7 +120,8 @@ class SIP(Rule):
     the division (up to its ε): pass ``normalize=False`` with it. The defaults, normalized SGD at
     lr 1, are what ``pdeinv train --method sip`` runs (with every training row in each step:
     on the whitened linear network the proxy's Hessian is then the identity on the kept
-    directions, and one step solves it).
+    directions, and one step solves it). ``lr`` sets the optimizer's learning rate (``SIP(lr=0.5)``:
+    ``--method sip --lr 0.5``; ``None``: its own).
     """
 
     inverse: InverseSimulator | None = None
@@ -117,13 +129,16 @@ class SIP(Rule):
     optimizer: OptimizerFactory = field(default_factory=lambda: sgd(1.0))
     normalize: bool = True
     name: str = "sip"
+    lr: float | None = None  # the optimizer's learning rate (the CLI's --lr); None: the optimizer's own
 
     def __post_init__(self):
         positive(self.eta, "eta")
+        flag(self.normalize, "normalize")
+        at_lr(self.optimizer, self.lr)  # checks lr
 
     @property
     def transform(self) -> OptimizerStep:
-        return OptimizerStep(self.optimizer)
+        return OptimizerStep(at_lr(self.optimizer, self.lr))
 
     def settings(self) -> dict:
         inverse = "problem" if self.inverse is None else self.inverse.__qualname__ \

@@ -217,6 +217,21 @@ def dtype(value):
                     "(torch.float32, torch.float64)")
 
 
+def target(value):
+    """``target=``: ``"auto"`` (the rule's default target), ``None`` (the observations themselves) or a
+    target strategy (``fit(problem, y, noise, model=, fields=)``: :mod:`pdeinv.methods.targets`)."""
+    if value is None or (isinstance(value, str) and value == "auto"):
+        return value
+    allowed = "'auto', None or a target strategy such as pdeinv.methods.targets.SpectralWiener()"
+    if isinstance(value, str):
+        raise ValueError(f"target={value!r} is not allowed; expected {allowed}")
+    if isinstance(value, type) or "fit" not in dir(value):
+        what = f"a class: call it, {value.__name__}()" if isinstance(value, type) else \
+            f"{_kind(value)} without fit"
+        raise TypeError(f"target={_short(value)} is {what}; expected {allowed}")
+    return value
+
+
 def prior(value):
     """``prior=``: ``"auto"`` (the default :class:`~pdeinv.training.plan.PriorStage`), ``None`` (no prior
     stage) or a stage object."""

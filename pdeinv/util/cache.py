@@ -73,7 +73,8 @@ def max_bytes() -> float:
     except ValueError:
         value = float("nan")
     if not value > 0:
-        raise ValueError(f"PDEINV_CACHE_MAX_GB={raw!r} is not allowed; expected a number of GB > 0")
+        raise ValueError(f"PDEINV_CACHE_MAX_GB={raw!r} is not allowed; expected a number of GB > 0 (an "
+                         f"environment variable: unset it for the default {MAX_GB:g})")
     return value * 1e9
 
 
