@@ -70,3 +70,22 @@ def test_a_cache_limit_that_is_no_number_is_refused(tmp_path, capsys, monkeypatc
                                  "expected a number of GB > 0 (an environment variable: unset it for the "
                                  "default 5)\n"), err
     assert not (tmp_path / "r").exists()
+
+
+@pytest.mark.parametrize("kw, kind, needle", [
+    ({"parallel": "x"}, TypeError, "parallel='x' is str; expected pdeinv.training.distributed.Single()"),
+    ({"model": torch.nn.Linear(5, 16)}, ValueError, "model does not take this problem's 15 observations"),
+    ({"model": torch.nn.Linear(15, 4)}, ValueError, "model maps 15 observations to shape (4,); expected 15"),
+])
+def test_trainer_arguments_fail_when_given_not_when_used(heat, kw, kind, needle):
+    """Refused by Trainer(...) itself, in one line, before anything is drawn or trained."""
+    with pytest.raises(kind) as info:
+        pdeinv.Trainer(heat, "sip", **kw)
+    assert needle in str(info.value) and "\n" not in str(info.value)
+
+
+def test_the_size_check_leaves_a_batchnorm_network_as_it_was(heat):
+    model = torch.nn.Sequential(torch.nn.Linear(15, 15), torch.nn.BatchNorm1d(15))
+    before = {k: v.clone() for k, v in model.state_dict().items()}
+    pdeinv.Trainer(heat, "sip", model=model)
+    assert model.training and all(torch.equal(v, model.state_dict()[k]) for k, v in before.items())

@@ -108,7 +108,8 @@ def test_deterministic(heat_1d):
 @pytest.fixture(scope="module")
 def run(tmp_path_factory):
     d = tmp_path_factory.mktemp("calibrated")
-    assert main(["train", "heat_1d", "--steps", "5", "-q", "--export-samples", "0", "--out", str(d / "run")]) == 0
+    argv = ["train", "heat_1d", "--steps", "5", "-q", "--export-samples", "0", "--out", str(d / "run")]
+    assert main(argv) == 0
     problem = pdeinv.load_problem("heat_1d")
     x, y = problem.sample(200, seed=77)
     np.savez(d / "obs.npz", x=x, y=y)

@@ -42,8 +42,8 @@ def test_overwrite_clears_the_previous_runs_files_and_only_those(tmp_path, capsy
     (out / "notes.txt").write_text("mine")
     assert train(out, "--export-samples", "0", "--checkpoint-every", "0", "--overwrite") == 0
     names = {p.name for p in out.iterdir()}
-    assert names == {"metrics.json", "history.csv", "training.png", "model.pt", "run.json", "notes.txt",
-                     RUN_MARKER}
+    assert names == {"metrics.json", "history.csv", "training.png", "model.pt", "run.json", "posterior.npz",
+                     "notes.txt", RUN_MARKER}
     capsys.readouterr()
 
 

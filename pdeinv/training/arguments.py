@@ -217,6 +217,47 @@ def dtype(value):
                     "(torch.float32, torch.float64)")
 
 
+def parallel(value):
+    """``parallel=``: :class:`~pdeinv.training.distributed.Single` or ``DataParallel`` (from torchrun's
+    environment: :func:`pdeinv.training.distributed.from_env`)."""
+    from .distributed import DataParallel, Single
+
+    if not isinstance(value, (Single, DataParallel)):
+        raise TypeError(f"parallel={_short(value)} is {_kind(value)}; expected pdeinv.training.distributed."
+                        "Single() or DataParallel (pdeinv.training.distributed.from_env() under torchrun)")
+    return value
+
+
+def fits(model, problem, name: str = "model"):
+    """``model`` takes the problem's observations: two zero rows of width ``problem.operator.n_out`` go
+    through it (in eval mode), and must give ``problem.N`` unknowns each."""
+    import torch
+
+    if model is None:
+        return model
+    param = next(iter(model.parameters()), None)
+    dtype = param.dtype if param is not None else torch.float32
+    m = problem.operator.n_out
+    was = model.training
+    model.eval()  # no running statistics updated, no dropout: the check leaves the model as it was
+    try:
+        with torch.no_grad():
+            out = model(torch.zeros(2, m, dtype=dtype, device=getattr(param, "device", None)))
+    except RuntimeError as err:  # a shape the layers refuse; anything else (an unfitted input transform)
+        first = (str(err).strip().splitlines() or [""])[0][:100]  # is for the trainer to meet later
+        if "shape" not in first and "size" not in first:
+            return model
+        raise ValueError(f"{name} does not take this problem's {m} observations per row ({first}); "
+                         f"expected a network from {m} observations to {problem.N} unknowns, e.g. "
+                         "problem.model()") from None
+    finally:
+        model.train(was)
+    if tuple(out.shape) != (2, problem.N):
+        raise ValueError(f"{name} maps {m} observations to shape {tuple(out.shape)[1:]}; expected "
+                         f"{problem.N} unknowns per row (problem.N)")
+    return model
+
+
 def target(value):
     """``target=``: ``"auto"`` (the rule's default target), ``None`` (the observations themselves) or a
     target strategy (``fit(problem, y, noise, model=, fields=)``: :mod:`pdeinv.methods.targets`)."""

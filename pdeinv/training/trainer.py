@@ -232,7 +232,9 @@ class Trainer:
         rule's preset for ``steps`` / ``batch_size`` left at ``"preset"``."""
         self.problem = args.problem(self.problem, type(self).__name__)
         # a name or a rule object, then what it can do, declared once (pdeinv.methods.protocol)
-        self.model = args.model(self.model)
+        self.model = args.fits(args.model(self.model), self.problem)
+        self.parallel = args.parallel(self.parallel)
+        self.target = args.target(self.target)
         self.rule = declared(args.rule(self.rule, self.problem, self.model))
         self.seed = args.seed(self.seed)
         self.stop = args.stop(self.stop, self.problem)
