@@ -1,20 +1,19 @@
 """Is a trained run's posterior calibrated, exact where it can be, and sharper than the linear answer?
 
     OMP_NUM_THREADS=1 python benchmarks/posterior.py heat_1d --set prior=grf --set noise=0.01
-        [--method sip] [--steps N] [--prior-fit {auto,0}] [--check 1000] [--draws 16384] [--seed 0]
+        [--method sip] [--steps N] [--prior-fit {auto,0}] [--check 1000] [--seed 0]
 
 Trains the problem as ``pdeinv.train`` does by default (the rule's preset, the prior stage, the
 calibration stage), then, on ``--check`` fresh prior draws no stage saw (their own seed):
 
 * the run's posterior: per-node coverage at 50/90/95 %, the 90 % L²(Ω) ball's coverage, SBC p-values,
   the mean 90 % interval width (:func:`pdeinv.posterior.diagnostics.report`);
-* the linear-Gaussian reference, for linear physics: prior mean and covariance from ``--draws`` draws
-  (:meth:`pdeinv.posterior.GaussianPrior.from_draws`), the noise as one Gaussian
-  (:func:`pdeinv.posterior.gaussian.noise_std`; noise-free: the 1e-6 floor), the exact low-rank posterior
-  (:class:`pdeinv.posterior.LinearGaussian`). Printed: the median over nodes of (reported std / reference
-  std), the reference's own 90 % coverage, and the width ratio at equal coverage: the reference's
-  intervals are widened or narrowed by the one factor that makes them cover 90 % of the check rows, and
-  the run's 90 % width is divided by theirs.
+* the linear-Gaussian reference, for linear physics (:func:`pdeinv.training.references.gaussian_posterior`,
+  as ``pdeinv classical`` reports it): prior mean and covariance from up to 16 384 draws, the noise as
+  one Gaussian (noise-free: a 1e-10 floor), the exact low-rank posterior. Printed: the median over
+  nodes of (reported std / reference std), the reference's own 90 % coverage, and the width ratio at
+  equal coverage: the reference's intervals are widened or narrowed by the one factor that makes them
+  cover 90 % of the check rows, and the run's 90 % width is divided by theirs.
 
 One JSON line per run, so rows from several scenes and noise levels can be collected.
 """
@@ -27,19 +26,6 @@ import os
 import time
 
 os.environ.setdefault("OMP_NUM_THREADS", "1")
-
-#: noise-free data are still rounded: the reference's relative noise floor there
-FLOOR = 1e-6
-
-
-def _reference(problem, draws: int, seed: int):
-    from pdeinv.posterior import GaussianPrior, LinearGaussian
-    from pdeinv.posterior.gaussian import noise_std
-
-    prior = GaussianPrior.from_draws(problem.sample(draws, seed=seed + 1000)[0])
-    sigma = noise_std(problem.operator, prior, max(problem.noise, FLOOR))
-    return LinearGaussian(problem.operator, prior, sigma)
-
 
 def _equal_coverage_width(mean, std, x, level=0.9) -> tuple[float, float]:
     """(coverage of ``mean ± z std``, mean width after the one factor that makes it cover ``level``)."""
@@ -60,7 +46,6 @@ def main(argv=None) -> dict:
     p.add_argument("--steps", type=int, default=None)
     p.add_argument("--prior-fit", default="auto", choices=["auto", "0"])
     p.add_argument("--check", type=int, default=1000)
-    p.add_argument("--draws", type=int, default=16384)
     p.add_argument("--seed", type=int, default=0)
     args = p.parse_args(argv)
 
@@ -87,10 +72,12 @@ def main(argv=None) -> dict:
            "calibration_s": round(cal_stage["seconds"], 2),
            "check": report(result.posterior, mean, x, mass, seed=args.seed)}
     if is_linear(problem.operator):
-        ref = _reference(problem, args.draws, args.seed)
+        from pdeinv.training.references import gaussian_posterior
+
+        ref, info = gaussian_posterior(problem, problem.noise, seed=args.seed + 1000)
         mu = ref.mean(y)
         coverage, width = _equal_coverage_width(mu, ref.std, x)
-        row["gaussian"] = {"draws": args.draws, "rank": ref.rank,
+        row["gaussian"] = {**info,
                            "x_err": float(np.mean(problem.relative_error(mu, x))),
                            "coverage_90": coverage, "width_90_at_90": width,
                            "std_ratio_median": float(np.median(result.posterior.std / ref.std)),

@@ -13,10 +13,12 @@ with the **prior-preconditioned data-misfit Hessian** ``H̃ = (P L)ᵀ (P L) / �
     (I + H̃)⁻¹ = I − V D Vᵀ,            var_i = Σ_j L_ij² − Σ_k (L V √D)_ik²,
     (I + H̃)^{-1/2} = I − V (I − (I + Λ)^{-1/2}) Vᵀ   (exact samples ``μ + L (I + H̃)^{-1/2} ζ``).
 
-The eigenpairs come from a randomized double-pass eigensolver (Halko, Martinsson & Tropp 2011,
-Alg. 5.3) whose products ``H̃ Ω`` are one batched forward and one batched adjoint of the physics; the
-rank doubles until the smallest eigenvalue found is below ``tol`` (dropped directions reduce the
-variance by less than ``tol`` of the prior's), or it reaches ``r`` (then ``H̃`` is formed and exact).
+The eigenpairs come from the singular triplets ``P L / σ = U diag(√λ) Vᵀ``, by a randomized SVD
+(Halko, Martinsson & Tropp 2011) whose products are one batched forward and one batched adjoint of the
+physics (:func:`singular_triplets`); the rank doubles until the smallest eigenvalue found is below
+``tol`` (dropped directions reduce the variance by less than ``tol`` of the prior's), or the SVD is
+exact. The mean is computed as ``m + L V diag(√λ/(1+λ)) Uᵀ (y − P m)/σ``, without the cancellation of
+the formula above at small ``σ``.
 """
 
 from __future__ import annotations
@@ -61,36 +63,35 @@ def noise_std(operator, prior: GaussianPrior, level: float) -> float:
     return float(level * np.sqrt(((PL**2).sum() + (Pm**2).sum()) / operator.n_out))
 
 
-def _products(operator, factor, sigma):
-    """``Ω ↦ H̃ Ω`` (``Ω`` ``(r, l)``): one batched forward and one batched adjoint."""
-    def apply(omega):
-        y = operator.forward((factor @ omega).T)
-        return factor.T @ operator.adjoint(y).T / sigma**2
-    return apply
+def singular_triplets(operator, factor: np.ndarray, sigma: float, tol: float, rank: int = 32,
+                      oversample: int = 10, seed: int = 0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``(λ, U, V)`` with ``P L / σ ≈ U diag(√λ) Vᵀ``, the pairs with ``λ ≥ tol``, descending (``λ`` are the
+    eigenvalues of ``H̃``, ``V`` its eigenvectors). Randomized (Halko et al. 2011, Alg. 5.1: a range
+    sketch by one batched forward, its projection by one batched adjoint, an SVD of the small matrix) at
+    ranks ``rank, 2·rank, …`` until the smallest ``λ`` found is below ``tol``, or exact once the sketch
+    is as wide as ``P L`` (its ``r`` columns through the forward map and a thin SVD). Never ``H̃`` itself:
+    its small eigenvalues would drown in the rounding of its large ones (λ spans 20 decades for
+    noise-free heat)."""
+    r, m = factor.shape[1], operator.n_out
 
+    def forward(W):  # (P L / σ) W, (r, l) -> (m, l)
+        return operator.forward((factor @ W).T).T / sigma
 
-def eigenpairs(apply, r: int, tol: float, rank: int = 32, oversample: int = 10,
-               seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
-    """``(λ, V)`` of the symmetric PSD ``r × r`` operator ``apply`` (``(r, l) → (r, l)``), those above
-    ``tol``, descending: randomized double pass at ranks ``rank, 2·rank, …`` until the smallest found is
-    below ``tol`` or the rank reaches ``r`` (then exact: ``apply(I)`` and ``eigh``)."""
     rng = np.random.default_rng(seed)
     while True:
         width = rank + oversample
-        if width >= r:
-            H = apply(np.eye(r))
-            lam, V = np.linalg.eigh(0.5 * (H + H.T))
+        if width >= min(r, m):
+            U, s, Vt = np.linalg.svd(forward(np.eye(r)), full_matrices=False)
             break
-        Q, _ = np.linalg.qr(apply(rng.standard_normal((r, width))))
-        T = Q.T @ apply(Q)
-        lam, U = np.linalg.eigh(0.5 * (T + T.T))
-        lam, U = lam[oversample:], U[:, oversample:]  # the oversampled tail is the inaccurate part
-        V = Q @ U
-        if lam[0] < tol:
+        Q, _ = np.linalg.qr(forward(rng.standard_normal((r, width))))
+        B = (factor.T @ operator.adjoint(Q.T).T / sigma).T  # Qᵀ (P L / σ), (width, r)
+        Ub, s, Vt = np.linalg.svd(B, full_matrices=False)
+        U, s, Vt = Q @ Ub[:, :rank], s[:rank], Vt[:rank]  # the oversampled tail is the inaccurate part
+        if s[-1] ** 2 < tol:
             break
         rank *= 2
-    keep = lam >= tol
-    return lam[keep][::-1], V[:, keep][:, ::-1]
+    keep = s**2 >= tol
+    return s[keep] ** 2, U[:, keep], Vt[keep].T
 
 
 class LinearGaussian:
@@ -106,8 +107,7 @@ class LinearGaussian:
         if prior.factor.shape[0] != operator.n_in:
             raise ValueError(f"the prior has {prior.factor.shape[0]} unknowns; the operator {operator.n_in}")
         self.operator, self.prior, self.sigma = operator, prior, float(sigma)
-        r = prior.factor.shape[1]
-        self.eigenvalues, V = eigenpairs(_products(operator, prior.factor, sigma), r, tol, seed=seed)
+        self.eigenvalues, self._U, V = singular_triplets(operator, prior.factor, self.sigma, tol, seed=seed)
         self._LV = prior.factor @ V  # (N, k)
         self._V = V
         d = self.eigenvalues / (1.0 + self.eigenvalues)
@@ -118,12 +118,13 @@ class LinearGaussian:
         return len(self.eigenvalues)
 
     def mean(self, y) -> np.ndarray:
-        """``μ(y)`` row-wise, ``(B, m) → (B, N)``."""
+        """``μ(y)`` row-wise, ``(B, m) → (B, N)``: ``m + L V diag(√λ/(1+λ)) Uᵀ (y − P m)/σ`` with
+        ``P L V = σ U diag(√λ)`` (the same as the module docstring's formula, whose ``g`` is huge at small
+        ``σ`` and cancels)."""
         Y, single = batch(y, self.operator.n_out, "y")
-        L, lam = self.prior.factor, self.eigenvalues
-        g = self.operator.adjoint(Y - self.operator.forward(self.prior.mean[None])) @ L / self.sigma**2
-        w = g - (g @ self._V) * (lam / (1 + lam)) @ self._V.T  # (I + H̃)⁻¹ (P L)ᵀ r / σ²
-        out = self.prior.mean + w @ L.T
+        lam = self.eigenvalues
+        r = (Y - self.operator.forward(self.prior.mean[None])) / self.sigma
+        out = self.prior.mean + ((r @ self._U) * (np.sqrt(lam) / (1 + lam))) @ self._LV.T
         return out[0] if single else out
 
     def sample(self, y, k: int, seed: int = 0) -> np.ndarray:

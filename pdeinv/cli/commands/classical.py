@@ -13,6 +13,10 @@ reconstructs every row with what needs no training:
 * **the prior Wiener estimate** (x-free): the same filter in the basis of ``P D``, ``D`` the prior's
   principal components (:func:`pdeinv.training.references.prior_wiener`): what the default network converges
   to where the operator is not reversible; it assumes the problem's prior describes the data;
+* **the linear-Gaussian posterior** (x-free, with the problem's sampler): the prior taken as Gaussian
+  (mean and covariance from its draws), the exact posterior mean, per-node std and 90 % intervals
+  (:func:`pdeinv.training.references.gaussian_posterior`); with ``x``, the intervals' coverage and width:
+  what a run's calibrated posterior (``metrics["posterior"]``) is compared with;
 * with ``x``: **Tikhonov with the best common α** (``tikhonov_best_common_alpha``: one α for every
   row, chosen with the file's x on a grid; Morozov's α, chosen per row, can beat it), the **linear
   MMSE fitted on the file's x** (``mmse_file_x``, :func:`pdeinv.training.references.mmse`, noise
@@ -139,6 +143,13 @@ def _solves(problem, y, x, noise: float, source: str, err) -> dict:
     if getattr(problem, "sampler", None) is not None:
         estimate, info = references.prior_wiener(problem, y, noise)
         rows["prior_wiener"] = {**err(estimate(y)), **info}
+        post, info = references.gaussian_posterior(problem, noise)
+        mean = post.mean(y)
+        rows["gaussian_posterior"] = {**err(mean), **info, "std_mean": float(post.std.mean())}
+        if x is not None:
+            lo, hi = post.interval(y, 0.9)
+            rows["gaussian_posterior"].update(coverage_90=float(np.mean((lo <= x) & (x <= hi))),
+                                              width_90=float(np.mean(hi - lo)))
     if x is not None:
         best = references.tikhonov_best(problem, y, x)
         rows["tikhonov_best_common_alpha"] = {"x_err": best["x_err"], "alpha_rel": best["alpha_rel"]}
