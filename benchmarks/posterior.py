@@ -1,7 +1,7 @@
 """Is a trained run's posterior calibrated, exact where it can be, and sharper than the linear answer?
 
     OMP_NUM_THREADS=1 python benchmarks/posterior.py heat_1d --set prior=grf --set noise=0.01
-        [--method sip] [--steps N] [--prior-fit {auto,0}] [--check 1000] [--seed 0]
+        [--method sip] [--steps N] [--prior-fit {auto,0}] [--check 1000] [--draws 16384] [--seed 0]
 
 Trains the problem as ``pdeinv.train`` does by default (the rule's preset, the prior stage, the
 calibration stage), then, on ``--check`` fresh prior draws no stage saw (their own seed):
@@ -9,7 +9,7 @@ calibration stage), then, on ``--check`` fresh prior draws no stage saw (their o
 * the run's posterior: per-node coverage at 50/90/95 %, the 90 % L²(Ω) ball's coverage, SBC p-values,
   the mean 90 % interval width (:func:`pdeinv.posterior.diagnostics.report`);
 * the linear-Gaussian reference, for linear physics (:func:`pdeinv.training.references.gaussian_posterior`,
-  as ``pdeinv classical`` reports it): prior mean and covariance from up to 16 384 draws, the noise as
+  as ``pdeinv classical`` reports it): prior mean and covariance from ``--draws`` draws, the noise as
   one Gaussian (noise-free: a 1e-10 floor), the exact low-rank posterior. Printed: the median over
   nodes of (reported std / reference std), the reference's own 90 % coverage, and the width ratio at
   equal coverage: the reference's intervals are widened or narrowed by the one factor that makes them
@@ -46,6 +46,7 @@ def main(argv=None) -> dict:
     p.add_argument("--steps", type=int, default=None)
     p.add_argument("--prior-fit", default="auto", choices=["auto", "0"])
     p.add_argument("--check", type=int, default=1000)
+    p.add_argument("--draws", type=int, default=16384, help="prior draws of the reference's covariance")
     p.add_argument("--seed", type=int, default=0)
     args = p.parse_args(argv)
 
@@ -74,7 +75,7 @@ def main(argv=None) -> dict:
     if is_linear(problem.operator):
         from pdeinv.training.references import gaussian_posterior
 
-        ref, info = gaussian_posterior(problem, problem.noise, seed=args.seed + 1000)
+        ref, info = gaussian_posterior(problem, problem.noise, seed=args.seed + 1000, draws=args.draws)
         mu = ref.mean(y)
         coverage, width = _equal_coverage_width(mu, ref.std, x)
         row["gaussian"] = {**info,

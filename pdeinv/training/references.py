@@ -254,25 +254,27 @@ def levenberg_marquardt(problem, Y: np.ndarray, rel_alpha: float, iterations: in
                "s_per_sample": (time.perf_counter() - t0) / max(len(Y), 1)}
 
 
-#: prior draws of the linear-Gaussian reference's covariance: at most this many numbers (160 MB), 256 to
-#: 16 384 draws (the covariance's sampling error falls as 1/√draws)
-GAUSSIAN_NUMBERS, GAUSSIAN_DRAWS = 20_000_000, (256, 16_384)
+#: prior draws of the linear-Gaussian reference's covariance by default: at most this many numbers
+#: (32 MB), 256 to 4096 draws (the covariance's sampling error falls as 1/√draws; its thin SVD costs
+#: draws·N² flops)
+GAUSSIAN_NUMBERS, GAUSSIAN_DRAWS = 4_000_000, (256, 4096)
 #: noise-free data are still rounded: the reference's relative noise floor there (the NOISE_FLOOR a
 #: noise estimate reads as clean data, pdeinv.training.data)
 GAUSSIAN_FLOOR = 1e-10
 
 
-def gaussian_posterior(problem, noise: float, seed: int = 0):
+def gaussian_posterior(problem, noise: float, seed: int = 0, draws: int | None = None):
     """``(posterior, info)``: the exact linear-Gaussian posterior (:class:`pdeinv.posterior.LinearGaussian`)
     with the problem's prior taken as Gaussian, its mean and covariance from prior draws
-    (:meth:`~pdeinv.posterior.GaussianPrior.from_draws`), and the relative noise ``noise`` (at least
+    (:meth:`~pdeinv.posterior.GaussianPrior.from_draws`; ``draws``, or the default count above), and the
+    relative noise ``noise`` (at least
     :data:`GAUSSIAN_FLOOR`) as one Gaussian (:func:`pdeinv.posterior.gaussian.noise_std`). Where the prior
     is Gaussian it is the best any estimate can do, error bars included."""
     from ..posterior import GaussianPrior, LinearGaussian
     from ..posterior.gaussian import noise_std
 
     lo, hi = GAUSSIAN_DRAWS
-    n = int(min(hi, max(lo, GAUSSIAN_NUMBERS // problem.N)))
+    n = draws or int(min(hi, max(lo, GAUSSIAN_NUMBERS // problem.N)))
     prior = GaussianPrior.from_draws(problem.sample(n, seed=seed)[0])
     level = max(noise, GAUSSIAN_FLOOR)
     post = LinearGaussian(problem.operator, prior, noise_std(problem.operator, prior, level), seed=seed)
