@@ -23,9 +23,17 @@ SBC_SAMPLES = 99
 
 
 def _ks(u: np.ndarray) -> float:
-    from scipy.stats import kstest
+    """The Kolmogorov–Smirnov p-value of ``u`` against U(0, 1), by Stephens' (1970) approximation
+    ``Q_KS((√n + 0.12 + 0.11/√n) D)`` (within 0.02 of scipy.stats.kstest from n = 20 on; scipy.special, not
+    scipy.stats, whose import took 1.1 s of a 3-s run)."""
+    from scipy.special import kolmogorov
 
-    return float(kstest(u, "uniform").pvalue)
+    u = np.sort(np.asarray(u, dtype=float))
+    n = len(u)
+    i = np.arange(1, n + 1)
+    d = max(float(np.max(i / n - u)), float(np.max(u - (i - 1) / n)))
+    root = np.sqrt(n)
+    return float(kolmogorov((root + 0.12 + 0.11 / root) * d))
 
 
 def _ranks(truth: np.ndarray, draws: np.ndarray, rng) -> np.ndarray:

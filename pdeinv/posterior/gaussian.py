@@ -141,9 +141,9 @@ class LinearGaussian:
 
     def interval(self, y, level: float = 0.9) -> tuple[np.ndarray, np.ndarray]:
         """The central per-node credible interval at ``level``: ``μ ∓ z σ_i``."""
-        from scipy.stats import norm
+        from scipy.special import ndtri
 
-        mu, z = self.mean(y), norm.ppf(0.5 + level / 2)
+        mu, z = self.mean(y), ndtri(0.5 + level / 2)
         return mu - z * self.std, mu + z * self.std
 
     def covariance(self) -> np.ndarray:
