@@ -14,7 +14,7 @@ import pdeinv
 ROOT = Path(pdeinv.__file__).parent
 #: the layers, upstream first (folders of one layer may import each other)
 LAYERS = [("errors", "_checks", "util"), ("fem",), ("physics",), ("inverse",), ("nets",), ("problem",),
-          ("methods",), ("training",), ("io",), ("cli", "bench")]
+          ("methods", "posterior"), ("training",), ("io",), ("cli", "bench")]
 RANK = {name: i for i, names in enumerate(LAYERS) for name in names}
 
 

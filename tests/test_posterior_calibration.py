@@ -10,9 +10,14 @@ import torch
 
 import pdeinv
 from pdeinv.cli import main
-from pdeinv.posterior import Calibration, predictive
+from pdeinv.posterior import Calibration, CalibrationStage, predictive
 from pdeinv.posterior.diagnostics import report
-from pdeinv.training.calibration import CalibrationStage
+from pdeinv.training.trainset import CALIBRATION_DATA, seed_stream
+
+
+def draws(problem, seed=0):
+    """The trainer's calibration rows (its seed stream)."""
+    return lambda n: problem.sample(n, seed_stream(seed, CALIBRATION_DATA))
 
 
 @pytest.fixture(scope="module")
@@ -55,7 +60,7 @@ def test_conformal_coverage_holds_for_a_mis_scaled_network(heat_1d, factor):
     bad = Shrunk(result.model, factor)
     test = result.metrics  # the same test rows the trainer drew
     x, y = pdeinv.Trainer(problem, "sip", n_test=500, progress=False).held_out()
-    cal, info = CalibrationStage().run(problem, bad, None, 0, (x, y))
+    cal, info = CalibrationStage().run(problem, bad, None, 0, (x, y), draws(problem))
     assert 0.86 <= info["test"]["coverage_90"] <= 0.94
     mean = predictive(bad, cal, y)["x"]
     wrong = report(result.posterior, mean, x, problem.disc.M)
@@ -101,7 +106,7 @@ def test_bad_levels():
 def test_deterministic(heat_1d):
     problem, result = heat_1d
     x, y = pdeinv.Trainer(problem, "sip", n_test=500, progress=False).held_out()
-    again, _ = CalibrationStage().run(problem, result.model, None, 0, (x, y))
+    again, _ = CalibrationStage().run(problem, result.model, None, 0, (x, y), draws(problem))
     assert again.to_bytes() == result.posterior.to_bytes()
 
 

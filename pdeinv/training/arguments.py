@@ -242,7 +242,7 @@ def fits(model, problem, name: str = "model"):
     model.eval()  # no running statistics updated, no dropout: the check leaves the model as it was
     try:
         with torch.no_grad():
-            out = model(torch.zeros(2, m, dtype=dtype, device=getattr(param, "device", None)))
+            out = model(torch.zeros(2, m, dtype=dtype, device=None if param is None else param.device))
     except RuntimeError as err:  # a shape the layers refuse; anything else (an unfitted input transform)
         first = (str(err).strip().splitlines() or [""])[0][:100]  # is for the trainer to meet later
         if "shape" not in first and "size" not in first:

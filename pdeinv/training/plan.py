@@ -33,8 +33,8 @@ from ..inverse import TikhonovCG
 from ..methods.sip import CHUNK_ENTRIES
 from ..nets import network_size
 from ..nets.refine import PriorFit, PriorFitted, Refined
+from ..posterior.stage import stage as calibration_stage
 from ..util.memory import GB, HIG_JACOBIAN_GB, check
-from .calibration import stage as calibration_stage
 from .trainset import N_TRAIN, prior_rows
 
 #: prior draws for the stage's decision, before any fitting (their own seed stream)

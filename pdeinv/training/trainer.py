@@ -23,12 +23,12 @@ from ..methods.guard import Guard
 from ..methods.presets import PRESET, run_defaults
 from ..methods.protocol import declared
 from ..physics.backends.device import placed, resolve
+from ..posterior.stage import CalibrationStage
+from ..posterior.stage import stage as calibration_stage
 from ..problem.definition import Problem
 from ..util.progress import progress
 from . import arguments as args
 from . import checkpoint as ckpts
-from .calibration import CalibrationStage
-from .calibration import stage as calibration_stage
 from .checkpoint import Checkpoint, Position
 from .data import OwnData, own_data
 from .distributed import Single
@@ -37,6 +37,7 @@ from .plan import PriorStage
 from .stopping import STILL_STEPS, at_rounding, converged, finished, parameters
 from .trainset import (
     BATCH_ORDER,
+    CALIBRATION_DATA,
     N_TRAIN,
     fit_inputs,
     fresh_rows,
@@ -187,7 +188,7 @@ class Trainer:
     parallel: object = field(default_factory=Single)  # pdeinv.training.distributed: Single or DataParallel
     prior: PriorStage | None | str = "auto"  # the stage after the rule's (pdeinv.training.plan)
     fresh: bool = False  # each step's batch: new draws of the scene's prior (the SIP paper's protocol)
-    calibration: CalibrationStage | None | str = "auto"  # the last stage: the posterior (.calibration)
+    calibration: CalibrationStage | None | str = "auto"  # the last stage: the posterior (posterior.stage)
     history: list[dict] = field(default_factory=list, init=False)
     _target_info: dict | None = field(default=None, init=False, repr=False)
     _target_of: Callable | None = field(default=None, init=False, repr=False)  # fresh rows' targets
@@ -424,7 +425,8 @@ class Trainer:
             stages.append(self._prior_stage(run))
         posterior = None
         if self.calibration is not None:
-            posterior, info = self.calibration.run(self.problem, run.model, self._own, self.seed, run.test)
+            posterior, info = self.calibration.run(self.problem, run.model, self._own, self.seed, run.test,
+                                                   self._calibration_rows)
             stages.append(info)
         record = metrics(self, run)
         record["stages"] = stages
@@ -434,6 +436,10 @@ class Trainer:
         if warning and self.parallel.is_writer:  # energy where the physics cannot see (.verdict)
             warnings.warn(warning, RuntimeWarning, stacklevel=2)
         return Result(run.model, self.history, record, run.state, posterior)
+
+    def _calibration_rows(self, n: int):
+        """The calibration stage's ``n`` held-out prior pairs: stream ``CALIBRATION_DATA`` of the seed."""
+        return self.problem.sample(n, seed_stream(self.seed, CALIBRATION_DATA))
 
     def _fresh(self, step: int) -> tuple[torch.Tensor, torch.Tensor | None]:
         """Step ``step``'s batch of new prior draws and its target (:func:`~.trainset.fresh_rows`)."""

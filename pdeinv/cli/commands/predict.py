@@ -5,7 +5,7 @@ Reads ``y`` ``(B, m)`` (and ``x`` ``(B, N)`` if present, to report the error) fr
 (:func:`pdeinv.io.runs.load_run`) and writes ``x`` ``(B, N)`` to ``--out`` atomically;
 ``--vtu FILE`` also writes every prediction (and true field and error, when ``x`` is
 given) at the mesh vertices for ParaView (:func:`pdeinv.io.export.write_fields`). When the run has a
-calibrated posterior (``posterior.npz``, :mod:`pdeinv.training.calibration`), ``--out`` also holds
+calibrated posterior (``posterior.npz``, :mod:`pdeinv.posterior.stage`), ``--out`` also holds
 ``std``, ``lo`` and ``hi`` (the central interval at ``--level``, 0.9 by default) and, with
 ``--samples K``, ``samples`` ``(B, K, N)`` (:func:`pdeinv.posterior.predictive`). The observations
 are checked against the run's physics first (:func:`pdeinv.training.data.against`): refused (exit 3, one
@@ -46,13 +46,7 @@ def cmd_predict(args) -> int:
     vtu = None if args.vtu is None else output_file(
         args.vtu, "--vtu", [("--data", args.data), *run_files, ("--out", args.out)],
         suffixes=(".vtu", ".xdmf"), overwrite=args.overwrite)
-    level = 0.9 if args.level is None else args.level
-    if not 0 < level < 1:
-        raise UsageError(f"--level {args.level:g} is not allowed; expected a number in (0, 1), e.g. 0.9 for "
-                         "90 % intervals")
-    if args.samples is not None and args.samples < 1:
-        raise UsageError(f"--samples {args.samples} is not allowed; expected a count >= 1 (leave it out "
-                         "for no samples)")
+    level = _level(args)
     set_threads(args.threads)
     problem, model = load_run(args.run)
     posterior = load_posterior(args.run, problem)
@@ -88,6 +82,18 @@ def cmd_predict(args) -> int:
     print(f"{problem.name}: {len(xhat)} predictions{error} -> {args.out}"
           + (f", {args.vtu}" if args.vtu else ""))
     return 0
+
+
+def _level(args) -> float:
+    """``--level`` (0.9 when not given), after checking it and ``--samples``."""
+    level = 0.9 if args.level is None else args.level
+    if not 0 < level < 1:
+        raise UsageError(f"--level {args.level:g} is not allowed; expected a number in (0, 1), e.g. 0.9 for "
+                         "90 % intervals")
+    if args.samples is not None and args.samples < 1:
+        raise UsageError(f"--samples {args.samples} is not allowed; expected a count >= 1 (leave it out "
+                         "for no samples)")
+    return level
 
 
 def add_parser(sub) -> None:

@@ -450,7 +450,7 @@ def _stage_line(stage: dict) -> str:
     name = stage["name"]
     if stage.get("skipped"):
         return f"{name}: skipped ({stage['skipped']})"
-    if "conformal_rows" in stage:  # the calibration stage (pdeinv.training.calibration)
+    if "conformal_rows" in stage:  # the calibration stage (pdeinv.posterior.stage)
         test = stage.get("test")
         cover = "" if test is None else (f", 90 % intervals cover {test['coverage_90']:.3g} of the test "
                                          f"values (ball {test['ball_coverage_90']:.3g})")

@@ -1,8 +1,8 @@
 """The calibration stage: the last stage of a run, which gives its network a calibrated posterior.
 
 After the rule's stage (and the prior stage), the trained network ``f`` is applied to ``rows`` held-out
-pairs ``(x, y)`` that no stage saw: draws of the scene's prior from their own seed stream
-(:data:`~pdeinv.training.trainset.CALIBRATION_DATA`). Their residuals ``x − f(y)`` fit a
+pairs ``(x, y)`` that no stage saw: draws of the scene's prior from their own seed stream (the trainer's
+``draw``: :data:`pdeinv.training.trainset.CALIBRATION_DATA`). Their residuals ``x − f(y)`` fit a
 :class:`pdeinv.posterior.conformal.Calibration` (the first half: the per-node scale and correlation; the
 second half: the split-conformal quantiles), and its coverage, credible-ball coverage, SBC p-values and
 interval width are measured on the run's test rows (:func:`pdeinv.posterior.diagnostics.report`), which
@@ -19,10 +19,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..posterior.conformal import Calibration
-from ..posterior.diagnostics import report
-from ..posterior.predictive import forward as predict
-from .trainset import CALIBRATION_DATA, seed_stream
+from .conformal import Calibration
+from .diagnostics import report
+from .predictive import forward as predict
 
 #: held-out prior draws of the default stage: half fix the spread, half the conformal quantiles (2048
 #: rows give the 90 % ball's radius to ±0.7 % coverage and each node's scale to ±1.6 %); fewer on large
@@ -50,8 +49,7 @@ class CalibrationStage:
     name: str = "calibration"
 
     def __post_init__(self):
-        for key, low in (("rows", 4), ("keep", 1)):
-            value = getattr(self, key)
+        for key, value, low in (("rows", self.rows, 4), ("keep", self.keep, 1)):
             if value is None:
                 continue
             if isinstance(value, bool) or not isinstance(value, int) or value < low:
@@ -72,14 +70,15 @@ class CalibrationStage:
         return {"name": self.name, "rows": self.rows or row_count(problem.N),
                 "prior": problem.settings.get("prior", "the scene's")}
 
-    def run(self, problem, model, own, seed: int, test) -> tuple[Calibration | None, dict]:
-        """``(calibration or None, what the stage reports)``; ``test = (x, y, ...)`` the run's test rows."""
+    def run(self, problem, model, own, seed: int, test, draw) -> tuple[Calibration | None, dict]:
+        """``(calibration or None, what the stage reports)``; ``test = (x, y, ...)`` the run's test rows,
+        ``draw(n) -> (x, y)`` the held-out prior draws (their own seed stream)."""
         t0 = time.perf_counter()
         why = self.why_not(problem, own)
         if why is not None:
             return None, {"name": self.name, "skipped": why, "seconds": time.perf_counter() - t0}
         rows = self.rows or row_count(problem.N)
-        x, y = problem.sample(rows, seed_stream(seed, CALIBRATION_DATA))
+        x, y = draw(rows)
         residual = x - predict(model, y)
         half = rows // 2
         mass = problem.disc.M if problem.disc is not None else None
@@ -99,5 +98,5 @@ def stage(value):
         return CalibrationStage()
     if value is not None and not isinstance(value, CalibrationStage):
         raise TypeError(f"calibration={value!r} is not allowed; expected 'auto', None or a "
-                        "pdeinv.training.calibration.CalibrationStage")
+                        "pdeinv.posterior.CalibrationStage")
     return value
