@@ -36,8 +36,9 @@ def test_explain_prints_the_plan_and_writes_nothing(tmp_path, capsys):
     assert lines["rule"].startswith("rule      sip: 30 steps")
     assert f"on {draw_count(225)} prior draws (boxes)" in lines["stage 2"]
     assert "data-consistency" in lines["stage 2"] and "GB at the peak" in lines["memory"]
+    assert "stage 3" in lines and "calibration" in lines["stage 3"]
     assert main(["train", "heat_boxes", "--set", "n=16", "--explain", "--prior-fit", "0"]) == 0
-    assert "stage 2" not in capsys.readouterr().out
+    assert "stage 2   calibration" in capsys.readouterr().out  # no prior stage: calibration comes second
 
 
 def test_the_plan_prices_what_the_guard_checks():

@@ -129,10 +129,8 @@ def fit_target(problem, rule, target, y_np, y_train, model=None, fields=None):
 
     from ..methods.protocol import declared
     from ..methods.targets import SpectralWiener
-    from . import arguments
 
-    rule = declared(rule)
-    target = arguments.target(target)  # the kind checked where the trainer first reads it
+    rule = declared(rule)  # target: checked by Trainer (arguments.target)
     strategy = ((rule.default_target() or SpectralWiener()) if target == "auto" else target)
     noise = problem.noise or 0.0
     if strategy is None and noise > 0:
