@@ -3,10 +3,11 @@
 After the rule's stage (and the prior stage), the trained network ``f`` is applied to ``rows`` held-out
 pairs ``(x, y)`` that no stage saw: draws of the scene's prior from their own seed stream (the trainer's
 ``draw``: :data:`pdeinv.training.trainset.CALIBRATION_DATA`). Their residuals ``x − f(y)`` fit a
-:class:`pdeinv.posterior.conformal.Calibration` (the first half: the per-node scale and correlation; the
-second half: the split-conformal quantiles), and its coverage, credible-ball coverage, SBC p-values and
-interval width are measured on the run's test rows (:func:`pdeinv.posterior.diagnostics.report`), which
-took no part in it. The stage reports them in ``metrics["stages"]`` and ``metrics["posterior"]``.
+:class:`pdeinv.posterior.conformal.Calibration` (the first half: the per-node scale and the residuals
+kept for samples; the second half: the split-conformal quantiles), and its coverage, credible-ball
+coverage, SBC p-values and interval width are measured on the run's test rows
+(:func:`pdeinv.posterior.diagnostics.report`), which took no part in it. The stage reports them in
+``metrics["stages"]`` and ``metrics["posterior"]``.
 
 Without a prior to draw from (own data without ``x``) there is nothing to calibrate against: the stage
 says so and the run has no posterior. Own data *with* ``x`` is not yet split for calibration either.
@@ -32,6 +33,8 @@ ROWS, ROW_NUMBERS, MIN_ROWS = 4096, 20_000_000, 512
 def row_count(N: int) -> int:
     """The default stage's held-out draws for ``N`` unknowns (:data:`ROWS`)."""
     return int(min(ROWS, max(MIN_ROWS, ROW_NUMBERS // N)))
+
+
 #: stored residuals for samples: at most this many numbers (float16: 8 MB), 256 to 2048 rows. Every
 #: sample of every observation is one of them, so their count bounds how well samples are calibrated
 #: (SBC against ``k`` references errs by about ``1/√k``)

@@ -149,6 +149,9 @@ class Trainer:
     layer), ``prior`` (a :class:`~pdeinv.training.plan.PriorStage`; ``"auto"``: the default one, as
     ``pdeinv train``; ``None``: none) fits it on draws of the scene's prior, or on own data's training rows
     when they carry ``x``, unless it decides beforehand that it cannot help (and says why).
+    Last, ``calibration`` (a :class:`~pdeinv.posterior.CalibrationStage`; ``"auto"``: the default one;
+    ``None``: none) gives the network a split-conformal posterior from held-out prior draws
+    (``result.posterior``; its checks on the test rows in ``metrics["posterior"]``).
     ``metrics["stages"]`` lists each stage with its held-out ``x_err``, ``y_err``, steps and seconds.
 
     **Data parallel.** ``parallel`` (:class:`~pdeinv.training.distributed.Single`, or
