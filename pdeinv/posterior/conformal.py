@@ -53,7 +53,8 @@ class Calibration:
     """What the calibration stage fits (module docstring); arrays only, so it saves to one ``.npz``."""
 
     scale: np.ndarray        # (N,) σ_i
-    residuals: np.ndarray    # (k, N) normalized residuals z_j of spread rows (float16: ~1e-3 of σ)
+    residuals: np.ndarray    # (k, N) normalized residuals z_j of spread rows (float16: ~1e-3 of σ; float32
+    #                          when one exceeds float16's range)
     quantiles: np.ndarray    # (QUANTILE_POINTS,) Q at 0, …, 1 of the pooled signed scores
     ball: np.ndarray         # (n,) sorted ball scores t_(1..n)
     pooled: int              # n·N: the number of pooled signed scores
@@ -69,7 +70,8 @@ class Calibration:
                              f"and {len(conformal)}")
         scale = np.quantile(np.abs(spread), ROBUST, axis=0)  # the std of a Gaussian; robust to heavy tails
         scale = np.maximum(scale, 1e-12 * max(scale.max(), 1e-300))  # a node no residual reached
-        z = (spread[:keep] / scale).astype(np.float16)
+        z = spread[:keep] / scale
+        z = z.astype(np.float16 if np.abs(z).max() < 6e4 else np.float32)  # float16 ends at 65 504
         scores = (conformal / scale).ravel()
         q = np.quantile(scores, np.linspace(0, 1, QUANTILE_POINTS))
         ball = np.sort(_rms_norm(mass, conformal) / _rms_norm(mass, scale[None])[0])
