@@ -89,3 +89,9 @@ def test_the_size_check_leaves_a_batchnorm_network_as_it_was(heat):
     before = {k: v.clone() for k, v in model.state_dict().items()}
     pdeinv.Trainer(heat, "sip", model=model)
     assert model.training and all(torch.equal(v, model.state_dict()[k]) for k, v in before.items())
+
+
+def test_an_unknown_train_keyword_names_the_argument_and_the_fix(heat):
+    with pytest.raises(TypeError, match=r"^train\(\) got prior_fit: not an argument of pdeinv.Trainer "
+                                        r"\(prior_fit: use prior=pdeinv.PriorStage"):
+        pdeinv.train(heat, "sip", prior_fit=3)

@@ -152,3 +152,20 @@ def test_classical_on_pure_noise_says_there_is_no_signal(files, tmp_path, capsys
     assert main(["classical", "heat_1d", *SCENE, "--data", str(files / "noise.npz"), "--accept-bad"]) == 0
     line = _one_line(capsys.readouterr().err)
     assert "warning" in line and "no signal" in line
+
+
+def test_train_on_pure_noise_says_there_is_no_signal(tmp_path, capsys):
+    """No declared level and y that are noise all through: exit 3 and one line (never "noise=inf is not
+    allowed"), nothing written; a noisy file with a signal (level 0.3) still trains."""
+    np.savez(tmp_path / "noise.npz", y=np.random.default_rng(0).standard_normal((300, 63)))
+    code = main(["train", "heat_1d", *TRAIN, "--data", str(tmp_path / "noise.npz"),
+                 "--out", str(tmp_path / "r")])
+    err = capsys.readouterr().err
+    assert code == 3 and "shows no signal" in err and "inf" not in err and len(err.strip().splitlines()) == 1
+    assert not (tmp_path / "r").exists()
+    problem = pdeinv.load_problem("heat_1d", noise=0.3)
+    x, y = problem.sample(300, seed=3)
+    np.savez(tmp_path / "noisy.npz", y=y)
+    assert main(["train", "heat_1d", *TRAIN, "--data", str(tmp_path / "noisy.npz"),
+                 "--out", str(tmp_path / "s")]) == 0
+    capsys.readouterr()

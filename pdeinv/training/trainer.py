@@ -13,7 +13,7 @@ import os
 import time
 import warnings
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, fields
 
 import torch
 
@@ -484,4 +484,12 @@ def train(problem: Problem | str | os.PathLike, rule: UpdateRule | str, model: t
     ``batch_size`` default to the rule's preset, the one ``pdeinv train --method`` runs
     (:mod:`pdeinv.methods.presets`).
     """
+    unknown = sorted(set(kw) - {f.name for f in fields(Trainer) if f.init})
+    if unknown:
+        hint = {"prior_fit": "prior=pdeinv.PriorStage(pdeinv.nets.refine.PriorFit(steps=N)), or prior=None "
+                             "(the CLI's --prior-fit N / 0)",
+                "lr": "the rule's own lr, e.g. pdeinv.SIP(lr=...)"}
+        known = "; ".join(f"{k}: use {hint[k]}" for k in unknown if k in hint)
+        raise TypeError(f"train() got {', '.join(unknown)}: not an argument of pdeinv.Trainer"
+                        + (f" ({known})" if known else " (see help(pdeinv.Trainer))"))
     return Trainer(problem, rule, model, **kw).fit()
