@@ -21,6 +21,8 @@ ROOT = Path(__file__).resolve().parents[1] / "benchmarks"
     ("forward_bare.py", ["--n", "12", "--batch", "4", "--repeats", "1"], "relative difference"),
     ("sip_heat.py", ["--n", "8", "--steps", "2", "--every", "1", "--methods", "sip", "adam"],
      "| sip, linear map |"),
+    ("posterior.py", ["heat_1d", "--set", "n=16", "--set", "prior=grf", "--steps", "2", "--prior-fit", "0",
+                      "--check", "50", "--draws", "512"], '"std_ratio_median"'),
 ])
 def test_developer_benchmark_runs_on_its_smallest_setting(script, args, expect):
     run = subprocess.run([sys.executable, str(ROOT / script), *args], capture_output=True, text=True,
@@ -31,7 +33,7 @@ def test_developer_benchmark_runs_on_its_smallest_setting(script, args, expect):
 
 @pytest.mark.parametrize("script", ["crossover.py", "scaling.py", "netsize.py", "ddp.py", "hig_step.py",
                                     "overhead.py", "nonlinear_references.py", "forward_bare.py",
-                                    "results.py", "sip_heat.py"])
+                                    "results.py", "sip_heat.py", "posterior.py"])
 def test_developer_benchmark_says_how_to_run_it(script):
     doc = (ROOT / script).read_text().split('"""')[1]
     assert f"python benchmarks/{script}" in doc and "pdeinv.bench" not in (ROOT / script).read_text()
