@@ -323,13 +323,14 @@ def test_large_nonlinear_meshes_get_the_span_correction_which_fits_saves_and_rel
         D = net.base.decoder.double()
         c = torch.linalg.solve(D @ D.T, D @ torch.as_tensor(x).T).T
         z = net.base.pre(yt).double()
-        W = torch.linalg.lstsq(torch.cat([z, torch.ones(len(z), 1, dtype=z.dtype)], 1), c).solution
+        A = torch.cat([z, torch.ones(len(z), 1, dtype=z.dtype)], 1)  # rank 193 of 1025: gelsy's pivoting
+        W = torch.linalg.lstsq(A, c, rcond=1e-10, driver="gelsd").solution  # varies by machine, the SVD does not
         body = net.base.body[0] if isinstance(net.base.body, torch.nn.Sequential) else net.base.body
         body.weight.copy_(W[:-1].T)
         body.bias.copy_(W[-1])
         assert torch.equal(net(yt[:4]), net.base(yt[:4]))
     info = net.fit_prior(x, y, p.relative_error, PriorFit(steps=400))
-    assert info["kept"] and info["error_after"] < 0.95 * info["error_before"], info  # 0.76 -> 0.69
+    assert info["kept"] and info["error_after"] < 0.95 * info["error_before"], info  # 0.14 -> 0.09
     with torch.no_grad():
         out = net(yt[:8])
         coords = torch.linalg.solve(D @ D.T, D @ out.T).T @ D  # the field is in span D
