@@ -318,3 +318,40 @@ def test_newton_reaches_the_answer_from_far_out():
     X = 1000.0 * np.random.default_rng(0).standard_normal((4, p.N))
     Y = p.operator.forward(X)
     assert np.all(np.isfinite(Y)) and np.abs(Y).max() < 1.5 and max(p.operator.newton_iterations) > 30
+
+
+@pytest.mark.parametrize("element,band", [("P1", 1), ("P2", 2)])
+def test_banded_block_factors_solve_as_superlu_does(monkeypatch, element, band):
+    """1-D blocks are banded after reverse Cuthill–McKee: LAPACK's tridiagonal (P1) or band (P2) LU
+    solves the block-diagonal Jacobian and its transpose as SuperLU does, to 1e-13."""
+    import pdeinv.physics.reaction as reaction
+
+    d = discretize(pdeinv.mesh.interval(24), element)
+    op = ReactionHeat(d.M, d.K, steps=10, strength=3.0)
+    assert op.blocks.band == band
+    rng = np.random.default_rng(0)
+    D, v = rng.uniform(-3, 6, (op.n_in, 5)), rng.standard_normal(op.n_in * 5)
+    fast = op.blocks.jacobian(0.1, D)
+    monkeypatch.setattr(reaction, "BANDED_MAX", 0)
+    slow = op.blocks.jacobian(0.1, D)
+    assert isinstance(fast, reaction._BandFactor) and isinstance(slow, reaction._Factor)
+    for trans in "NT":
+        assert _rel(fast.solve(v, trans), slow.solve(v, trans)) <= 1e-13
+
+
+def test_kept_exact_factors_give_the_chords_tangent(monkeypatch):
+    """``linearize`` keeps every step's exact block factors where they fit (KEPT_FACTORS_BYTES), else
+    the chord's Richardson tangent: the same products to 1e-12, and both the exact transposes."""
+    import pdeinv.physics.reaction as reaction
+
+    op = ReactionHeat(_disc().M, _disc().K, steps=40, strength=5.0)
+    X = _draw(op, b=6, amp=2.0)
+    rng = np.random.default_rng(5)
+    V, R = rng.standard_normal(X.shape), rng.standard_normal(X.shape)
+    _, exact = op.linearize(X)
+    monkeypatch.setattr(reaction, "KEPT_FACTORS_BYTES", 0)
+    _, frozen = op.linearize(X)
+    assert all(isinstance(t, reaction._BlockTangent) for t in exact.lus)
+    assert not any(isinstance(t, reaction._BlockTangent) for t in frozen.lus)
+    assert _rel(exact.jvp(V), frozen.jvp(V)) <= 1e-12 and _rel(exact.vjp(R), frozen.vjp(R)) <= 1e-12
+    assert abs(np.sum(exact.jvp(V) * R) - np.sum(V * exact.vjp(R))) <= 1e-12 * np.abs(exact.jvp(V)).max()

@@ -324,7 +324,7 @@ def test_large_nonlinear_meshes_get_the_span_correction_which_fits_saves_and_rel
         c = torch.linalg.solve(D @ D.T, D @ torch.as_tensor(x).T).T
         z = net.base.pre(yt).double()
         A = torch.cat([z, torch.ones(len(z), 1, dtype=z.dtype)], 1)  # rank 193 of 1025: gelsy's pivoting
-        W = torch.linalg.lstsq(A, c, rcond=1e-10, driver="gelsd").solution  # varies by machine, the SVD does not
+        W = torch.linalg.lstsq(A, c, rcond=1e-10, driver="gelsd").solution  # varies by machine, SVD not
         body = net.base.body[0] if isinstance(net.base.body, torch.nn.Sequential) else net.base.body
         body.weight.copy_(W[:-1].T)
         body.bias.copy_(W[-1])
