@@ -137,6 +137,28 @@ def test_history_grows_with_the_checkpoints_and_a_heartbeat_speaks_off_a_termina
     with cli_logging(Namespace()):  # the heartbeat speaks through logging at INFO (pdeinv.cli.logs)
         beat = _Heartbeat(steps=10, every_s=0.0)
         assert beat({"step": 3, "loss": 0.25, "wall_s": 61.0, "x_err": 0.125}, None) is False
-        assert capsys.readouterr().err == "pdeinv train: step 3/10, loss 0.25, x_err 0.125, 61 s\n"
+        assert capsys.readouterr().err == ("pdeinv train: step 3/10, loss 0.25, x_err 0.125, 61 s, at most "
+                                           "~142 s left in the rule's stage\n")  # 61 s / 3 steps x 7
         assert _Heartbeat(steps=10)({"step": 4, "loss": 0.2, "wall_s": 1.0}, None) is False
         assert capsys.readouterr().err == ""  # within its minute: silent
+
+
+@pytest.mark.parametrize("quiet", [False, True])
+def test_the_prior_and_calibration_stages_say_what_they_do_unless_quiet(tmp_path, capsys, quiet):
+    """A long stage is never mute: the prior stage says how many prior pairs it draws, then about ten
+    lines of its fit with the steps done, the held-out error and the seconds left; the calibration
+    stage says what it draws. ``-q`` silences them all; the result line stays."""
+    args = ["train", "heat_1d", "--set", "n=16", "--set", "noise=0.01", "--steps", "3", "--prior-fit", "40",
+            "--out", str(tmp_path / "r"), *(["-q"] if quiet else [])]
+    assert main(args) == 0
+    err = capsys.readouterr()
+    said = [line for line in err.err.splitlines() if "stage" in line or "prior fit" in line]
+    if quiet:
+        assert said == [] and "heat_1d sip" in err.out + err.err
+        return
+    assert said[0] == "pdeinv train: prior stage: drawing 65536 prior pairs (x, y = P x)"
+    assert "fitting the correction for at most 40 steps" in said[1]
+    fits = [line for line in said if line.startswith("pdeinv train: prior fit step ")]
+    assert 2 <= len(fits) <= 12
+    assert fits[-1].startswith("pdeinv train: prior fit step 40/40: held-out x-error")
+    assert said[-1] == "pdeinv train: calibration stage: drawing 4096 held-out prior pairs"

@@ -37,6 +37,7 @@ the null-space idea of Schwab, Antholzer & Haltmeier (2019) for what it may chan
 from __future__ import annotations
 
 import math
+import time
 from dataclasses import dataclass
 from typing import Protocol, runtime_checkable
 
@@ -191,11 +192,17 @@ class _Best:
         self.g, self.opt, self.settings = g, opt, settings
         self.before = self.best = before
         self.state, self.bad, self.decays, self.step, self.stopped = None, 0, 0, 0, False
+        self.t0, self.mark = time.perf_counter(), 0  # the log's estimate of what is left; its next line
 
-    def checked(self, err: float, step: int, log=None) -> bool:
+    def checked(self, err: float, step: int, log=None, steps: int | None = None) -> bool:
         self.step = step
-        if log is not None:
-            log(f"prior fit step {step}: held-out x-error {err:.4g} (base {self.before:.4g})")
+        if log is not None and (not steps or step >= self.mark):  # about ten lines a fit
+            self.mark = step + (steps or 0) // 10
+            of = f"/{steps}" if steps else ""
+            rate = (time.perf_counter() - self.t0) / max(step, 1)
+            left = rate * (steps - step) if steps and 0 < step < steps else 0
+            log(f"prior fit step {step}{of}: held-out x-error {err:.4g} (base {self.before:.4g})"
+                + (f", at most ~{left:.0f} s left" if left >= 1 else ""))
         s = self.settings
         if math.isfinite(err) and err < self.best * (1 - s.min_gain):
             self.best, self.bad = err, 0
@@ -369,7 +376,8 @@ class Refined(Network):
                 loss.backward()
                 opt.step()
                 step += 1
-                if (step % every == 0 or step == steps) and track.checked(error(held_out()), step, log):
+                if (step % every == 0 or step == steps) and track.checked(error(held_out()), step, log,
+                                                                          steps):
                     break
         finally:
             g.requires_grad_(False)

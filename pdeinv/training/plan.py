@@ -142,9 +142,12 @@ class PriorStage:
                     f"most {NEGLIGIBLE:g}): too little is left for the prior")
         return None
 
-    def run(self, problem, model, own, seed: int) -> dict:
-        """Draw, fit, and say what was done (``kept``, ``draws``, ``steps``, held-out errors, ``prior``)."""
+    def run(self, problem, model, own, seed: int, log=None) -> dict:
+        """Draw, fit, and say what was done (``kept``, ``draws``, ``steps``, held-out errors, ``prior``);
+        ``log(line)``, if given, hears what the stage is doing and its estimate of what is left."""
         t0 = time.perf_counter()
+        if log is not None and own is None:
+            log(f"prior stage: drawing {self.draw_count(problem)} prior pairs (x, y = P x)")
         draws, source = prior_rows(problem, own, self.draw_count(problem), seed)
         if draws is None:
             return {"kept": False, "skipped": f"no prior: {source}", "prior": source}
@@ -154,7 +157,10 @@ class PriorStage:
             batch = self.fit.batch or model.correction.fit_batch
             held = max(1, round(self.fit.held_out * n))
             fit = replace(fit, steps=step_count(problem, model.correction_kind, batch, n - held, self.fit))
-        info = fit.fit(model, *draws, problem.relative_error)
+        if log is not None:
+            log(f"prior stage: {source} ready after {time.perf_counter() - t0:.0f} s; fitting the "
+                f"correction for at most {fit.steps if fit.steps is not None else 'its'} steps")
+        info = fit.fit(model, *draws, problem.relative_error, log)
         return {**info, "prior": source, "seconds": time.perf_counter() - t0}
 
 

@@ -8,6 +8,7 @@ not evaluations: runs compare at equal wall-clock time); every ``eval_every`` st
 
 from __future__ import annotations
 
+import logging
 import math
 import os
 import time
@@ -440,8 +441,15 @@ class Trainer:
             warnings.warn(warning, RuntimeWarning, stacklevel=2)
         return Result(run.model, self.history, record, run.state, posterior)
 
+    def _say(self, line: str) -> None:
+        """What a stage is doing, for whoever listens (logger ``"pdeinv"``, INFO: the CLI's progress
+        lines; silent with ``--quiet`` and for Python users who did not configure logging)."""
+        if self.parallel.is_writer:
+            logging.getLogger("pdeinv").info(f"pdeinv train: {line}")
+
     def _calibration_rows(self, n: int):
         """The calibration stage's ``n`` held-out prior pairs: stream ``CALIBRATION_DATA`` of the seed."""
+        self._say(f"calibration stage: drawing {n} held-out prior pairs")
         return self.problem.sample(n, seed_stream(self.seed, CALIBRATION_DATA))
 
     def _fresh(self, step: int) -> tuple[torch.Tensor, torch.Tensor | None]:
@@ -465,7 +473,7 @@ class Trainer:
         why = stage.why_not(self.problem, run.model, self._own, self.seed, self.problem.relative_error)
         if why is not None:
             return {"name": stage.name, "kept": False, "skipped": why, "seconds": time.perf_counter() - t0}
-        info = stage.run(self.problem, run.model, self._own, self.seed)
+        info = stage.run(self.problem, run.model, self._own, self.seed, log=self._say)
         run.at.wall += time.perf_counter() - t0
         errors = {}
         if info.get("kept"):  # the run's last record: the refined network's test errors

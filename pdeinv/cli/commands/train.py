@@ -132,8 +132,11 @@ class _Heartbeat:
             self.last = now
             of = f"/{self.steps}" if self.steps else ""
             errs = "".join(f", {k} {record[k]:.4g}" for k in ("x_err", "y_err") if k in record)
-            logging.getLogger("pdeinv").info(f"pdeinv train: step {record['step']}{of}, loss "
-                                             f"{record['loss']:.4g}{errs}, {record['wall_s']:.0f} s")
+            step, wall = record["step"], record["wall_s"]
+            left = wall / step * (self.steps - step) if self.steps and 0 < step < self.steps else 0
+            logging.getLogger("pdeinv").info(
+                f"pdeinv train: step {step}{of}, loss {record['loss']:.4g}{errs}, {wall:.0f} s"
+                + (f", at most ~{left:.0f} s left in the rule's stage" if left >= 1 else ""))
         return False
 
 
