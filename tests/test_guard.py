@@ -12,6 +12,7 @@ from pathlib import Path
 
 import pytest
 import torch
+from stderr import said
 
 import pdeinv
 from pdeinv import Trainer
@@ -130,7 +131,7 @@ def test_cli_gd_with_lr_1e6_recovers_within_the_budget(tmp_path, capsys):
     code = main(["train", "--prior-fit", "0",
                  "heat_1d", "--method", "gd", "--lr", "1e6", "--steps", "120", "--out", str(out),
                  "--n-train", "256", "--n-test", "32", "--export-samples", "0"])
-    err = capsys.readouterr().err.splitlines()
+    err = said(capsys.readouterr().err)
     assert code == 0 and err and all("in a row of at most 5; floor 1e-12)" in w for w in err)
     m = json.loads((out / "metrics.json").read_text())
     assert m["steps"] == 120 and 3 <= m["rejected_steps"] <= 12 and 0 < m["x_err"] < 0.3

@@ -9,6 +9,7 @@ import math
 
 import pytest
 import torch
+from stderr import said
 
 from pdeinv import Checkpoint, Trainer
 from pdeinv.cli import main
@@ -108,7 +109,7 @@ def test_cli_gd_with_lr_1e6_recovers_by_lowering_the_step(tmp_path, capsys):
     code = main(["train", "--prior-fit", "0",
                  "heat_1d", "--method", "gd", "--lr", "1e6", "--steps", "120", "--out", str(out),
                  "--n-train", "256", "--n-test", "32", "--export-samples", "0"])
-    err = capsys.readouterr().err.splitlines()
+    err = said(capsys.readouterr().err)
     assert code == 0
     assert err and all(w.startswith("pdeinv train: warning: step ") and "rolled back" in w for w in err)
     m = json.loads((out / "metrics.json").read_text())

@@ -8,6 +8,7 @@ import math
 import numpy as np
 import pytest
 import torch
+from stderr import said
 
 import pdeinv
 from pdeinv import nets
@@ -63,7 +64,7 @@ def test_cli_a_run_worse_than_zero_ends_with_exit_3_and_keeps_its_files(tmp_path
     verdict in metrics.json. With --accept-bad: exit 0, a warning, the verdict still recorded."""
     run = tmp_path / "run"
     assert main(["train", "--prior-fit", "0", "heat_1d", "--set", "n=16", *BAD, "--out", str(run)]) == 3
-    err = capsys.readouterr().err.splitlines()
+    err = said(capsys.readouterr().err)
     assert len(err) == 1 and err[0].startswith("pdeinv train: error: the run failed: ")
     assert "the held-out x_err is 1.9" in err[0]
     assert "--accept-bad" in err[0] and "Traceback" not in err[0]
@@ -74,7 +75,7 @@ def test_cli_a_run_worse_than_zero_ends_with_exit_3_and_keeps_its_files(tmp_path
     kept = tmp_path / "kept"
     assert main(["train", "--prior-fit", "0",
                  "heat_1d", "--set", "n=16", *BAD, "--accept-bad", "--out", str(kept)]) == 0
-    err = capsys.readouterr().err.splitlines()
+    err = said(capsys.readouterr().err)
     assert len(err) == 1 and err[0].startswith("pdeinv train: warning: the run failed") and "kept" in err[0]
     m = json.loads((kept / "metrics.json").read_text())
     assert "x_err" in m["failed"] and m["accept_bad"] is True

@@ -34,10 +34,12 @@ _pending: type[BaseException] | None = None
 RETRY_S = 0.02
 
 
-def _importing(frame) -> bool:
-    """Whether ``frame`` runs inside an import (an importlib frame on its stack)."""
+def _held_back(frame) -> bool:
+    """Whether ``frame`` runs inside an import (an importlib frame on its stack) or a finalizer (a
+    ``__del__``: Python prints an exception raised there as "Exception ignored in" and goes on, so the
+    signal would be lost: numpy's ``NpzFile.__del__`` once swallowed a SIGTERM this way)."""
     while frame is not None:
-        if frame.f_code.co_filename.startswith("<frozen importlib"):
+        if frame.f_code.co_filename.startswith("<frozen importlib") or frame.f_code.co_name == "__del__":
             return True
         frame = frame.f_back
     return False
@@ -48,13 +50,13 @@ def _deliver(kind: type[BaseException], frame) -> None:
     being written; then it is raised as the section ends) or a module is being imported: an exception
     inside a C extension's import leaves it half-initialised, and the next import of numpy or torch then
     fails or crashes the interpreter (measured: Ctrl-C 0.5 s into ``pdeinv train`` gave "cannot load module
-    more than once per process", at 0.6 s SIGSEGV). Then it is held back and tried again every
-    :data:`RETRY_S` seconds (SIGALRM) until the import is done."""
+    more than once per process", at 0.6 s SIGSEGV); or a finalizer runs (:func:`_importing`). Then it is
+    held back and tried again every :data:`RETRY_S` seconds (SIGALRM) until the import is done."""
     global _pending
     if critical.inside():
         critical.hold(lambda: _deliver(kind, None))
         return
-    if _importing(frame) and hasattr(signal, "setitimer"):
+    if _held_back(frame) and hasattr(signal, "setitimer"):
         _pending = kind
         signal.setitimer(signal.ITIMER_REAL, RETRY_S)
         return
