@@ -116,7 +116,10 @@ def measure(disc, physics: str, backend: str, repeats: int = 2) -> dict:
 
 def table(sizes: dict, repeats: int = 2, budget: float = 120.0, cases=CASES, out=print) -> list[dict]:
     """Every case at every size (rows as dicts, each also printed as a markdown row)."""
-    import pyamg  # noqa: F401  (imported once here, not in every forked child)
+    import pyamg  # noqa: F401  (imported once here, not in every forked child: a build is not an import)
+
+    import pdeinv.fem.solvers  # noqa: F401
+    import pdeinv.physics  # noqa: F401
 
     rows = []
     for dim, ns in sizes.items():
