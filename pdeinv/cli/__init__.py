@@ -95,7 +95,10 @@ def check_common(args) -> None:
 
 
 def main(argv=None) -> int:
-    from .signals import terminate_as_interrupt
+    try:
+        from .signals import terminate_as_interrupt
+    except KeyboardInterrupt:  # Ctrl-C before the handlers are in place: quietly, as after
+        return 130
 
     with terminate_as_interrupt():  # SIGTERM unwinds as Ctrl-C does (pdeinv.cli.signals)
         try:
