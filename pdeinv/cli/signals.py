@@ -50,7 +50,7 @@ def _deliver(kind: type[BaseException], frame) -> None:
     being written; then it is raised as the section ends) or a module is being imported: an exception
     inside a C extension's import leaves it half-initialised, and the next import of numpy or torch then
     fails or crashes the interpreter (measured: Ctrl-C 0.5 s into ``pdeinv train`` gave "cannot load module
-    more than once per process", at 0.6 s SIGSEGV); or a finalizer runs (:func:`_importing`). Then it is
+    more than once per process", at 0.6 s SIGSEGV); or a finalizer runs (:func:`_held_back`). Then it is
     held back and tried again every :data:`RETRY_S` seconds (SIGALRM) until the import is done."""
     global _pending
     if critical.inside():

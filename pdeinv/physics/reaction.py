@@ -35,8 +35,9 @@ block LU) — large amplitudes at strong reactions (``f'_max ≈ 3 r max u²``, 
 steps and tangent solves handed to the block LU) describe the last call.
 
 **The Newton solver** (``solver="newton"``): Newton's method per step; each column of the batch has
-its own Jacobian: one sparse LU (``scipy.sparse.linalg.splu``) of the block-diagonal ``J`` of the
-columns not yet converged, per Newton iteration. A column stops when its Newton update
+its own Jacobian: one LU of the block-diagonal ``J`` of the columns not yet converged, per Newton
+iteration (LAPACK's tridiagonal or band LU where the blocks' band is narrow, as in 1-D; else
+``scipy.sparse.linalg.splu``). A column stops when its Newton update
 ``‖δ_k‖∞ ≤ rtol·‖w‖∞``, or when the quadratic model predicts the next error below that,
 ``‖δ_k‖³/‖δ_{k−1}‖² ≤ rtol·‖w‖∞`` (the update ``δ_k`` is then applied and nothing is factorized
 again). The tangent solves factorize ``J`` once per step. Quadratic convergence, but a block LU
@@ -141,14 +142,15 @@ BANDED_MAX = 8
 
 
 #: the most memory :meth:`ReactionHeat.linearize` spends on exact per-step factorizations (allen_cahn_1d,
-#: 1 024 rows, 100 steps: 0.2 GB); a Gauss–Newton solve with them took 9.6 s against 32 s by the chord's
+#: 1 024 rows, 100 steps: 0.2 GB); a Gauss–Newton solve with them took 5 s against 32 s by the chord's
 #: tangent, the same to 3e-13
 KEPT_FACTORS_BYTES = 2**30
 
 
 class _BandFactor:
-    """LAPACK's banded LU (``gbtrf``) of the block-diagonal Jacobian, the blocks in their banded
-    order (:class:`_Blocks`); solved on column-stacked vectors in the original order."""
+    """LAPACK's tridiagonal (``gttrf``, band 1) or banded (``gbtrf``) LU, with partial pivoting, of the
+    block-diagonal Jacobian, the blocks in their banded order (:class:`_Blocks`); solved on
+    column-stacked vectors in the original order."""
 
     def __init__(self, blocks, b, data):
         from scipy.linalg import lapack

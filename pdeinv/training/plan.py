@@ -158,8 +158,9 @@ class PriorStage:
             held = max(1, round(self.fit.held_out * n))
             fit = replace(fit, steps=step_count(problem, model.correction_kind, batch, n - held, self.fit))
         if log is not None:
-            log(f"prior stage: {source} ready after {time.perf_counter() - t0:.0f} s; fitting the "
-                f"correction for at most {fit.steps if fit.steps is not None else 'its'} steps")
+            count = f"at most {fit.steps} steps" if fit.steps is not None else "its own count of steps"
+            log(f"prior stage: {source} ready after {time.perf_counter() - t0:.0f} s; fitting the correction "
+                f"for {count}")
         info = fit.fit(model, *draws, problem.relative_error, log)
         return {**info, "prior": source, "seconds": time.perf_counter() - t0}
 
