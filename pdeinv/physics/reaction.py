@@ -63,6 +63,7 @@ import math
 import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.linalg as sla
+from scipy.linalg import lapack
 from scipy.sparse.csgraph import reverse_cuthill_mckee
 
 from .._checks import choice, count, nonnegative, positive
@@ -153,8 +154,6 @@ class _BandFactor:
     column-stacked vectors in the original order."""
 
     def __init__(self, blocks, b, data):
-        from scipy.linalg import lapack
-
         k, n = blocks.band, blocks.n
         self.k, self.perm, self.n = k, blocks.perm, n
         ab = np.zeros((3 * k + 1, n * b))
@@ -167,8 +166,6 @@ class _BandFactor:
             raise np.linalg.LinAlgError(f"the step's Jacobian is singular (pivot {info})")
 
     def _solve(self, rhs, trans):
-        from scipy.linalg import lapack
-
         if self.k == 1:
             return lapack.dgttrs(*self.lu, rhs, trans=trans)
         lu, piv = self.lu
