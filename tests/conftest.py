@@ -4,13 +4,20 @@ import torch
 
 
 @pytest.fixture(autouse=True, scope="session")
-def _torch_threads():
-    """Small networks: one torch thread. On a busy 2-core machine two threads made
-    a 256-256 MLP training step 40x slower (0.21 s vs 0.006 s), which would make the
-    suite's run time depend on whatever else the machine does."""
+def _one_thread():
+    """One thread per test process, torch's and the BLAS/OpenMP pools' (what ``--threads 1`` does,
+    pdeinv.util.threads.limit), also for the subprocesses tests start (``OMP_NUM_THREADS``). Two xdist workers
+    on a 2-core machine, each with two BLAS threads, oversubscribe it: OpenBLAS's waiting threads spin, and
+    a 256-256 MLP step took 0.21 s instead of 0.006 s."""
+    import scipy.linalg  # noqa: F401  - scipy's BLAS loaded now: a pool loaded later is not limited
+    from threadpoolctl import threadpool_limits
+
     n = torch.get_num_threads()
     torch.set_num_threads(1)
-    yield
+    with threadpool_limits(limits=1), pytest.MonkeyPatch.context() as mp:
+        for var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
+            mp.setenv(var, "1")
+        yield
     torch.set_num_threads(n)
 
 

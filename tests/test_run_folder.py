@@ -7,6 +7,7 @@ from __future__ import annotations
 import errno
 import json
 import os
+import re
 import stat
 from pathlib import Path
 
@@ -145,7 +146,8 @@ def test_history_grows_with_the_checkpoints_and_a_heartbeat_speaks_off_a_termina
 
 @pytest.mark.parametrize("quiet", [False, True])
 def test_the_prior_and_calibration_stages_say_what_they_do_unless_quiet(tmp_path, capsys, quiet):
-    """A long stage is never mute: the prior stage says how many prior pairs it draws, then about ten
+    """A long stage is never mute: the prior stage says how long its draws will take at the pilot draws'
+    pace and how many prior pairs it draws, then about ten
     lines of its fit with the steps done, the held-out error and the seconds left; the calibration
     stage says what it draws. ``-q`` silences them all; the result line stays."""
     args = ["train", "heat_1d", "--set", "n=16", "--set", "noise=0.01", "--steps", "3", "--prior-fit", "40",
@@ -156,8 +158,10 @@ def test_the_prior_and_calibration_stages_say_what_they_do_unless_quiet(tmp_path
     if quiet:
         assert said == [] and "heat_1d sip" in err.out + err.err
         return
-    assert said[0] == "pdeinv train: prior stage: drawing 65536 prior pairs (x, y = P x)"
-    assert "fitting the correction for at most 40 steps" in said[1]
+    assert re.fullmatch(r"pdeinv train: prior stage: 64 pilot draws took \S+ s: the stage's 65536 draws will "
+                        r"take about \d+ s, then the fit", said[0]), said[0]
+    assert said[1] == "pdeinv train: prior stage: drawing 65536 prior pairs (x, y = P x)"
+    assert "fitting the correction for at most 40 steps" in said[2]
     fits = [line for line in said if line.startswith("pdeinv train: prior fit step ")]
     assert 2 <= len(fits) <= 12
     assert fits[-1].startswith("pdeinv train: prior fit step 40/40: held-out x-error")

@@ -1,10 +1,19 @@
 """``--threads`` bounds every thread pool (:mod:`pdeinv.util.threads`): torch's and the BLAS/OpenMP pools."""
 
+import pytest
 import torch
+from threadpoolctl import threadpool_limits
 
 from pdeinv.cli import main
 from pdeinv.training.trainer import Trainer
 from pdeinv.util import threads
+
+
+@pytest.fixture(autouse=True)
+def _two_threads():
+    """The suite runs on one thread (conftest): two here, so that a limit to one is seen to act."""
+    with threadpool_limits(limits=2, user_api="blas"):
+        yield
 
 
 def _counts():
@@ -13,6 +22,7 @@ def _counts():
 
 def test_limit_bounds_every_blas_pool_and_restore_undoes_it():
     before = _counts()
+    assert 2 in set(before.values())
     assert any("blas" in p["user_api"] for p in threads.info())  # numpy's and scipy's BLAS are seen
     threads.limit(1)
     try:

@@ -178,6 +178,14 @@ class _BandFactor:
         out[:, self.perm] = x.reshape(V.shape)
         return out.ravel()
 
+    def solve_many(self, V, trans: str = "N"):
+        """The solve of ``k`` right-hand sides per block, ``V`` ``(b, n, k)`` -> ``(b, n, k)``."""
+        b, n, k = V.shape
+        x, info = self._solve(np.asfortranarray(V[:, self.perm].reshape(b * n, k)), trans)
+        out = np.empty_like(V)
+        out[:, self.perm] = x.reshape(b, n, k)
+        return out
+
 
 class _Factor:
     """A block factorization in the blocks' order, solved on column-stacked vectors in the original."""
@@ -191,6 +199,13 @@ class _Factor:
         out[:, self.perm] = self.lu.solve(np.ascontiguousarray(V[:, self.perm]).ravel(),
                                           trans=trans).reshape(V.shape)
         return out.ravel()
+
+    def solve_many(self, V, trans: str = "N"):
+        b, n, k = V.shape
+        out = np.empty_like(V)
+        out[:, self.perm] = self.lu.solve(np.asfortranarray(V[:, self.perm].reshape(b * n, k)),
+                                          trans=trans).reshape(b, n, k)
+        return out
 
 
 def _vec(U):
@@ -271,6 +286,10 @@ class _BlockTangent:
 
     def solve(self, Rhs, trans: str = "N"):
         return _unvec(self.lu.solve(_vec(Rhs), trans=trans), self.n)
+
+    def solve_many(self, Z, trans: str = "N"):
+        """The solve of ``k`` right-hand sides per column, ``Z`` ``(N, b, k)`` -> ``(N, b, k)``."""
+        return self.lu.solve_many(Z.transpose(1, 0, 2), trans).transpose(1, 0, 2)
 
 
 class Newton:
@@ -522,6 +541,18 @@ class ReactionHeat(Physics):
             U = W
         return np.ascontiguousarray(U.T), Tangent(self, states, lus)
 
+    def jacobian(self, X) -> np.ndarray:
+        """The Jacobians ``P'(x_b)`` of the rows of ``X`` ``(B, N)``, ``(B, N, N)``: the reverse sweep of
+        :meth:`linearize`'s tangent on all ``N`` unit cotangents of each row at once, through every step's
+        exact block LU (one multi-right-hand-side solve per step; no nonlinear iteration, no run per
+        cotangent)."""
+        _, tangent = self.linearize(X)
+        return tangent.jacobian()
+
+    def jacobian_bytes(self, B: int) -> int:
+        """The memory of :meth:`jacobian` on ``B`` rows, about: three ``(B, N, N)`` float64 arrays."""
+        return 3 * 8 * B * self.n_in * self.n_out
+
     def __repr__(self):
         return (f"ReactionHeat(N={self.n_in}, kappa={self.kappa}, T={self.t_end}, steps={self.steps}, "
                 f"strength={self.strength}, scheme={self.scheme_name!r}, checkpoint_every={self.k})")
@@ -545,3 +576,20 @@ class Tangent:
         for U, lu in zip(reversed(self.states), reversed(self.lus), strict=True):
             Ub = op._C_T(U, lu.solve(Ub, "T"))
         return np.ascontiguousarray(Ub.T)
+
+    def jacobian(self) -> np.ndarray:
+        """``P'(x_b)`` of every column ``b``, ``(B, N, N)``: :meth:`vjp` on the ``N`` unit cotangents of each
+        column, ``Z ← C(u)ᵀ J(w)⁻ᵀ Z`` with ``Z`` ``(N, B, N)``, by each step's exact block LU (the chord's
+        tangent is factorized here where :meth:`ReactionHeat.linearize` did not keep the factors)."""
+        op = self.op
+        n, B = op.n_in, self.states[0].shape[1]
+        Z = np.ascontiguousarray(np.broadcast_to(np.eye(n)[:, None, :], (n, B, n)))
+        for U, lu in zip(reversed(self.states), reversed(self.lus), strict=True):
+            exact = lu if isinstance(lu, _BlockTangent) else _BlockTangent(op, lu.D)
+            Z = exact.solve_many(Z, "T")
+            MZ = op.B @ Z.reshape(n, B * n)
+            if op.theta < 1.0:
+                MZ -= (1.0 - op.theta) * op.dt * (op.df(U)[:, :, None] * (op.M @ Z.reshape(n, B * n))
+                                                  .reshape(n, B, n)).reshape(n, B * n)
+            Z = MZ.reshape(n, B, n)
+        return np.ascontiguousarray(Z.transpose(1, 2, 0))

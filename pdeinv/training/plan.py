@@ -127,11 +127,15 @@ class PriorStage:
                 "correction": names.get(kind, kind), "prior": source,
                 "consistency": modal_basis(problem.operator) is not None}
 
-    def why_not(self, problem, model, own, seed: int, relative_error) -> str | None:
-        """Why the stage cannot help, from :data:`PILOT` prior draws (no fitting), or ``None``."""
+    def why_not(self, problem, model, own, seed: int, relative_error, log=None) -> str | None:
+        """Why the stage cannot help, from :data:`PILOT` prior draws (no fitting), or ``None``;
+        ``log(line)``, if given, hears how long the stage's draws will take at the pilot draws' pace (a
+        print: nothing is decided by it)."""
+        t0 = time.perf_counter()
         pilot, source = prior_rows(problem, own, PILOT, seed, stream=1)
         if pilot is None:
             return f"no prior: {source}"
+        pace = (time.perf_counter() - t0) / PILOT
         x, y = pilot[0][:PILOT], pilot[1][:PILOT]
         dtype = next(model.parameters()).dtype
         with torch.no_grad():
@@ -140,6 +144,10 @@ class PriorStage:
         if err <= NEGLIGIBLE:
             return (f"the rule's estimate is within {err:.2g} of {len(x)} prior draws (relative L2 error, at "
                     f"most {NEGLIGIBLE:g}): too little is left for the prior")
+        if log is not None and own is None:
+            n = self.draw_count(problem)
+            log(f"prior stage: {PILOT} pilot draws took {pace * PILOT:.2g} s: the stage's {n} draws will "
+                f"take about {pace * n:.0f} s, then the fit")
         return None
 
     def run(self, problem, model, own, seed: int, log=None) -> dict:

@@ -470,7 +470,8 @@ class Trainer:
         """The prior stage (:class:`~pdeinv.training.plan.PriorStage`) after the rule's: decided on, run,
         and reported with the refined network's test errors; its time counts as training time."""
         stage, t0 = self.prior, time.perf_counter()
-        why = stage.why_not(self.problem, run.model, self._own, self.seed, self.problem.relative_error)
+        why = stage.why_not(self.problem, run.model, self._own, self.seed, self.problem.relative_error,
+                       log=self._say)
         if why is not None:
             return {"name": stage.name, "kept": False, "skipped": why, "seconds": time.perf_counter() - t0}
         info = stage.run(self.problem, run.model, self._own, self.seed, log=self._say)

@@ -34,6 +34,7 @@ from torch.func import functional_call, jacrev, vmap
 
 from ...inverse.decoder import decoded_svd
 from ...physics.bridge import apply
+from ...physics.nonlinear import is_linear, require_linear
 from ..base import check_finite
 from . import layers as hig_layers
 from . import structured as hig_structured
@@ -132,15 +133,43 @@ class Forward:
         return cols.reshape(B, b.n_params, op.n_out).transpose(1, 2)
 
 
-class FewerColumns:
-    """``"auto"``: reverse unless the network has fewer parameters than observations."""
+class Chain:
+    """``P'(x_i) · ∂x_i/∂θ``: the physics' own per-row Jacobians (its ``jacobian(X)``, e.g.
+    :meth:`pdeinv.physics.reaction.ReactionHeat.jacobian`: one reverse sweep of exact tangent solves on all
+    unit cotangents, no nonlinear run per cotangent) times ``∂x_i/∂θ`` by ``vmap(jacrev(f))``."""
+
+    name = "chain"
 
     def choose(self, b: Batch):
+        if not callable(getattr(b.op, "jacobian", None)):
+            raise ValueError(f"HIG(jacobian='chain') needs a physics with per-row Jacobians (jacobian(X)); "
+                             f"{type(b.op).__name__} has none: use jacobian='auto', 'forward' or 'reverse'")
+        return self
+
+    def extra_bytes(self, b: Batch) -> int:  # ∂x/∂θ (float32, then float64) and the physics' Jacobians
+        B, op = b.y.shape[0], b.op
+        own = getattr(op, "jacobian_bytes", None)
+        return B * op.n_in * b.n_params * 12 + (own(B) if own else 8 * B * op.n_out * op.n_in)
+
+    def jacobian(self, b: Batch) -> torch.Tensor:
+        Jx = b.stack(vmap(jacrev(b.f), in_dims=(None, 0))(b.params, b.y), b.op.n_in)  # (B, n_in, P)
+        with torch.no_grad():
+            x = b.f(b.params, b.y).double().numpy()
+        return torch.from_numpy(b.op.jacobian(x)) @ Jx.double()
+
+
+class FewerColumns:
+    """``"auto"``: the physics' own Jacobians where it has them (:class:`Chain`), else reverse unless the
+    network has fewer parameters than observations."""
+
+    def choose(self, b: Batch):
+        if callable(getattr(b.op, "jacobian", None)):
+            return JACOBIANS["chain"]
         return JACOBIANS["reverse" if b.op.n_out <= b.n_params else "forward"]
 
 
 #: Jacobian name -> strategy; ``strategy.choose(batch)`` is the concrete one for that batch
-JACOBIANS = {"auto": FewerColumns(), "forward": Forward(), "reverse": Reverse()}
+JACOBIANS = {"auto": FewerColumns(), "forward": Forward(), "reverse": Reverse(), "chain": Chain()}
 
 
 # -- how J is decomposed ----------------------------------------------------------------------------
@@ -288,11 +317,14 @@ class LastLayer(JacobianRoute):
 
 
 def _last_layer(b: Batch) -> LastLayer:
+    require_linear(b.op, "HIG(route='last_layer') (it steps on P's SVD on the decoder)")
     return LastLayer(*hig_layers.last_layer(b.model))
 
 
 def _last_layer_if_dense(b: Batch) -> list:
-    """``[LastLayer]`` for a dense network whose last layer is trainable, else ``[]``."""
+    """``[LastLayer]`` for a dense network whose last layer is trainable on linear physics, else ``[]``."""
+    if not is_linear(b.op):
+        return []
     try:
         return [_last_layer(b)]
     except ValueError:
@@ -363,7 +395,10 @@ def _columns(b: Batch, per_layer: dict, name: str) -> torch.Tensor:
 
 def _structured(rule, b: Batch):
     """:class:`Structured` when ``b.model`` is a dense network whose trainable parameters are whole
-    ``nn.Linear`` layers (:func:`.hig_layers.body`), else ``None``."""
+    ``nn.Linear`` layers (:func:`.hig_layers.body`) and the physics is linear (the route builds ``J`` from
+    ``P``'s SVD on the decoder), else ``None``."""
+    if not is_linear(b.op):
+        return None
     try:
         _, mods, decoder = hig_layers.body(b.model, "auto")
     except ValueError:

@@ -46,9 +46,12 @@ class HIG(Rule):
       on all ``B · n_params`` Jacobian columns;
     * ``"reverse"``: ``vmap(jacrev(P ∘ f))``, i.e. ONE adjoint physics call on
       ``B · n_out`` unit cotangents, then the network's vector-Jacobian products;
-    * ``"auto"``: the route with fewer physics columns (reverse unless the network
-      has fewer parameters than observations) — identical results, the physics cost
-      differs by the factor ``n_params / n_out``.
+    * ``"chain"``: ``P'(x_i) · ∂x_i/∂θ`` with the physics' own per-row Jacobians
+      (``op.jacobian(X)``, e.g. the Allen–Cahn heat's exact tangent factors): no physics run
+      per cotangent;
+    * ``"auto"``: ``"chain"`` where the physics has per-row Jacobians, else the route with fewer
+      physics columns (reverse unless the network has fewer parameters than observations) —
+      identical results, the physics cost differs by the factor ``n_params / n_out``.
 
     On a dense network (:class:`pdeinv.MLP`, :func:`pdeinv.nets.dense`, a :class:`~pdeinv.nets.Net` with
     such a body) ``J`` and ``J Jᵀ`` are built from its layer structure instead
