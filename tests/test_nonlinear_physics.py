@@ -276,14 +276,18 @@ def test_chord_equals_newton_forward_jvp_and_vjp(kw, amp):
 
 
 def test_chord_equals_newton_on_the_scene_defaults():
+    """The default solver: Newton on tridiagonal blocks (allen_cahn_1d, P1), the chord on wider ones (P2,
+    2-D), whichever was measured faster; the chord gives the same fields to 1e-12 without falling back."""
     p = pdeinv.load_problem("allen_cahn_1d")
     op = p.operator
-    assert op.solver.name == "chord"  # the default: the faster one, measured (benchmarks/notes/nonlinear.md)
-    newton = ReactionHeat(op.M, op.K, kappa=op.kappa, T=op.t_end, steps=op.steps, strength=op.strength,
-                          solver="newton")
+    assert op.solver.name == "newton"
+    assert pdeinv.load_problem("allen_cahn_1d", element="P2", steps=5).operator.solver.name == "chord"
+    assert pdeinv.load_problem("allen_cahn_2d", n=8, steps=5).operator.solver.name == "chord"
+    chord = ReactionHeat(op.M, op.K, kappa=op.kappa, T=op.t_end, steps=op.steps, strength=op.strength,
+                         solver="chord")
     X = p.sampler(16, np.random.default_rng(3))
-    assert _rel(op.forward(X), newton.forward(X)) <= 1e-12
-    assert max(op.chord_iterations) <= 8 and op.fallback_columns == 0
+    assert _rel(op.forward(X), chord.forward(X)) <= 1e-12
+    assert max(chord.chord_iterations) <= 8 and chord.fallback_columns == 0
 
 
 def test_chord_falls_back_to_newton_where_it_does_not_contract():
@@ -344,7 +348,7 @@ def test_kept_exact_factors_give_the_chords_tangent(monkeypatch):
     the chord's Richardson tangent: the same products to 1e-12, and both the exact transposes."""
     import pdeinv.physics.reaction as reaction
 
-    op = ReactionHeat(_disc().M, _disc().K, steps=40, strength=5.0)
+    op = ReactionHeat(_disc().M, _disc().K, steps=40, strength=5.0, solver="chord")
     X = _draw(op, b=6, amp=2.0)
     rng = np.random.default_rng(5)
     V, R = rng.standard_normal(X.shape), rng.standard_normal(X.shape)

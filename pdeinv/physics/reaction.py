@@ -14,7 +14,11 @@ of steps that would do: since ``f' ≥ −r``, the step's Jacobian is ``(1 − �
 non-negative reaction term, which may become singular (several solutions of one step) when
 ``θ dt r ≥ 1`` (exactly so with a lumped mass).
 
-**The chord solver** (``solver="chord"``, the default). One frozen matrix ``A_c = A + θ dt c M``
+**The solver** (``solver="auto"``, the default): Newton where the blocks are tridiagonal after
+reverse Cuthill–McKee (P1 in 1-D: LAPACK's ``gttrf`` makes a block LU cheaper than the chord's extra
+iterations), the chord everywhere else.
+
+**The chord solver** (``solver="chord"``). One frozen matrix ``A_c = A + θ dt c M``
 (symmetric positive definite, as ``1 + θ dt c > 0``) carries every solve: the step by the chord
 (modified Newton) iteration ``w ← w − A_c⁻¹ R(w)``, all columns at once as one multi-column solve;
 the tangent ``J(w) δ = rhs`` and its transpose ``J(w)ᵀ z = rhs`` by Richardson iteration ``δ ← δ +
@@ -41,7 +45,8 @@ iteration (LAPACK's tridiagonal or band LU where the blocks' band is narrow, as 
 ``‖δ_k‖∞ ≤ rtol·‖w‖∞``, or when the quadratic model predicts the next error below that,
 ``‖δ_k‖³/‖δ_{k−1}‖² ≤ rtol·‖w‖∞`` (the update ``δ_k`` is then applied and nothing is factorized
 again). The tangent solves factorize ``J`` once per step. Quadratic convergence, but a block LU
-per iteration: 6–9× slower than the chord on the scenes (benchmarks/notes/nonlinear.md).
+per iteration: on allen_cahn_1d (tridiagonal blocks) faster than the chord (1 024 rows: forward 1.4 s
+against 2.2 s, vjp 4 s against 7 s), on allen_cahn_2d (SuperLU's blocks) 4–6× slower.
 
 **Exact discrete adjoint.** The tangent of a step is ``δw = J(w)⁻¹ C(u) δu`` with
 ``C(u) = B − (1−θ) dt M diag(f'(u))``; its transpose ``ū = C(u)ᵀ J(w)⁻ᵀ w̄`` needs the states
@@ -102,6 +107,9 @@ class _Blocks:
         self.m = np.asarray(M.tocsr()[rows_orig, cols_orig]).ravel()
         self.band = int(np.abs(self.indices - self.col).max()) if self.nnz else 0
         self._struct, self._band = {}, {}
+        if self.band == 1:  # the three diagonals of A and M in the banded order
+            Ap, Mp = A.tocsr()[self.perm][:, self.perm], M.tocsr()[self.perm][:, self.perm]
+            self.tri = [(Ap.diagonal(k), Mp.diagonal(k)) for k in (-1, 0, 1)]
 
     def _structure(self, b: int):
         if b not in self._struct:
@@ -114,6 +122,8 @@ class _Blocks:
     def jacobian(self, scale, D):
         """LU of ``I ⊗ A + scale · (I ⊗ M) diag(vec D)``, ``D`` ``(N, b)`` (column-stacked)."""
         b = D.shape[1]
+        if self.band == 1 <= BANDED_MAX:
+            return _BandFactor.tridiagonal(self, scale, D[self.perm])
         data = (self.a[None, :] + scale * self.m[None, :] * D[self.perm].T[:, self.col]).ravel()
         if self.band <= BANDED_MAX:
             return _BandFactor(self, b, data)
@@ -158,12 +168,27 @@ class _BandFactor:
         self.k, self.perm, self.n = k, blocks.perm, n
         ab = np.zeros((3 * k + 1, n * b))
         ab.ravel()[blocks.band_positions(b)] = data
-        if k == 1:  # tridiagonal: gttrf/gttrs, 3-5× faster than the general band routines
-            *self.lu, info = lapack.dgttrf(ab[3, :-1], ab[2], ab[1, 1:])
-        else:
-            *self.lu, info = lapack.dgbtrf(ab, k, k)
+        self._factor(lapack.dgbtrf(ab, k, k))
+
+    def _factor(self, out):
+        *self.lu, info = out
         if info > 0:
             raise np.linalg.LinAlgError(f"the step's Jacobian is singular (pivot {info})")
+
+    @classmethod
+    def tridiagonal(cls, blocks, scale, Dp):
+        """Band 1: the diagonals ``a_k + scale · m_k · D`` straight from ``D`` ``(n, b)`` in the banded order
+        (column ``j`` of ``M diag(D)`` scaled by ``D_j``), then ``gttrf`` (3-5× faster than ``gbtrf``)."""
+        self = cls.__new__(cls)
+        n, b = Dp.shape
+        self.k, self.perm, self.n = 1, blocks.perm, n
+        (al, ml), (a0, m0), (au, mu) = blocks.tri
+        lower, upper = np.zeros((b, n)), np.zeros((b, n))
+        lower[:, :-1] = (al[:, None] + scale * ml[:, None] * Dp[:-1]).T  # J[i+1, i]: scaled by D_i
+        upper[:, 1:] = (au[:, None] + scale * mu[:, None] * Dp[1:]).T  # J[i, i+1]: scaled by D_{i+1}
+        diag = (a0[:, None] + scale * m0[:, None] * Dp).T
+        self._factor(lapack.dgttrf(lower.ravel()[:-1], diag.ravel(), upper.ravel()[1:]))
+        return self
 
     def _solve(self, rhs, trans):
         if self.k == 1:
@@ -378,8 +403,9 @@ BLOCK_ENTRIES, BLOCK_COLUMNS = 2**14, 64
 class ReactionHeat(Physics):
     """Final field of ``M u' + κ K u + M f(u) = 0`` after ``steps`` θ-steps (module docstring).
     ``strength`` is ``r`` in ``f(u) = r (u³ − u)``; ``checkpoint_every``: ``k`` (default ``⌈√steps⌉``;
-    1 stores everything); ``solver``: ``"chord"`` (one frozen ``A_c``, Newton fallback), ``"newton"``
-    (block LU per iteration), or a strategy object with ``step(op, U, FU, W, history)`` and
+    1 stores everything); ``solver``: ``"auto"`` (Newton on tridiagonal blocks, else the chord),
+    ``"chord"`` (one frozen ``A_c``, Newton fallback), ``"newton"`` (block LU per iteration), or a
+    strategy object with ``step(op, U, FU, W, history)`` and
     ``tangent(op, W).solve(rhs, trans)`` (:class:`Chord`, :class:`Newton`)."""
 
     linear = False
@@ -387,7 +413,7 @@ class ReactionHeat(Physics):
     _last = None  # (X, kept states) of the last forward run
 
     def __init__(self, M, K, kappa=0.01, T=1.0, steps=100, strength=1.0, scheme="be",
-                 checkpoint_every=None, rtol=1e-14, max_newton=100, solver="chord"):
+                 checkpoint_every=None, rtol=1e-14, max_newton=100, solver="auto"):
         self.M, self.K = sp.csr_matrix(M), sp.csr_matrix(K)
         self.mass = self.M
         self.kappa = positive(kappa, "kappa")
@@ -412,8 +438,9 @@ class ReactionHeat(Physics):
         self.B = (self.M - (1.0 - th) * dt * self.kappa * self.K).tocsr()
         self.A_lu = sla.splu(self.A)
         self.blocks = _Blocks(self.A, self.M)
-        self.solver = SOLVERS[choice(solver, "solver", tuple(SOLVERS))]() if isinstance(solver, str) \
-            else solver
+        if isinstance(solver, str) and choice(solver, "solver", ("auto", *SOLVERS)) == "auto":
+            solver = "newton" if self.blocks.band == 1 <= BANDED_MAX else "chord"
+        self.solver = SOLVERS[solver]() if isinstance(solver, str) else solver
         self._frozen: dict[int, object] = {}
         self.newton_iterations: list[int] = []  # per step of the last run: block-LU Newton iterations
         self.chord_iterations: list[int] = []  # per step of the last run: chord iterations
