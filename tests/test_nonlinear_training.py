@@ -230,8 +230,8 @@ def test_the_whitened_map_of_a_nonlinear_map_keeps_one_direction_per_eight_rows(
 def test_hig_at_its_nonlinear_preset_trains_allen_cahn_where_eta_one_diverged():
     """HIG's preset on nonlinear physics (HIG_NONLINEAR_ETA, minibatches of 32): each η = 1 step fits its
     own rows and moves the others away; on this small allen_cahn_1d it ended at x_err 16.4 after 60 steps
-    (failed), at η 0.3 at 0.427 (0.493 after the 20 steps run here, 70 s; measured; the full scene at η 1
-    failed the same way, 11.9 after the correction)."""
+    (failed), at η 0.3 at 0.427 (0.493 after the 20 steps run here, 9 s with the physics' own Jacobians;
+    the full scene at η 1 failed the same way, 11.9 after the correction)."""
     from pdeinv.methods.presets import make_rule
 
     p = pdeinv.load_problem("allen_cahn_1d", n=32, steps=20)

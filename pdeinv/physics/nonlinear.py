@@ -52,6 +52,14 @@ class Physics:
     #: Gauss–Newton step uses it), or None (jvp/vjp products)
     linearize = None
 
+    #: ``jacobian(X) -> (B, n_out, n_in)``, the per-row Jacobians ``P'(x_b)`` in closed form (HIG's
+    #: ``"chain"`` Jacobian), or None (HIG forms them from vjps)
+    jacobian = None
+
+    def jacobian_bytes(self, B: int) -> int:
+        """The memory of :attr:`jacobian` on ``B`` rows, about (its result in float64)."""
+        return 8 * B * self.n_out * self.n_in
+
     def stepping(self):
         """The same map applied by time stepping (a :class:`.propagator.Propagator`), or None: this
         operator has no time-stepping form."""

@@ -141,15 +141,14 @@ class Chain:
     name = "chain"
 
     def choose(self, b: Batch):
-        if not callable(getattr(b.op, "jacobian", None)):
+        if b.op.jacobian is None:
             raise ValueError(f"HIG(jacobian='chain') needs a physics with per-row Jacobians (jacobian(X)); "
                              f"{type(b.op).__name__} has none: use jacobian='auto', 'forward' or 'reverse'")
         return self
 
     def extra_bytes(self, b: Batch) -> int:  # ∂x/∂θ (float32, then float64) and the physics' Jacobians
-        B, op = b.y.shape[0], b.op
-        own = getattr(op, "jacobian_bytes", None)
-        return B * op.n_in * b.n_params * 12 + (own(B) if own else 8 * B * op.n_out * op.n_in)
+        B = b.y.shape[0]
+        return B * b.op.n_in * b.n_params * 12 + b.op.jacobian_bytes(B)
 
     def jacobian(self, b: Batch) -> torch.Tensor:
         Jx = b.stack(vmap(jacrev(b.f), in_dims=(None, 0))(b.params, b.y), b.op.n_in)  # (B, n_in, P)
@@ -163,7 +162,7 @@ class FewerColumns:
     network has fewer parameters than observations."""
 
     def choose(self, b: Batch):
-        if callable(getattr(b.op, "jacobian", None)):
+        if b.op.jacobian is not None:
             return JACOBIANS["chain"]
         return JACOBIANS["reverse" if b.op.n_out <= b.n_params else "forward"]
 
