@@ -383,3 +383,17 @@ def test_per_row_jacobians_are_the_vjps_of_every_unit_cotangent(monkeypatch, kw)
     for b in range(4):
         ref = op.vjp(np.repeat(X[b : b + 1], op.n_out, axis=0), np.eye(op.n_out))
         assert _rel(J[b], ref) <= 1e-12
+
+
+def test_sine_gordon_per_row_jacobians_are_the_vjps_of_every_unit_cotangent():
+    """The transposed leapfrog on all unit cotangents at once: row ``j`` of ``P'(x_b)`` is the vjp of
+    ``e_j`` at ``x_b`` to 1e-13 relative, and ``P'(x_b) v`` the jvp."""
+    d = discretize(pdeinv.mesh.interval(12))
+    op = SineGordon(lumped_mass(d), d.K, T=0.5, strength=20.0)
+    X = _draw(op, b=3)
+    J = op.jacobian(X)
+    assert J.shape == (3, op.n_out, op.n_in)
+    V = np.random.default_rng(1).standard_normal(X.shape)
+    assert _rel(np.einsum("bij,bj->bi", J, V), op.jvp(X, V)) <= 1e-13
+    for b in range(3):
+        assert _rel(J[b], op.vjp(np.repeat(X[b : b + 1], op.n_out, axis=0), np.eye(op.n_out))) <= 1e-13

@@ -228,6 +228,34 @@ class SineGordon(Physics):
             Ub = Ub - 0.5 * h * AVb
         return (Ub,)
 
+    def jacobian(self, X) -> np.ndarray:
+        """The Jacobians ``P'(x_b)`` of the rows of ``X`` ``(B, N)``, ``(B, N, N)``: :meth:`_vjp`'s transposed
+        steps on all ``N`` unit cotangents of each row at once (``ū`` ``(N, B, N)``), over the states
+        recomputed backwards from the final state as the vjp does (one run, not one per cotangent)."""
+        A, _ = batch(X, self.n_in, "X")
+        n, B = self.n_in, A.shape[0]
+        h = self.dt
+        Ub = np.ascontiguousarray(np.broadcast_to(np.eye(n)[:, None, :], (n, B, n)))
+        Vb = np.zeros_like(Ub)
+
+        def A_T(U, W):  # A(u)ᵀ w on k cotangents per column, W (N, B, k)
+            out = (self.K @ (self.qminv * W.reshape(n, -1))).reshape(W.shape)
+            out += _scaled(torch.cos, U, self.strength)[:, :, None] * W
+            return out
+
+        states = self._reversed(*self._final(np.ascontiguousarray(A.T)))
+        AVb = A_T(next(states), Vb)
+        for U in states:  # as _sweep
+            Ub = Ub - 0.5 * h * AVb
+            Vb = Vb + h * Ub
+            AVb = A_T(U, Vb)
+            Ub = Ub - 0.5 * h * AVb
+        return np.ascontiguousarray(Ub.transpose(1, 2, 0))
+
+    def jacobian_bytes(self, B: int) -> int:
+        """The memory of :meth:`jacobian` on ``B`` rows, about: four ``(N, B, N)`` float64 arrays."""
+        return 4 * 8 * B * self.n_in * self.n_out
+
     def _reversed(self, U, V):
         """``u_n, u_{n−1}, …, u₀`` by stepping back from ``(u_n, v_n)``."""
         yield U

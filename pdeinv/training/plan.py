@@ -147,7 +147,7 @@ class PriorStage:
         if log is not None and own is None:
             n = self.draw_count(problem)
             log(f"prior stage: {PILOT} pilot draws took {pace * PILOT:.2g} s: the stage's {n} draws will "
-                f"take about {pace * n:.0f} s, then the fit")
+                f"take at most ~{pace * n:.0f} s (large batches go faster), then the fit")
         return None
 
     def run(self, problem, model, own, seed: int, log=None) -> dict:
