@@ -614,9 +614,9 @@ class Tangent:
         for U, lu in zip(reversed(self.states), reversed(self.lus), strict=True):
             exact = lu if isinstance(lu, _BlockTangent) else _BlockTangent(op, lu.D)
             Z = exact.solve_many(Z, "T")
-            MZ = op.B @ Z.reshape(n, B * n)
+            CZ = op.B @ Z.reshape(n, B * n)  # C(u)ᵀ z
             if op.theta < 1.0:
-                MZ -= (1.0 - op.theta) * op.dt * (op.df(U)[:, :, None] * (op.M @ Z.reshape(n, B * n))
+                CZ -= (1.0 - op.theta) * op.dt * (op.df(U)[:, :, None] * (op.M @ Z.reshape(n, B * n))
                                                   .reshape(n, B, n)).reshape(n, B * n)
-            Z = MZ.reshape(n, B, n)
+            Z = CZ.reshape(n, B, n)
         return np.ascontiguousarray(Z.transpose(1, 2, 0))
