@@ -265,7 +265,8 @@ def test_hig_steps_through_the_physics_own_jacobians_as_through_its_adjoint():
 
 def test_hig_routes_built_on_a_fixed_matrix_are_refused_on_nonlinear_physics():
     """The last-layer route steps on ``P``'s SVD on the decoder: asked for on allen_cahn it is refused by
-    name (the structured route, which is also built on it, is simply not offered: the test above)."""
+    name (the structured route, which is also built on it, is simply not offered: the test above), and so
+    is that SVD itself."""
     p = pdeinv.load_problem("allen_cahn_1d", n=16, steps=10)
     model = pdeinv.nets.default_model(p, refine=False).double()
     y = torch.as_tensor(p.sample(4, 1)[1])
@@ -273,3 +274,7 @@ def test_hig_routes_built_on_a_fixed_matrix_are_refused_on_nonlinear_physics():
     rule = pdeinv.HIG(route="last_layer")
     with pytest.raises(NotImplementedError, match="route='last_layer'.*needs a linear operator"):
         rule.step(rule.init(p, model), model, y)
+    from pdeinv.inverse.decoder import decoded_svd  # what those routes, SIP's decoder inverse and targets ask
+
+    with pytest.raises(NotImplementedError, match="decoded_svd.*needs a linear operator"):
+        decoded_svd(p.operator, None)

@@ -74,7 +74,11 @@ class DecodedSVD(NamedTuple):
 def decoded_svd(op, decoder) -> DecodedSVD:
     """``P̂``'s thin SVD from ``k`` forward calls; ``decoder``: the rows ``Dᵀ`` (``(k, N)``, numpy or
     torch), ``None`` for the identity (``N`` calls). Computed once per operator and decoder object (the
-    trainer's target, SIP's inverse and HIG's step all ask for it)."""
+    trainer's target, SIP's inverse and HIG's step all ask for it). A fixed matrix ``P`` only: on nonlinear
+    physics ``P`` of the decoder's rows is no linear map, and the call is refused."""
+    from ..physics.nonlinear import require_linear
+
+    require_linear(op, "the SVD of P on a decoder (decoded_svd)")
     cache = vars(op).setdefault("_decoded_svd", {})
     key = id(decoder)
     if key not in cache:  # the entry keeps the decoder alive: its id stays unique
