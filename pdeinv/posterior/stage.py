@@ -9,8 +9,10 @@ coverage, SBC p-values and interval width are measured on the run's test rows
 (:func:`pdeinv.posterior.diagnostics.report`), which took no part in it. The stage reports them in
 ``metrics["stages"]`` and ``metrics["posterior"]``.
 
-Without a prior to draw from (own data without ``x``) there is nothing to calibrate against: the stage
-says so and the run has no posterior. Own data *with* ``x`` is not yet split for calibration either.
+Own data *with* ``x``: the stage takes its rows from the file (:meth:`CalibrationStage.own_rows`, split off
+before the rules and the prior stage see any: :func:`pdeinv.training.data.own_data`), never the test
+rows. Without a prior to draw from (own data without ``x``) there is nothing to calibrate against: the
+stage says so and the run has no posterior.
 """
 
 from __future__ import annotations
@@ -34,6 +36,10 @@ def row_count(N: int) -> int:
     """The default stage's held-out draws for ``N`` unknowns (:data:`ROWS`)."""
     return int(min(ROWS, max(MIN_ROWS, ROW_NUMBERS // N)))
 
+
+#: own data with ``x``: at most this share of the rows left after the test and stopping rows is held out
+#: for the calibration (the rest trains), and at least OWN_MIN rows, else none (too few for its two halves)
+OWN_SHARE, OWN_MIN = 0.2, 64
 
 #: stored residuals for samples: at most this many numbers (float16: 8 MB), 256 to 2048 rows. Every
 #: sample of every observation is one of them, so their count bounds how well samples are calibrated
@@ -59,17 +65,27 @@ class CalibrationStage:
                 raise ValueError(f"CalibrationStage({key}={value!r}) is not allowed; expected an integer "
                                  f">= {low}")
 
+    def own_rows(self, rows: int) -> int:
+        """The rows a data file with ``x`` gives the stage, of the ``rows`` left after its test and stopping
+        rows: ``rows`` of the stage if set, else :data:`OWN_SHARE` of them; 0 below :data:`OWN_MIN`."""
+        n = self.rows if self.rows is not None else int(OWN_SHARE * rows)
+        return n if n >= OWN_MIN else 0
+
     def why_not(self, problem, own) -> str | None:
-        if own is not None:
-            return ("own data: calibration rows are drawn from the scene's prior, and the file's rows are "
-                    "not yet split for it" if own.x is not None else
-                    "no prior: the data file has no x, so no error can be measured")
+        if own is None:
+            return None
+        if own.x_test is None:
+            return "no prior: the data file has no x, so no error can be measured"
+        if own.x_cal is None:
+            return f"the data file has too few rows to hold out the calibration's {OWN_MIN}"
         return None
 
     def planned(self, problem, own=None) -> dict:
         why = self.why_not(problem, own)
         if why is not None:
             return {"name": self.name, "skipped": why}
+        if own is not None:
+            return {"name": self.name, "rows": len(own.x_cal), "own": True}
         return {"name": self.name, "rows": self.rows or row_count(problem.N),
                 "prior": problem.settings.get("prior", "the scene's")}
 
@@ -80,15 +96,19 @@ class CalibrationStage:
         why = self.why_not(problem, own)
         if why is not None:
             return None, {"name": self.name, "skipped": why, "seconds": time.perf_counter() - t0}
-        rows = self.rows or row_count(problem.N)
-        x, y = draw(rows)
+        if own is not None:
+            x, y = own.x_cal, own.y_cal
+        else:
+            x, y = draw(self.rows or row_count(problem.N))
+        rows = len(x)
         residual = x - predict(model, y)
         half = rows // 2
         mass = problem.disc.M if problem.disc is not None else None
         lo, hi = KEEP_ROWS
         keep = self.keep or int(np.clip(KEEP_NUMBERS // problem.N, lo, hi))
         cal = Calibration.fit(residual[:half], residual[half:], mass, keep)
-        info = {"name": self.name, "rows": rows, "spread_rows": half, "conformal_rows": rows - half}
+        info = {"name": self.name, "rows": rows, "spread_rows": half, "conformal_rows": rows - half,
+                "source": "prior" if own is None else "data"}
         x_test, y_test = test[0], test[1]
         if x_test is not None:
             info["test"] = report(cal, predict(model, y_test), x_test, mass, seed)

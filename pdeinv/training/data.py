@@ -268,15 +268,18 @@ def against(problem, y: np.ndarray, x: np.ndarray | None, path=None) -> tuple[st
     return "noise level outside the range of P", undeclared_noise(path, y, problem) if path else 0.0
 
 
-def split(rows: int, n_test: int, n_val: int = 0) -> tuple[slice, slice, slice]:
-    """``(train, val, test)`` row slices: the last ``n_test`` rows test, the ``n_val`` before them val."""
-    n_train = rows - n_test - n_val
+def split(rows: int, n_test: int, n_val: int = 0, n_cal: int = 0) -> tuple[slice, slice, slice, slice]:
+    """``(train, calibration, val, test)`` row slices: the last ``n_test`` rows test, the ``n_val`` before
+    them val, the ``n_cal`` before those calibration, the rest train."""
+    n_train = rows - n_test - n_val - n_cal
     if n_train < 2:
         raise ValueError(f"the data has {rows} rows; {n_test} test rows"
                          + (f" and {n_val} rows for the stopping rule" if n_val else "")
+                         + (f" and {n_cal} calibration rows" if n_cal else "")
                          + " are held out from its end, leaving fewer than 2 to train on "
                          "(lower n_test / --n-test or give more rows)")
-    return slice(0, n_train), slice(n_train, n_train + n_val), slice(n_train + n_val, rows)
+    cal = n_train + n_cal
+    return slice(0, n_train), slice(n_train, cal), slice(cal, cal + n_val), slice(cal + n_val, rows)
 
 
 def fingerprint(y: np.ndarray) -> str:
@@ -297,12 +300,14 @@ class OwnData:
     model_mismatch: float | None
     rows: dict
     x: np.ndarray | None = None  # the training rows' fields, when the file has them (the prior's draws)
+    x_cal: np.ndarray | None = None  # the calibration stage's rows (pdeinv.posterior.stage), with x only
+    y_cal: np.ndarray | None = None
 
     def describe(self) -> dict:
         """``metrics["data"]``."""
         return {"rows": self.rows, "x": self.x_test is not None, "model_mismatch": self.model_mismatch,
-                "split": "in order: first rows train, then the stopping rule's rows, "
-                         "the last n_test rows test"}
+                "split": "in order: first rows train, then the calibration rows (a file with x), the "
+                         "stopping rule's rows, the last n_test rows test"}
 
 
 def _no_repeats(y: np.ndarray, warn: bool = True) -> None:
@@ -321,10 +326,13 @@ def _no_repeats(y: np.ndarray, warn: bool = True) -> None:
                       RuntimeWarning, stacklevel=4)
 
 
-def own_data(problem, data, data_x, n_test: int, n_val: int = 0, warn: bool = True) -> OwnData:
+def own_data(problem, data, data_x, n_test: int, n_val: int = 0, warn: bool = True,
+             calibration=None) -> OwnData:
     """``data`` (``(B, m)`` observations) and ``data_x`` (their fields or None) checked against ``problem``
     and split by :func:`split`; ``warn``: say when the mismatch exceeds the noise, and what the default
-    split held out (the writer process of a data-parallel run)."""
+    split held out (the writer process of a data-parallel run); ``calibration``: the run's calibration stage
+    (:class:`pdeinv.posterior.CalibrationStage`, or None), which takes its rows of a file with ``x``
+    (``own_rows``) before the rules and the prior stage see any."""
     y = as_observations(data, problem.operator.n_out, "data")
     x = None if data_x is None else as_observations(data_x, problem.N, "data_x")
     if x is not None and len(x) != len(y):
@@ -336,13 +344,17 @@ def own_data(problem, data, data_x, n_test: int, n_val: int = 0, warn: bool = Tr
                       f"{problem.noise:g} explains: another simulator, grid or column order? "
                       "(--set noise=… declares noisy data)", RuntimeWarning, stacklevel=3)
     _no_repeats(y, warn)
-    train, val, test = split(len(y), n_test, n_val)
+    n_cal = 0 if x is None or calibration is None else calibration.own_rows(len(y) - n_test - n_val)
+    train, cal, val, test = split(len(y), n_test, n_val, n_cal)
     held = len(y) - train.stop
     if train.stop < held and warn:  # say what the default splits took
         stop = f" and {val.stop - val.start} for the stopping rule" if val.stop > val.start else ""
+        stop += f" and {n_cal} for the calibration" if n_cal else ""
         warnings.warn(f"the data's {len(y)} rows: the last {test.stop - test.start} are held out as the "
                       f"test set{stop}, only {train.stop} train; hold out fewer with --n-test "
                       "(Trainer(n_test=...))", RuntimeWarning, stacklevel=3)
-    return OwnData(y[train], y[val], y[test], None if x is None else x[test], fingerprint(y), mismatch,
-                   {"train": [0, train.stop], "stop": [val.start, val.stop], "test": [test.start, test.stop]},
-                   None if x is None else x[train])
+    rows = {"train": [0, train.stop], **({"calibration": [cal.start, cal.stop]} if n_cal else {}),
+            "stop": [val.start, val.stop], "test": [test.start, test.stop]}
+    cal_x, cal_y = (x[cal], y[cal]) if n_cal else (None, None)
+    return OwnData(y[train], y[val], y[test], None if x is None else x[test], fingerprint(y), mismatch, rows,
+                   None if x is None else x[train], cal_x, cal_y)

@@ -212,9 +212,11 @@ def _stage_text(st: dict) -> str:
     if st["name"] == "calibration":
         if st.get("skipped"):
             return f"calibration: none ({st['skipped']})"
-        return (f"calibration: the network's residuals on {st['rows']} held-out draws of the prior "
-                f"({st['prior']}) give its posterior: per-node scale from half, split-conformal quantiles "
-                "from the other half (std, intervals at any level, samples: posterior.npz)")
+        rows = (f"{st['rows']} held-out rows of the data file" if st.get("own") else
+                f"{st['rows']} held-out draws of the prior ({st['prior']})")
+        return (f"calibration: the network's residuals on {rows} give its posterior: per-node scale from "
+                "half, split-conformal quantiles from the other half (std, intervals at any level, samples: "
+                "posterior.npz)")
     if st["name"] == "prior":
         if st.get("skipped"):
             return f"prior: none ({st['skipped']})"

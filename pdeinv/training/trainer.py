@@ -215,7 +215,8 @@ class Trainer:
         self.n_test = count(self.n_test, "n_test")
         if self.data is not None:
             self._own = own_data(self.problem, self.data, self.data_x, self.n_test,
-                                 self.stop.n_val if self.stop is not None else 0, self.parallel.is_writer)
+                                 self.stop.n_val if self.stop is not None else 0, self.parallel.is_writer,
+                                 self.calibration)
             self.n_train = len(self._own.y)
             if self.fresh:
                 raise ValueError("fresh=True draws new observations of the scene's prior each step; data= "

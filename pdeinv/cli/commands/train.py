@@ -223,9 +223,10 @@ def _plan(args, problem, y=None, x=None):
 
     own = None
     if y is not None:
+        from pdeinv.posterior import CalibrationStage
         from pdeinv.training.data import own_data
 
-        own = own_data(problem, y, x, args.n_test, 0, False)
+        own = own_data(problem, y, x, args.n_test, 0, False, CalibrationStage())
     hidden = _hidden(args.hidden) if args.hidden is not None else None
     return plan(problem, args.method, net=args.net, hidden=hidden, prior=_prior_stage(args),
                 fresh=args.fresh_draws,
@@ -464,7 +465,8 @@ def _stage_line(stage: dict) -> str:
         test = stage.get("test")
         cover = "" if test is None else (f", 90 % intervals cover {test['coverage_90']:.3g} of the test "
                                          f"values (ball {test['ball_coverage_90']:.3g})")
-        return f"{name}: {stage['rows']} held-out draws{cover}"
+        rows = "rows of the data file" if stage.get("source") == "data" else "draws"
+        return f"{name}: {stage['rows']} held-out {rows}{cover}"
     if "kept" in stage and not stage["kept"]:
         return f"{name}: not kept ({stage.get('steps', 0)} steps did not lower the held-out error)"
     # %.3g, never %.4f: "x_err 0.0000" once hid 6e-11
