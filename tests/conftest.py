@@ -54,3 +54,9 @@ def heat():
     import pdeinv
 
     return pdeinv.load_problem("heat_1d", n=16, steps=10, backend="modal")
+
+
+def pytest_collection_modifyitems(items):
+    """Tests marked ``slow`` (each over ~20 s on the 2-core machine) run first: pytest-xdist's work stealing
+    then spreads the short ones around them, instead of one worker starting a 100-s test at the end."""
+    items.sort(key=lambda item: item.get_closest_marker("slow") is None)  # stable: otherwise as collected

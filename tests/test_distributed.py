@@ -118,6 +118,7 @@ def _same_run(one: Path, two: Path) -> None:
     assert _history(two) == pytest.approx(_history(one), rel=1e-5)
 
 
+@pytest.mark.slow
 def test_torchrun_two_processes_train_as_one_gd(tmp_path):
     _single(tmp_path / "one", "--method", "gd")
     cmd = [sys.executable, "-m", "torch.distributed.run", "--standalone", "--nproc_per_node=2",

@@ -62,6 +62,7 @@ def _kill_when_paused(proc, marker: Path) -> None:
     marker.unlink()
 
 
+@pytest.mark.slow
 def test_sigkill_at_random_moments_and_during_saves_then_resume(tmp_path, capsys, one_thread):
     rng = random.Random(0)
     out, marker = tmp_path / "run", tmp_path / "paused"

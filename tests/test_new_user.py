@@ -175,6 +175,7 @@ def test_plots_show_sensors_and_ticks():
     assert len(ax.get_xticks()) > 0 and any(line.get_label() == "sensors" for line in ax.lines)
 
 
+@pytest.mark.slow
 def test_gd_defaults_do_not_blow_up_on_the_sensor_scene(tmp_path):
     """``train wave_sensors_2d --method gd`` at its defaults: 2.4e34 by step 19 with lr 0.01; with
     every whitened direction (1024 of 1024 training rows) x-error 2.2 after 25 steps (the trailing

@@ -128,6 +128,7 @@ def test_the_nonlinear_inverse_is_an_inexact_gauss_newton_step_that_keeps_the_co
     assert p.inverse_simulator.last_info["relative_residual"] <= GN_RTOL
 
 
+@pytest.mark.slow
 def test_the_default_network_beats_gauss_newton_on_sine_gordon_1d():
     """The acceptance's training regression against the classical reference: SIP's preset, then the dense
     correction fitted on 16 384 prior draws (4 000 steps), on 32 held-out rows, against per-sample
@@ -143,7 +144,8 @@ def test_the_default_network_beats_gauss_newton_on_sine_gordon_1d():
     p = pdeinv.load_problem("sine_gordon_1d")
     rule, hp = make_rule("sip", p, p.noise)
     trainer = pdeinv.Trainer(p, rule, steps=hp["steps"], batch_size=hp["batch_size"], seed=0, n_test=32,
-                             progress=False, prior=PriorStage(PriorFit(steps=4000), draws=16384))
+                             progress=False, prior=PriorStage(PriorFit(steps=4000), draws=16384),
+                             calibration=None)  # x_err is the claim, not the posterior
     res = trainer.fit()
     xt, yt = trainer.held_out()
     gn = {a: float(np.mean(p.relative_error(levenberg_marquardt(p, yt, a)[0], xt))) for a in (1e-1, 1e-2)}
@@ -151,6 +153,7 @@ def test_the_default_network_beats_gauss_newton_on_sine_gordon_1d():
     assert res.metrics["x_err"] < 0.75 * gn[1e-2] and res.metrics["x_err"] < 1.05 * min(gn.values())
 
 
+@pytest.mark.slow
 def test_the_default_network_beats_gauss_newton_on_allen_cahn_1d():
     """The acceptance's training regression on the nonlinear heat: SIP's preset with the plateau stop
     (``--stop auto`` on nonlinear physics) on 256 training rows, then the dense correction fitted on 16 384
@@ -168,7 +171,7 @@ def test_the_default_network_beats_gauss_newton_on_allen_cahn_1d():
     rule, hp = make_rule("sip", p, p.noise)
     trainer = pdeinv.Trainer(p, rule, steps=hp["steps"], batch_size=hp["batch_size"], seed=0, n_train=256,
                              n_test=32, progress=False, prior=PriorStage(PriorFit(steps=4000), draws=16384),
-                             stop=PlateauStop())
+                             stop=PlateauStop(), calibration=None)  # x_err is the claim, not the posterior
     res = trainer.fit()
     xt, yt = trainer.held_out()
     alphas = (1e-2, 1e-4)

@@ -300,6 +300,7 @@ def test_the_unet_fit_batch_shrinks_with_the_unfolded_grid():
     assert batch((31, 31, 31)) == 10 and batch((99, 99, 99)) == 2
 
 
+@pytest.mark.slow
 def test_large_nonlinear_meshes_get_the_span_correction_which_fits_saves_and_reloads(tmp_path):
     """Above DENSE_MAX_UNKNOWNS on nonlinear physics the correction is the MLP in the base decoder's
     orthonormalized coordinates (SpanCorrection): its output lies in span D, it is zero until fitted, it
