@@ -215,16 +215,17 @@ class SineGordon(Physics):
                                    *self._final(U0), np.ascontiguousarray(R.T))
         return np.ascontiguousarray(Ub.T)
 
-    def _sweep(self, states, Ub):
-        """The transposed steps from ``ū = Ub``, ``v̄ = 0`` over ``states`` ``u_n, …, u₀``."""
-        h = self.dt
+    def _sweep(self, states, Ub, A_T=None):
+        """The transposed steps from ``ū = Ub``, ``v̄ = 0`` over ``states`` ``u_n, …, u₀``; ``A_T(u, w)``:
+        ``A(u)ᵀ w`` on ``Ub``'s shape (default :meth:`_A_T`, one cotangent per column)."""
+        h, A_T = self.dt, A_T or self._A_T
         Vb = np.zeros_like(Ub)
         U1 = next(states)
-        AVb = self._A_T(U1, Vb)
+        AVb = A_T(U1, Vb)
         for U in states:  # step u -> u1, transposed; its last product starts the step before
             Ub = Ub - 0.5 * h * AVb
             Vb = Vb + h * Ub
-            AVb = self._A_T(U, Vb)
+            AVb = A_T(U, Vb)
             Ub = Ub - 0.5 * h * AVb
         return (Ub,)
 
@@ -234,22 +235,14 @@ class SineGordon(Physics):
         recomputed backwards from the final state as the vjp does (one run, not one per cotangent)."""
         A, _ = batch(X, self.n_in, "X")
         n, B = self.n_in, A.shape[0]
-        h = self.dt
         Ub = np.ascontiguousarray(np.broadcast_to(np.eye(n)[:, None, :], (n, B, n)))
-        Vb = np.zeros_like(Ub)
 
         def A_T(U, W):  # A(u)ᵀ w on k cotangents per column, W (N, B, k)
             out = (self.K @ (self.qminv * W.reshape(n, -1))).reshape(W.shape)
             out += _scaled(torch.cos, U, self.strength)[:, :, None] * W
             return out
 
-        states = self._reversed(*self._final(np.ascontiguousarray(A.T)))
-        AVb = A_T(next(states), Vb)
-        for U in states:  # as _sweep
-            Ub = Ub - 0.5 * h * AVb
-            Vb = Vb + h * Ub
-            AVb = A_T(U, Vb)
-            Ub = Ub - 0.5 * h * AVb
+        Ub, = self._sweep(self._reversed(*self._final(np.ascontiguousarray(A.T))), Ub, A_T)
         return np.ascontiguousarray(Ub.transpose(1, 2, 0))
 
     def jacobian_bytes(self, B: int) -> int:
