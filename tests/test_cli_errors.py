@@ -40,3 +40,42 @@ def test_a_bug_keeps_its_traceback(monkeypatch):
     monkeypatch.setattr(show, "cmd_show", fail)
     with pytest.raises(RuntimeError, match="a bug"):
         main(["show", "somewhere"])
+
+
+def one_line(capsys, argv):
+    """``pdeinv argv``: its exit code and its stderr, which must be one line without a traceback."""
+    try:
+        code = main(argv)
+    except SystemExit as stop:  # argparse's own errors exit from parse_args
+        code = stop.code
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "Traceback" not in err and "usage:" not in err, err
+    return code, err
+
+
+@pytest.mark.parametrize("argv, needle", [
+    (["train", "heat_1d", "--steps", "nan"], "argument --steps: invalid int value: 'nan'"),
+    (["train", "heat_1d", "--method", "bogus"], "argument --method: invalid choice: 'bogus'"),
+    (["demo", "heat_1d", "--batch", "1.5"], "argument --batch: invalid int value: '1.5'"),
+    (["problems", "extra"], "unrecognized arguments: extra"),
+    (["trian", "heat_1d"], "invalid choice: 'trian'"),
+    ([], "the following arguments are required: command"),
+])
+def test_argparse_errors_are_one_line(capsys, argv, needle):
+    """argparse printed its whole usage block (12 lines for train) before its error; now the error alone."""
+    code, err = one_line(capsys, argv)
+    assert code == 2 and needle in err and "--help` lists the arguments" in err
+
+
+@pytest.mark.parametrize("flag, value, allowed", [
+    ("--steps", "-1", "an integer >= 1"), ("--lr", "0", "a number > 0"), ("--eta", "-2", "a number > 0"),
+    ("--tau", "1", "a number >= 0 and < 1"), ("--batch-size", "0", "an integer >= 1"),
+    ("--time-budget", "-1", "a number >= 0"), ("--eval-every", "0", "an integer >= 1"),
+    ("--max-failures", "0", "an integer >= 1"), ("--threads", "100000", "an integer from 1 to 1024"),
+])
+def test_train_flags_are_named_as_flags(capsys, tmp_path, flag, value, allowed):
+    """``--steps -1`` said ``steps=-1`` (the trainer's name, easily read as ``--set steps=``, the physics'
+    time steps); ``--threads 100000`` ended in a traceback (can't start new thread)."""
+    code, err = one_line(capsys, ["train", "heat_1d", flag, value, "--out", str(tmp_path / "r")])
+    assert code == 2 and f"{flag} {value} is not allowed; expected {allowed}" in err
+    assert not (tmp_path / "r").exists()

@@ -204,11 +204,11 @@ def test_cli_train_writes_metrics_history_and_plot(tmp_path, capsys):
 
 @pytest.mark.parametrize("argv, match", [
     (["heat_1d", "--method", "adam", "--tau", "1e-5"], "tau does not apply to method 'adam'"),
-    (["heat_1d", "--method", "hig", "--eta", "-1"], "eta=-1.0 is not allowed"),
+    (["heat_1d", "--method", "hig", "--eta", "-1"], "--eta -1 is not allowed; expected a number > 0"),
     (["heat_1d", "--set", "kappa=hot"], "kappa='hot' is not a number"),
     (["nowhere"], "unknown problem 'nowhere'"),
     (["heat_1d", "--hidden", "64,x"], "--hidden"),
-    (["heat_1d", "--steps", "0"], "steps=0"),
+    (["heat_1d", "--steps", "0"], "--steps 0 is not allowed"),
     (["heat_1d", "--resume", "--overwrite"], "--resume and --overwrite conflict"),
     (["heat_1d", "--data", "train.npz"], "--n-train does not apply with --data"),
     (["heat_1d", "--set", "n=16", "--resume"], "no checkpoint at .* to resume from"),

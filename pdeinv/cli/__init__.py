@@ -38,10 +38,18 @@ def command_modules() -> list:
     return sorted(found, key=lambda m: (getattr(m, "ORDER", 100), m.__name__))
 
 
+class Parser(argparse.ArgumentParser):
+    """argparse's parser, with its errors (an unknown flag, a value of the wrong type) in one line, as every
+    other error of the CLI: argparse prints the whole usage block first (12 lines for ``train``)."""
+
+    def error(self, message):
+        self.exit(2, f"{self.prog}: error: {message} (`{self.prog} --help` lists the arguments)\n")
+
+
 def build_parser() -> argparse.ArgumentParser:
     from .. import __version__
 
-    p = argparse.ArgumentParser(prog="pdeinv", description="PDE inverse problems on finite elements.")
+    p = Parser(prog="pdeinv", description="PDE inverse problems on finite elements.")
     p.add_argument("--version", action="version", version=f"pdeinv {__version__}")
     sub = p.add_subparsers(dest="command", required=True)
     for module in command_modules():
@@ -60,8 +68,10 @@ INT_MAX = 2**31 - 1
 
 def check_numbers(parser, args) -> None:
     """Every numeric flag of the command, checked once before any work: a float flag finite (``nan``,
-    ``inf`` refused), an integer flag at most :data:`INT_MAX` in magnitude; the one line names the flag.
-    Each flag's own range (``--lr`` > 0, ``--threads`` >= 1, ...) is checked where it is used."""
+    ``inf`` refused), an integer flag at most :data:`INT_MAX` in magnitude, and within the range the flag
+    declares (:func:`pdeinv.cli.commands.ranged`: ``--steps`` >= 1, ``--lr`` > 0, ...); the one line names
+    the flag. Ranges that depend on other values (``--batch-size`` against ``--n-train``) are checked where
+    they are used."""
     import math
 
     subparsers = next(a for a in parser._actions if isinstance(a, argparse._SubParsersAction))
@@ -75,6 +85,20 @@ def check_numbers(parser, args) -> None:
             raise UsageError(f"{flag} {value} is not allowed; expected a finite number")
         if action.type is int and abs(value) > INT_MAX:
             raise UsageError(f"{flag} {value} is out of range; expected an integer of at most {INT_MAX}")
+        _in_range(action, flag, value)
+
+
+def _in_range(action, flag: str, value) -> None:
+    """``value`` within the range ``action`` declares (:func:`pdeinv.cli.commands.ranged`), or one line."""
+    low, above, below, high = (getattr(action, k, None) for k in ("low", "above", "below", "high"))
+    if (low is None or value >= low) and (above is None or value > above) \
+            and (below is None or value < below) and (high is None or value <= high):
+        return
+    kind = "an integer" if action.type is int else "a number"
+    parts = [f">= {low}" if low is not None else "", f"> {above}" if above is not None else "",
+             f"< {below}" if below is not None else "", f"<= {high}" if high is not None else ""]
+    allowed = " and ".join(p for p in parts if p)
+    raise UsageError(f"{flag} {value:g} is not allowed; expected {kind} {allowed}")
 
 
 def check_common(args) -> None:

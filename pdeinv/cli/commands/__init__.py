@@ -24,6 +24,21 @@ class BadData(Exception):
     one line, exit code :data:`FAILED`; the command's ``--accept-bad`` lets it through."""
 
 
+def ranged(action, low=None, above=None, below=None, high=None):
+    """Declare the range of a numeric flag (``action``: what ``add_argument`` returned): at least ``low``,
+    more than ``above``, less than ``below``, at most ``high``. :func:`pdeinv.cli.check_numbers` refuses a
+    value outside it before any work, in one line naming the flag (not the setting it feeds)."""
+    action.low, action.above, action.below, action.high = low, above, below, high
+    return action
+
+
+def declare_ranges(parser, ranges: dict) -> None:
+    """:func:`ranged` for each flag of ``parser`` whose dest ``ranges`` names: ``{"steps": dict(low=1)}``."""
+    for action in parser._actions:
+        if action.dest in ranges:
+            ranged(action, **ranges[action.dest])
+
+
 def parse_sets(pairs: list[str]) -> dict:
     """``["kappa=0.02", "mesh=f.msh"]`` -> ``{"kappa": "0.02", ...}`` (problems coerce types)."""
     out = {}
@@ -106,11 +121,17 @@ def prepare_out(out) -> None:
     output_folder(out, "--out")
 
 
+#: the most ``--threads`` a command takes: beyond it the thread pools fail to start (measured: 100 000
+#: threads, "can't start new thread" from a traceback), and no machine pdeinv runs on has more cores
+THREADS_MAX = 1024
+
+
 def set_threads(n: int) -> None:
-    """``--threads``: torch's threads and every BLAS/OpenMP pool (:func:`pdeinv.util.threads.limit`), n >=
-    1."""
-    if n < 1:
-        raise UsageError(f"--threads {n} is not allowed; expected an integer >= 1")
+    """``--threads``: torch's threads and every BLAS/OpenMP pool (:func:`pdeinv.util.threads.limit`), from 1
+    to :data:`THREADS_MAX`."""
+    if not 1 <= n <= THREADS_MAX:
+        raise UsageError(f"--threads {n} is not allowed; expected an integer from 1 to {THREADS_MAX} "
+                         f"(this machine has {os.cpu_count()} cores)")
     from pdeinv.util.threads import limit
 
     limit(n)

@@ -17,6 +17,7 @@ from . import (
     _checks,
     add_set_argument,
     build_problem,
+    declare_ranges,
     no_cache,
     parse_sets,
     prepare_out,
@@ -533,7 +534,15 @@ def add_parser(sub) -> None:
     _data_arguments(t)
     _run_arguments(t)
     _checks.add_arguments(t)  # --allow-slow, --max-memory-gb
+    declare_ranges(t, RANGES)
     t.set_defaults(func=cmd_train)
+
+
+#: the range of each numeric flag whose check the trainer or the rule would otherwise make under its own
+#: name (``steps=-1``, ``time_budget=-1.0``), checked before any work (:func:`pdeinv.cli.check_numbers`)
+RANGES = {"steps": dict(low=1), "lr": dict(above=0), "eta": dict(above=0), "tau": dict(low=0, below=1),
+          "batch_size": dict(low=1), "time_budget": dict(low=0), "eval_every": dict(low=1),
+          "max_failures": dict(low=1)}
 
 
 def _rule_arguments(t) -> None:
