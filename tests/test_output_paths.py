@@ -63,9 +63,16 @@ def _refused(capsys, argv, match, folder):
     (["show", "{run}", "--png", "{d}/obs.npz/f.png"], "is not a writable directory (a file is in the way)"),
     (["train", "--prior-fit", "0",
       "heat_1d", *SMALL, "--out", f"{READ_ONLY}/run"], "is not a writable directory"),
+    # bench and stress wrote bench.json, forward.png, methods.png / stress.json into any folder, exit 0
+    (["bench", "heat_1d", "--quick", "--set", "n=8", "--out", "{run}"], "holds .pdeinv-run, checkpoint.pt"),
+    (["bench", "heat_1d", "--quick", "--set", "n=8", "--out", "{d}"], "holds obs.npz, run and no bench.json"),
+    (["stress", "heat_1d", "--quick", "--set", "n=8", "--out", "{run}"], "and no stress.json of its own"),
+    (["stress", "heat_1d", "--quick", "--set", "n=8", "--out", "{d}"], "run and no stress.json"),
 ], ids=["show-training-png", "show-metrics", "show-its-input", "predict-vtu-run-file", "classical-metrics",
         "classical-its-data", "show-read-only", "predict-read-only", "predict-vtu-read-only",
-        "classical-read-only", "show-under-a-file", "train-read-only"])
+        "classical-read-only", "show-under-a-file", "train-read-only", "bench-into-a-run",
+        "bench-into-a-folder",
+        "stress-into-a-run", "stress-into-a-folder"])
 def test_refused_in_one_line(run, capsys, argv, match):
     fill = {"{run}": str(run / "run"), "{d}": str(run)}
     for k, v in fill.items():

@@ -19,7 +19,9 @@
   regular file (a device, a pipe) never;
 * missing parent folders are created; a folder that cannot be created or written (read-only, under a
   file, no permission) is refused, naming the folder;
-* a file path that is an existing folder is refused (and the other way round).
+* a file path that is an existing folder is refused (and the other way round);
+* a sweep's folder (``bench --out``, ``stress --out``: :func:`output_folder` with ``record``) is new, empty,
+  or one of that sweep's earlier results; a run folder or a user's folder is refused, naming what it holds.
 
 Every refusal is an :class:`OutputPathError` (a ``ValueError``: the CLI prints its one line and exits
 with 2) that names the flag, the path and what to do.
@@ -163,13 +165,20 @@ def output_file(path, flag: str = "out", inputs: Iterable = (), owns: Iterable[s
     return target
 
 
-def output_folder(path, flag: str = "out", inputs: Iterable = ()) -> Path:
+def output_folder(path, flag: str = "out", inputs: Iterable = (), record: str | None = None) -> Path:
     """``path`` resolved (:func:`resolve`), as a folder this command may write into (module docstring),
-    created."""
+    created. ``record``: the file a sweep writes (``bench.json``, ``stress.json``): the folder must then be
+    new, empty, or hold that command's earlier results (its ``record``, whose files it replaces); a run
+    folder or any other non-empty folder is refused, naming what it holds."""
     target = resolve(path, flag)
     named = _named(flag, path, target)
     if target.exists() and not target.is_dir():
         raise OutputPathError(f"{named} is a file; expected a directory")
+    held = contents(target) if record and target.is_dir() else []
+    if held and (record not in held or is_run_folder(target)):
+        raise OutputPathError(f"{named} holds {_listing(held)} and no {record} of its own earlier results: "
+                              f"its results go only into a new or empty folder, or one of its earlier "
+                              f"results; choose another {flag}")
     _not_an_input(target, named, flag, inputs)
     _writable(target, flag, named, target)
     return target

@@ -113,12 +113,13 @@ def out_path(text: str, flag: str = "--out") -> Path:
     return Path(text)
 
 
-def prepare_out(out) -> None:
+def prepare_out(out, record: str | None = None) -> None:
     """Refuse an ``--out`` that is a file; create the folder and prove it writable before any work
-    (:func:`pdeinv.util.outpaths.output_folder`, the policy of every output path)."""
+    (:func:`pdeinv.util.outpaths.output_folder`, the policy of every output path). ``record``: the file a
+    sweep writes there (``bench.json``): a folder holding anything else is refused."""
     from pdeinv.util.outpaths import output_folder
 
-    output_folder(out, "--out")
+    output_folder(out, "--out", record=record)
 
 
 #: the most ``--threads`` a command takes: beyond it the thread pools fail to start (measured: 100 000
