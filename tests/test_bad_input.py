@@ -24,6 +24,7 @@ from pdeinv.cli import main
     ("heat_1d", dict(kapa=0.1), r"unknown setting.*'kapa'.*allowed: .*kappa"),
     ("wave_1d", dict(c=0), r"c=0.*> 0"),
     ("wave_1d", dict(kappa=0.1), r"unknown setting.*'kappa'"),
+    ("heat_1d", dict(kappa=1e-320), r"kappa=1e-320 is out of range; expected 0 or a number of magnitude"),
 ])
 def test_bad_overrides(name, overrides, match):
     with pytest.raises(ValueError, match=match):
@@ -61,6 +62,30 @@ def test_unknown_problem_and_module_without_make(tmp_path):
     mod.write_text("x = 1\n")
     with pytest.raises(ValueError, match="no function make"):
         pdeinv.load_problem(mod)
+
+
+@pytest.mark.parametrize("source, match", [
+    # a BaseException of the module's own was a traceback (only Exception and SystemExit were caught)
+    ("class E(BaseException):\n    pass\ndef make(**kw):\n    raise E('odd')\n", r"line 4, in make: E: odd"),
+    # SETTINGS as plain values (not (default, rule) pairs) failed inside resolve: "cannot unpack ... int"
+    ("from pdeinv import settings as s\nSETTINGS = dict(n=16)\ndef make(**kw):\n"
+     "    return s.resolve(SETTINGS, kw, 'rod')\n",
+     r"line 4, in make: TypeError: settings of 'rod': 'n': 16 is not a \(default, rule\) pair"),
+])
+def test_a_module_that_fails_oddly_is_one_line(tmp_path, source, match):
+    mod = tmp_path / "odd.py"
+    mod.write_text(source)
+    with pytest.raises(ValueError, match=r"problem module .*odd\.py', " + match) as err:
+        pdeinv.load_problem(mod)
+    assert "\n" not in str(err.value)
+
+
+def test_a_folder_is_no_module(tmp_path, capsys):
+    """A folder given as the problem was "does not exist"."""
+    with pytest.raises(ValueError, match=r"is a directory; expected a \.py file"):
+        pdeinv.load_problem(tmp_path)
+    assert main(["demo", str(tmp_path)]) == 2
+    assert "is a directory" in capsys.readouterr().err
 
 
 def test_mesh_files(tmp_path):

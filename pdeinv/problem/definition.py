@@ -131,6 +131,9 @@ def find_module(name_or_path: str | os.PathLike) -> Path:
     spec = os.fspath(name_or_path)
     if spec.endswith(".py") or os.sep in spec or "/" in spec:
         path = Path(spec)
+        if path.is_dir():
+            raise ValueError(f"problem module {spec!r} is a directory; expected a .py file with "
+                             "make(**overrides), or a problem name")
         if not path.is_file():
             raise FileNotFoundError(f"problem module {spec!r} does not exist")
         if path.suffix != ".py":
@@ -200,7 +203,9 @@ def _run_module(path: Path, overrides: dict, where: str) -> Problem:
         if not callable(make):
             raise ProblemModuleError(f"problem module {where} has no function make(**overrides)")
         problem = make(**overrides)
-    except (Exception, SystemExit) as err:
+    except KeyboardInterrupt:  # Ctrl-C, the module's or the user's: as everywhere else
+        raise
+    except BaseException as err:  # SystemExit, and a module's own BaseException subclasses
         if builtin or isinstance(err, ProblemModuleError) or (
                 isinstance(err, Exception) and _pdeinvs_own(path, err)):
             raise

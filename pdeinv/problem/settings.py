@@ -20,7 +20,8 @@ FLOAT_MAX = 1e150
 
 def _in_range(value, name, text):
     """``value`` unless an integer beyond :data:`INT_MAX` or a real beyond :data:`FLOAT_MAX` in
-    magnitude (NaN and Inf are left to the rule's own check, which names them)."""
+    magnitude, or a nonzero real below ``1 / FLOAT_MAX`` (``kappa=1e-320`` overflowed to a traceback
+    where the physics divides by it); NaN and Inf are left to the rule's own check, which names them."""
     if isinstance(value, bool):
         return value
     if isinstance(value, int) and abs(value) > INT_MAX:
@@ -28,6 +29,9 @@ def _in_range(value, name, text):
     if isinstance(value, float) and math.isfinite(value) and abs(value) > FLOAT_MAX:
         raise ValueError(f"{name}={text!r} is out of range; expected a number of magnitude at most "
                          f"{FLOAT_MAX:g}")
+    if isinstance(value, float) and 0 < abs(value) < 1 / FLOAT_MAX:
+        raise ValueError(f"{name}={text!r} is out of range; expected 0 or a number of magnitude at least "
+                         f"{1 / FLOAT_MAX:g}")
     return value
 
 
@@ -73,7 +77,13 @@ def optional_path(value, name):
 
 
 def resolve(spec: dict, overrides: dict, problem: str) -> dict:
-    """Merge ``overrides`` into the defaults of ``spec``, checking every value."""
+    """Merge ``overrides`` into the defaults of ``spec``, checking every value. ``spec`` maps each name to a
+    ``(default, rule)`` pair; anything else (a module's ``SETTINGS = dict(n=16)``) is a ``TypeError`` naming
+    the entry, not an unpacking error from inside this function."""
+    for name, entry in spec.items():
+        if not (isinstance(entry, tuple) and len(entry) == 2 and callable(entry[1])):
+            raise TypeError(f"settings of {problem!r}: {name!r}: {entry!r} is not a (default, rule) pair; "
+                            f"expected e.g. {name!r}: (32, settings.positive_int) (docs/problems.md)")
     unknown = sorted(set(overrides) - set(spec))
     if unknown:
         raise ValueError(
