@@ -70,6 +70,20 @@ def nonnegative(value, name: str) -> float:
     return float(value)
 
 
+def finite(value, name: str) -> float:
+    """A finite real number (any sign)."""
+    if isinstance(value, bool) or not isinstance(value, Real) or not math.isfinite(value):
+        raise ValueError(f"{name}={value!r} is not allowed; expected a finite number")
+    return float(value)
+
+
+def at_least(value, name: str, low: float) -> float:
+    """A finite real number >= ``low``."""
+    if finite(value, name) < low:
+        raise ValueError(f"{name}={value!r} is not allowed; expected a number >= {low:g}")
+    return float(value)
+
+
 def count(value, name: str, minimum: int = 1) -> int:
     """An integer >= ``minimum``."""
     if isinstance(value, bool) or not isinstance(value, Integral) or value < minimum:

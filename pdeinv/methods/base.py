@@ -146,7 +146,13 @@ class WithLR:
 
 
 def at_lr(factory: OptimizerFactory, lr: float | None) -> OptimizerFactory:
-    """``factory`` (``lr`` None) or :class:`WithLR` (``lr`` a finite number > 0, checked here)."""
+    """``factory`` (``lr`` None) or :class:`WithLR` (``lr`` a finite number > 0, checked here); ``factory``
+    is one of :func:`make_optimizer`'s three specs (anything else, ``'adam'`` or ``None``, was accepted by
+    the rule and failed at its first step, or never)."""
+    if not (callable(factory) or isinstance(factory, torch.optim.Optimizer)):
+        raise TypeError(f"optimizer={factory!r} is {type(factory).__name__}; expected a factory params -> "
+                        "torch.optim.Optimizer (pdeinv.adam(1e-3), pdeinv.sgd(0.1)), an optimizer class or "
+                        "an optimizer")
     return factory if lr is None else WithLR(factory, positive(lr, "lr"))
 
 

@@ -134,7 +134,10 @@ class SIP(Rule):
     def __post_init__(self):
         positive(self.eta, "eta")
         flag(self.normalize, "normalize")
-        at_lr(self.optimizer, self.lr)  # checks lr
+        at_lr(self.optimizer, self.lr)  # checks lr and the optimizer
+        if self.inverse is not None and not callable(self.inverse):
+            raise TypeError(f"inverse={self.inverse!r} is {type(self.inverse).__name__}; expected None (the "
+                            "problem's own) or a local inverse (y_target, x0) -> x̃ (pdeinv.inverse)")
 
     @property
     def transform(self) -> OptimizerStep:

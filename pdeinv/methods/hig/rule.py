@@ -9,7 +9,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 import torch
 
-from ..._checks import choice, count, nonnegative, positive
+from ..._checks import at_least, choice, count, finite, flag, nonnegative, positive
 from ...inverse.decoder import decoded_svd
 from ...nets.protocol import declared
 from ...physics.base import Matrix
@@ -139,6 +139,15 @@ class HIG(Rule):
         count(self.power_iters, "power_iters", minimum=0)
         choice(self.jacobian, "jacobian", tuple(JACOBIANS))
         positive(self.max_jacobian_gb, "max_jacobian_gb")
+        # accepted silently before: a seed numpy refuses at the first step, a NaN exponent (a NaN step),
+        # a condition cap of 0, a truthy normalize, a sum_over that is no function
+        count(self.seed, "seed", minimum=0)
+        finite(self.exponent, "exponent")
+        at_least(self.gram_cond_max, "gram_cond_max", 1)
+        flag(self.normalize, "normalize")
+        if self.sum_over is not None and not callable(self.sum_over):
+            raise TypeError(f"sum_over={self.sum_over!r} is {type(self.sum_over).__name__}; expected None "
+                            "or a function summing arrays over the processes (HIG.data_parallel)")
 
     transform = Add()
 
