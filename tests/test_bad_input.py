@@ -406,3 +406,27 @@ def test_a_failing_run_keeps_what_was_written(files, tmp_path, capsys):
         assert main(["train", "--prior-fit", "0", "heat_1d", *SMALL, "--out", str(run), *extra]) == 2
     capsys.readouterr()
     assert {p.name: p.read_bytes() for p in run.iterdir()} == before
+
+
+@pytest.mark.parametrize("damage, match", [
+    # a run.json of a later pdeinv was read as if it were this one's (predict exited 0)
+    (lambda run: (run / "run.json").write_text((run / "run.json").read_text().replace(
+        '"version": 1', '"version": 999')), r"run\.json has version 999; this pdeinv reads run records of"),
+    # a model.pt that is no torch file printed the first 120 characters of torch's unpickling essay
+    (lambda run: (run / "model.pt").write_bytes(b"garbage"),
+     r"model\.pt cannot be read as a torch state dict \(damaged, or not a file pdeinv wrote\)"),
+], ids=["version-999", "model-garbage"])
+def test_a_damaged_run_is_refused_in_one_line(files, tmp_path, capsys, damage, match):
+    import shutil
+
+    run = tmp_path / "run"
+    shutil.copytree(files / "run", run)
+    damage(run)
+    with pytest.raises(ValueError, match=match):
+        pdeinv.load_run(run)
+    x, y = pdeinv.load_problem("heat_1d", n=16, steps=10).sample(2, seed=0)
+    np.savez(tmp_path / "obs.npz", y=y)
+    obs, out = str(tmp_path / "obs.npz"), str(tmp_path / "p.npz")
+    assert main(["predict", str(run), "--data", obs, "--out", out]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "Traceback" not in err and not (tmp_path / "p.npz").exists()

@@ -193,12 +193,20 @@ def load_run(run_dir):
         assert record.get("format") == FORMAT and {"problem", "overrides", "network"} <= set(record)
     except (ValueError, AssertionError, AttributeError):
         raise ValueError(f"{where}: {RUN_FILE} is not a pdeinv run record; rerun `pdeinv train`") from None
+    version = record.get("version", VERSION)  # a run of a later pdeinv may mean its fields otherwise
+    if isinstance(version, bool) or not isinstance(version, int) or not 1 <= version <= VERSION:
+        raise ValueError(f"{where}: {RUN_FILE} has version {version!r}; this pdeinv reads run records of "
+                         f"version 1 to {VERSION}: use the pdeinv that wrote it, or rerun `pdeinv train`")
     problem = load_problem(record["problem"], **record["overrides"])
     model = network(problem, record["network"])
     try:
         state = torch.load(run / MODEL_FILE, map_location="cpu", weights_only=True)
+    except Exception:  # noqa: BLE001  (torch's unpickling errors are pages long and differ by version)
+        raise ValueError(f"{where}: {MODEL_FILE} cannot be read as a torch state dict (damaged, or not a "
+                         "file pdeinv wrote); rerun `pdeinv train`") from None
+    try:
         model.load_state_dict(state)
-    except Exception as err:  # noqa: BLE001  (unpickling and shape errors differ by torch version)
+    except Exception as err:  # noqa: BLE001  (shape errors differ by torch version)
         first = (str(err).strip().splitlines() or [type(err).__name__])[0][:120]
         raise ValueError(f"{where}: {MODEL_FILE} does not fit its {RUN_FILE} ({first})") from None
     return problem, model.eval()
