@@ -291,6 +291,9 @@ API = [
      r"resume=True needs checkpoint="),
     ("checkpoint-every-zero", lambda: pdeinv.Checkpoint("c.pt", every=0), ValueError,
      r"checkpoint every=0 is not allowed"),
+    # a user's file as the checkpoint path was replaced by the first save
+    ("checkpoint-a-users-file", lambda: pdeinv.Checkpoint(__file__), ValueError,
+     r"test_bad_input\.py' exists and is corrupt or not a pdeinv checkpoint: saving there would"),
     ("batch-above-data", lambda: _trainer(batch_size=9, n_train=8), ValueError,
      r"batch_size=9 is larger than n_train=8"),
     # typed entry points (issue 36): the kind of object is a TypeError, its value a ValueError

@@ -93,6 +93,15 @@ class Checkpoint:
                              f"directory ({err.strerror or err}); choose another path") from None
         if self.path.is_dir():
             raise ValueError(f"checkpoint {str(self.path)!r} is a directory; expected a file path")
+        if self.path.exists() and not self.path.is_file():
+            raise ValueError(f"checkpoint {str(self.path)!r} is not a regular file; choose another path")
+        if self.path.is_file():  # a user's file there was replaced by the first save, silently
+            try:
+                self.load()
+            except ValueError:
+                raise ValueError(f"checkpoint {str(self.path)!r} exists and is corrupt or not a pdeinv "
+                                 "checkpoint: saving there would replace it; choose another path (or delete "
+                                 "it, if it is a broken checkpoint)") from None
 
     def exists(self) -> bool:
         return self.path.is_file()
