@@ -60,6 +60,7 @@ NETWORKS = {
     "default": lambda problem, **settings: problem.model(**settings),
     "linear": lambda problem, **settings: __import__("pdeinv.nets").nets.linear_default(problem, **settings),
     "mlp": _mlp,
+    "modal": _from_nets("modal"),
     "reduced": _from_nets("reduced"),
     "unet": _from_nets("unet"),
     "whitened": _from_nets("whitened"),

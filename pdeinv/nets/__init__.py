@@ -19,6 +19,10 @@ Three kinds of network:
   with a fixed decoder basis ``Φ`` (:class:`Decoder`, the prior's principal components) on the
   output: ``x = Φ body(z)``; its trained size does not depend on the mesh, and the prior fills
   what the observations do not see.
+* :func:`modal` (:mod:`.modal`, ``--net modal``): the same :class:`Net` on the whitened coefficients of the
+  operator's own modes, with those modes as its decoder, where the operator has a spectral basis (the heat
+  scenes); the default's linear part where the prior decoder misses the prior (``heat_boxes``). Its bases
+  are rebuilt from the problem, so its file holds about ``2k²`` numbers for ``k`` modes.
 * :class:`MeshUNet` (:mod:`.unet`, ``--net unet``): the SIP paper's U-Net on a grid reached through the
   finite-element interpolation, on the observations and the physics' own linear estimate, trained by the
   rules end to end; parameters independent of the mesh.
@@ -50,6 +54,7 @@ from .defaults import (
            refined_size,
 )
 from .mlp import MLP, Residual, dense, mlp, zero_last_layer
+from .modal import ModalFeatures, modal
 from .net import BODIES, DTYPE, LinearInParameters, Net, fit_preconditioning, whitened
 from .reduced import (
            REDUCED_K,
@@ -66,11 +71,11 @@ from .unet import MeshUNet, unet
 __all__ = ["BODIES", "DECODER_MAX_UNCAPTURED", "DENSE_MAX_UNKNOWNS", "DTYPE", "FALLBACK_COMPONENTS", "MLP",
            "REDUCED_ABOVE",
            "REDUCED_K", "REDUCED_K_IN", "REDUCED_K_MAX", "REDUCED_UNCAPTURED", "Decoder",
-           "LinearInParameters", "MeshUNet", "Net", "decoder_basis",
+           "LinearInParameters", "MeshUNet", "ModalFeatures", "Net", "decoder_basis",
            "Residual", "correction_kind", "data_base", "default_model", "default_size", "dense",
            "fit_preconditioning",
-           "linear_default", "mlp", "network_size", "prior_basis", "reduced", "refined", "refined_size",
-           "unet", "whitened", "zero_last_layer"]
+           "linear_default", "mlp", "modal", "network_size", "prior_basis", "reduced", "refined",
+           "refined_size", "unet", "whitened", "zero_last_layer"]
 
 #: network kinds that are not linear in their parameters (SIP takes the paper's optimizer, HIG its
 #: minibatch routes: :mod:`pdeinv.methods.presets`); ``--hidden`` (the MLP) is one too

@@ -89,8 +89,9 @@ def linear_default(problem, rows_per_component: float | None = None) -> nn.Modul
     """The linear part of :func:`default_model` (the default before :mod:`pdeinv.nets.refine`; ``--net
     linear``): :func:`reduced` or :func:`whitened` as described there. A decoder that leaves more than
     :data:`DECODER_MAX_UNCAPTURED` of the prior's energy out has an error floor of its square root
-    (its rounding-level solve amplifies the missing part): the whitened linear map with at most
-    :data:`FALLBACK_COMPONENTS` components is taken instead (parameters linear in the mesh). On nonlinear
+    (its rounding-level solve amplifies the missing part): the linear map in the operator's modes is
+    taken instead where it has a spectral basis, else the whitened linear map with at most
+    :data:`FALLBACK_COMPONENTS` components (:func:`_fallback`). On nonlinear
     physics the whitened map, and above :data:`REDUCED_ABOVE` the reduced network's whitened input, keep one
     direction per :data:`NONLINEAR_ROWS_PER_COMPONENT` rows (one direction per row fits the training rows
     and amplifies the held-out residual)."""
@@ -107,8 +108,19 @@ def linear_default(problem, rows_per_component: float | None = None) -> nn.Modul
     net = reduced(**kw, uncaptured=uncaptured)(problem)
     info = net.decoder_info
     if 1 - info.get("captured", 1.0) > max(DECODER_MAX_UNCAPTURED, uncaptured):
-        return _whitened_fallback(problem, rows_per_component)
+        return _fallback(problem, rows_per_component)
     return net
+
+
+def _fallback(problem, rows_per_component=None) -> nn.Module:
+    """The linear part where the prior decoder misses the prior: the linear map in the operator's modes
+    where it has a spectral basis (:func:`pdeinv.nets.modal.modal`: ``O(k²)`` numbers saved, the bases
+    rebuilt), else the whitened map with at most :data:`FALLBACK_COMPONENTS` components."""
+    from .modal import modal, visible_modes
+
+    if visible_modes(problem) is not None:
+        return modal(rows_per_component=rows_per_component)(problem)
+    return _whitened_fallback(problem, rows_per_component)
 
 
 def correction_kind(problem) -> str | None:
@@ -208,8 +220,8 @@ def network_size(problem, kind: str = "default", hidden=None) -> dict:
     ``build`` (bytes its construction needs on top: the prior draws and Gram matrix of
     :func:`prior_basis`), ``widest`` (its widest layer) and ``dtype_bytes``. Upper bounds (a decoder may
     keep fewer columns); the memory guard (:func:`pdeinv.training.plan.check_training`) adds the
-    training state per parameter. ``kind``: 'default', 'linear', 'whitened', 'reduced', 'unet'
-    (:mod:`pdeinv.nets.unet`) or 'mlp' (``hidden`` given)."""
+    training state per parameter. ``kind``: 'default', 'linear', 'whitened', 'reduced', 'modal'
+    (:mod:`pdeinv.nets.modal`), 'unet' (:mod:`pdeinv.nets.unet`) or 'mlp' (``hidden`` given)."""
     m, n = problem.operator.n_out, problem.operator.n_in
     itemsize = torch.finfo(DTYPE).bits // 8
 
@@ -232,7 +244,15 @@ def network_size(problem, kind: str = "default", hidden=None) -> dict:
 
         size = {"params": network_parameters(m, n, hidden), "buffers": 2 * m, "build": 0}
         return {**size, "widest": max(m, n, *hidden), "dtype_bytes": 4}
-    if kind == "whitened":
+    if kind == "modal":
+        from .modal import modal_size
+
+        size = modal_size(problem)
+        if size is None:
+            raise ValueError(f"net 'modal' needs an operator with a spectral basis; problem "
+                             f"{problem.name!r}'s has none")
+        size = {**size, "build": 0}
+    elif kind == "whitened":
         size = whitened_size(min(m, n))
     elif kind == "reduced":
         size = reduced_size()
@@ -251,7 +271,7 @@ def network_size(problem, kind: str = "default", hidden=None) -> dict:
             size["params"] += refined_size(problem)
     else:
         raise ValueError(f"kind={kind!r} is not allowed; expected 'default', 'linear', 'whitened', "
-                         "'reduced' or 'unet' (or hidden widths for the MLP)")
+                         "'reduced', 'modal' or 'unet' (or hidden widths for the MLP)")
     return {**size, "widest": max(m, n), "dtype_bytes": itemsize}
 
 

@@ -246,7 +246,7 @@ def _lost_peer(err: RuntimeError) -> bool:
 
 
 #: ``--net``: the network kinds a user chooses by name (run.json's ``network.kind``, pdeinv.io.runs.NETWORKS)
-NETS = ("default", "linear", "whitened", "reduced", "unet")
+NETS = ("default", "linear", "whitened", "reduced", "modal", "unet")
 
 
 def _network_spec(problem, hp: dict, net: str = "default", data: bool = False) -> dict:
@@ -570,7 +570,8 @@ def _network_arguments(t) -> None:
                    help="network (default: the problem's: a linear estimate (the prior decoder where the "
                         "operator is not reversible, else the whitened linear map) trained by the rule, "
                         "plus a nonlinear correction fitted on the prior (--prior-fit); linear: the "
-                        "linear estimate alone; unet: the SIP paper's U-Net on the observations and the "
+                        "linear estimate alone; modal: the linear map in the operator's modes (heat "
+                        "scenes), pdeinv.nets.modal; unet: the SIP paper's U-Net on the observations and the "
                         "physics' linear estimate, trained by the rule end to end, pdeinv.nets.unet; "
                         "pdeinv.nets.default_model)")
     t.add_argument("--prior-fit", type=int, default=None, metavar="N",

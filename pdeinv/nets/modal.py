@@ -1,0 +1,114 @@
+"""The linear map in the operator's own modes (:func:`modal`), for operators with a spectral basis.
+
+Where the operator is diagonal in a basis of modes, ``P x = Σ_k g_k ⟨φ_k, x⟩_M ψ_k`` (the modal heat
+backend, :func:`pdeinv.physics.capabilities.modal_basis`: ``proj`` gives the coefficients ``⟨ψ_k, y⟩``,
+``synth`` the fields ``φ_k``), the observations decide a field only along the modes whose gain ``g_k`` stands
+above float64 rounding of ``y``: those the spectral basis keeps. The network
+
+    f(y) = Φ (W z(y) + b),   z(y) = whiten(⟨ψ_k, y⟩_k),
+
+maps those modes' coefficients, whitened on the training observations (never ``x``:
+:class:`~pdeinv.nets.whitening.Whitening` in ``k`` dimensions, so that the rules' full-batch proxy has the
+identity Hessian there), to the same modes' coefficients of ``x`` through a trained ``k × k`` matrix ``W``
+and bias ``b``. It is a :class:`~pdeinv.nets.net.Net` linear in its
+parameters with a fixed decoder ``Φ`` (SIP solves in its span, HIG takes the Kronecker route). Its bases are
+rebuilt from the problem, not saved: ``model.pt`` holds about ``2k²`` numbers however large the mesh, where
+the whitened map holds two ``N × k`` arrays (heat_boxes 64²: MB_AT_64).
+The field's part along modes the observations do not decide is left at 0, as by every linear estimate that
+the data alone decide; the prior stage adds it.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import torch
+
+from .mlp import dense
+from .net import DTYPE, Net
+from .protocol import Network
+from .whitening import Whitening
+
+
+class ModalFeatures(Network):
+    """``z(y) = whiten(y @ proj)`` (module docstring): ``proj`` ``(m, k)`` is rebuilt from the problem (not
+    saved); the whitening of the ``k`` coefficients (:class:`~pdeinv.nets.whitening.Whitening`) is fitted on
+    training observations and saved (``k² + 2k`` numbers)."""
+
+    def __init__(self, proj: np.ndarray, rows_per_component: float | None = None):
+        super().__init__()
+        self.register_buffer("proj", torch.as_tensor(np.asarray(proj, dtype=float)), persistent=False)
+        self.whitening = Whitening(self.proj.shape[1], rows_per_component=rows_per_component)
+
+    @property
+    def k(self) -> int:
+        return self.whitening.k
+
+    @property
+    def info(self) -> dict:
+        return self.whitening.info
+
+    @torch.no_grad()
+    def fit_observations(self, y, noise=None, **settings) -> ModalFeatures:
+        c = torch.as_tensor(y, dtype=self.proj.dtype, device=self.proj.device) @ self.proj
+        self.whitening.fit_observations(c.cpu(), noise, **settings)
+        return self
+
+    def forward(self, y: torch.Tensor) -> torch.Tensor:
+        return self.whitening(y.to(self.proj.dtype) @ self.proj)
+
+
+class ModalDecoder(Network):
+    """``x = c Φᵀ``: the visible modes' fields (``(k, N)`` rows, rebuilt from the problem, not saved)."""
+
+    def __init__(self, synth: np.ndarray):
+        super().__init__()
+        rows = torch.as_tensor(np.asarray(synth, dtype=float).T.copy())
+        self.register_buffer("basis", rows, persistent=False)
+
+    def forward(self, c: torch.Tensor) -> torch.Tensor:
+        return c @ self.basis
+
+    @property
+    def decoder(self) -> torch.Tensor:
+        return self.basis
+
+    def extra_repr(self) -> str:
+        k, n = self.basis.shape
+        return f"N={n}, k={k}"
+
+
+def visible_modes(problem):
+    """``(proj, synth)`` of the operator's modes (those its spectral basis keeps: gains above rounding), or
+    ``None`` where the operator has no spectral basis."""
+    from ..physics.capabilities import modal_basis
+
+    modes = modal_basis(problem.operator)
+    if modes is None:
+        return None
+    return np.asarray(modes.proj), np.asarray(modes.synth)
+
+
+def modal(dtype: torch.dtype = DTYPE, rows_per_component: float | None = None):
+    """A ``model_factory``: the linear map in the operator's visible modes (module docstring); a
+    ``ValueError`` where the operator has no spectral basis. ``rows_per_component``: the whitening's cap
+    for first-order rules (:class:`~pdeinv.nets.whitening.Whitening`)."""
+    def build(problem) -> Net:
+        found = visible_modes(problem)
+        if found is None:
+            raise ValueError(f"net 'modal' needs an operator with a spectral basis; problem "
+                             f"{problem.name!r}'s has none")
+        proj, synth = found
+        pre = ModalFeatures(proj, rows_per_component)
+        return Net(pre, dense(pre.k, pre.k, ()), ModalDecoder(synth)).to(dtype)
+
+    return build
+
+
+def modal_size(problem) -> dict | None:
+    """``{"params", "buffers"}`` of :func:`modal`'s network without building it, ``None`` without a spectral
+    basis: ``k² + k`` trained, the whitening's ``k² + 2k`` (the bases are rebuilt)."""
+    found = visible_modes(problem)
+    if found is None:
+        return None
+    k = found[0].shape[1]
+    return {"params": k * k + k, "buffers": k * k + 2 * k + 1}
