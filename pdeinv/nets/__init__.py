@@ -21,8 +21,8 @@ Three kinds of network:
   what the observations do not see.
 * :func:`modal` (:mod:`.modal`, ``--net modal``): the same :class:`Net` on the whitened coefficients of the
   operator's own modes, with those modes as its decoder, where the operator has a spectral basis (the heat
-  scenes); the default's linear part where the prior decoder misses the prior (``heat_boxes``). Its bases
-  are rebuilt from the problem, so its file holds about ``2k²`` numbers for ``k`` modes.
+  scenes). Its bases are rebuilt from the problem, so its file holds about ``2k²`` numbers for ``k``
+  modes.
 * :class:`MeshUNet` (:mod:`.unet`, ``--net unet``): the SIP paper's U-Net on a grid reached through the
   finite-element interpolation, on the observations and the physics' own linear estimate, trained by the
   rules end to end; parameters independent of the mesh.
