@@ -93,7 +93,7 @@ def linear_default(problem, rows_per_component: float | None = None) -> nn.Modul
     :data:`FALLBACK_COMPONENTS` components is taken instead (parameters linear in the mesh). The linear map in
     the operator's modes (:func:`pdeinv.nets.modal.modal`, ``--net modal``) saves ``O(k²)`` numbers instead
     of ``O(N·k)`` but was less accurate where it matters (heat_boxes 64², noise-free: SIP 0.187 against
-    0.159, and 0.053 against 0.047 after 966 steps of the prior stage's fit). On nonlinear
+    0.159, and 0.0415 against 0.0398 after the prior stage). On nonlinear
     physics the whitened map, and above :data:`REDUCED_ABOVE` the reduced network's whitened input, keep one
     direction per :data:`NONLINEAR_ROWS_PER_COMPONENT` rows (one direction per row fits the training rows
     and amplifies the held-out residual)."""
