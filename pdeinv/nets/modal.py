@@ -26,6 +26,7 @@ import torch
 from .mlp import dense
 from .net import DTYPE, Net
 from .protocol import Network
+from .reduced import Decoder
 from .whitening import Whitening
 
 
@@ -57,26 +58,6 @@ class ModalFeatures(Network):
         return self.whitening(y.to(self.proj.dtype) @ self.proj)
 
 
-class ModalDecoder(Network):
-    """``x = c Φᵀ``: the visible modes' fields (``(k, N)`` rows, rebuilt from the problem, not saved)."""
-
-    def __init__(self, synth: np.ndarray):
-        super().__init__()
-        rows = torch.as_tensor(np.asarray(synth, dtype=float).T.copy())
-        self.register_buffer("basis", rows, persistent=False)
-
-    def forward(self, c: torch.Tensor) -> torch.Tensor:
-        return c @ self.basis
-
-    @property
-    def decoder(self) -> torch.Tensor:
-        return self.basis
-
-    def extra_repr(self) -> str:
-        k, n = self.basis.shape
-        return f"N={n}, k={k}"
-
-
 def visible_modes(problem):
     """``(proj, synth)`` of the operator's modes (those its spectral basis keeps: gains above rounding), or
     ``None`` where the operator has no spectral basis."""
@@ -99,7 +80,7 @@ def modal(dtype: torch.dtype = DTYPE, rows_per_component: float | None = None):
                              f"{problem.name!r}'s has none")
         proj, synth = found
         pre = ModalFeatures(proj, rows_per_component)
-        return Net(pre, dense(pre.k, pre.k, ()), ModalDecoder(synth)).to(dtype)
+        return Net(pre, dense(pre.k, pre.k, ()), Decoder(torch.as_tensor(synth), persistent=False)).to(dtype)
 
     return build
 

@@ -56,11 +56,12 @@ REDUCED_K_IN = 1024
 
 
 class Decoder(Network):
-    """``x = Φ c``: a fixed basis ``Φ`` (``N × k``, a buffer, not trained) times coefficients ``c``."""
+    """``x = Φ c``: a fixed basis ``Φ`` (``N × k``, a buffer, not trained) times coefficients ``c``.
+    ``persistent=False``: the basis is rebuilt from the problem, not saved (:mod:`pdeinv.nets.modal`)."""
 
-    def __init__(self, basis: torch.Tensor):
+    def __init__(self, basis: torch.Tensor, persistent: bool = True):
         super().__init__()
-        self.register_buffer("basis", torch.as_tensor(basis).T.contiguous())  # stored (k, N)
+        self.register_buffer("basis", torch.as_tensor(basis).T.contiguous(), persistent=persistent)  # (k, N)
 
     def forward(self, c: torch.Tensor) -> torch.Tensor:
         return c @ self.basis
