@@ -224,7 +224,12 @@ class Trainer:
         self.n_train = count(self.n_train, "n_train")
         self.batch_size = self.n_train if self.batch_size is None else count(self.batch_size, "batch_size")
         if self.batch_size > self.n_train:
-            raise ValueError(f"batch_size={self.batch_size} is larger than n_train={self.n_train}")
+            b, n = self.batch_size, self.n_train
+            if self.data is None:
+                raise ValueError(f"batch_size={b} is larger than n_train={n}; expected batch_size <= {n}")
+            raise ValueError(f"batch_size={b} (--batch-size) is larger than the {n} training rows of data "
+                             f"(its rows less n_test={self.n_test} (--n-test) and the other held-out rows); "
+                             f"expected at most {n}")
         self.eval_every = count(self.eval_every, "eval_every")
         self._guard()  # checks its settings
         if self.resume and self.checkpoint is None:
