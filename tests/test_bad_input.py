@@ -371,6 +371,25 @@ API = [
      ValueError, r"network_spec=\{'kind': 'cnn'\} is not allowed; expected .*'default'"),
     ("save-run-read-only", lambda: pdeinv.save_run("/proc/pdeinv-test", "heat_1d", model=_result().model),
      ValueError, r"out '/proc/pdeinv-test' is not a writable directory"),
+    # one line naming the kinds (a Result's or a network's repr was many lines)
+    ("save-run-swapped", lambda: pdeinv.save_run("unused", _result()), TypeError,
+     r"^problem is a training Result; expected the problem's name .*model=result\.model"),
+    ("save-run-swapped-out", lambda: pdeinv.save_run(_result(), "unused"), TypeError,
+     r"^out is a training Result; expected the run's folder"),
+    ("save-run-network-as-problem", lambda: pdeinv.save_run("unused", _result().model), TypeError,
+     r"^problem is a network \(\w+\); expected the problem's name[^\n]*$"),
+    ("n-train-one", lambda: _trainer(n_train=1), ValueError,
+     r"n_train=1 is not allowed; expected an integer >= 2"),
+    ("data-x-without-data", lambda: _trainer(data_x=np.zeros((4, 7))), ValueError,
+     r"data_x= was given without data="),
+    ("sample-seed-negative", lambda: _heat().sample(2, seed=-1), ValueError,
+     r"seed=-1 is not allowed; expected an integer from 0 to 4294967295"),
+    ("sample-seed-float", lambda: _heat().sample(2, seed=1.5), ValueError, r"seed=1\.5 is not allowed"),
+    ("sip-name-int", lambda: pdeinv.SIP(name=3), TypeError, r"name=3 is int; expected a non-empty str"),
+    ("gd-name-blank", lambda: pdeinv.GD(name=" "), ValueError,
+     r"name=' ' is not allowed; expected a non-empty"),
+    ("hig-name-none", lambda: pdeinv.HIG(name=None), TypeError,
+     r"name=None is NoneType; expected a non-empty"),
 ]
 
 
