@@ -91,6 +91,28 @@ def count(value, name: str, minimum: int = 1) -> int:
     return int(value)
 
 
+def label(value, name: str) -> str:
+    """A non-empty, non-blank ``str`` (a rule's ``name``: the run's records and the CLI's messages)."""
+    if not isinstance(value, str):
+        raise TypeError(f"{name}={value!r} is {type(value).__name__}; expected a non-empty str")
+    if not value.strip():
+        raise ValueError(f"{name}={value!r} is not allowed; expected a non-empty str")
+    return value
+
+
+#: seeds numpy's SeedSequence and torch.manual_seed both take (the CLI's --seed range)
+SEED_MAX = 2**32 - 1
+
+
+def seed(value, name: str = "seed") -> int:
+    """An integer in ``0 .. 2³²−1`` (numpy's own words for ``-1``: "expected non-negative integer")."""
+    if isinstance(value, bool) or not isinstance(value, Integral) or not 0 <= value <= SEED_MAX:
+        text = repr(value)
+        text = text if len(text) <= 60 else text[:57] + "..."
+        raise ValueError(f"{name}={text} is not allowed; expected an integer from 0 to {SEED_MAX}")
+    return int(value)
+
+
 def choice(value, name: str, allowed) -> str:
     if value not in allowed:
         raise ValueError(

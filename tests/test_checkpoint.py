@@ -104,6 +104,22 @@ def test_a_checkpoint_of_another_run_is_refused_naming_both(heat, tmp_path, chan
     assert ckpt.path.read_bytes() == before  # a refused run leaves the checkpoint alone
 
 
+def test_another_rule_and_network_is_named_in_a_short_line(heat, tmp_path):
+    """Another rule with another network: the rule is named (it is what the user changed), not a dump of
+    both networks (1-3 kB before); another network names at most a few differences."""
+    ckpt = Checkpoint(tmp_path / "c.pt", every=1)
+    trainer(heat, GD(adam(1e-3)), 2, ckpt, hidden=(16, 16, 16)).fit()
+    with pytest.raises(ValueError) as info:
+        trainer(heat, SIP(), 4, ckpt, resume=True, hidden=(8,)).fit()
+    message = str(info.value)
+    assert "written with rule 'gd'; this run has 'sip'" in message and len(message) < 250, message
+    with pytest.raises(ValueError) as info:
+        trainer(heat, GD(adam(1e-3)), 4, ckpt, resume=True, hidden=(8,)).fit()
+    message = str(info.value)
+    assert "holds network MLP (" in message and "more" in message and len(message) < 700, message
+    assert "\n" not in message
+
+
 def test_missing_and_corrupt_checkpoints(heat, tmp_path):
     ckpt = Checkpoint(tmp_path / "c.pt")
     with pytest.raises(FileNotFoundError, match=r"no checkpoint at '.*c\.pt' to resume from"):

@@ -169,3 +169,23 @@ def test_train_on_pure_noise_says_there_is_no_signal(tmp_path, capsys):
     assert main(["train", "heat_1d", *TRAIN, "--data", str(tmp_path / "noisy.npz"),
                  "--out", str(tmp_path / "s")]) == 0
     capsys.readouterr()
+
+
+@pytest.mark.parametrize("name", ["noise", "zeros"])
+def test_predict_on_observations_with_no_signal_says_so(files, run, tmp_path, capsys, name):
+    """Pure noise or all-zero observations (of any x) are no run's physics: exit 3 and one line, the check of
+    train and classical (:func:`pdeinv.training.data.no_signal`); ``--accept-bad`` predicts with a warning."""
+    data = tmp_path / f"{name}.npz"
+    if name == "zeros":
+        np.savez(data, y=np.zeros((40, 15)), x=np.zeros((40, 15)))
+    else:
+        data = files / "noise.npz"
+    pred = tmp_path / "pred.npz"
+    code = main(["predict", str(run), "--data", str(data), "--out", str(pred)])
+    line = _one_line(capsys.readouterr().err)
+    assert code == 3, line
+    assert line.startswith(f"pdeinv predict: error: --data {str(data)!r} shows no signal"), line
+    assert "--accept-bad" in line
+    assert not pred.exists()
+    assert main(["predict", str(run), "--data", str(data), "--out", str(pred), "--accept-bad"]) == 0
+    assert "warning" in _one_line(capsys.readouterr().err) and pred.exists()

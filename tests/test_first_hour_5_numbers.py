@@ -11,6 +11,7 @@ import zipfile
 import numpy as np
 import pytest
 
+import pdeinv
 from pdeinv.cli import INT_MAX, build_parser, main
 
 pytestmark = pytest.mark.usefixtures("one_thread")
@@ -71,6 +72,21 @@ def test_settings_out_of_range(capsys, setting, says):
     assert main(["demo", "heat_1d", "--set", setting]) == 2
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and says in err, err
+
+
+@pytest.mark.parametrize("scene, settings", [("heat_1d", ["n=2"]), ("heat_2d", ["n=2"]),
+                                             ("heat_1d", ["n=1", "element=P2"])])
+def test_a_mesh_with_its_unknowns_at_one_point_names_n(capsys, tmp_path, scene, settings):
+    """One unknown left by the boundary: the priors (relative to the unknowns' extent) had NaN widths and the
+    run failed with "array must not contain infs or NaNs"; now refused at build time, naming n."""
+    sets = [a for kv in settings for a in ("--set", kv)]
+    out = str(tmp_path / "r")
+    assert main(["train", scene, *sets, "--steps", "2", "--prior-fit", "0", "--out", out]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and f"error: {settings[0]} is too coarse: it leaves 1 unknown at one" in err
+    assert not (tmp_path / "r").exists()
+    with pytest.raises(ValueError, match=f"{settings[0]} is too coarse"):
+        pdeinv.load_problem(scene, **dict(kv.split("=") for kv in settings))
 
 
 @pytest.fixture(scope="module")

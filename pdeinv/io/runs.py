@@ -126,9 +126,16 @@ def save_run(out: str | os.PathLike, problem, overrides: dict | None = None, net
 
     if isinstance(problem, Problem):
         problem = problem.name
+    if not isinstance(out, (str, os.PathLike)):  # save_run(result, "runs/a"): the arguments swapped
+        raise TypeError(f"{_arguments._named('out', out)} is {_arguments._kind(out)}; expected the run's "
+                        "folder (str or path): save_run(out, problem, model=result.model)")
     if not isinstance(problem, (str, os.PathLike)) or not os.fspath(problem).strip():
-        raise TypeError(f"problem={problem!r} is not allowed; expected the problem's name or module path "
-                        "(str, e.g. 'heat_2d'), or the Problem")
+        # the kind, not the repr: a Result's or a network's repr is many lines
+        hint = "; for a training Result: save_run(out, problem, model=result.model, " \
+            "posterior=result.posterior)" if _arguments._is_result(problem) else ""
+        named, kind = _arguments._named("problem", problem), _arguments._kind(problem)
+        raise TypeError(f"{named} is {kind}; expected the problem's name or module path (str, e.g. "
+                        f"'heat_2d'), or the Problem{hint}")
     model = _arguments.model(model, optional=False)
     overrides = {} if overrides is None else overrides
     if not isinstance(overrides, dict):

@@ -7,7 +7,7 @@ from dataclasses import dataclass, field
 
 import torch
 
-from .._checks import flag
+from .._checks import flag, label
 from ..physics.bridge import apply
 from .base import OptimizerFactory, Rule, State, Update, at_lr, gradient, prediction, sgd, y_loss
 from .curvature import checked, gauss_newton_max, operator_norm2
@@ -47,6 +47,7 @@ class GD(Rule):
     lr: float | None = None  # the optimizer's learning rate (the CLI's --lr); None: the optimizer's own
 
     def __post_init__(self):
+        label(self.name, "name")
         flag(self.normalize, "normalize")
         at_lr(self.optimizer, self.lr)  # checks lr
 

@@ -11,7 +11,7 @@ from typing import NamedTuple
 import numpy as np
 import torch
 
-from .._checks import flag, positive
+from .._checks import flag, label, positive
 from ..inverse.decoder import DecoderTikhonov
 from ..inverse.protocol import ReusesForward
 from ..nets.protocol import declared
@@ -132,6 +132,7 @@ class SIP(Rule):
     lr: float | None = None  # the optimizer's learning rate (the CLI's --lr); None: the optimizer's own
 
     def __post_init__(self):
+        label(self.name, "name")
         positive(self.eta, "eta")
         flag(self.normalize, "normalize")
         at_lr(self.optimizer, self.lr)  # checks lr and the optimizer

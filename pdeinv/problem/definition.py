@@ -17,6 +17,7 @@ from pathlib import Path
 import numpy as np
 
 from .._checks import batch, count
+from .._checks import seed as _seed
 from ..fem.forms import Discretization
 from ..physics.base import LinearOperator
 from ..physics.nonlinear import Physics, is_linear
@@ -70,7 +71,7 @@ class Problem:
     def sample(self, n: int, seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
         """``(x, y)`` with ``x`` from the sampler and ``y = P x`` (+ noise); seeded."""
         n = count(n, "n")
-        rng = np.random.default_rng(seed)
+        rng = np.random.default_rng(_seed(seed))
         x = self.sampler(n, rng)
         return x, add_noise(self.operator.forward(x), self.noise, rng)
 

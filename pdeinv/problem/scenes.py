@@ -32,7 +32,16 @@ COMMON = {
 
 def prior(points, cfg: dict):
     """The scene's sampler ``(n, rng) -> (n, N)`` at ``points``: ``cfg['prior']`` (default ``bumps``)
-    from :data:`pdeinv.problem.sampling.PRIORS`."""
+    from :data:`pdeinv.problem.sampling.PRIORS`. Every prior draws over the unknowns' extent (widths and
+    centres relative to their bounding box), so unknowns all at one point (``n=2`` of heat_1d leaves the
+    midpoint) are refused, naming ``n`` (NaN fields and "array must not contain infs or NaNs" before)."""
+    points = np.asarray(points)
+    if points.size and not np.ptp(points, axis=1).any():
+        count, name = points.shape[1], cfg.get("prior", "bumps")
+        mesh = f"n={cfg['n']!r}" if "n" in cfg else "the mesh"
+        raise ValueError(f"{mesh} is too coarse: it leaves {count} unknown{'s' if count != 1 else ''} at one "
+                         f"point (after the boundary conditions): the prior {name!r} draws fields over the "
+                         "unknowns' extent, and there is none; refine the mesh (a larger n)")
     return partial(PRIORS[cfg.get("prior", "bumps")], points)
 
 HEAT = {**COMMON, "kappa": (0.01, s.positive), "scheme": ("be", s.one_of("be", "cn")),

@@ -10,10 +10,8 @@ from __future__ import annotations
 
 import os
 import sys
-from numbers import Integral
 
-#: seeds numpy's SeedSequence and torch.manual_seed both take (the CLI's --seed range)
-SEED_MAX = 2**32 - 1
+from .._checks import SEED_MAX, seed  # noqa: F401  (the seed= of every entry point: one check)
 
 
 def _short(value) -> str:
@@ -24,7 +22,7 @@ def _short(value) -> str:
 def _named(name: str, value) -> str:
     """``name=value`` for small values, ``name`` alone where the repr would be a wall of numbers."""
     plain = not (_is_rule(value) or isinstance(value, type) or _is_array(value) or _is_result(value))
-    return f"{name}={_short(value)}" if plain else name
+    return f"{name}={_short(value)}" if plain and "\n" not in repr(value) else name  # one line
 
 
 def _kind(value) -> str:
@@ -41,6 +39,9 @@ def _kind(value) -> str:
         return f"an update rule ({type(value).__name__})"
     if _is_array(value):
         return f"an array of shape {tuple(value.shape)}"
+    torch = sys.modules.get("torch")
+    if torch is not None and isinstance(value, torch.nn.Module):
+        return f"a network ({type(value).__name__})"
     return type(value).__name__
 
 
@@ -130,13 +131,6 @@ def model(value, name: str = "model", optional: bool = True):
         hint = "; arguments swapped? (the network comes first)" if name == "model" else ""
     raise TypeError(f"{_named(name, value)} is {_kind(value)}; expected a torch.nn.Module "
                     f"(problem.model(), or result.model of a finished run){hint}")
-
-
-def seed(value, name: str = "seed") -> int:
-    """An integer in ``0 .. 2³²−1``."""
-    if isinstance(value, bool) or not isinstance(value, Integral) or not 0 <= value <= SEED_MAX:
-        raise ValueError(f"{name}={_short(value)} is not allowed; expected an integer from 0 to {SEED_MAX}")
-    return int(value)
 
 
 def stop(value, problem_):

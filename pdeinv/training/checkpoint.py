@@ -152,15 +152,28 @@ def network_identity(model: torch.nn.Module) -> dict:
             "shapes": {k: list(v.shape) for k, v in model.state_dict().items()}, "architecture": plain(arch)}
 
 
-def _describe_network(net: dict) -> str:
-    shapes = net["shapes"]
-    return f"{net['class']} ({', '.join(f'{k} {tuple(s)}' for k, s in shapes.items())})"
+#: the most differences a refusal names (then "and N more"): a whole network's dump was 1–3 kB of one line
+FEW = 4
+
+
+def _few(items: list) -> str:
+    """The first :data:`FEW` of ``items``, comma-separated, and how many more there are."""
+    more = f", and {len(items) - FEW} more" if len(items) > FEW else ""
+    return ", ".join(items[:FEW]) + more
+
+
+def _describe_network(net: dict, other: dict) -> str:
+    """``net``'s class and the parameter shapes in which it differs from ``other`` (at most :data:`FEW`)."""
+    shapes, theirs = net["shapes"], other["shapes"]
+    differ = [f"{k} {tuple(s)}" for k, s in shapes.items() if theirs.get(k) != s]
+    return f"{net['class']} ({_few(differ) if differ else 'the same shapes'})"
 
 
 def _differences(saved: dict, current: dict) -> str:
-    """``key=saved (checkpoint) vs current (this run)`` for every key whose values differ."""
+    """``key=saved (checkpoint) vs current (this run)`` for the keys whose values differ (at most
+    :data:`FEW`, then how many more)."""
     keys = [k for k in dict.fromkeys([*saved, *current]) if saved.get(k) != current.get(k)]
-    return ", ".join(f"{k}={saved.get(k)!r} (checkpoint) vs {current.get(k)!r} (this run)" for k in keys)
+    return _few([f"{k}={saved.get(k)!r} (checkpoint) vs {current.get(k)!r} (this run)" for k in keys])
 
 
 def check_identity(saved: dict, current: dict, path) -> None:
@@ -172,13 +185,14 @@ def check_identity(saved: dict, current: dict, path) -> None:
     diff = _differences(saved["settings"], current["settings"])
     if diff:
         raise ValueError(f"{where} is of problem {saved['problem']!r} with other settings: {diff}")
+    if saved["rule"] != current["rule"]:  # before the network, which another rule often changes too
+        raise ValueError(f"{where} was written with rule {saved['rule']!r}; this run has {current['rule']!r} "
+                         "(resume with the same rule, the CLI's --method, or use another output folder)")
     s_net, c_net = saved["network"], current["network"]
     if s_net != c_net:
         diff = _differences(s_net.get("architecture", {}), c_net.get("architecture", {}))
-        raise ValueError(f"{where} holds network {_describe_network(s_net)}; this run's network is "
-                         f"{_describe_network(c_net)}" + (f": {diff}" if diff else ""))
-    if saved["rule"] != current["rule"]:
-        raise ValueError(f"{where} was written with rule {saved['rule']!r}; this run has {current['rule']!r}")
+        raise ValueError(f"{where} holds network {_describe_network(s_net, c_net)}; this run's network is "
+                         f"{_describe_network(c_net, s_net)}" + (f": {diff}" if diff else ""))
     diff = _differences(saved["hyperparameters"], current["hyperparameters"])
     if diff:
         raise ValueError(f"{where} was written with rule {saved['rule']!r} and other hyper-parameters: "

@@ -121,6 +121,44 @@ def undeclared_noise(path, y, problem=None) -> float:
     return max(level, est if est is not None and est > NOISE_FLOOR else 0.0)
 
 
+#: the rows :func:`read_noise` reads (the first ones): the SVD of more costs seconds (65 536 × 1 024 on one
+#: thread) and moves the reading little
+NOISE_ROWS = 1024
+
+
+def read_noise(y, operator) -> float:
+    """The relative noise level observations ``y`` show (:func:`pdeinv.inverse.noise.estimate_noise` over
+    their first :data:`NOISE_ROWS` rows); ``inf`` where they are noise all through (no low-rank signal:
+    pure noise, all zeros); 0 where it is not read: fewer than 4 rows or columns, or a nonlinear map,
+    which makes its own fine scales (sine_gordon_1d, noise-free, reads 0.135)."""
+    from ..inverse.noise import NoSignal, estimate_noise
+    from ..physics.nonlinear import is_linear
+
+    y = y[:NOISE_ROWS]
+    if min(y.shape) < 4 or not is_linear(operator):
+        return 0.0
+    try:
+        return estimate_noise(y)
+    except NoSignal:
+        return float("inf")
+
+
+def no_signal(level: float) -> str | None:
+    """Why observations whose noise level reads ``level`` (:func:`read_noise`, :func:`undeclared_noise`)
+    carry nothing to estimate from — noise of that level accounts for all of them, so Morozov's
+    principle accepts the estimate 0 (:func:`pdeinv.inverse.noise.signal_free`) —, in one clause; None
+    when they show a signal. The one check of ``classical``, ``train`` and ``predict`` (exit 3)."""
+    from ..inverse import Discrepancy
+    from ..inverse.noise import signal_free
+
+    if not signal_free(level, Discrepancy(1.0).tau):
+        return None
+    read = "more than all of ‖y‖" if level == float("inf") else f"{level:.3g}"
+    return (f"shows no signal: the noise level read from its observations ({read}) accounts for all of them "
+            "(Morozov's principle accepts the estimate 0), so nothing can be estimated from them: pure noise "
+            "or all zeros?")
+
+
 def npz_rounding_level(path) -> float:
     """:func:`rounding_level` of the array ``y`` of a file :func:`read_npz` has accepted."""
     with np.load(path, allow_pickle=False) as f:

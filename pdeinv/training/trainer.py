@@ -213,6 +213,9 @@ class Trainer:
         self.steps = None if self.steps is None else count(self.steps, "steps")
         self.time_budget is None or nonnegative(self.time_budget, "time_budget")
         self.n_test = count(self.n_test, "n_test")
+        if self.data is None and self.data_x is not None:  # it was ignored: the run trained on prior draws
+            raise ValueError("data_x= was given without data=: data_x holds the true fields of the rows of "
+                             "data= (for the errors only); pass the observations as data= too, or drop it")
         if self.data is not None:
             self._own = own_data(self.problem, self.data, self.data_x, self.n_test,
                                  self.stop.n_val if self.stop is not None else 0, self.parallel.is_writer,
@@ -221,10 +224,15 @@ class Trainer:
             if self.fresh:
                 raise ValueError("fresh=True draws new observations of the scene's prior each step; data= "
                                  "gives fixed rows: drop one of them")
-        self.n_train = count(self.n_train, "n_train")
+        self.n_train = count(self.n_train, "n_train", minimum=2)  # the CLI's --n-train range: whitening
         self.batch_size = self.n_train if self.batch_size is None else count(self.batch_size, "batch_size")
         if self.batch_size > self.n_train:
-            raise ValueError(f"batch_size={self.batch_size} is larger than n_train={self.n_train}")
+            b, n = self.batch_size, self.n_train
+            if self.data is None:
+                raise ValueError(f"batch_size={b} is larger than n_train={n}; expected batch_size <= {n}")
+            raise ValueError(f"batch_size={b} (--batch-size) is larger than the {n} training rows of data "
+                             f"(its rows less n_test={self.n_test} (--n-test) and the other held-out rows); "
+                             f"expected at most {n}")
         self.eval_every = count(self.eval_every, "eval_every")
         self._guard()  # checks its settings
         if self.resume and self.checkpoint is None:

@@ -119,6 +119,22 @@ def _writable(folder: Path, flag: str, named: str, target: Path) -> None:
                               f"choose another {flag}") from None
 
 
+def _creatable(folder: Path, flag: str, named: str) -> None:
+    """Refuse in one line, leaving nothing behind, a ``folder`` that cannot be created: the nearest existing
+    path above it is a file (``--out notes.txt/sub``) or a folder in which no folder can be made."""
+    above = folder
+    while not above.exists() and above != above.parent:
+        above = above.parent
+    if not above.is_dir():
+        raise OutputPathError(f"{named} is not a writable directory (a file is in the way: {str(above)!r}); "
+                              f"choose another {flag}")
+    try:
+        tempfile.TemporaryDirectory(dir=above).cleanup()
+    except OSError as err:
+        raise OutputPathError(f"{named} is not a writable directory ({err.strerror or err} in "
+                              f"{str(above)!r}); choose another {flag}") from None
+
+
 def _not_an_input(target: Path, named: str, flag: str, inputs: Iterable) -> None:
     for name, p in inputs:
         if p and _text(p).strip() and resolve(p) == target:
@@ -208,4 +224,6 @@ def run_folder(path, flag: str = "out", replace: bool = False, outputs: Iterable
                               f"{', '.join(found)})")
     if create:
         _writable(target, flag, named, target)
+    else:
+        _creatable(target, flag, named)
     return target

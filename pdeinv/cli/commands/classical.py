@@ -50,10 +50,8 @@ def cmd_classical(args) -> int:
     import numpy as np
 
     from pdeinv.fem.forms import relative_norms
-    from pdeinv.inverse import Discrepancy
-    from pdeinv.inverse.noise import NoSignal, estimate_noise, signal_free
     from pdeinv.physics.nonlinear import is_linear
-    from pdeinv.training.data import read_meta, read_npz
+    from pdeinv.training.data import no_signal, read_meta, read_noise, read_npz
     from pdeinv.util.files import atomic_write
 
     # the one output-path policy (pdeinv.util.outpaths): resolved, folder created, never the --data file, a
@@ -64,14 +62,11 @@ def cmd_classical(args) -> int:
     problem = build_problem("classical", args.problem, args.set)
     y, x = read_npz(args.data, problem.operator.n_out, problem.N)
     declared = read_meta(args.data, problem.points).get("noise")
-    # the estimate reads noise off the spectral tail a linear smoothing map leaves; a nonlinear map makes
-    # its own fine scales (sine_gordon_1d, noise-free: "0.135"), so it is not estimated there
-    try:
-        guess = estimate_noise(y) if min(y.shape) >= 4 and is_linear(problem.operator) else 0.0
-    except NoSignal:
-        guess = float("inf")
-    if not (problem.noise or declared) and signal_free(guess, Discrepancy(1.0).tau):
-        return _no_signal(args, guess)
+    # the estimate reads noise off the spectral tail a linear smoothing map leaves (none of a nonlinear map)
+    guess = read_noise(y, problem.operator)
+    why = None if problem.noise or declared else no_signal(guess)
+    if why is not None:
+        return _no_signal(args, why)
     noise = problem.noise or declared or guess
     source = "the problem's" if problem.noise else "the file's" if declared else \
         "estimated from the file" if is_linear(problem.operator) else "the problem's"
@@ -102,13 +97,10 @@ def cmd_classical(args) -> int:
     return 0
 
 
-def _no_signal(args, level: float) -> int:
-    """Observations that are noise all through (:func:`pdeinv.inverse.noise.signal_free`): exit 3 and one
-    line (:class:`BadData`), or with ``--accept-bad`` a warning and exit 0; nothing is solved."""
-    read = "more than all of ‖y‖" if level == float("inf") else f"{level:.3g}"
-    why = (f"--data {args.data!r} shows no signal: the noise level read from its observations ({read}) "
-           "accounts for all of them (Morozov's principle accepts the estimate 0), so no estimate here means "
-           "anything: pure noise? (--set noise=… declares a level instead)")
+def _no_signal(args, why: str) -> int:
+    """Observations that are noise all through (:func:`pdeinv.training.data.no_signal`, ``why``): exit 3 and
+    one line (:class:`BadData`), or with ``--accept-bad`` a warning and exit 0; nothing is solved."""
+    why = f"--data {args.data!r} {why} (--set noise=… declares a level instead)"
     if not args.accept_bad:
         raise BadData(f"{why}; --accept-bad ends with exit code 0")
     print(f"pdeinv classical: warning: {why}; nothing solved (--accept-bad)", file=sys.stderr)

@@ -10,8 +10,9 @@ calibrated posterior (``posterior.npz``, :mod:`pdeinv.posterior.stage`), ``--out
 ``--samples K``, ``samples`` ``(B, K, N)`` (:func:`pdeinv.posterior.predictive`). The observations
 are checked against the run's physics first (:func:`pdeinv.training.data.against`): refused (exit 3, one
 line; ``--accept-bad`` predicts anyway) beyond the limit ``pdeinv classical`` and ``train`` apply
-(:func:`pdeinv.training.data.beyond_noise`), a warning when they are off by more than the run's noise
-level explains.
+(:func:`pdeinv.training.data.beyond_noise`) or when they show no signal (pure noise, all zeros:
+:func:`pdeinv.training.data.no_signal`, the check of ``train`` and ``classical``), a warning when they are
+off by more than the run's noise level explains.
 """
 
 from __future__ import annotations
@@ -34,7 +35,15 @@ def cmd_predict(args) -> int:
     from pdeinv.io.export import predict, write_fields
     from pdeinv.io.runs import load_posterior, load_run
     from pdeinv.posterior import predictive
-    from pdeinv.training.data import against, beyond_noise, explained, read_meta, read_npz
+    from pdeinv.training.data import (
+        against,
+        beyond_noise,
+        explained,
+        no_signal,
+        read_meta,
+        read_noise,
+        read_npz,
+    )
     from pdeinv.util.files import atomic_write
 
     run = Path(args.run)
@@ -57,15 +66,17 @@ def cmd_predict(args) -> int:
     y, x = read_npz(args.data, problem.operator.n_out, problem.N)
     read_meta(args.data, problem.points)  # the file's points, if any, are the run's problem's
     what, figure = against(problem, y, x, args.data)  # checked against the run's physics
-    why = beyond_noise(what, figure, problem.noise)
+    # observations with no signal (pure noise, all zeros: the check of train and classical) are of no physics
+    beyond = beyond_noise(what, figure, problem.noise)
+    why = no_signal(read_noise(y, problem.operator)) if beyond is None else \
+        f"is not of this run's physics (run {problem.name}): {beyond}"
     if why is not None and not args.accept_bad:
-        raise BadData(f"--data {args.data!r} is not of this run's physics (run {problem.name}): {why}; "
-                      "--accept-bad predicts anyway")
-    if not explained(figure, problem.noise):
+        raise BadData(f"--data {args.data!r} {why}; --accept-bad predicts anyway")
+    if why is not None or not explained(figure, problem.noise):
         logging.getLogger("pdeinv").warning(
-            f"pdeinv predict: warning: --data {args.data!r}: its {what} is {figure:.3g}, above what the "
-            f"run's noise level {problem.noise:g} explains: the predictions are outside what it was trained "
-            "for")
+            f"pdeinv predict: warning: --data {args.data!r} "
+            + (why if why is not None else f"is off: its {what} is {figure:.3g}, above what the run's noise "
+               f"level {problem.noise:g} explains") + "; the predictions are outside what it was trained for")
     xhat = predict(model, y)
     arrays = {"x": xhat} if posterior is None else \
         predictive(model, posterior, y, level, args.samples or 0, seed=args.seed)

@@ -351,9 +351,14 @@ def _problem_and_data(args):
     """``(problem, overrides, y, x)``: the problem built with the noise level the data declares or
     shows (``args.set`` gets it, so run.json and ``--resume`` see the level trained with) and the data
     file's rows (``None`` without ``--data``)."""
-    from pdeinv.inverse import Discrepancy
-    from pdeinv.inverse.noise import signal_free
-    from pdeinv.training.data import npz_rounding_level, read_meta, read_npz, undeclared_noise
+    from pdeinv.training.data import (
+        no_signal,
+        npz_rounding_level,
+        read_meta,
+        read_noise,
+        read_npz,
+        undeclared_noise,
+    )
 
     overrides = parse_sets(args.set)
     problem = build_problem("train", args.problem, args.set, steps=args.steps)  # says so when slow
@@ -370,11 +375,10 @@ def _problem_and_data(args):
     # noisy data with no declared level would be fitted exactly (the noise amplified by the inverse):
     # rounding is noise, and so is what the observations show (pdeinv.training.data.undeclared_noise)
     level = undeclared_noise(args.data, y, problem) if args.data and "noise" not in overrides else rounding
-    if args.data and "noise" not in overrides and signal_free(level, Discrepancy(1.0).tau):  # as classical
-        read = "more than all of ‖y‖" if level == float("inf") else f"{level:.3g}"
-        raise BadData(f"--data {args.data!r} shows no signal: the noise level read from its observations "
-                      f"({read}) accounts for all of them, so nothing can be learned from them: pure noise? "
-                      "(--set noise=… declares a level instead)")
+    why = no_signal(max(level, read_noise(y, problem.operator))) if args.data and "noise" not in overrides \
+        else None  # the check of classical and predict
+    if why is not None:
+        raise BadData(f"--data {args.data!r} {why} (--set noise=… declares a level instead)")
     if level > problem.noise and "noise" in problem.settings:  # say so, train with it
         why = (f"is stored in lower precision than float64: its rounding is noise of relative level "
                f"{level:.2g}" if level == rounding else f"declares no noise level; its observations show "

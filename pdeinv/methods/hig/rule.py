@@ -9,7 +9,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 import torch
 
-from ..._checks import at_least, choice, count, finite, flag, nonnegative, positive
+from ..._checks import at_least, choice, count, finite, flag, label, nonnegative, positive
 from ...inverse.decoder import decoded_svd
 from ...nets.protocol import declared
 from ...physics.base import Matrix
@@ -129,6 +129,7 @@ class HIG(Rule):
     sum_over: Callable | None = field(default=None, compare=False, repr=False)
 
     def __post_init__(self):
+        label(self.name, "name")
         positive(self.eta, "eta")
         nonnegative(self.tau, "tau")
         if not self.tau < 1:
