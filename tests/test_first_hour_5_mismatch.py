@@ -189,3 +189,16 @@ def test_predict_on_observations_with_no_signal_says_so(files, run, tmp_path, ca
     assert not pred.exists()
     assert main(["predict", str(run), "--data", str(data), "--out", str(pred), "--accept-bad"]) == 0
     assert "warning" in _one_line(capsys.readouterr().err) and pred.exists()
+
+
+def test_a_few_valid_rows_are_never_called_signal_free():
+    """The noise reading takes the median singular value as noise, which a handful of rows cannot show: six
+    noise-free wave_2d observations can read 9.6 (above the 2.18 of "no signal"); below NO_SIGNAL_ROWS the
+    check says nothing, and pure noise of that many rows is still refused."""
+    from pdeinv.training.data import NO_SIGNAL_ROWS, no_signal, read_noise
+
+    wave = pdeinv.load_problem("wave_2d", n=16)
+    _, y = wave.sample(6, seed=600)
+    assert no_signal(read_noise(y, wave.operator), len(y)) is None
+    noise = np.random.default_rng(0).standard_normal((NO_SIGNAL_ROWS, wave.operator.n_out))
+    assert no_signal(read_noise(noise, wave.operator), len(noise)) is not None

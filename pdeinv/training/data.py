@@ -143,15 +143,22 @@ def read_noise(y, operator) -> float:
         return float("inf")
 
 
-def no_signal(level: float) -> str | None:
-    """Why observations whose noise level reads ``level`` (:func:`read_noise`, :func:`undeclared_noise`)
-    carry nothing to estimate from — noise of that level accounts for all of them, so Morozov's
-    principle accepts the estimate 0 (:func:`pdeinv.inverse.noise.signal_free`) —, in one clause; None
-    when they show a signal. The one check of ``classical``, ``train`` and ``predict`` (exit 3)."""
+#: the fewest rows whose noise reading may refuse a file as signal-free (:func:`no_signal`): the reading takes
+#: the median singular value as noise, which holds only where most of the rows' directions are noise; valid
+#: files of 4–6 rows read "no signal" (wave_2d noise-free, 6 rows: up to 9.6), none of 8 or more on 7 scenes
+NO_SIGNAL_ROWS = 16
+
+
+def no_signal(level: float, rows: int) -> str | None:
+    """Why ``rows`` observations whose noise level reads ``level`` (:func:`read_noise`,
+    :func:`undeclared_noise`) carry nothing to estimate from — noise of that level accounts for all of them,
+    so Morozov's principle accepts the estimate 0 (:func:`pdeinv.inverse.noise.signal_free`) —, in one
+    clause; None when they show a signal or are fewer than :data:`NO_SIGNAL_ROWS` (too few to tell). The one
+    check of ``classical``, ``train`` and ``predict`` (exit 3)."""
     from ..inverse import Discrepancy
     from ..inverse.noise import signal_free
 
-    if not signal_free(level, Discrepancy(1.0).tau):
+    if rows < NO_SIGNAL_ROWS or not signal_free(level, Discrepancy(1.0).tau):
         return None
     read = "more than all of ‖y‖" if level == float("inf") else f"{level:.3g}"
     return (f"shows no signal: the noise level read from its observations ({read}) accounts for all of them "

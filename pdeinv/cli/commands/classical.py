@@ -64,7 +64,7 @@ def cmd_classical(args) -> int:
     declared = read_meta(args.data, problem.points).get("noise")
     # the estimate reads noise off the spectral tail a linear smoothing map leaves (none of a nonlinear map)
     guess = read_noise(y, problem.operator)
-    why = None if problem.noise or declared else no_signal(guess)
+    why = None if problem.noise or declared else no_signal(guess, len(y))
     if why is not None:
         return _no_signal(args, why)
     noise = problem.noise or declared or guess

@@ -68,7 +68,7 @@ def cmd_predict(args) -> int:
     what, figure = against(problem, y, x, args.data)  # checked against the run's physics
     # observations with no signal (pure noise, all zeros: the check of train and classical) are of no physics
     beyond = beyond_noise(what, figure, problem.noise)
-    why = no_signal(read_noise(y, problem.operator)) if beyond is None else \
+    why = no_signal(read_noise(y, problem.operator), len(y)) if beyond is None else \
         f"is not of this run's physics (run {problem.name}): {beyond}"
     if why is not None and not args.accept_bad:
         raise BadData(f"--data {args.data!r} {why}; --accept-bad predicts anyway")

@@ -375,7 +375,8 @@ def _problem_and_data(args):
     # noisy data with no declared level would be fitted exactly (the noise amplified by the inverse):
     # rounding is noise, and so is what the observations show (pdeinv.training.data.undeclared_noise)
     level = undeclared_noise(args.data, y, problem) if args.data and "noise" not in overrides else rounding
-    why = no_signal(max(level, read_noise(y, problem.operator))) if args.data and "noise" not in overrides \
+    own_level = args.data and "noise" not in overrides
+    why = no_signal(max(level, read_noise(y, problem.operator)), len(y)) if own_level \
         else None  # the check of classical and predict
     if why is not None:
         raise BadData(f"--data {args.data!r} {why} (--set noise=… declares a level instead)")
