@@ -64,13 +64,14 @@ def finished(tmp_path_factory):
     return run
 
 
-@pytest.mark.parametrize("argv", [
-    ["train", "--prior-fit", "0", "heat_1d", *SMALL, "--steps", "2", "--overwrite"],
-    ["train", "--prior-fit", "0", "heat_1d", *SMALL, "--steps", "4", "--resume"],
-    ["bench", "heat_1d", "--quick", "--set", "n=16"],
-    ["stress", "heat_1d", "--quick"],
+@pytest.mark.parametrize(("argv", "why"), [
+    (["train", "--prior-fit", "0", "heat_1d", *SMALL, "--steps", "2", "--overwrite"], "PID"),
+    (["train", "--prior-fit", "0", "heat_1d", *SMALL, "--steps", "4", "--resume"], "PID"),
+    # a sweep never writes into a run's folder, held or not (pdeinv.util.outpaths.output_folder's record)
+    (["bench", "heat_1d", "--quick", "--set", "n=16"], "holds .pdeinv-run"),
+    (["stress", "heat_1d", "--quick"], "holds .pdeinv-run"),
 ], ids=["train-overwrite", "train-resume", "bench", "stress"])
-def test_a_second_run_on_a_held_folder_is_refused(finished, tmp_path, capsys, argv):
+def test_a_second_run_on_a_held_folder_is_refused(finished, tmp_path, capsys, argv, why):
     import shutil
 
     run = tmp_path / "run"
@@ -84,7 +85,7 @@ def test_a_second_run_on_a_held_folder_is_refused(finished, tmp_path, capsys, ar
         assert code == 2, err
         assert err.count("\n") == 1 and err.startswith(f"pdeinv {argv[0]}: error: "), err
         assert "Traceback" not in err
-        assert repr(str(run)) in err and f"PID {holder.pid}" in err, err
+        assert repr(str(run)) in err and (f"PID {holder.pid}" if why == "PID" else why) in err, err
         assert _snapshot(run) == before  # metrics, checkpoint, model and the holder's .lock: same bytes
     finally:
         _kill(holder)

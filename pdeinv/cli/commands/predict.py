@@ -28,22 +28,13 @@ ORDER = 2
 
 def cmd_predict(args) -> int:
     import io
-    import logging
 
     import numpy as np
 
     from pdeinv.io.export import predict, write_fields
     from pdeinv.io.runs import load_posterior, load_run
     from pdeinv.posterior import predictive
-    from pdeinv.training.data import (
-        against,
-        beyond_noise,
-        explained,
-        no_signal,
-        read_meta,
-        read_noise,
-        read_npz,
-    )
+    from pdeinv.training.data import read_meta, read_npz
     from pdeinv.util.files import atomic_write
 
     run = Path(args.run)
@@ -65,18 +56,7 @@ def cmd_predict(args) -> int:
                          "to give; retrain it with `pdeinv train`")
     y, x = read_npz(args.data, problem.operator.n_out, problem.N)
     read_meta(args.data, problem.points)  # the file's points, if any, are the run's problem's
-    what, figure = against(problem, y, x, args.data)  # checked against the run's physics
-    # observations with no signal (pure noise, all zeros: the check of train and classical) are of no physics
-    beyond = beyond_noise(what, figure, problem.noise)
-    why = no_signal(read_noise(y, problem.operator), len(y)) if beyond is None else \
-        f"is not of this run's physics (run {problem.name}): {beyond}"
-    if why is not None and not args.accept_bad:
-        raise BadData(f"--data {args.data!r} {why}; --accept-bad predicts anyway")
-    if why is not None or not explained(figure, problem.noise):
-        logging.getLogger("pdeinv").warning(
-            f"pdeinv predict: warning: --data {args.data!r} "
-            + (why if why is not None else f"is off: its {what} is {figure:.3g}, above what the run's noise "
-               f"level {problem.noise:g} explains") + "; the predictions are outside what it was trained for")
+    _check_data(args, problem, y, x)
     xhat = predict(model, y)
     arrays = {"x": xhat} if posterior is None else \
         predictive(model, posterior, y, level, args.samples or 0, seed=args.seed)
@@ -93,6 +73,27 @@ def cmd_predict(args) -> int:
     print(f"{problem.name}: {len(xhat)} predictions{error} -> {args.out}"
           + (f", {args.vtu}" if args.vtu else ""))
     return 0
+
+
+def _check_data(args, problem, y, x) -> None:
+    """The observations against the run's physics (module docstring): :class:`BadData` beyond the limit or
+    without signal (pure noise, all zeros: the check of ``train`` and ``classical``), unless
+    ``--accept-bad``; a warning then, and where they are off by more than the run's noise level explains."""
+    import logging
+
+    from pdeinv.training.data import against, beyond_noise, explained, no_signal, read_noise
+
+    what, figure = against(problem, y, x, args.data)
+    beyond = beyond_noise(what, figure, problem.noise)
+    why = no_signal(read_noise(y, problem.operator), len(y)) if beyond is None else \
+        f"is not of this run's physics (run {problem.name}): {beyond}"
+    if why is not None and not args.accept_bad:
+        raise BadData(f"--data {args.data!r} {why}; --accept-bad predicts anyway")
+    if why is not None or not explained(figure, problem.noise):
+        logging.getLogger("pdeinv").warning(
+            f"pdeinv predict: warning: --data {args.data!r} "
+            + (why if why is not None else f"is off: its {what} is {figure:.3g}, above what the run's noise "
+               f"level {problem.noise:g} explains") + "; the predictions are outside what it was trained for")
 
 
 def _level(args) -> float:
