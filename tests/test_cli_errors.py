@@ -57,7 +57,8 @@ def one_line(capsys, argv):
     (["train", "heat_1d", "--steps", "nan"], "argument --steps: invalid int value: 'nan'"),
     (["train", "heat_1d", "--method", "bogus"], "argument --method: invalid choice: 'bogus'"),
     (["demo", "heat_1d", "--batch", "1.5"], "argument --batch: invalid int value: '1.5'"),
-    (["problems", "extra"], "unrecognized arguments: extra"),
+    (["problems", "extra"], "unrecognized arguments: extra (`pdeinv problems --help`"),
+    (["train", "heat_1d", "--bogus", "1"], "unrecognized arguments: --bogus 1 (`pdeinv train --help`"),
     (["trian", "heat_1d"], "invalid choice: 'trian'"),
     ([], "the following arguments are required: command"),
 ])

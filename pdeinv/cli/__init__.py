@@ -58,6 +58,7 @@ def build_parser() -> argparse.ArgumentParser:
 
     for command in sub.choices.values():  # -q/--quiet, -v/--verbose on every subcommand (pdeinv.cli.logs)
         add_arguments(command)
+    p.commands = sub.choices  # each subcommand's parser: its own errors name its own --help
     return p
 
 
@@ -135,7 +136,9 @@ def main(argv=None) -> int:
 
 def _main(argv=None) -> int:
     parser = build_parser()
-    args = parser.parse_args(argv)
+    args, extra = parser.parse_known_args(argv)
+    if extra:  # the subcommand's parser says it, so the message names `pdeinv train --help`
+        parser.commands[args.command].error(f"unrecognized arguments: {' '.join(extra)}")
     from .logs import cli_logging
 
     try:
