@@ -445,7 +445,10 @@ def test_a_failing_run_keeps_what_was_written(files, tmp_path, capsys):
     # a model.pt that is no torch file printed the first 120 characters of torch's unpickling essay
     (lambda run: (run / "model.pt").write_bytes(b"garbage"),
      r"model\.pt cannot be read as a torch state dict \(damaged, or not a file pdeinv wrote\)"),
-], ids=["version-999", "model-garbage"])
+    # another run's model of the same shape loaded and predicted that run's answers (exit 0)
+    (lambda run: torch.save({k: v + 1 for k, v in torch.load(run / "model.pt").items()}, run / "model.pt"),
+     r"model\.pt is not the model its run\.json was written with"),
+], ids=["version-999", "model-garbage", "model-swapped"])
 def test_a_damaged_run_is_refused_in_one_line(files, tmp_path, capsys, damage, match):
     import shutil
 

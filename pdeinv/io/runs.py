@@ -5,7 +5,9 @@
     {"format": "pdeinv-run", "version": 1,
      "problem": "heat_2d" | "/abs/path/module.py", "overrides": {"kappa": "0.02", ...},
      "network": {"kind": "default"} | {"kind": "mlp", "hidden": [64, 64]}
-                | {"kind": "reduced", "k_in": 256, "k_out": 256, "body": "linear"}}
+                | {"kind": "reduced", "k_in": 256, "k_out": 256, "body": "linear"}
+                (+ "units": c when the data were divided by c: pdeinv.training.units),
+     "model_sha256": "<hex digest of model.pt>"}
 
 and ``DIR/model.pt`` the network's state dict, the fitted whitening / input scaling
 buffers included. ``load_run(DIR)`` calls ``load_problem(problem, **overrides)``,
@@ -21,6 +23,8 @@ marked (or holding a ``run.json`` of this format) is a run that ``--overwrite`` 
 
 from __future__ import annotations
 
+import hashlib
+import io
 import json
 import os
 from pathlib import Path
@@ -78,12 +82,17 @@ def _with_correction(spec: dict, model) -> dict:
 
 
 def network(problem, spec: dict):
-    """A fresh network of ``spec`` (``{"kind": ..., **settings}``) for ``problem``."""
+    """A fresh network of ``spec`` (``{"kind": ..., **settings}``) for ``problem``; with ``"units": c``,
+    answered in the units of data divided by ``c`` for training (:mod:`pdeinv.training.units`)."""
+    from ..training.units import wrap
+
     spec = dict(spec)
-    kind = spec.pop("kind", None)
+    kind, units = spec.pop("kind", None), spec.pop("units", 1.0)
     if kind not in NETWORKS:
         raise ValueError(f"network kind {kind!r} is not known; expected one of {', '.join(NETWORKS)}")
-    return NETWORKS[kind](problem, **spec)
+    if isinstance(units, bool) or not isinstance(units, (int, float)) or not 0 < units < float("inf"):
+        raise ValueError(f"network units {units!r} are not allowed; expected a positive number")
+    return wrap(NETWORKS[kind](problem, **spec), float(units))
 
 
 def problem_spec(name_or_path: str) -> str:
@@ -144,12 +153,19 @@ def save_run(out: str | os.PathLike, problem, overrides: dict | None = None, net
     if not isinstance(network_spec, dict) or network_spec.get("kind") not in NETWORKS:
         raise ValueError(f"network_spec={network_spec!r} is not allowed; expected a dict with 'kind' one of "
                          f"{', '.join(map(repr, NETWORKS))}")
-    network_spec = _with_correction(network_spec, model)
+    from ..training.units import unwrap
+
+    inner, units = unwrap(model)
+    network_spec = {**_with_correction(network_spec, inner), **({"units": units} if units != 1.0 else {})}
     out = run_folder(out, "out", replace=True, outputs=OUTPUTS)
+    buffer = io.BytesIO()
+    torch.save(model.state_dict(), buffer)
+    weights = buffer.getvalue()
     record = {"format": FORMAT, "version": VERSION, "problem": problem_spec(problem),
-              "overrides": {k: str(v) for k, v in overrides.items()}, "network": network_spec}
+              "overrides": {k: str(v) for k, v in overrides.items()}, "network": network_spec,
+              "model_sha256": hashlib.sha256(weights).hexdigest()}
     text = json.dumps(record, indent=2).encode()
-    atomic_write(out / MODEL_FILE, lambda fh: torch.save(model.state_dict(), fh))
+    atomic_write(out / MODEL_FILE, lambda fh: fh.write(weights))
     atomic_write(out / RUN_FILE, lambda fh: fh.write(text))
     if posterior is not None:
         data = posterior.to_bytes()
@@ -212,12 +228,29 @@ def load_run(run_dir):
     except Exception:  # noqa: BLE001  (torch's unpickling errors are pages long and differ by version)
         raise ValueError(f"{where}: {MODEL_FILE} cannot be read as a torch state dict (damaged, or not a "
                          "file pdeinv wrote); rerun `pdeinv train`") from None
+    _check_model_file(run / MODEL_FILE, record.get("model_sha256"), where)
     try:
         model.load_state_dict(state)
     except Exception as err:  # noqa: BLE001  (shape errors differ by torch version)
         first = (str(err).strip().splitlines() or [type(err).__name__])[0][:120]
         raise ValueError(f"{where}: {MODEL_FILE} does not fit its {RUN_FILE} ({first})") from None
     return problem, model.eval()
+
+
+def _check_model_file(path: Path, digest, where: str) -> None:
+    """``model.pt`` must be the file its ``run.json`` was written with (``model_sha256``; records of
+    earlier pdeinv versions have none and are not checked): a model of the same shape copied from another
+    run loads without a shape error and predicts another run's answers."""
+    if digest is None:
+        return
+    h = hashlib.sha256()
+    with open(path, "rb") as fh:
+        for block in iter(lambda: fh.read(1 << 20), b""):
+            h.update(block)
+    if h.hexdigest() != digest:
+        raise ValueError(f"{where}: {MODEL_FILE} is not the model its {RUN_FILE} was written with (its "
+                         "sha256 differs: another run's model, or an edited file); copy a run's files "
+                         "together, or rerun `pdeinv train`")
 
 
 def clear_outputs(out, keep=()) -> list[str]:

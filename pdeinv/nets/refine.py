@@ -361,6 +361,10 @@ class Refined(Network):
             return float(np.mean(relative_error(xhat.numpy(), x[val])))
 
         before = error(held_out(correct=False))
+        # the loss in units of the draws' mean square: Adam's steps are then the same for data in any units
+        # (its ε = 1e-8 is absolute: data of magnitude 1e-2 already kept nothing)
+        unit = float(np.mean(x[tr] ** 2)) if len(tr) else 1.0
+        unit = unit if unit > 0 else 1.0
         opt = torch.optim.Adam(g.parameters(), settings.lr)
         track, step = _Best(g, opt, settings, before), 0
         feed.mix = _blend(feed, x, tr if feed.stored else tr[:PREPARE_ROWS])
@@ -371,7 +375,7 @@ class Refined(Network):
             while step < steps and len(tr):
                 rows = torch.as_tensor(tr[torch.randint(len(tr), (size,), generator=gen).numpy()])
                 xb, inputs = feed(rows)
-                loss = ((xb + g(inputs) - torch.as_tensor(x[rows], dtype=torch.float32)) ** 2).mean()
+                loss = ((xb + g(inputs) - torch.as_tensor(x[rows], dtype=torch.float32)) ** 2).mean() / unit
                 opt.zero_grad(set_to_none=True)
                 loss.backward()
                 opt.step()

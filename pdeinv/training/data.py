@@ -347,10 +347,12 @@ class OwnData:
     x: np.ndarray | None = None  # the training rows' fields, when the file has them (the prior's draws)
     x_cal: np.ndarray | None = None  # the calibration stage's rows (pdeinv.posterior.stage), with x only
     y_cal: np.ndarray | None = None
+    units: float = 1.0  # every array above is the data divided by it (pdeinv.training.units)
 
     def describe(self) -> dict:
         """``metrics["data"]``."""
         return {"rows": self.rows, "x": self.x_test is not None, "model_mismatch": self.model_mismatch,
+                "units": self.units,
                 "split": "in order: first rows train, then the calibration rows (a file with x), the "
                          "stopping rule's rows, the last n_test rows test"}
 
@@ -382,6 +384,11 @@ def own_data(problem, data, data_x, n_test: int, n_val: int = 0, warn: bool = Tr
     x = None if data_x is None else as_observations(data_x, problem.N, "data_x")
     if x is not None and len(x) != len(y):
         raise ValueError(f"data_x has {len(x)} rows but data has {len(y)}; expected one x per y")
+    from .units import units_of
+
+    print_ = fingerprint(y)
+    units = units_of(y, problem.operator)
+    y, x = y / units, None if x is None else x / units
     mismatch = None if x is None else model_mismatch(problem.operator, x, y)
     if mismatch is not None and not explained(mismatch, problem.noise) and warn:
         warnings.warn(f"the data's y differ from this problem's P x by {mismatch:.3g} (mean "
@@ -401,5 +408,5 @@ def own_data(problem, data, data_x, n_test: int, n_val: int = 0, warn: bool = Tr
     rows = {"train": [0, train.stop], **({"calibration": [cal.start, cal.stop]} if n_cal else {}),
             "stop": [val.start, val.stop], "test": [test.start, test.stop]}
     cal_x, cal_y = (x[cal], y[cal]) if n_cal else (None, None)
-    return OwnData(y[train], y[val], y[test], None if x is None else x[test], fingerprint(y), mismatch, rows,
-                   None if x is None else x[train], cal_x, cal_y)
+    return OwnData(y[train], y[val], y[test], None if x is None else x[test], print_, mismatch, rows,
+                   None if x is None else x[train], cal_x, cal_y, units)

@@ -48,6 +48,7 @@ from .trainset import (
     training_fields,
     training_rows,
 )
+from .units import in_units
 from .verdict import of_predictions
 
 __all__ = ["Callback", "Result", "Trainer", "seed_stream", "train"]
@@ -270,13 +271,21 @@ class Trainer:
     def _data(self):
         """``(y_train numpy, y_train torch, (x_test, y_test numpy, y_test torch))`` on ``device``."""
         y = training_rows(self.problem, self._own, self.n_train, self.seed)
-        xt, yt = self.held_out()
+        xt, yt = test_rows(self.problem, self._own, self.n_test, self.seed)
         t = lambda a: torch.as_tensor(a, dtype=self.dtype or torch.float32, device=self.device)  # noqa: E731
         return y, t(y), (xt, yt, t(yt))
 
     def held_out(self) -> tuple:
-        """The test set ``(x or None, y)`` as numpy: own data's last rows, or the seeded samples."""
-        return test_rows(self.problem, self._own, self.n_test, self.seed)
+        """The test set ``(x or None, y)`` as numpy: own data's last rows (in the data's units), or the
+        seeded samples."""
+        x, y = test_rows(self.problem, self._own, self.n_test, self.seed)
+        c = self._units
+        return (None if x is None else x * c, y * c) if c != 1.0 else (x, y)
+
+    @property
+    def _units(self) -> float:
+        """What own data was divided by (:mod:`pdeinv.training.units`); 1 for prior draws."""
+        return 1.0 if self._own is None else self._own.units
 
     def evaluate(self, model, test) -> dict:
         """Mean relative L²(Ω) errors on ``test`` (:func:`pdeinv.training.evaluation.evaluate`)."""
@@ -448,7 +457,8 @@ class Trainer:
         record["unseen_energy"], warning = of_predictions(self.problem, run.model, run.test, self.seed)
         if warning and self.parallel.is_writer:  # energy where the physics cannot see (.verdict)
             warnings.warn(warning, RuntimeWarning, stacklevel=2)
-        return Result(run.model, self.history, record, run.state, posterior)
+        model, posterior = in_units(run.model, posterior, record, self._units)
+        return Result(model, self.history, record, run.state, posterior)
 
     def _say(self, line: str) -> None:
         """What a stage is doing, for whoever listens (logger ``"pdeinv"``, INFO: the CLI's progress
