@@ -1,4 +1,4 @@
-"""Data in the user's units (pdeinv.training.units): a linear problem's file scaled by 1e±30 or 1e±100
+"""Data in the user's units (pdeinv.problem.units): a linear problem's file scaled by 1e±30 or 1e±100
 trains to the same run as in the scene's units and is answered in the file's units; nonlinear physics
 refuses it in one line. Before: 1e30 ended in "xhat contains NaN or Inf", 1e100 in a traceback, and the
 prior stage kept nothing for data of magnitude 1e-2 (Adam's absolute ε)."""
@@ -14,8 +14,8 @@ import torch
 import pdeinv
 from pdeinv.cli import main
 from pdeinv.io.export import predict
+from pdeinv.problem.units import AS_IS, InUnits, units_of
 from pdeinv.training.trainer import Trainer
-from pdeinv.training.units import AS_IS, InUnits, units_of
 
 pytestmark = pytest.mark.usefixtures("one_thread")
 
@@ -66,8 +66,9 @@ def test_a_run_in_other_units_saves_and_loads_with_its_units(runs, pairs, tmp_pa
     _, y = pairs
     run = runs[1e30]
     assert isinstance(run.model, InUnits)
-    spec = {"kind": "default", "base": "whitened"}  # the network a data file gets (nets.data_base)
-    pdeinv.save_run(tmp_path / "r", "heat_1d", {"n": 16, "noise": 0.01}, spec, model=run.model,
+    # no network_spec: the Trainer's network says how it was built (a data file's base: nets.data_base);
+    # with {"kind": "default"} a data-trained network did not fit its own run.json
+    pdeinv.save_run(tmp_path / "r", "heat_1d", {"n": 16, "noise": 0.01}, model=run.model,
                     posterior=run.posterior)
     assert json.loads((tmp_path / "r" / "run.json").read_text())["network"]["units"] == 1e30
     _, model = pdeinv.load_run(tmp_path / "r")

@@ -135,6 +135,7 @@ def predict(model, y, problem=None) -> np.ndarray:
     """
     import torch
 
+    from ..problem.units import input_dtype
     from ..training import arguments as _arguments
 
     model = _arguments.model(model, optional=False)
@@ -150,7 +151,7 @@ def predict(model, y, problem=None) -> np.ndarray:
         raise ValueError(f"y has shape {Y.shape}; expected observations (B, m) or (m,)")
     Y, single = batch(Y, width, "y")
     param = next(iter(model.parameters()), None)
-    dtype = getattr(model, "input_dtype", None) or (param.dtype if param is not None else torch.float32)
+    dtype = input_dtype(model)
     with torch.no_grad():
         try:
             out = model(torch.as_tensor(Y, dtype=dtype, device=getattr(param, "device", None)))

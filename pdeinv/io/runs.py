@@ -6,7 +6,7 @@
      "problem": "heat_2d" | "/abs/path/module.py", "overrides": {"kappa": "0.02", ...},
      "network": {"kind": "default"} | {"kind": "mlp", "hidden": [64, 64]}
                 | {"kind": "reduced", "k_in": 256, "k_out": 256, "body": "linear"}
-                (+ "units": c when the data were divided by c: pdeinv.training.units),
+                (+ "units": c when the data were divided by c: pdeinv.problem.units),
      "model_sha256": "<hex digest of model.pt>"}
 
 and ``DIR/model.pt`` the network's state dict, the fitted whitening / input scaling
@@ -71,6 +71,21 @@ NETWORKS = {
 }
 
 
+def _spec(network_spec, model) -> dict:
+    """What run.json records of ``model``: ``network_spec`` (``None``: the spec the Trainer built the
+    network with, a data file's base included, else ``{"kind": "default"}``), checked, with the kind of
+    its correction and its units (:mod:`pdeinv.problem.units`)."""
+    from ..problem.units import unwrap
+
+    inner, units = unwrap(model)
+    if network_spec is None:
+        network_spec = getattr(inner, "network_spec", {"kind": "default"})
+    if not isinstance(network_spec, dict) or network_spec.get("kind") not in NETWORKS:
+        raise ValueError(f"network_spec={network_spec!r} is not allowed; expected a dict with 'kind' one of "
+                         f"{', '.join(map(repr, NETWORKS))}")
+    return {**_with_correction(network_spec, inner), **({"units": units} if units != 1.0 else {})}
+
+
 def _with_correction(spec: dict, model) -> dict:
     """``spec`` with the kind of ``model``'s nonlinear correction (:mod:`pdeinv.nets.corrections`), which
     a reloaded default network must be built with."""
@@ -83,8 +98,8 @@ def _with_correction(spec: dict, model) -> dict:
 
 def network(problem, spec: dict):
     """A fresh network of ``spec`` (``{"kind": ..., **settings}``) for ``problem``; with ``"units": c``,
-    answered in the units of data divided by ``c`` for training (:mod:`pdeinv.training.units`)."""
-    from ..training.units import wrap
+    answered in the units of data divided by ``c`` for training (:mod:`pdeinv.problem.units`)."""
+    from ..problem.units import wrap
 
     spec = dict(spec)
     kind, units = spec.pop("kind", None), spec.pop("units", 1.0)
@@ -121,7 +136,8 @@ def save_run(out: str | os.PathLike, problem, overrides: dict | None = None, net
 
     ``problem``: the name or module path the run's problem is loaded from (a :class:`~pdeinv.Problem`
     stands for its ``name``), ``overrides`` its settings (default none), ``network_spec`` the network's
-    :data:`NETWORKS` entry (default ``{"kind": "default"}``, ``problem.model()``), ``model`` the trained
+    :data:`NETWORKS` entry (default: the one the Trainer built ``model`` with, else ``{"kind": "default"}``,
+    ``problem.model()``), ``model`` the trained
     network (``result.model``), e.g. ``save_run("runs/a", "heat_2d", model=result.model)``. ``out`` follows
     the output-path policy (:mod:`pdeinv.util.outpaths`, :func:`~pdeinv.util.outpaths.run_folder`): created
     with its parents; refused in one line when it cannot be written or is a non-empty folder that holds no
@@ -149,14 +165,7 @@ def save_run(out: str | os.PathLike, problem, overrides: dict | None = None, net
     overrides = {} if overrides is None else overrides
     if not isinstance(overrides, dict):
         raise TypeError(f"overrides={overrides!r} is not allowed; expected a dict of the problem's settings")
-    network_spec = {"kind": "default"} if network_spec is None else network_spec
-    if not isinstance(network_spec, dict) or network_spec.get("kind") not in NETWORKS:
-        raise ValueError(f"network_spec={network_spec!r} is not allowed; expected a dict with 'kind' one of "
-                         f"{', '.join(map(repr, NETWORKS))}")
-    from ..training.units import unwrap
-
-    inner, units = unwrap(model)
-    network_spec = {**_with_correction(network_spec, inner), **({"units": units} if units != 1.0 else {})}
+    network_spec = _spec(network_spec, model)
     out = run_folder(out, "out", replace=True, outputs=OUTPUTS)
     buffer = io.BytesIO()
     torch.save(model.state_dict(), buffer)

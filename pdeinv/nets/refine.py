@@ -341,8 +341,7 @@ class Refined(Network):
         data-consistency layer's weights on the held-out draws (:mod:`pdeinv.nets.consistency`);
         ``relative_error(xhat, x)`` is the problem's per-sample relative L²(Ω) error (numpy). Returns
         what was done (``kept``, held-out errors before and after, draws, steps)."""
-        x = np.asarray(x, dtype=float)
-        n = len(x)
+        x, n = np.asarray(x, dtype=float), len(x)
         gen = torch.Generator().manual_seed(settings.seed)
         perm = torch.randperm(n, generator=gen).numpy()
         n_val = max(1, int(round(settings.held_out * n)))
@@ -361,10 +360,8 @@ class Refined(Network):
             return float(np.mean(relative_error(xhat.numpy(), x[val])))
 
         before = error(held_out(correct=False))
-        # the loss in units of the draws' mean square: Adam's steps are then the same for data in any units
-        # (its ε = 1e-8 is absolute: data of magnitude 1e-2 already kept nothing)
-        unit = float(np.mean(x[tr] ** 2)) if len(tr) else 1.0
-        unit = unit if unit > 0 else 1.0
+        # the loss in units of the draws' mean square: Adam's steps (its ε is absolute) the same in any units
+        unit = (float(np.mean(x[tr] ** 2)) if len(tr) else 0.0) or 1.0
         opt = torch.optim.Adam(g.parameters(), settings.lr)
         track, step = _Best(g, opt, settings, before), 0
         feed.mix = _blend(feed, x, tr if feed.stored else tr[:PREPARE_ROWS])
@@ -394,8 +391,7 @@ class Refined(Network):
             self.consistency.fit(y[val], held_out(), x[val])
             with torch.no_grad():
                 after = error(self.consistency(torch.as_tensor(y[val], dtype=torch.float64), held_out()))
-        self.prior_info = {"kept": kept, "draws": n, "held_out": int(n_val), "error_before": before,
-                           "mix": float(self.mix), "error_corrected": track.best, "error_after": after,
-                           "consistency": kept and self.consistency is not None, "steps": step,
-                           "max_steps": steps}
+        self.prior_info = {"kept": kept, "draws": n, "held_out": int(n_val), "error_before": before, "mix":
+                           float(self.mix), "error_corrected": track.best, "error_after": after, "consistency":
+                           kept and self.consistency is not None, "steps": step, "max_steps": steps}
         return self.prior_info

@@ -10,12 +10,14 @@ from __future__ import annotations
 import numpy as np
 import torch
 
+from ..problem.units import input_dtype
+
 
 @torch.no_grad()
 def forward(model, y: np.ndarray, chunk: int = 1024) -> np.ndarray:
     """``f(y)`` as float64 numpy ``(B, N)``, ``chunk`` rows at a time, in the model's dtype and device."""
     param = next(iter(model.parameters()), None)
-    dtype = getattr(model, "input_dtype", None) or (param.dtype if param is not None else torch.float32)
+    dtype = input_dtype(model)
     device = param.device if param is not None else None
     parts = [model(torch.as_tensor(y[i:i + chunk], dtype=dtype, device=device)).double().cpu().numpy()
              for i in range(0, len(y), chunk)]

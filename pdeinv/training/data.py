@@ -347,7 +347,7 @@ class OwnData:
     x: np.ndarray | None = None  # the training rows' fields, when the file has them (the prior's draws)
     x_cal: np.ndarray | None = None  # the calibration stage's rows (pdeinv.posterior.stage), with x only
     y_cal: np.ndarray | None = None
-    units: float = 1.0  # every array above is the data divided by it (pdeinv.training.units)
+    units: float = 1.0  # every array above is the data divided by it (pdeinv.problem.units)
 
     def describe(self) -> dict:
         """``metrics["data"]``."""
@@ -384,7 +384,7 @@ def own_data(problem, data, data_x, n_test: int, n_val: int = 0, warn: bool = Tr
     x = None if data_x is None else as_observations(data_x, problem.N, "data_x")
     if x is not None and len(x) != len(y):
         raise ValueError(f"data_x has {len(x)} rows but data has {len(y)}; expected one x per y")
-    from .units import units_of
+    from ..problem.units import units_of
 
     print_ = fingerprint(y)
     units = units_of(y, problem.operator)

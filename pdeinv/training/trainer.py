@@ -27,6 +27,7 @@ from ..physics.backends.device import placed, resolve
 from ..posterior.stage import CalibrationStage
 from ..posterior.stage import stage as calibration_stage
 from ..problem.definition import Problem
+from ..problem.units import in_units
 from ..util.progress import progress
 from . import arguments as args
 from . import checkpoint as ckpts
@@ -48,7 +49,6 @@ from .trainset import (
     training_fields,
     training_rows,
 )
-from .units import in_units
 from .verdict import of_predictions
 
 __all__ = ["Callback", "Result", "Trainer", "seed_stream", "train"]
@@ -284,7 +284,7 @@ class Trainer:
 
     @property
     def _units(self) -> float:
-        """What own data was divided by (:mod:`pdeinv.training.units`); 1 for prior draws."""
+        """What own data was divided by (:mod:`pdeinv.problem.units`); 1 for prior draws."""
         return 1.0 if self._own is None else self._own.units
 
     def evaluate(self, model, test) -> dict:
@@ -331,7 +331,10 @@ class Trainer:
 
         if self.model is None:
             torch.manual_seed(self.seed)
-            self.model = self.problem.model(**self._network_settings())
+            settings = self._network_settings()
+            self.model = self.problem.model(**settings)
+            # what rebuilds it: pdeinv.save_run's default network_spec (a data file's base is another)
+            self.model.network_spec = {"kind": "default", **settings}
             lap("network")
         first = next(iter(self.model.parameters()), None)
         self.dtype = self.dtype or (torch.float32 if first is None else first.dtype)

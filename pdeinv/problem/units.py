@@ -43,8 +43,6 @@ class InUnits(torch.nn.Module):
     answered in the data's own units. The division and the product are in float64, so ``y`` and ``f(y)``
     may lie beyond float32's range; ``g`` runs in its own dtype."""
 
-    input_dtype = torch.float64  # what pdeinv.io.export.predict feeds it
-
     def __init__(self, inner: torch.nn.Module, units: float):
         super().__init__()
         self.inner = inner
@@ -54,6 +52,15 @@ class InUnits(torch.nn.Module):
         param = next(iter(self.inner.parameters()), None)
         dtype = param.dtype if param is not None else torch.float32
         return self.inner((y.double() / self.units).to(dtype)).double() * self.units
+
+
+def input_dtype(model: torch.nn.Module) -> torch.dtype:
+    """The dtype to feed ``model``: float64 for :class:`InUnits` (its rows may lie beyond float32's
+    range), else its parameters' (float32 without any)."""
+    if isinstance(model, InUnits):
+        return torch.float64
+    param = next(iter(model.parameters()), None)
+    return param.dtype if param is not None else torch.float32
 
 
 def wrap(model: torch.nn.Module, units: float) -> torch.nn.Module:
