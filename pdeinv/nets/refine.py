@@ -346,8 +346,7 @@ class Refined(Network):
         perm = torch.randperm(n, generator=gen).numpy()
         n_val = max(1, int(round(settings.held_out * n)))
         val, tr = perm[:n_val], perm[n_val:]
-        g = self.correction
-        feed = self._fit_inputs(y, tr)
+        g, feed = self.correction, self._fit_inputs(y, tr)
         size = min(settings.batch or g.fit_batch, max(len(tr), 1))
         every = max(1, math.ceil(len(tr) / size))  # once per pass over the training draws
         steps = settings.step_count(len(tr), size)
@@ -391,7 +390,8 @@ class Refined(Network):
             self.consistency.fit(y[val], held_out(), x[val])
             with torch.no_grad():
                 after = error(self.consistency(torch.as_tensor(y[val], dtype=torch.float64), held_out()))
-        self.prior_info = {"kept": kept, "draws": n, "held_out": int(n_val), "error_before": before, "mix":
-                           float(self.mix), "error_corrected": track.best, "error_after": after, "consistency":
-                           kept and self.consistency is not None, "steps": step, "max_steps": steps}
+        self.prior_info = {"kept": kept, "draws": n, "held_out": int(n_val), "error_before": before,
+                           "mix": float(self.mix), "error_corrected": track.best, "error_after": after,
+                           "consistency": kept and self.consistency is not None, "steps": step,
+                           "max_steps": steps}
         return self.prior_info
