@@ -49,9 +49,7 @@ class InUnits(torch.nn.Module):
         self.register_buffer("units", torch.tensor(float(units), dtype=torch.float64))
 
     def forward(self, y: torch.Tensor) -> torch.Tensor:
-        param = next(iter(self.inner.parameters()), None)
-        dtype = param.dtype if param is not None else torch.float32
-        return self.inner((y.double() / self.units).to(dtype)).double() * self.units
+        return self.inner((y.double() / self.units).to(input_dtype(self.inner))).double() * self.units
 
 
 def input_dtype(model: torch.nn.Module) -> torch.dtype:
