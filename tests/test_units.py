@@ -92,6 +92,8 @@ def test_cli_train_and_predict_in_the_files_units(pairs, tmp_path, capsys):
                  "--n-test", "40", "--out", str(run), "-q"]) == 0
     assert main(["predict", str(run), "--data", str(tmp_path / "d.npz"), "--out", str(out)]) == 0
     capsys.readouterr()
+    assert main(["train", "heat_1d", "--set", "n=16", "--data", data, "--explain"]) == 0
+    assert "units     the data divided by 1e-100 for training" in capsys.readouterr().out
     p = np.load(out)
     err = np.linalg.norm(p["x"] - x * 1e-100, axis=1) / np.linalg.norm(x * 1e-100, axis=1)
     assert np.median(err) < 0.5 and np.all(p["std"] > 0) and np.all(p["std"] < 1e-98)

@@ -189,6 +189,8 @@ class Plan:
                  f"{'linear' if p['linear'] else 'nonlinear'} physics, noise {p['noise']:g}",
                  f"backend   {p['backend']}",
                  f"inverse   {p['inverse']}",
+                 *([f"units     the data divided by {p['units']:g} for training, answers in the data's units "
+                    "(pdeinv.problem.units)"] if p.get("units", 1.0) != 1.0 else []),
                  f"rule      {r['name']}: {r['steps']} steps of {r['batch']} rows on {r['n_train']} training "
                  f"observations ({', '.join(f'{k}={v}' for k, v in r['settings'].items())})"
                  + (f"; route {r['route']}" if r.get("route") else ""),
@@ -260,7 +262,7 @@ def plan(problem, rule: str = "sip", *, net: str = "default", hidden=None, prior
     info = {"name": problem.name, "unknowns": problem.N, "observations": op.n_out, "linear": is_linear(op),
             "noise": float(problem.noise or 0.0),
             "backend": getattr(op, "choice", None) or type(op).__name__,
-            "inverse": repr(problem.inverse_simulator)}
+            "inverse": repr(problem.inverse_simulator), **({"units": own.units} if own is not None else {})}
     stages = [{"name": rule_obj.name, "steps": steps, "batch": batch, "fresh": bool(fresh)}]
     refined = kind in ("default", "unet") and problem.model_factory is None and \
         correction_kind(problem) is not None
