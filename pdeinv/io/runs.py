@@ -71,6 +71,18 @@ NETWORKS = {
 }
 
 
+def _folded(model):
+    """``model`` with its input transform folded into its weights where that saves numbers (a copy;
+    :meth:`pdeinv.nets.protocol.Network.fold`): the same function, a smaller ``model.pt``."""
+    import copy
+
+    from ..nets.protocol import declared
+    from ..problem.units import unwrap
+
+    folded = copy.deepcopy(model)
+    return folded if declared(unwrap(folded)[0]).fold() else model
+
+
 def _spec(network_spec, model) -> dict:
     """What run.json records of ``model``: ``network_spec`` (``None``: the spec the Trainer built the
     network with, a data file's base included, else ``{"kind": "default"}``), checked, with the kind of
@@ -168,7 +180,7 @@ def save_run(out: str | os.PathLike, problem, overrides: dict | None = None, net
     network_spec = _spec(network_spec, model)
     out = run_folder(out, "out", replace=True, outputs=OUTPUTS)
     buffer = io.BytesIO()
-    torch.save(model.state_dict(), buffer)
+    torch.save(_folded(model).state_dict(), buffer)
     weights = buffer.getvalue()
     record = {"format": FORMAT, "version": VERSION, "problem": problem_spec(problem),
               "overrides": {k: str(v) for k, v in overrides.items()}, "network": network_spec,

@@ -49,10 +49,13 @@ class ModalFeatures(Network):
         return self.whitening.info
 
     @torch.no_grad()
-    def fit_observations(self, y, noise=None, **settings) -> ModalFeatures:
+    def fit_observations(self, y, noise=None, then=None, **settings) -> ModalFeatures:
         c = torch.as_tensor(y, dtype=self.proj.dtype, device=self.proj.device) @ self.proj
-        self.whitening.fit_observations(c.cpu(), noise, **settings)
+        self.whitening.fit_observations(c.cpu(), noise, then=then, **settings)
         return self
+
+    def fold_into(self, linear) -> bool:
+        return self.whitening.fold_into(linear)
 
     def forward(self, y: torch.Tensor) -> torch.Tensor:
         return self.whitening(y.to(self.proj.dtype) @ self.proj)

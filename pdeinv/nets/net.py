@@ -27,11 +27,23 @@ class Net(Network):
         self.post = nn.Identity() if post is None else post
 
     def fit_observations(self, y, noise: float | None = None, **settings) -> Net:
-        declared(self.pre).fit_observations(y, noise, **settings)
+        body = self._linear_body()  # a folded input transform unfolds from it (Whitening.unfold)
+        declared(self.pre).fit_observations(y, noise, **({} if body is None else {"then": body}), **settings)
         return self
+
+    def _linear_body(self) -> nn.Linear | None:
+        """The body when it is one ``nn.Linear`` (alone or in an ``nn.Sequential``), else ``None``."""
+        body = self.body[0] if isinstance(self.body, nn.Sequential) and len(self.body) == 1 else self.body
+        return body if type(body) is nn.Linear else None
 
     def forward(self, y: torch.Tensor) -> torch.Tensor:
         return self.post(self.body(self.pre(y)))
+
+    def fold(self) -> bool:
+        """A one-layer linear body takes in the input transform where their shapes allow
+        (:meth:`~pdeinv.nets.whitening.Whitening.fold_into`): what :func:`pdeinv.save_run` writes."""
+        body = self._linear_body()
+        return body is not None and declared(self.pre).fold_into(body)
 
     @property
     def decoder(self) -> torch.Tensor | None:

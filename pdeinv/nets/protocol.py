@@ -12,6 +12,9 @@ defaults declare nothing:
 ``decoder``                     the fixed output map's rows ``Dᵀ`` (``(k, N)``; None)
 ``coefficients(y)``             ``c`` with ``f(y) = c Dᵀ``, without forming the fields (None)
 ``decoder_info``                how the decoder was chosen (``{}``)
+``fold()``                      folds a fitted input transform into the weights where that keeps
+                                their shapes (the same function, fewer numbers saved; False)
+``fold_into(linear)``           an input transform's part of ``fold`` (False)
 ==============================  ==============================================================
 
 Any other ``torch.nn.Module`` (a user's own network) is seen through :class:`Undeclared`, which
@@ -43,6 +46,12 @@ class _Nothing:
 
     def coefficients(self, y):
         return None
+
+    def fold(self) -> bool:
+        return False
+
+    def fold_into(self, linear) -> bool:
+        return False
 
 
 class Network(_Nothing, nn.Module):

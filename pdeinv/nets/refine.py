@@ -274,6 +274,9 @@ class Refined(Network):
         return "dense" if isinstance(self.correction, DenseCorrection) else "grid"
 
     # --- the base's declared structure, valid while the correction is off -----------------------
+    def fold(self) -> bool:
+        return declared(self.base).fold()
+
     def fit_observations(self, y, noise=None, **settings):
         declared(self.base).fit_observations(y, noise, **settings)
         return self

@@ -104,6 +104,8 @@ class Whitening(Network):
     def fit(self, y, noise: float | None = None, drop: float | str | None = None) -> Whitening:
         """Fit μ, U, D on observations ``y`` ``(n, m)``; ``noise`` is the relative level if known;
         ``drop`` overrides the constructor's for this fit (0: floor at σ² but drop nothing)."""
+        if self.folded:  # its D Uᵀ lives in the next layer's weights: refitting would change the function
+            return self  # (unless that layer is given: fit_observations(then=), unfold)
         y = np.asarray(torch.as_tensor(y).detach().cpu().double())
         if y.ndim != 2 or y.shape[1] != self.m:
             raise ValueError(f"whitening: observations of shape {y.shape}; expected (n, {self.m})")
@@ -149,11 +151,46 @@ class Whitening(Network):
                      "unit_scale": int((lam >= floor).sum()), "lambda_max": float(lam[0])}
         return self
 
-    def fit_observations(self, y, noise: float | None = None, **settings) -> Whitening:
-        """The hook :func:`pdeinv.nets.fit_preconditioning` calls on every submodule that has it."""
+    def fit_observations(self, y, noise: float | None = None, then=None, **settings) -> Whitening:
+        """The hook :func:`pdeinv.nets.fit_preconditioning` calls on every submodule that has it; ``then``:
+        the ``nn.Linear`` that takes ``z``, which a folded transform unfolds into (:meth:`unfold`)."""
+        if self.folded and then is not None:
+            return self.unfold(y, noise, then, **settings)
         return self.fit(y, noise, **settings)
 
+    @torch.no_grad()
+    def unfold(self, y, noise, linear, **settings) -> Whitening:
+        """Refit a folded transform on ``y`` and move it out of ``linear`` again, keeping the function:
+        ``W_f (y − μ) + b = W' D' U'ᵀ (y − μ') + b'`` with ``W' = W_f U' D'⁺`` and ``b' = b + W_f (μ' − μ)``
+        (exact on the directions the new fit keeps; :meth:`fit_observations`)."""
+        folded, mean = linear.weight.detach().clone(), self.mean.clone()
+        self.basis, self.gain = self.mean.new_zeros(self.m, self.k), self.mean.new_ones(self.k)
+        self.fit(y, noise, **settings)
+        inverse = torch.where(self.gain > 0, 1 / torch.where(self.gain > 0, self.gain, 1), 0)
+        linear.weight.copy_((folded @ self.basis.to(folded.dtype)) * inverse.to(folded.dtype))
+        linear.bias.add_(folded @ (self.mean - mean).to(folded.dtype))
+        return self
+
+    @property
+    def folded(self) -> bool:
+        """Whether :meth:`fold_into` moved ``D Uᵀ`` into the next layer: the transform only centres."""
+        return self.basis.numel() == 0
+
+    @torch.no_grad()
+    def fold_into(self, linear) -> bool:
+        """``W ← W D Uᵀ`` for the ``nn.Linear`` that takes ``z``, leaving ``y − μ`` here: the same function,
+        and the ``(m, k)`` basis no longer saved. Only where ``W`` keeps its shape (``m = k``: a whitening in
+        the operator's modes, :mod:`pdeinv.nets.modal`); returns whether it folded. A folded transform is
+        refitted only together with that layer (:meth:`unfold`): its ``D Uᵀ`` is in the weights."""
+        if not self._ready or self.folded or self.k != self.m or linear.in_features != self.k:
+            return False
+        linear.weight.copy_(linear.weight @ (self.gain[:, None] * self.basis.T).to(linear.weight.dtype))
+        self.basis, self.gain = self.mean.new_zeros(0), self.mean.new_zeros(0)
+        return True
+
     def forward(self, y: torch.Tensor) -> torch.Tensor:
+        if self.folded:
+            return y - self.mean
         if not self._ready:
             raise RuntimeError(f"this Whitening (m={self.m}) is not fitted: fit it on training observations "
                                "first (whitening.fit(y), or pdeinv.nets.fit_preconditioning(model, y); "
@@ -161,6 +198,9 @@ class Whitening(Network):
         return ((y - self.mean) @ self.basis) * self.gain
 
     def _load_from_state_dict(self, state_dict, prefix, *args, **kwargs):
+        basis = state_dict.get(prefix + "basis")
+        if basis is not None and basis.numel() == 0:  # a folded transform (fold_into): its shapes
+            self.basis, self.gain = self.mean.new_zeros(0), self.mean.new_zeros(0)
         super()._load_from_state_dict(state_dict, prefix, *args, **kwargs)
         self._ready = bool(self.fitted)
 
