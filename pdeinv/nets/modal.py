@@ -12,8 +12,9 @@ maps those modes' coefficients, whitened on the training observations (never ``x
 identity Hessian there), to the same modes' coefficients of ``x`` through a trained ``k × k`` matrix ``W``
 and bias ``b``. It is a :class:`~pdeinv.nets.net.Net` linear in its
 parameters with a fixed decoder ``Φ`` (SIP solves in its span, HIG takes the Kronecker route). Its bases are
-rebuilt from the problem, not saved: ``model.pt`` holds about ``2k²`` numbers however large the mesh, where
-the whitened map holds two ``N × k`` arrays (heat_boxes 64²: 20 MB against 131).
+rebuilt from the problem, not saved, and :func:`pdeinv.save_run` folds the whitening into ``W``
+(:meth:`~pdeinv.nets.whitening.Whitening.fold_into`): ``model.pt`` holds about ``k²`` numbers however large
+the mesh, where the whitened map holds two ``N × k`` arrays.
 The field's part along modes the observations do not decide is left at 0, as by every linear estimate that
 the data alone decide; the prior stage adds it.
 """
