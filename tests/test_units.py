@@ -97,3 +97,27 @@ def test_cli_train_and_predict_in_the_files_units(pairs, tmp_path, capsys):
     p = np.load(out)
     err = np.linalg.norm(p["x"] - x * 1e-100, axis=1) / np.linalg.norm(x * 1e-100, axis=1)
     assert np.median(err) < 0.5 and np.all(p["std"] > 0) and np.all(p["std"] < 1e-98)
+
+
+@pytest.mark.parametrize("c", [1e200, 1e-250])
+def test_beyond_float64s_squares_train_predict_and_classical_answer_as_in_the_scenes_units(pairs, tmp_path,
+                                                                                          capsys, c):
+    """Before, magnitudes beyond 1e±150 were refused (their squares leave float64): every check, error and
+    solve now works on the rows divided by a power of ten, and the numbers match the scene's units."""
+    x, y = pairs
+    figures = {}
+    for s in (1.0, c):
+        data, run = str(tmp_path / f"d{s:g}.npz"), tmp_path / f"run{s:g}"
+        np.savez(data, x=x * s, y=y * s)
+        base = ["--set", "n=16", "--set", "noise=0.01", "--data", data]
+        train = ["train", "heat_1d", *base, "--steps", "3", "--n-test", "40", "--out", str(run), "-q"]
+        assert main(train) == 0
+        assert main(["predict", str(run), "--data", data, "--out", str(tmp_path / f"p{s:g}.npz")]) == 0
+        assert main(["classical", "heat_1d", *base, "--out", str(tmp_path / f"c{s:g}.json")]) == 0
+        capsys.readouterr()
+        metrics = json.loads((run / "metrics.json").read_text())
+        classical = json.loads((tmp_path / f"c{s:g}.json").read_text())
+        p = np.load(tmp_path / f"p{s:g}.npz")
+        figures[s] = (metrics["x_err"], classical["tikhonov_morozov"]["x_err"],
+                      classical["gaussian_posterior"]["width_90"] / s, float(np.mean(p["std"])) / s)
+    np.testing.assert_allclose(figures[c], figures[1.0], rtol=1e-5)

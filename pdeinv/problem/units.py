@@ -84,3 +84,15 @@ def in_units(model, posterior, record: dict, units: float):
     if "width_90" in record.get("posterior", {}):
         record["posterior"]["width_90"] *= units
     return wrap(model, units), posterior
+
+
+def for_checks(y: np.ndarray, operator=None) -> float:
+    """The factor a scale-free check (a relative noise level, a relative mismatch) divides the rows by
+    before squaring them: :func:`units_of` where ``operator`` is linear or not given (``P(x/c) = P x / c``),
+    else 1 (nonlinear physics keeps its own units; :func:`units_of` refuses such data later)."""
+    if operator is not None:
+        from ..physics.nonlinear import is_linear
+
+        if not is_linear(operator):
+            return 1.0
+    return units_of(y)

@@ -70,16 +70,7 @@ def _rows(a: np.ndarray, width: int, name: str) -> np.ndarray:
         bad = tuple(int(i) for i in np.argwhere(~np.isfinite(a))[0])
         raise ValueError(f"{name} holds {int((~np.isfinite(a)).sum())} NaN/Inf values (first at {bad}); "
                          "expected finite values")
-    top = float(np.abs(a).max())
-    if top > MAGNITUDE[1] or 0 < top < MAGNITUDE[0]:
-        raise ValueError(f"{name} holds values up to {top:.3g}: their squares leave float64's range (losses, "
-                         f"covariances); expected magnitudes between {MAGNITUDE[0]:g} and {MAGNITUDE[1]:g}: "
-                         f"rescale the data (e.g. divide by {top:.3g})")
     return np.ascontiguousarray(a, dtype=np.float64)
-
-
-#: the magnitudes whose squares (and sums of squares) float64 holds
-MAGNITUDE = (1e-150, 1e150)
 
 
 def rounding_level(a) -> float:
@@ -117,6 +108,9 @@ def undeclared_noise(path, y, problem=None) -> float:
         return level
     # no SVD for a reversible map (above)
     basis = spectral_basis(op, None if problem.disc is None else problem.disc.M)
+    from ..problem.units import for_checks
+
+    y = y / for_checks(y)
     est = None if basis is None else estimate_noise_outside(y, basis.out[:, basis.g > 1e-12 * basis.g.max()])
     return max(level, est if est is not None and est > NOISE_FLOOR else 0.0)
 
@@ -133,12 +127,13 @@ def read_noise(y, operator) -> float:
     which makes its own fine scales (sine_gordon_1d, noise-free, reads 0.135)."""
     from ..inverse.noise import NoSignal, estimate_noise
     from ..physics.nonlinear import is_linear
+    from ..problem.units import for_checks
 
     y = y[:NOISE_ROWS]
     if min(y.shape) < 4 or not is_linear(operator):
         return 0.0
     try:
-        return estimate_noise(y)
+        return estimate_noise(y / for_checks(y))
     except NoSignal:
         return float("inf")
 
@@ -266,7 +261,12 @@ MISMATCH_SLACK = (1.1, 1e-6)
 
 def model_mismatch(op, x: np.ndarray, y: np.ndarray) -> float:
     """Mean over rows of ``‖P x_i − y_i‖ / ‖y_i‖`` (Euclidean): how far data ``(x, y)`` made elsewhere is
-    from ``op`` (module docstring)."""
+    from ``op`` (module docstring); on rows divided by a power of ten where their squares would leave
+    float64 (:func:`pdeinv.problem.units.for_checks`: the figure is scale-free)."""
+    from ..problem.units import for_checks
+
+    c = for_checks(y, op)
+    x, y = x / c, y / c
     r = np.linalg.norm(np.asarray(op.forward(x)) - y, axis=1)
     with np.errstate(divide="ignore", invalid="ignore"):
         return float(np.mean(np.where(r == 0, 0.0, r / np.linalg.norm(y, axis=1))))

@@ -51,6 +51,7 @@ def cmd_classical(args) -> int:
 
     from pdeinv.fem.forms import relative_norms
     from pdeinv.physics.nonlinear import is_linear
+    from pdeinv.problem.units import units_of
     from pdeinv.training.data import no_signal, read_meta, read_noise, read_npz
     from pdeinv.util.files import atomic_write
 
@@ -61,6 +62,8 @@ def cmd_classical(args) -> int:
     set_threads(args.threads)
     problem = build_problem("classical", args.problem, args.set)
     y, x = read_npz(args.data, problem.operator.n_out, problem.N)
+    c = units_of(y, problem.operator, f"--data {args.data!r}")  # solved on y / c, answered ×c
+    y, x = y / c, None if x is None else x / c
     declared = read_meta(args.data, problem.points).get("noise")
     # the estimate reads noise off the spectral tail a linear smoothing map leaves (none of a nonlinear map)
     guess = read_noise(y, problem.operator)
@@ -82,9 +85,11 @@ def cmd_classical(args) -> int:
 
     rows = _solves(problem, y, x, noise, source, err)
     _finite(rows)
+    failed = _failed(problem, rows, x, y, noise)
+    _in_units(rows, c)
     for name, value in rows.items():
         print(f"{problem.name} {name}: {json.dumps(value)}")
-    rows["failed"] = _failed(problem, rows, x, y, noise)
+    rows["failed"] = failed
     if out is not None:
         text = json.dumps({"problem": problem.name, "data": str(args.data), "rows": len(y), **rows}, indent=2)
         atomic_write(out, lambda fh: fh.write(text.encode()))
@@ -95,6 +100,22 @@ def cmd_classical(args) -> int:
               "; --accept-bad ends with exit code 0"), file=sys.stderr)
         return 0 if args.accept_bad else FAILED
     return 0
+
+
+#: the figures of a solve in the data's units (the others are relative)
+ABSOLUTE = ("amplitude", "std_mean", "width_90")
+
+
+def _in_units(rows: dict, c: float) -> None:
+    """``rows`` solved on the file's rows divided by ``c`` (:func:`pdeinv.problem.units.units_of`), in the
+    file's units: the :data:`ABSOLUTE` figures times ``c``, and ``units`` recorded where ``c ≠ 1``."""
+    if c == 1.0:
+        return
+    for value in rows.values():
+        for key in ABSOLUTE:
+            if isinstance(value, dict) and key in value:
+                value[key] *= c
+    rows["units"] = c
 
 
 def _no_signal(args, why: str) -> int:
