@@ -74,3 +74,23 @@ def test_the_layer_is_float64_and_saves_only_its_weights(boxes):
     dc = DataConsistency(modal_basis(boxes.operator), 1e-20).float()
     assert dc.weight.dtype == torch.float64
     assert set(dc.state_dict()) == {"weight"}
+
+
+def test_the_rule_keeps_the_modes_the_data_resolve(boxes):
+    """With the rule's estimate ``b``, the modes with ``g² ≥ α`` are b's to rounding, the other kept modes
+    are the data blend's, and what the physics cannot see is the estimate's own."""
+    p = boxes
+    modes = modal_basis(p.operator)
+    rng = np.random.default_rng(5)
+    x, y = p.sample(8, seed=6)
+    guess, base = (torch.as_tensor(rng.standard_normal(x.shape)) for _ in range(2))
+    dc = DataConsistency(modes, 1e-4)  # 1 % noise: α = 1e-4 max g²
+    r = dc.resolved.numpy()
+    np.testing.assert_array_equal(r, modes.g**2 >= 1e-4 * np.max(modes.g**2))
+    assert 0 < r.sum() < r.size  # both kinds of mode exist
+    out, blend = dc(torch.as_tensor(y), guess, base).numpy(), dc(torch.as_tensor(y), guess).numpy()
+    coef = lambda v: np.asarray(v) @ modes.In  # noqa: E731
+    np.testing.assert_allclose(coef(out)[:, r], coef(base)[:, r], atol=1e-9)
+    np.testing.assert_allclose(coef(out)[:, ~r], coef(blend)[:, ~r], atol=1e-9)
+    hidden = lambda v: np.asarray(v) - coef(v) @ modes.synth.T  # noqa: E731
+    np.testing.assert_allclose(hidden(out), hidden(guess), atol=1e-9)

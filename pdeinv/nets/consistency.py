@@ -22,6 +22,16 @@ Haltmeier 2019).
 Before :meth:`DataConsistency.fit` the weights are Tikhonov's around ``x_c``, ``w = g²/(g² + α)`` with
 ``α = rel · max g²`` (``rel`` the squared noise level, or rounding), the proximal step on the data term.
 The basis is rebuilt from the problem (not saved); the weights are saved with the model.
+
+**The rule keeps what it resolves.** Given the rule's own estimate ``b`` (the base network), the modes the
+data resolve at the noise level, ``g_k² ≥ α`` (Tikhonov's filter factor ≥ 1/2: the data's noise in the
+mode below its signal scale), are taken from ``b`` unchanged,
+
+    f = x − synth_R ((x − b) In_R),      R = {k : g_k² ≥ α},
+
+so the prior stage and this layer change only the modes the observations cannot decide (and those outside
+the basis): a network trained by SIP keeps SIP's answer where the data decide, one trained by Adam keeps
+Adam's. Where the rule fits the data (SIP: ``P b = y`` to the noise), ``f`` does too.
 """
 
 from __future__ import annotations
@@ -34,7 +44,8 @@ from .corrections import SpectralFilter
 
 
 class DataConsistency(nn.Module):
-    """``x ↦ x + synth (w ⊙ (y proj / g − x In))`` (module docstring); float64 throughout."""
+    """``x ↦ x + synth (w ⊙ (y proj / g − x In))``, then the rule's modes from ``b`` (module docstring);
+    float64 throughout."""
 
     def __init__(self, modes, rel_alpha: float):
         super().__init__()
@@ -46,6 +57,7 @@ class DataConsistency(nn.Module):
         self.register_buffer("proj", as64(modes.proj), persistent=False)
         self.register_buffer("synth", as64(modes.synth), persistent=False)
         self.register_buffer("weight", as64(g**2 / (g**2 + alpha)))
+        self.register_buffer("resolved", as64(g**2) >= alpha, persistent=False)  # R: the rule's modes
 
     #: moves with its network (a device) but stays float64, as the filter does: ``1/g`` reaches the
     #: basis' tolerance
@@ -56,13 +68,20 @@ class DataConsistency(nn.Module):
         c = x.to(self.In.dtype) @ self.In
         return (y.to(self.proj.dtype) @ self.proj) / self.g - c, c
 
-    def forward(self, y: torch.Tensor, x: torch.Tensor) -> torch.Tensor:
+    def forward(self, y: torch.Tensor, x: torch.Tensor, base: torch.Tensor | None = None) -> torch.Tensor:
+        """The blend of ``x`` with the data; with the rule's estimate ``base``, its resolved modes kept."""
         gap, _ = self.gaps(y, x)
         # y's own rounding, relative to its largest mode, is noise the weights were not fitted on: a
         # float32 y damps modes below 100 ulps of max g (float64: beyond the basis' tolerance anyway)
         floor = (100 * torch.finfo(y.dtype).eps * self.g.abs().max()) ** 2
         w = self.weight * self.g**2 / (self.g**2 + floor)
-        return x.to(self.synth.dtype) + (w * gap) @ self.synth.T  # float64: y to rounding
+        out = x.to(self.synth.dtype) + (w * gap) @ self.synth.T  # float64: y to rounding
+        return out if base is None else self.keep_rule(out, base)
+
+    def keep_rule(self, x: torch.Tensor, base: torch.Tensor) -> torch.Tensor:
+        """``x − synth_R ((x − b) In_R)``: ``x`` with the modes the data resolve taken from ``b``."""
+        r = self.resolved
+        return x - ((x - base.to(x.dtype)) @ self.In[:, r]) @ self.synth[:, r].T
 
     @torch.no_grad()
     def fit(self, y, x_c, x) -> None:

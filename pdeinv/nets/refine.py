@@ -28,9 +28,11 @@ Adam, early-stopped on held-out draws (the first check is ``b_λ`` itself, ``g =
 kept only if it lowers the held-out relative L²(Ω) error (otherwise ``g`` stays zero, ``λ = 0`` and
 ``f = b``): never worse than the base on draws from the prior. Where the operator has a spectral basis, a
 kept correction is followed by the data-consistency layer ``D`` (:mod:`pdeinv.nets.consistency`), fitted on
-the held-out draws, so that ``f(y) = D(y, b_λ(y) + g(y, b(y)))`` reproduces the observations to the noise:
-the prior decides only what the data do not. This is the post-processing design of learned reconstruction
-(Jin et al. 2017, FBPConvNet), with the physics-trained ``b`` in place of a fixed classical inverse, and
+the held-out draws, so that ``f(y) = D(y, b_λ(y) + g(y, b(y)), b(y))`` keeps the base's estimate in the
+modes the data resolve at the noise level and changes only the others: the prior decides only what the
+data do not, and the rule decides what they do (where it fits the observations, ``f`` does too). This is
+the post-processing design of learned reconstruction (Jin et al. 2017, FBPConvNet), with the
+physics-trained ``b`` in place of a fixed classical inverse, and
 the null-space idea of Schwab, Antholzer & Haltmeier (2019) for what it may change.
 """
 
@@ -310,7 +312,7 @@ class Refined(Network):
         if not bool(self.active):
             return xb
         x = self.corrected(y, xb)
-        return x if self.consistency is None else self.consistency(y, x)
+        return x if self.consistency is None else self.consistency(y, x, xb)
 
     def corrected(self, y: torch.Tensor, xb: torch.Tensor) -> torch.Tensor:
         """``b_λ(y) + g(y, b(y))`` given ``xb = b(y)``: the estimate before the data-consistency layer."""
@@ -392,7 +394,9 @@ class Refined(Network):
         if kept and self.consistency is not None:  # the observations get back what the correction took
             self.consistency.fit(y[val], held_out(), x[val])
             with torch.no_grad():
-                after = error(self.consistency(torch.as_tensor(y[val], dtype=torch.float64), held_out()))
+                base = self.base(torch.as_tensor(y[val], dtype=feed.dtype))
+                yv = torch.as_tensor(y[val], dtype=torch.float64)
+                after = error(self.consistency(yv, held_out(), base))
         self.prior_info = {"kept": kept, "draws": n, "held_out": int(n_val), "error_before": before,
                            "mix": float(self.mix), "error_corrected": track.best, "error_after": after,
                            "consistency": kept and self.consistency is not None, "steps": step,
