@@ -41,6 +41,23 @@ def test_explain_prints_the_plan_and_writes_nothing(tmp_path, capsys):
     assert "stage 2   calibration" in capsys.readouterr().out  # no prior stage: calibration comes second
 
 
+def test_a_run_says_its_plan_in_one_line_before_it_starts(tmp_path, capsys):
+    """The stages and their counts, before the first step (a long default run is never mute)."""
+    from pdeinv.training.plan import plan
+
+    p = pdeinv.load_problem("heat_1d", n=16)
+    assert plan(p, "sip", steps=2, prior=PriorStage(PriorFit(steps=3))).summary() == (
+        f"plan: sip 2 steps of 1024 rows -> prior (unless the rule is within {NEGLIGIBLE:g}): at most 3 "
+        f"steps on {draw_count(15)} draws -> calibration: 4096 held-out draws")
+    assert main(["train", "heat_1d", "--set", "n=16", "--steps", "2", "--prior-fit", "0",
+                 "--out", str(tmp_path / "r")]) == 0
+    lines = capsys.readouterr().err.splitlines()
+    first = next(i for i, line in enumerate(lines) if line.startswith("pdeinv train: plan: "))
+    assert lines[first] == ("pdeinv train: plan: sip 2 steps of 1024 rows -> calibration: 4096 held-out "
+                            "draws (--explain: why)")
+    assert not any("step 1/" in line for line in lines[:first])
+
+
 def test_the_plan_prices_what_the_guard_checks():
     """One size model: the plan's memory is the guard's estimate of that same run, with the stage's draws."""
     from pdeinv.training.plan import plan, run_bytes

@@ -205,6 +205,19 @@ class Plan:
             lines.append(f"memory    {total / GB:.3g} GB at the peak ({parts})")
         return "\n".join(lines)
 
+    def summary(self) -> str:
+        """The stages and their counts in one line (what a run prints before it starts)."""
+        parts = [f"{self.rule['name']} {self.rule['steps']} steps of {self.rule['batch']} rows"]
+        for st in self.stages[1:]:
+            if st.get("skipped"):
+                continue
+            if st["name"] == "prior":
+                parts.append(f"prior (unless the rule is within {NEGLIGIBLE:g}): at most {st['max_steps']} "
+                             f"steps on {st['draws']} draws")
+            else:
+                parts.append(f"{st['name']}: {st['rows']} held-out {'rows' if st.get('own') else 'draws'}")
+        return "plan: " + " -> ".join(parts)
+
     def as_dict(self) -> dict:
         return {"problem": self.problem, "rule": self.rule, "network": self.network, "stages": self.stages,
                 "memory_bytes": self.memory}
@@ -222,7 +235,8 @@ def _stage_text(st: dict) -> str:
     if st["name"] == "prior":
         if st.get("skipped"):
             return f"prior: none ({st['skipped']})"
-        dc = ("then the data-consistency layer (P f(y) = y to the noise)" if st["consistency"]
+        dc = ("then the data-consistency layer in the modes the data cannot decide (the rule's estimate kept "
+              "where they resolve it)" if st["consistency"]
               else "no data-consistency layer (the operator has no spectral basis)")
         return (f"prior: unless the rule's estimate is within {NEGLIGIBLE:g} of {PILOT} pilot draws, "
                 f"{st['correction']} fitted on {st['draws']} prior draws ({st['prior']}), at most "

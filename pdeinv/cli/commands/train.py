@@ -120,16 +120,17 @@ def _check_flags(args) -> Path:
 
 
 class _Heartbeat:
-    """A callback that prints one progress line every ``every_s`` seconds of training when stderr is
-    not a terminal (a log file, CI, ``nohup``), where tqdm's bar stays silent: a long run is never
-    mute (a user's run once printed nothing for 580 s)."""
+    """A callback that prints one progress line after the first step (its estimate of the stage's time)
+    and every ``every_s`` seconds of training after, when stderr is not a terminal (a log file, CI,
+    ``nohup``), where tqdm's bar stays silent: a long run is never mute (a user's run once printed nothing
+    for 580 s)."""
 
     def __init__(self, steps: int | None, every_s: float = 60.0):
         self.steps, self.every_s, self.last = steps, every_s, time.monotonic()
 
     def __call__(self, record: dict, model) -> bool:
         now = time.monotonic()
-        if now - self.last >= self.every_s:
+        if record["step"] == 1 or now - self.last >= self.every_s:
             self.last = now
             of = f"/{self.steps}" if self.steps else ""
             errs = "".join(f", {k} {record[k]:.4g}" for k in ("x_err", "y_err") if k in record)
@@ -419,6 +420,7 @@ def _run(args, out, problem, overrides, net, hp, trainer, fresh, setup=None, cho
 
     ckpt = out / "checkpoint.pt"
     with RunLock(out):  # one run per --out: a second one is refused
+        logging.getLogger("pdeinv").info(f"pdeinv train: {chosen.summary()} (--explain: why)")
         try:
             result = trainer.fit()  # its warnings: one line on stderr each (_train)
         except NonFiniteError:
