@@ -144,12 +144,13 @@ def test_fresh_draws_are_seeded_per_step_and_reported(boxes):
 
 def test_the_prior_stage_adds_to_the_rule_trained_unet(boxes):
     """``--net unet`` with a prior: the rule trains the U-Net, then the prior stage fits its correction and
-    data-consistency layer on top (the pipeline's stage 2), which gives the observations back to float32
-    rounding (the network's dtype, and the dtype of the y it is given: measured 0.857 -> 0.433, y_err
-    8.7e-7; the float64 default network reaches 1e-13)."""
+    data-consistency layer on top (the pipeline's stage 2), in the modes the data cannot decide only: the
+    U-Net's answer where they decide is the rule's, and so is its misfit (30 steps: x-error 0.857 -> 0.846,
+    y-error unchanged)."""
     torch.manual_seed(0)
     r = pdeinv.train(boxes, "sip", model=unet()(boxes), steps=30, progress=False, n_train=256, n_test=32,
                      prior=PriorStage(PriorFit(steps=150), draws=2048))
     rule, prior, _ = r.metrics["stages"]
     assert prior["name"] == "prior" and prior["kept"], prior
-    assert prior["x_err"] < 0.6 * rule["x_err"] and prior["y_err"] < 1e-5, (rule, prior)
+    assert prior["x_err"] < rule["x_err"] and prior["y_err"] == pytest.approx(rule["y_err"], rel=1e-3), \
+        (rule, prior)

@@ -134,6 +134,48 @@ def main(argv=None) -> int:
             return exit_code(err)
 
 
+def _user_frame(err: BaseException):
+    """The innermost frame of ``err``'s traceback in code that is neither pdeinv's nor an installed
+    package's nor the standard library's (a user's problem module or sampler), or None."""
+    import sysconfig
+    import traceback
+    from pathlib import Path
+
+    ours = Path(__file__).resolve().parent.parent
+    installed = {Path(p).resolve() for p in {sysconfig.get_paths()[k] for k in ("stdlib", "platstdlib",
+                                                                              "purelib", "platlib")}}
+    user = None
+    for frame in traceback.extract_tb(err.__traceback__):
+        here = Path(frame.filename)
+        if frame.filename.startswith("<") or not here.is_absolute():
+            continue
+        here = here.resolve()
+        if not here.is_relative_to(ours) and not any(here.is_relative_to(p) for p in installed):
+            user = frame
+    return user
+
+
+def _unexpected(args, err: Exception) -> int:
+    """An exception no clause names: one line and exit 2 when it was raised in a user's code (file and
+    line), else one line naming it an internal error, exit 1; the traceback with ``-v``."""
+    from ..problem.definition import first_line
+
+    if getattr(args, "verbose", False):
+        import traceback
+
+        traceback.print_exception(err, file=sys.stderr)
+    text = first_line(err)
+    what = f"{type(err).__name__}: {text}" if text else type(err).__name__
+    frame = _user_frame(err)
+    if frame is not None:
+        print(f"pdeinv {args.command}: error: {frame.filename}, line {frame.lineno}, in {frame.name}: {what} "
+              "(-v shows the traceback)", file=sys.stderr)
+        return 2
+    print(f"pdeinv {args.command}: internal error: {what} (-v shows the traceback; please report it)",
+          file=sys.stderr)
+    return 1
+
+
 def _main(argv=None) -> int:
     parser = build_parser()
     args, extra = parser.parse_known_args(argv)
@@ -172,6 +214,8 @@ def _main(argv=None) -> int:
         print(f"pdeinv {args.command}: out of memory: {err or 'no message'}; use a coarser mesh, a smaller "
               "batch or fewer samples", file=sys.stderr)
         return 1
+    except Exception as err:  # noqa: BLE001  last: raised in a user's code (a problem module), or a bug
+        return _unexpected(args, err)
     finally:
         # --threads bounded the BLAS pools for this command only; a command that never set them (or was
         # interrupted while torch was being imported) must not import torch here: a second import of a

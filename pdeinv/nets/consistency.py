@@ -24,10 +24,13 @@ Before :meth:`DataConsistency.fit` the weights are Tikhonov's around ``x_c``, ``
 The basis is rebuilt from the problem (not saved); the weights are saved with the model.
 
 **The rule keeps what it resolves.** Given the rule's own estimate ``b`` (the base network), the modes the
-data resolve at the noise level, ``g_k² ≥ α`` (Tikhonov's filter factor ≥ 1/2: the data's noise in the
-mode below its signal scale), are taken from ``b`` unchanged,
+data resolve are taken from ``b`` unchanged,
 
-    f = x − synth_R ((x − b) In_R),      R = {k : g_k² ≥ α},
+    f = x − synth_R ((x − b) In_R),      R = {k : g_k² ≥ α  and  w_k ≥ 1/2}:
+
+the data's noise in the mode is below its signal scale (Tikhonov's filter factor at least 1/2) and, on
+held-out draws, the data weigh more than the corrected estimate (the fitted weight; before a fit, the
+Tikhonov weight, so the two conditions agree).
 
 so the prior stage and this layer change only the modes the observations cannot decide (and those outside
 the basis): a network trained by SIP keeps SIP's answer where the data decide, one trained by Adam keeps
@@ -57,7 +60,7 @@ class DataConsistency(nn.Module):
         self.register_buffer("proj", as64(modes.proj), persistent=False)
         self.register_buffer("synth", as64(modes.synth), persistent=False)
         self.register_buffer("weight", as64(g**2 / (g**2 + alpha)))
-        self.register_buffer("resolved", as64(g**2) >= alpha, persistent=False)  # R: the rule's modes
+        self.register_buffer("resolved", as64(g**2) >= alpha, persistent=False)  # g² ≥ α, a part of R
 
     #: moves with its network (a device) but stays float64, as the filter does: ``1/g`` reaches the
     #: basis' tolerance
@@ -80,7 +83,7 @@ class DataConsistency(nn.Module):
 
     def keep_rule(self, x: torch.Tensor, base: torch.Tensor) -> torch.Tensor:
         """``x − synth_R ((x − b) In_R)``: ``x`` with the modes the data resolve taken from ``b``."""
-        r = self.resolved
+        r = self.resolved & (self.weight >= 0.5)
         return x - ((x - base.to(x.dtype)) @ self.In[:, r]) @ self.synth[:, r].T
 
     @torch.no_grad()

@@ -102,7 +102,7 @@ def prior_basis(problem, k: int, samples: int | None = None, seed: int = 20_161,
 
     n = samples or 4 * k
     rng = np.random.default_rng(seed)
-    X = np.vstack([problem.sampler(min(chunk, n - i), rng) for i in range(0, n, chunk)])
+    X = np.vstack([problem.draws(min(chunk, n - i), rng) for i in range(0, n, chunk)])
     M = problem.disc.M if problem.disc is not None else None
     N = X.shape[1]
     if N < n:  # the N × N side: generalized eigenvectors of (M XᵀX M, M), M-orthonormal

@@ -29,6 +29,11 @@ from .sampling import add_noise
 BUILTIN_PACKAGE = "pdeinv.problems"
 
 
+#: the magnitudes a scene's sampler may return: a network trains on them in float32, whose squares of a
+#: batch stay finite within (pdeinv.problem.units.AS_IS, the window own data is rescaled into)
+DRAWS_AS_IS = (1e-12, 1e12)
+
+
 @dataclass
 class Problem:
     """A scene: discretization, forward operator, data distribution, defaults.
@@ -57,6 +62,10 @@ class Problem:
                             "rules may use")
         # an operator built by hand goes through the backend chooser as the scenes' do; a nonlinear
         # one (declared linear=False) has no matrix to compile
+        nodes = None if self.disc is None else np.shape(self.disc.points)[-1]
+        if nodes is not None and nodes != self.operator.n_in:
+            raise ValueError(f"problem {self.name!r}: its mesh has {nodes} unknowns but its operator takes "
+                             f"{self.operator.n_in}; expected the operator of this mesh")
         if is_linear(self.operator):
             chosen(self.operator, None if self.disc is None else self.disc.M)
 
@@ -72,8 +81,27 @@ class Problem:
         """``(x, y)`` with ``x`` from the sampler and ``y = P x`` (+ noise); seeded."""
         n = count(n, "n")
         rng = np.random.default_rng(_seed(seed))
-        x = self.sampler(n, rng)
+        x = self.draws(n, rng)
         return x, add_noise(self.operator.forward(x), self.noise, rng)
+
+    def draws(self, n: int, rng: np.random.Generator) -> np.ndarray:
+        """``n`` fields from the sampler, checked: shape ``(n, N)``, finite (a ``ValueError`` naming the
+        problem otherwise)."""
+        x = self.sampler(n, rng)
+        shape = np.shape(x)
+        if shape != (n, self.N):
+            raise ValueError(f"problem {self.name!r}: its sampler returned shape {shape} for {n} draws; "
+                             f"expected ({n}, {self.N}), one row of the {self.N} unknowns per draw")
+        if not np.isfinite(x).all():
+            bad = int((~np.isfinite(x)).sum())
+            raise ValueError(f"problem {self.name!r}: its sampler returned {bad} NaN/Inf values; expected "
+                             "finite fields")
+        top = float(np.max(np.abs(x))) if x.size else 0.0
+        if top > DRAWS_AS_IS[1] or 0 < top < DRAWS_AS_IS[0]:
+            raise ValueError(f"problem {self.name!r}: its sampler returned values up to {top:.3g}; expected "
+                             f"magnitudes between {DRAWS_AS_IS[0]:g} and {DRAWS_AS_IS[1]:g} (the scene's own "
+                             "units: rescale its sampler)")
+        return x
 
     def inverse(self, y, x0) -> np.ndarray:
         """Local inverse simulator ``P⁻¹_(x0, P x0)(y)``; returns ``x0`` when ``y = P x0``."""
@@ -163,15 +191,25 @@ def _failure(path: Path, err: BaseException, where: str) -> ProblemModuleError:
     mine = [f for f in traceback.extract_tb(err.__traceback__) if Path(f.filename) == path]
     line = f", line {mine[-1].lineno}, in {mine[-1].name}" if mine else ""
     if isinstance(err, SyntaxError):  # its own file and line (the module's, or a helper it imports)
-        other = "" if err.filename and Path(err.filename) == path else f" in {err.filename!r}"
-        line = f", line {err.lineno}" if not other else line
-        what = f"SyntaxError{other}: {err.msg}" + (f" (line {err.lineno})" if other else "")
+        other = "" if not err.filename or Path(err.filename) == path else f" in {err.filename!r}"
+        line = f", line {err.lineno}" if not other and err.lineno else line
+        what = f"SyntaxError{other}: {err.msg}" + (f" (line {err.lineno})" if other and err.lineno else "")
     elif isinstance(err, SystemExit):
         what = f"called sys.exit({err.code!r}); expected make(**overrides) to return a pdeinv.Problem"
     else:
-        text = (str(err).strip().splitlines() or [""])[0][:300]
+        text = first_line(err)
         what = f"{type(err).__name__}: {text}" if text else type(err).__name__
     return ProblemModuleError(f"problem module {where}{line}: {what}")
+
+
+def first_line(err: BaseException, n: int = 300) -> str:
+    """The first line of ``err``'s message (at most ``n`` characters); ``'(its message cannot be
+    printed: …)'`` when its ``__str__`` raises (a user's exception class)."""
+    try:
+        text = str(err)
+    except Exception as inner:  # noqa: BLE001  any failure of a user's __str__
+        return f"(its message cannot be printed: {type(inner).__name__})"
+    return (text.strip().splitlines() or [""])[0][:n]
 
 
 def _pdeinvs_own(path: Path, err: Exception) -> bool:

@@ -15,6 +15,7 @@ temporary left behind by a killed writer is named ``.<name>.<random>.tmp``;
 from __future__ import annotations
 
 import csv
+import errno
 import io
 import json
 import os
@@ -48,6 +49,11 @@ def _atomic_write(path: Path, write) -> None:
             fh.flush()
             os.fsync(fh.fileno())
         os.replace(tmp, path)
+    except RuntimeError as err:  # torch.save's C++ writer says a failed write (a full disk) this way
+        Path(tmp).unlink(missing_ok=True)
+        if "inline_container" in str(err) or "PytorchStreamWriter" in str(err):
+            raise OSError(errno.EIO, "the writer failed (a full disk?)", str(path)) from None
+        raise
     except BaseException:
         Path(tmp).unlink(missing_ok=True)
         raise
