@@ -27,16 +27,18 @@ def _module(tmp_path, name, body):
 def test_a_sampler_that_raises_while_training_is_one_line_with_its_file_and_line(tmp_path, capsys):
     body = "    def bad(n, rng):\n        raise RuntimeError('sampler broke')\n    p.sampler = bad\n"
     module = _module(tmp_path, "raising", body)
-    code = main(["train", str(module), "--steps", "1", "--prior-fit", "0", "-q", "--out", str(tmp_path / "r")])
+    out = str(tmp_path / "r")
+    code = main(["train", str(module), "--steps", "1", "--prior-fit", "0", "-q", "--out", out])
     err = capsys.readouterr().err
     assert code == 2 and "Traceback" not in err and err.count("\n") == 1, err
     assert err.startswith(f"pdeinv train: error: {module}, line 8, in bad: RuntimeError: sampler broke"), err
 
 
 @pytest.mark.parametrize(("body", "says"), [
-    ("    p.sampler = lambda n, rng: np.full((n, p.N), np.nan)\n", "its sampler returned 240 NaN/Inf values"),
-    ("    p.sampler = lambda n, rng: np.ones((n, p.N + 1))\n", "its sampler returned shape (16, 16) for 16 draws; "
-                                                              "expected (16, 15)"),
+    ("    p.sampler = lambda n, rng: np.full((n, p.N), np.nan)\n",
+     "its sampler returned 240 NaN/Inf values"),
+    ("    p.sampler = lambda n, rng: np.ones((n, p.N + 1))\n",
+     "its sampler returned shape (16, 16) for 16 draws; expected (16, 15)"),
     ("    p.sampler = lambda n, rng: 1e300 * np.ones((n, p.N))\n", "its sampler returned values up to 1e+300"),
 ])
 def test_a_samplers_draws_are_checked_before_use(tmp_path, body, says):
@@ -56,7 +58,7 @@ def test_an_exception_whose_message_cannot_be_printed_still_gives_one_line(tmp_p
     module = tmp_path / "unprintable.py"
     module.write_text("class E(Exception):\n    def __str__(self):\n        raise RuntimeError('no')\n\n\n"
                       "def make(**overrides):\n    raise E()\n")
-    assert main(["train", str(module), "--steps", "1", "-q", "--out", str(tmp_path / "r")]) == 2
+    assert main(["train", str(module), "--steps", "1", "-q", "--out", str(tmp_path / "run")]) == 2
     err = capsys.readouterr().err
     assert "line 7, in make: E: (its message cannot be printed: RuntimeError)" in err and "Traceback" not in err
 
