@@ -39,7 +39,8 @@ def test_a_sampler_that_raises_while_training_is_one_line_with_its_file_and_line
      "its sampler returned 240 NaN/Inf values"),
     ("    p.sampler = lambda n, rng: np.ones((n, p.N + 1))\n",
      "its sampler returned shape (16, 16) for 16 draws; expected (16, 15)"),
-    ("    p.sampler = lambda n, rng: 1e300 * np.ones((n, p.N))\n", "its sampler returned values up to 1e+300"),
+    ("    p.sampler = lambda n, rng: 1e300 * np.ones((n, p.N))\n",
+     "its sampler returned values up to 1e+300"),
 ])
 def test_a_samplers_draws_are_checked_before_use(tmp_path, body, says):
     p = pdeinv.load_problem(_module(tmp_path, "odd", body))
@@ -60,7 +61,8 @@ def test_an_exception_whose_message_cannot_be_printed_still_gives_one_line(tmp_p
                       "def make(**overrides):\n    raise E()\n")
     assert main(["train", str(module), "--steps", "1", "-q", "--out", str(tmp_path / "run")]) == 2
     err = capsys.readouterr().err
-    assert "line 7, in make: E: (its message cannot be printed: RuntimeError)" in err and "Traceback" not in err
+    assert "line 7, in make: E: (its message cannot be printed: RuntimeError)" in err
+    assert "Traceback" not in err
 
 
 def test_an_internal_error_is_one_line_and_exit_1(monkeypatch, capsys):
