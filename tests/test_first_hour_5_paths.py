@@ -158,6 +158,19 @@ def test_show_redraws_its_own_picture_without_overwrite(here, capsys):
     capsys.readouterr()
 
 
+@pytest.mark.parametrize("overwrite", [[], ["--overwrite"]])
+def test_show_never_redraws_another_runs_picture(here, capsys, overwrite):
+    shutil.copytree(here / "runs" / "h1", here / "runs" / "other")
+    argv = ["show", "runs/h1", "--png", "runs/other/fields.png", *overwrite]
+    refused(capsys, argv, "one of that run's own", folder=here)
+
+
+def test_a_damaged_fields_file_is_one_line(here, capsys):
+    (here / "runs" / "h1" / "fields.vtu").write_bytes(b"<VTKFile garbage")
+    refused(capsys, ["show", "runs/h1", "--png", "new.png"], "fields file", "cannot be read",
+            folder=here / "runs")
+
+
 def test_not_a_regular_file_is_refused(here):
     os.mkfifo(here / "pipe.png")
     with pytest.raises(OutputPathError, match="is not a regular file"):

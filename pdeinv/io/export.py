@@ -97,21 +97,38 @@ def write_sensors(path, points) -> Path:
     return Path(path)
 
 
-def read_fields(path) -> tuple:
-    """``(mesh_points (nv, 3), cells, {kind: (B, nv)})`` from a file written by :func:`write_fields`."""
+def _read_mesh(path: str) -> tuple:
+    """``(points, cells, point_data)`` of a ``.vtu`` or ``.xdmf`` file (meshio)."""
     import meshio
 
-    path = os.fspath(path)
-    if not os.path.isfile(path):
-        raise FileNotFoundError(f"fields file {path!r} does not exist; "
-                                "run `pdeinv train ... --out DIR` first")
     if path.endswith(".xdmf"):
         with meshio.xdmf.TimeSeriesReader(path) as r:
             points, cells = r.read_points_cells()
             _, data, _ = r.read_data(0)
-    else:
-        m = meshio.read(path)
-        points, cells, data = m.points, m.cells, m.point_data
+        return points, cells, data
+    m = meshio.read(path)
+    return m.points, m.cells, m.point_data
+
+
+def read_fields(path) -> tuple:
+    """``(mesh_points (nv, 3), cells, {kind: (B, nv)})`` from a file written by :func:`write_fields`; a
+    ``ValueError`` naming the file when it cannot be read."""
+    path = os.fspath(path)
+    if not os.path.isfile(path):
+        raise FileNotFoundError(f"fields file {path!r} does not exist; "
+                                "run `pdeinv train ... --out DIR` first")
+    import contextlib
+    import io
+
+    said = io.StringIO()
+    try:
+        with contextlib.redirect_stdout(said), contextlib.redirect_stderr(said):
+            points, cells, data = _read_mesh(path)
+    except (Exception, SystemExit) as err:  # noqa: BLE001  meshio on a damaged file (it may sys.exit)
+        text = said.getvalue().strip() if isinstance(err, SystemExit) else f"{type(err).__name__}: {err}"
+        why = (text.splitlines() or ["meshio stopped"])[0][:160]
+        raise ValueError(f"fields file {path!r} cannot be read ({why}); rerun `pdeinv train` to write it "
+                         "again") from None
     out = {}
     for kind in KINDS:
         keys = [k for k in data if k.rsplit("_", 1)[0] == kind]

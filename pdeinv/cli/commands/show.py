@@ -25,7 +25,7 @@ def cmd_show(args) -> int:
     matplotlib.use("Agg")
     from pdeinv.io.export import read_fields
     from pdeinv.io.plots import save_fields_png
-    from pdeinv.util.outpaths import output_file
+    from pdeinv.util.outpaths import output_file, resolve
 
     run = Path(args.dir)
     if not run.is_dir():
@@ -36,8 +36,11 @@ def cmd_show(args) -> int:
                          "expected the --out DIR of `pdeinv train`")
     # the one output-path policy (pdeinv.util.outpaths): never the fields file drawn, nor another of the
     # run's files (--png RUN/training.png once replaced the run's training curves)
-    png = output_file(args.png if args.png is not None else run / "fields.png", "--png",
-                      [("the fields file drawn", found[0])], owns=("fields.png",), overwrite=args.overwrite)
+    # (another run's fields.png is that run's: only this run's own is redrawn)
+    target = args.png if args.png is not None else run / "fields.png"
+    own = resolve(target, "--png").parent == run.resolve()
+    png = output_file(target, "--png", [("the fields file drawn", found[0])],
+                      owns=("fields.png",) if own else (), overwrite=args.overwrite)
     points, cells, fields = read_fields(found[0])
     save_fields_png(png, points, cells, fields, samples=_samples(args.samples), title=run.name)
     print(f"wrote {args.png if args.png is not None else run / 'fields.png'}")
