@@ -33,13 +33,18 @@ def test_each_failure_is_one_line_with_its_exit_code(monkeypatch, capsys, err, c
     assert len(out) == 1 and out[0].startswith(head) and "Traceback" not in out[0]
 
 
-def test_a_bug_keeps_its_traceback(monkeypatch):
+def test_an_exception_in_code_outside_pdeinv_is_one_line_naming_it_and_v_shows_its_traceback(monkeypatch,
+                                                                                           capsys):
     def fail(args):
         raise RuntimeError("a bug")
 
     monkeypatch.setattr(show, "cmd_show", fail)
-    with pytest.raises(RuntimeError, match="a bug"):
-        main(["show", "somewhere"])
+    assert main(["show", "somewhere"]) == 2
+    (err,) = capsys.readouterr().err.strip().splitlines()
+    assert f"{__file__}, line" in err and "in fail: RuntimeError: a bug (-v shows the traceback)" in err
+    assert main(["show", "somewhere", "-v"]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("Traceback") and 'raise RuntimeError("a bug")' in err
 
 
 def one_line(capsys, argv):

@@ -29,6 +29,7 @@ from pathlib import Path
 
 import pytest
 import torch
+from stderr import said
 
 import pdeinv
 from pdeinv.cli import main
@@ -148,7 +149,7 @@ def test_a_dead_rank_ends_the_run_and_resume_finishes_it(tmp_path):
     argv = [*RUN, "--method", "adam", "--checkpoint-every", "4", "--out", str(out)]
     (code0, err0), (code1, _) = _two_ranks(argv, script=[str(script), "exit", "1", "6"])
     assert (code0, code1) == (1, 9)
-    lines = [ln for ln in err0.splitlines() if ln.startswith("pdeinv train")]
+    lines = [ln for ln in said(err0) if ln.startswith("pdeinv train")]
     assert len(lines) == 1 and "--resume" in lines[0] and "2-process run stopped" in lines[0], err0[-2000:]
     assert not (out / "metrics.json").exists()
     # the checkpoint after step 4 is there; one process resumes it (same global batch)

@@ -12,6 +12,7 @@ from pathlib import Path
 
 import pytest
 import torch
+from stderr import said
 
 import pdeinv
 from pdeinv import Checkpoint, Trainer
@@ -109,7 +110,7 @@ def test_cli_gives_up_with_one_line_and_keeps_the_checkpoint(tmp_path, capsys):
             "--n-train", "32", "--n-test", "16", "--batch-size", "8", "--steps", "8",
             "--checkpoint-every", "1", "--out", str(out), "--threads", "1"]
     code = main([*argv, "--set", "poison=4,5,6", "--max-failures", "3"])
-    *warned, err = capsys.readouterr().err.splitlines()
+    *warned, err = said(capsys.readouterr().err)
     # the default guard copies its last good state every 10th step: step 4 rolls back to step 0's
     assert code == 1 and err.startswith("pdeinv train: numerical failure: step 1 (adam)")
     assert "last good checkpoint" in err and "checkpoint.pt" in err and "(after step 0)" in err

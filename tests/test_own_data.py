@@ -8,6 +8,7 @@ import json
 import numpy as np
 import pytest
 import torch
+from stderr import said
 
 import pdeinv
 from pdeinv.cli import main
@@ -299,13 +300,13 @@ def test_a_small_file_says_what_the_default_splits_hold_out(tmp_path, capsys):
     assert main(["train", "--prior-fit", "0",
                  "heat_1d", "--data", str(tmp_path / "small.npz"), "--set", "n=16",
                  "--export-samples", "0", "--out", str(tmp_path / "run")]) == 0
-    err = capsys.readouterr().err.splitlines()
+    err = said(capsys.readouterr().err)
     assert err == ["pdeinv train: warning: the data's 150 rows: the last 128 are held out as the test set, "
                    "only 22 train; hold out fewer with --n-test (Trainer(n_test=...))"]
     assert main(["train", "--prior-fit", "0",
                  "heat_1d", "--data", str(tmp_path / "small.npz"), "--set", "n=16", "--n-test", "30",
                  "--export-samples", "0", "--out", str(tmp_path / "run2")]) == 0
-    assert capsys.readouterr().err == ""
+    assert said(capsys.readouterr().err) == []
 
 
 def test_cli_classical_solves_a_data_file(tmp_path, capsys):

@@ -17,6 +17,7 @@ import time
 from pathlib import Path
 
 import pytest
+from stderr import said
 
 from pdeinv import Checkpoint
 from pdeinv.cli.signals import INTERRUPTED, TERMINATED
@@ -74,7 +75,7 @@ def test_a_signal_during_start_up_exits_quietly(tmp_path, sig, code):
         err = err.decode()
         assert proc.returncode in (code, 0), (delay, proc.returncode, err)  # 0: it finished first
         # at most one line of its own (the run's guard may already have warned on an idle machine)
-        own = [line for line in err.strip().splitlines() if ": warning: " not in line]
+        own = [line for line in said(err.strip()) if ": warning: " not in line]
         assert "Traceback" not in err and len(own) <= 1, (delay, err)
 
 

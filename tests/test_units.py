@@ -72,7 +72,8 @@ def test_a_run_in_other_units_saves_and_loads_with_its_units(runs, pairs, tmp_pa
                     posterior=run.posterior)
     assert json.loads((tmp_path / "r" / "run.json").read_text())["network"]["units"] == 1e30
     _, model = pdeinv.load_run(tmp_path / "r")
-    np.testing.assert_allclose(predict(model, y[:5] * 1e30), predict(run.model, y[:5] * 1e30), rtol=1e-6)
+    want = predict(run.model, y[:5] * 1e30)  # the saved model's whitening is folded: float32 rounding apart
+    np.testing.assert_allclose(predict(model, y[:5] * 1e30), want, rtol=0, atol=1e-6 * np.abs(want).max())
     assert np.isfinite(predict(model, torch.tensor(y[:5] * 1e30))).all()
 
 

@@ -341,6 +341,14 @@ class Refined(Network):
         self.correction.prepare(yb, xb)
         return feed.store() if feed.stored else feed
 
+    @torch.no_grad()
+    def _consistent(self, y, x_c, x, dtype) -> torch.Tensor:
+        """The data-consistency layer fitted on held-out rows (``y``, corrected estimates ``x_c``, truths
+        ``x``), and its estimate of those rows."""
+        self.consistency.fit(y, x_c, x)
+        base = self.base(torch.as_tensor(y, dtype=dtype))
+        return self.consistency(torch.as_tensor(y, dtype=torch.float64), x_c, base)
+
     def fit_prior(self, x, y, relative_error, settings: PriorFit = PriorFit(), log=None) -> dict:
         """Fit ``g`` on prior draws ``x`` ``(n, N)``, ``y`` ``(n, m)`` (numpy) with the base frozen, then the
         data-consistency layer's weights on the held-out draws (:mod:`pdeinv.nets.consistency`);
@@ -392,11 +400,7 @@ class Refined(Network):
         self.mix.fill_(feed.mix if kept else 0.0)
         after = track.best
         if kept and self.consistency is not None:  # the observations get back what the correction took
-            self.consistency.fit(y[val], held_out(), x[val])
-            with torch.no_grad():
-                base = self.base(torch.as_tensor(y[val], dtype=feed.dtype))
-                yv = torch.as_tensor(y[val], dtype=torch.float64)
-                after = error(self.consistency(yv, held_out(), base))
+            after = error(self._consistent(y[val], held_out(), x[val], feed.dtype))
         self.prior_info = {"kept": kept, "draws": n, "held_out": int(n_val), "error_before": before,
                            "mix": float(self.mix), "error_corrected": track.best, "error_after": after,
                            "consistency": kept and self.consistency is not None, "steps": step,

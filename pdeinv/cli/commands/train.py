@@ -120,25 +120,28 @@ def _check_flags(args) -> Path:
 
 
 class _Heartbeat:
-    """A callback that prints one progress line after the first step (its estimate of the stage's time)
-    and every ``every_s`` seconds of training after, when stderr is not a terminal (a log file, CI,
-    ``nohup``), where tqdm's bar stays silent: a long run is never mute (a user's run once printed nothing
-    for 580 s)."""
+    """A callback that prints the run's plan with its first step (once the start-up checks have passed, so
+    that a refused run says only why) and, when stderr is not a terminal (a log file, CI, ``nohup``), where
+    tqdm's bar stays silent, one progress line with the first step (its estimate of the stage's time) and
+    every ``every_s`` seconds after: a long run is never mute (a run once printed nothing for 580 s)."""
 
-    def __init__(self, steps: int | None, every_s: float = 60.0):
-        self.steps, self.every_s, self.last = steps, every_s, time.monotonic()
+    def __init__(self, steps: int | None, plan=None, every_s: float = 60.0, lines: bool = True):
+        self.steps, self.plan, self.every_s, self.lines = steps, plan, every_s, lines
+        self.last, self.first = time.monotonic(), True
 
     def __call__(self, record: dict, model) -> bool:
-        now = time.monotonic()
-        if record["step"] == 1 or now - self.last >= self.every_s:
+        log, now = logging.getLogger("pdeinv"), time.monotonic()
+        if self.first and self.plan is not None:
+            log.info(f"pdeinv train: {self.plan.summary()} (--explain: why)")
+        if self.lines and (self.first or now - self.last >= self.every_s):
             self.last = now
             of = f"/{self.steps}" if self.steps else ""
             errs = "".join(f", {k} {record[k]:.4g}" for k in ("x_err", "y_err") if k in record)
             step, wall = record["step"], record["wall_s"]
             left = wall / step * (self.steps - step) if self.steps and 0 < step < self.steps else 0
-            logging.getLogger("pdeinv").info(
-                f"pdeinv train: step {step}{of}, loss {record['loss']:.4g}{errs}, {wall:.0f} s"
-                + (f", at most ~{left:.0f} s left in the rule's stage" if left >= 1 else ""))
+            log.info(f"pdeinv train: step {step}{of}, loss {record['loss']:.4g}{errs}, {wall:.0f} s"
+                     + (f", at most ~{left:.0f} s left in the rule's stage" if left >= 1 else ""))
+        self.first = False
         return False
 
 
@@ -322,6 +325,7 @@ def _parallel_train(args, out, ckpt, device, parallel) -> int:
     model = network(problem, net)
     setup["network"], setup_cpu["network"] = time.perf_counter() - t_net, time.process_time() - c_net
     stop = STOPS[args.stop](problem, _checks.steps(args, hp), model)
+    chosen = _plan(args, problem, y, x) if parallel.is_writer else None  # metrics.json's "plan"
     trainer = Trainer(problem, rule, model, steps=_checks.steps(args, hp),
                       time_budget=args.time_budget,
                       n_train=args.n_train or N_TRAIN, n_test=args.n_test, batch_size=hp["batch_size"],
@@ -331,14 +335,14 @@ def _parallel_train(args, out, ckpt, device, parallel) -> int:
                       resume=args.resume, stop=stop, data=y, data_x=x, device=device, parallel=parallel,
                       prior=_prior_stage(args), fresh=args.fresh_draws,
                       progress=False if getattr(args, "quiet", False) else None,
-                      callbacks=[] if sys.stderr.isatty() else [_Heartbeat(_checks.steps(args, hp))])
+                      callbacks=[_Heartbeat(_checks.steps(args, hp), chosen,
+                                            lines=parallel.is_writer and not sys.stderr.isatty())])
     if not parallel.is_writer:  # trains its shard; rank 0 writes everything
         failed = trainer.fit().metrics["failed"]
         return FAILED if failed and not args.accept_bad else 0
     prepare_out(out)
     try:
-        return _run(args, out, problem, overrides, net, hp, trainer, fresh, (setup, setup_cpu),
-                    _plan(args, problem, y, x))
+        return _run(args, out, problem, overrides, net, hp, trainer, fresh, (setup, setup_cpu), chosen)
     except FileNotFoundError:  # e.g. --resume without a checkpoint: bad input (exit 2)
         raise
     except OSError as err:  # a full disk, no permission: not the input's fault, not numerical
@@ -420,7 +424,6 @@ def _run(args, out, problem, overrides, net, hp, trainer, fresh, setup=None, cho
 
     ckpt = out / "checkpoint.pt"
     with RunLock(out):  # one run per --out: a second one is refused
-        logging.getLogger("pdeinv").info(f"pdeinv train: {chosen.summary()} (--explain: why)")
         try:
             result = trainer.fit()  # its warnings: one line on stderr each (_train)
         except NonFiniteError:
