@@ -146,17 +146,25 @@ def test_own_data_takes_no_prior_from_the_scene(tmp_path):
     assert model.base.decoder is None
 
 
-def test_a_decoder_that_misses_the_prior_gives_way_to_the_whitened_map(monkeypatch):
+def test_a_decoder_that_misses_the_prior_gives_way_to_the_modal_or_the_whitened_map(monkeypatch):
     """The box prior is not captured by the decoder (its error floor would be the missing energy's square
-    root; heat_boxes 64×64 SIP: 1.07 with it, 0.17 with the whitened map); smooth bumps are."""
+    root; heat_boxes 64×64 SIP: 1.07 with it); smooth bumps are. In its place a rule that converges (SIP,
+    HIG) gets the linear map in the operator's modes (k² numbers: model.pt 10 MB at 64², not 131), a
+    first-order rule (a whitening cap) the whitened map."""
     from pdeinv import nets
+    from pdeinv.nets.modal import ModalFeatures
 
     monkeypatch.setattr(nets.defaults, "REDUCED_ABOVE", 100)  # heat_2d's bumps get the decoder at any size
-    boxes_net = nets.linear_default(pdeinv.load_problem("heat_boxes", n=32))  # 512 of 961: not all
+    boxes = pdeinv.load_problem("heat_boxes", n=32)  # 512 of 961: not all
+    boxes_net, capped = nets.linear_default(boxes), nets.linear_default(boxes, rows_per_component=8)
     bumps_net = nets.linear_default(pdeinv.load_problem("heat_2d", n=32))
-    assert boxes_net.decoder is None  # the whitened map
-    assert bumps_net.decoder is not None
+    assert isinstance(boxes_net.pre, ModalFeatures)  # the modal map, its decoder the operator's modes
+    assert capped.decoder is None and not isinstance(capped.pre, ModalFeatures)  # the whitened map
+    assert bumps_net.decoder is not None and not isinstance(bumps_net.pre, ModalFeatures)
     assert 1 - bumps_net.decoder_info["captured"] <= nets.DECODER_MAX_UNCAPTURED
+    count = lambda net: sum(q.numel() for q in net.parameters())  # noqa: E731
+    assert nets.network_size(boxes, "linear")["params"] >= count(boxes_net)  # the size model's upper bound
+    assert nets.network_size(boxes, "linear", rows_per_component=8)["params"] >= count(capped)
 
 
 def test_the_physics_channel_is_the_tikhonov_solve_from_zero():

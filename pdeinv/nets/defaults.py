@@ -89,11 +89,11 @@ def linear_default(problem, rows_per_component: float | None = None) -> nn.Modul
     """The linear part of :func:`default_model` (the default before :mod:`pdeinv.nets.refine`; ``--net
     linear``): :func:`reduced` or :func:`whitened` as described there. A decoder that leaves more than
     :data:`DECODER_MAX_UNCAPTURED` of the prior's energy out has an error floor of its square root
-    (its rounding-level solve amplifies the missing part): the whitened linear map with at most
-    :data:`FALLBACK_COMPONENTS` components is taken instead (parameters linear in the mesh). The linear map in
-    the operator's modes (:func:`pdeinv.nets.modal.modal`, ``--net modal``) saves ``O(k²)`` numbers instead
-    of ``O(N·k)`` but was less accurate where it matters (heat_boxes 64², noise-free: SIP 0.187 against
-    0.159, and 0.0415 against 0.0398 after the prior stage). On nonlinear
+    (its rounding-level solve amplifies the missing part): :func:`_missed_prior` is taken instead, the
+    linear map in the operator's modes (:func:`pdeinv.nets.modal.modal`: ``O(k²)`` numbers, not ``O(N·k)``)
+    for a rule that converges, the whitened linear map with at most :data:`FALLBACK_COMPONENTS` components
+    for a first-order rule, whose per-parameter steps move the weakest modes as fast as the strongest
+    (Adam on the modal map at heat_boxes 64²: x-error 1.2). On nonlinear
     physics the whitened map, and above :data:`REDUCED_ABOVE` the reduced network's whitened input, keep one
     direction per :data:`NONLINEAR_ROWS_PER_COMPONENT` rows (one direction per row fits the training rows
     and amplifies the held-out residual)."""
@@ -110,8 +110,20 @@ def linear_default(problem, rows_per_component: float | None = None) -> nn.Modul
     net = reduced(**kw, uncaptured=uncaptured)(problem)
     info = net.decoder_info
     if 1 - info.get("captured", 1.0) > max(DECODER_MAX_UNCAPTURED, uncaptured):
-        return _whitened_fallback(problem, rows_per_component)
+        return _missed_prior(problem, rows_per_component)
     return net
+
+
+def _missed_prior(problem, rows_per_component=None) -> nn.Module:
+    """The linear part where the prior decoder misses the prior: the linear map in the operator's modes
+    (:func:`pdeinv.nets.modal.modal`) for a rule that converges (``rows_per_component`` None: SIP, HIG) on an
+    operator with a spectral basis, else the whitened map with at most :data:`FALLBACK_COMPONENTS`
+    components."""
+    from .modal import modal, visible_modes
+
+    if rows_per_component is None and visible_modes(problem) is not None:
+        return modal()(problem)
+    return _whitened_fallback(problem, rows_per_component)
 
 
 
@@ -200,20 +212,21 @@ def default_size(problem) -> tuple[int, int]:
     if max(m, n) > REDUCED_ABOVE or _prior_decoded(problem, None):
         k_in, k_out = min(REDUCED_K_IN, m), min(REDUCED_K_MAX, n)
         size = k_in * k_out + k_out + m * k_in + n * k_out + m + k_in
-        # a decoder that misses the prior falls back to the whitened map (linear_default)
-        kf = min(m, n, FALLBACK_COMPONENTS)
-        dense = max(size, m * kf + kf * n + n)
+        # a decoder that misses the prior falls back to the modal or the whitened map (_missed_prior)
+        fall = _missed_prior_size(problem, rows_per_component=1)  # the larger: a first-order rule's
+        dense = max(size, fall["params"] + fall["buffers"])
     return dense + refined_size(problem), max(m, n)
 
 
-def network_size(problem, kind: str = "default", hidden=None) -> dict:
+def network_size(problem, kind: str = "default", hidden=None, rows_per_component=None) -> dict:
     """What the network of ``--net kind`` (or the MLP of ``--hidden``) for ``problem`` will hold, without
     building it: ``params`` (trained), ``buffers`` (fixed arrays: whitening basis, decoder, grid maps),
     ``build`` (bytes its construction needs on top: the prior draws and Gram matrix of
     :func:`prior_basis`), ``widest`` (its widest layer) and ``dtype_bytes``. Upper bounds (a decoder may
     keep fewer columns); the memory guard (:func:`pdeinv.training.plan.check_training`) adds the
     training state per parameter. ``kind``: 'default', 'linear', 'whitened', 'reduced', 'modal'
-    (:mod:`pdeinv.nets.modal`), 'unet' (:mod:`pdeinv.nets.unet`) or 'mlp' (``hidden`` given)."""
+    (:mod:`pdeinv.nets.modal`), 'unet' (:mod:`pdeinv.nets.unet`) or 'mlp' (``hidden`` given);
+    ``rows_per_component``: the rule's cap (first-order rules), which decides the default's fallback."""
     m, n = problem.operator.n_out, problem.operator.n_in
     itemsize = torch.finfo(DTYPE).bits // 8
 
@@ -253,7 +266,7 @@ def network_size(problem, kind: str = "default", hidden=None) -> dict:
             k = min(m, n)
             size = {"params": m * k + k * n + n, "buffers": 0, "build": 0}
         elif max(m, n) > REDUCED_ABOVE or _prior_decoded(problem, None):
-            red, fall = reduced_size(), whitened_size(min(m, n, FALLBACK_COMPONENTS))
+            red, fall = reduced_size(), _missed_prior_size(problem, rows_per_component)
             # the decoder is built first; a decoder that misses the prior falls back to the whitened map
             size = {k: max(red[k], fall[k]) for k in ("params", "buffers")}
             size["build"] = red["build"]
@@ -265,6 +278,18 @@ def network_size(problem, kind: str = "default", hidden=None) -> dict:
         raise ValueError(f"kind={kind!r} is not allowed; expected 'default', 'linear', 'whitened', "
                          "'reduced', 'modal' or 'unet' (or hidden widths for the MLP)")
     return {**size, "widest": max(m, n), "dtype_bytes": itemsize}
+
+
+def _missed_prior_size(problem, rows_per_component=None) -> dict:
+    """``{"params", "buffers"}`` of :func:`_missed_prior` (an upper bound: the whitening's cap ignored)."""
+    from .modal import modal_size
+
+    size = modal_size(problem) if rows_per_component is None else None
+    if size is not None:
+        return size
+    m, n = problem.operator.n_out, problem.operator.n_in
+    k = min(m, n, FALLBACK_COMPONENTS)
+    return {"params": k * n + n, "buffers": m * k + k + m + 1}
 
 
 def refined_size(problem) -> int:

@@ -271,7 +271,7 @@ def plan(problem, rule: str = "sip", *, net: str = "default", hidden=None, prior
     steps = steps if steps is not None else hp.get("steps") or preset["steps"]
     batch = batch_size or hp.get("batch_size") or n_train
     kind = "mlp" if hidden else net
-    size = network_size(problem, kind, hidden)
+    size = network_size(problem, kind, hidden, hp.get("rows_per_component"))
     op = problem.operator
     info = {"name": problem.name, "unknowns": problem.N, "observations": op.n_out, "linear": is_linear(op),
             "noise": float(problem.noise or 0.0),
@@ -289,7 +289,7 @@ def plan(problem, rule: str = "sip", *, net: str = "default", hidden=None, prior
     if calibration is not None:
         stages.append(calibration.planned(problem, own))
     memory = run_bytes(problem, n_train, n_test, batch, hidden, kind if kind != "mlp" else "default",
-                       rule, 128, prior_draws, hp.get("optimizer") or "adam")
+                       rule, 128, prior_draws, hp.get("optimizer") or "adam", hp.get("rows_per_component"))
     why = ("the MLP of --hidden" if hidden else
            "a U-Net on the observations and the physics' linear estimate, trained by the rule end to end"
            + (", plus a nonlinear correction and a data-consistency layer for the prior stage" if refined
@@ -334,7 +334,7 @@ STATE_COPIES = {"adam": 4, "sgd": 2}
 
 def run_bytes(problem, n_train: int, n_test: int, batch: int, hidden=None, net: str = "default",
               method: str | None = None, n_val: int = 0, prior_draws: int = 0,
-              optimizer: str = "adam") -> dict:
+              optimizer: str = "adam", rows_per_component=None) -> dict:
     """What a training run will hold at its peak, by part (bytes; each an upper bound to a small factor):
 
     * ``data``: training, test and stopping rows (``x``, ``y`` in float64, ``y`` again in the network's
@@ -356,7 +356,7 @@ def run_bytes(problem, n_train: int, n_test: int, batch: int, hidden=None, net: 
     An upper bound (heat_2d at n=256: ~1.5× the peak RSS, benchmarks/notes/scaling.md).
     """
     m, n = problem.operator.n_out, problem.operator.n_in
-    size = network_size(problem, "mlp" if hidden else net, hidden)
+    size = network_size(problem, "mlp" if hidden else net, hidden, rows_per_component)
     d = size["dtype_bytes"]
     copies = STATE_COPIES["sgd" if method == "sip" and optimizer == "sgd" else "adam"]
     rows = min(batch, max(1, CHUNK_ENTRIES // max(m, n, 1))) if method in (None, "sip") else batch
@@ -379,14 +379,15 @@ def run_bytes(problem, n_train: int, n_test: int, batch: int, hidden=None, net: 
 
 def check_training(problem, n_train: int, n_test: int, batch: int, hidden=None, net: str = "default",
                    method: str | None = None, n_val: int = 0, prior_draws: int = 0,
-                   optimizer: str = "adam") -> dict:
+                   optimizer: str = "adam", rows_per_component=None) -> dict:
     """Refuse a training run whose parts (:func:`run_bytes`) would not fit, before any of them is
     allocated, with the estimate, its largest parts and the budget in one line; returns the parts."""
-    parts = run_bytes(problem, n_train, n_test, batch, hidden, net, method, n_val, prior_draws, optimizer)
+    parts = run_bytes(problem, n_train, n_test, batch, hidden, net, method, n_val, prior_draws, optimizer,
+                      rows_per_component)
     m, n = problem.operator.n_out, problem.operator.n_in
     top = sorted(parts.items(), key=lambda kv: -kv[1])[:3]
     what = ", ".join(f"{k} {v / GB:.3g}" for k, v in top)
-    params = network_size(problem, "mlp" if hidden else net, hidden)["params"]
+    params = network_size(problem, "mlp" if hidden else net, hidden, rows_per_component)["params"]
     size_net = f"--hidden {','.join(map(str, hidden))}" if hidden else f"--net {net}"
     check(sum(parts.values()), f"training {problem.name} ({n_train} + {n_test} samples of {m} observations "
                                f"and {n} unknowns, {size_net}: a network of {params:.3g} parameters; "

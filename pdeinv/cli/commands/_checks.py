@@ -77,7 +77,8 @@ def check_run(problem, args, hp: dict) -> None:
                          f"expected --batch-size <= {n_train}")
     check_training(problem, n_train, args.n_test, hp["batch_size"] or n_train, hp["hidden"],
                           net=getattr(args, "net", "default"), method=args.method, n_val=128,
-                          prior_draws=_prior_draws(problem, args), optimizer=hp.get("optimizer") or "adam")
+                          prior_draws=_prior_draws(problem, args), optimizer=hp.get("optimizer") or "adam",
+                          rows_per_component=hp.get("rows_per_component"))
     # the default networks (no --hidden, no network of the problem's own) are linear in θ: HIG takes
     # its Kronecker route there, which never forms J (pdeinv.methods.hig.kron): nothing to estimate
     from pdeinv.nets import NONLINEAR_KINDS
