@@ -230,8 +230,8 @@ def network_size(problem, kind: str = "default", hidden=None, rows_per_component
     m, n = problem.operator.n_out, problem.operator.n_in
     itemsize = torch.finfo(DTYPE).bits // 8
 
-    def whitened_size(k):  # built as an identity basis and a linear layer: nothing on top
-        return {"params": k * n + n, "buffers": m * k + k + m + 1, "build": 0}
+    def whitened_size(k):
+        return _whitened_size(m, n, k)
 
     def reduced_size():
         k_in, k_out = min(REDUCED_K_IN, m), min(REDUCED_K_MAX, n)
@@ -288,8 +288,13 @@ def _missed_prior_size(problem, rows_per_component=None) -> dict:
     if size is not None:
         return size
     m, n = problem.operator.n_out, problem.operator.n_in
-    k = min(m, n, FALLBACK_COMPONENTS)
-    return {"params": k * n + n, "buffers": m * k + k + m + 1}
+    return _whitened_size(m, n, min(m, n, FALLBACK_COMPONENTS))
+
+
+def _whitened_size(m: int, n: int, k: int) -> dict:
+    """The whitened map's ``{"params", "buffers", "build"}``: ``k`` components, ``m`` observations, ``n``
+    unknowns; built as an identity basis and a linear layer, nothing on top."""
+    return {"params": k * n + n, "buffers": m * k + k + m + 1, "build": 0}
 
 
 def refined_size(problem) -> int:
