@@ -287,3 +287,20 @@ def test_noisy_observations_take_a_shorter_decoder():
         k[noise] = net.decoder.shape[0]
         assert 1 - net.decoder_info["captured"] <= decoder_uncaptured(noise)
     assert k[0.01] < 0.8 * k[0.0], k
+
+
+@pytest.mark.parametrize("scene, n", [("heat_boxes", 16), ("heat_2d", 16)])
+def test_a_decoder_refused_by_its_spectrum_is_the_one_it_would_have_built(scene, n):
+    """``at_most`` decides from the spectrum alone: ``None`` exactly where the decoder, built, leaves more
+    than that fraction of the prior's energy out, with the same captured fraction and columns."""
+    from pdeinv.nets.reduced import decoder_basis
+
+    p = pdeinv.load_problem(scene, n=n)
+    Phi, built = decoder_basis(p, k=16, k_max=64)  # grows: 16 < 64 < 225 unknowns
+    at_most = 1e-6
+    basis, decided = decoder_basis(p, k=16, k_max=64, at_most=at_most)
+    assert decided["samples"] == built["samples"]
+    assert decided["captured"] == pytest.approx(built["captured"], abs=1e-10)
+    assert (basis is None) == (1 - built["captured"] > at_most)
+    if basis is not None:
+        np.testing.assert_array_equal(basis, Phi)

@@ -154,3 +154,23 @@ def test_the_prior_stage_adds_to_the_rule_trained_unet(boxes):
     assert prior["name"] == "prior" and prior["kept"], prior
     assert prior["x_err"] < rule["x_err"] and prior["y_err"] == pytest.approx(rule["y_err"], rel=1e-3), \
         (rule, prior)
+
+
+@pytest.mark.parametrize("dim", [1, 2, 3])
+def test_a_large_batch_goes_through_in_chunks_with_each_row_as_alone(dim, monkeypatch):
+    """Batches beyond POINTS grid points are applied in chunks of rows: every row's output is what that
+    row gives alone, and the gradient flows through the chunks."""
+    from pdeinv.nets import corrections
+
+    torch.manual_seed(0)
+    g = corrections.UNet(dim, 4, 2).double()
+    for q in g.out.parameters():
+        torch.nn.init.normal_(q)
+    shape = (12,) * dim
+    monkeypatch.setattr(corrections, "POINTS", 2 * 12**dim)  # chunks of 2 rows
+    x = torch.randn(5, 2, *shape, dtype=torch.float64, requires_grad=True)
+    out = g(x)
+    alone = torch.cat([g(x[i:i + 1]) for i in range(5)])
+    torch.testing.assert_close(out, alone, rtol=1e-12, atol=1e-12)
+    out.sum().backward()
+    assert x.grad is not None and torch.isfinite(x.grad).all() and x.grad.abs().sum() > 0

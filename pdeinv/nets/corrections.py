@@ -34,6 +34,16 @@ def _conv(dim: int):
     return {1: nn.Conv1d, 2: nn.Conv2d, 3: nn.Conv3d}[dim]
 
 
+#: grid points a U-Net applies at once (rows × points per row); a larger batch goes through in chunks of
+#: rows, the same numbers per row. Beyond it a batch's activations (48 channels per point) leave the
+#: caches: 1 024 rows of heat_boxes' 64² grid took 17 s in one call, 4.6 s in chunks of 64 rows
+POINTS = 2**18
+
+#: the channels-last layout of the 2-D and 3-D convolutions: oneDNN's fast path on CPUs (a training step
+#: of 32 rows at 64² ~30 % faster than the contiguous layout), and cuDNN's with tensor cores
+_LAST = {2: torch.channels_last, 3: torch.channels_last_3d}
+
+
 class UNet(nn.Module):
     """A two-level U-Net ``g`` on ``dim``-dimensional images, ``c`` channels at full resolution
     (``2c``, ``4c`` below), GELU, skip connections, a zero-initialized 1×1 output: ``g ≡ 0`` at start.
@@ -54,8 +64,16 @@ class UNet(nn.Module):
         self.out = Conv(c, 1, 1)
         nn.init.zeros_(self.out.weight)
         nn.init.zeros_(self.out.bias)
+        if dim in _LAST:
+            self.to(memory_format=_LAST[dim])
 
     def forward(self, g: torch.Tensor) -> torch.Tensor:
+        rows = max(1, POINTS // max(1, int(np.prod(g.shape[2:]))))  # chunks of rows (:data:`POINTS`)
+        if g.shape[0] > rows:
+            return torch.cat([self._levels(part) for part in torch.split(g, rows)])
+        return self._levels(g)
+
+    def _levels(self, g: torch.Tensor) -> torch.Tensor:
         mode = {1: "linear", 2: "bilinear", 3: "trilinear"}[self.dim]
         up = lambda t, ref: F.interpolate(t, size=ref.shape[2:], mode=mode, align_corners=False)  # noqa: E731
         a = self.e1(g)

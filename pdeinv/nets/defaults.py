@@ -107,11 +107,8 @@ def linear_default(problem, rows_per_component: float | None = None) -> nn.Modul
     if nonlinear and big:  # the reduced network's whitened input too (sine_gordon_2d at 16 129 unknowns)
         kw["rows_per_component"] = NONLINEAR_ROWS_PER_COMPONENT
     uncaptured = decoder_uncaptured(problem.noise)
-    net = reduced(**kw, uncaptured=uncaptured)(problem)
-    info = net.decoder_info
-    if 1 - info.get("captured", 1.0) > max(DECODER_MAX_UNCAPTURED, uncaptured):
-        return _missed_prior(problem, rows_per_component)
-    return net
+    net = reduced(**kw, uncaptured=uncaptured, at_most=max(DECODER_MAX_UNCAPTURED, uncaptured))(problem)
+    return _missed_prior(problem, rows_per_component) if net is None else net
 
 
 def _missed_prior(problem, rows_per_component=None) -> nn.Module:

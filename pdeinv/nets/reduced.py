@@ -76,6 +76,81 @@ class Decoder(Network):
         return f"N={n}, k={k}"
 
 
+class _Draws:
+    """Fields of a problem's prior drawn in chunks of ``chunk`` from one seeded stream, and kept:
+    ``take(n)`` is the stream's first ``n`` fields whatever was taken before, so that a second, larger
+    pass (:func:`decoder_basis`) reuses the first's and draws only the rest."""
+
+    def __init__(self, problem, seed: int, chunk: int):
+        import numpy as np
+
+        self.problem, self.rng, self.chunk = problem, np.random.default_rng(seed), chunk
+        self.parts, self.have = [], 0
+
+    def take(self, n: int):
+        import numpy as np
+
+        while self.have < n:
+            self.parts.append(self.problem.draws(min(self.chunk, n - self.have), self.rng))
+            self.have += len(self.parts[-1])
+        self.parts = [np.vstack(self.parts)] if len(self.parts) > 1 else self.parts
+        return self.parts[0][:n]
+
+
+def _mass(problem):
+    return problem.disc.M if problem.disc is not None else None
+
+
+def _spectrum(X, M):
+    """The second moment's nonzero L²(Ω) spectrum of the drawn fields ``X`` (rows), descending, without
+    its directions: the eigenvalues of ``(M XᵀX M, M)`` where the ``N`` unknowns are fewer than half the
+    ``n`` draws, else those of the Gram ``X M Xᵀ`` (the same nonzero values, a standard problem)."""
+    import numpy as np
+    import scipy.linalg as sla
+
+    n, N = X.shape
+    if 2 * N < n:
+        Md = np.eye(N) if M is None else M.toarray()
+        XM = X @ Md
+        lam = sla.eigh(XM.T @ XM, Md, eigvals_only=True)
+    else:
+        lam = np.linalg.eigvalsh(X @ (M @ X.T) if M is not None else X @ X.T)
+    return lam[::-1]
+
+
+def _kept(lam, k: int, uncaptured: float) -> tuple[int, float]:
+    """``(k', captured)``: the components out of at most ``k`` that hold all but ``uncaptured`` of the
+    energy of the spectrum ``lam`` (descending), at most its numerical rank, and the fraction they hold."""
+    import numpy as np
+
+    rank = int((lam > lam[0] * 1e-14).sum())
+    tail = 1.0 - np.cumsum(lam[:rank]) / lam[lam > 0].sum()  # uncaptured after j + 1 components
+    k = min(k, rank, int(np.searchsorted(-tail, -uncaptured)) + 1)
+    return k, float(lam[:k].sum() / lam[lam > 0].sum())
+
+
+def _basis(X, M, k: int, scaled: bool, uncaptured: float):
+    """:func:`prior_basis` of the drawn fields ``X``."""
+    import numpy as np
+    import scipy.linalg as sla
+
+    n, N = X.shape
+    if N < n:  # the N × N side: generalized eigenvectors of (M XᵀX M, M), M-orthonormal
+        Md = np.eye(N) if M is None else M.toarray()
+        XM = X @ Md
+        lam, vecs = sla.eigh(XM.T @ XM, Md)
+    else:  # the n × n side: X M Xᵀ = U S² Uᵀ, directions Xᵀ U S⁻¹
+        lam, vecs = np.linalg.eigh(X @ (M @ X.T) if M is not None else X @ X.T)
+    lam, vecs = lam[::-1], vecs[:, ::-1]
+    k, captured = _kept(lam, k, uncaptured)
+    dirs = vecs[:, :k] if N < n else X.T @ (vecs[:, :k] / np.sqrt(lam[:k]))
+    Phi = np.linalg.qr(dirs)[0]
+    if scaled:  # column j ∝ the prior's rms amplitude along it, Σ_j ‖Φ_j‖² = N (see prior_basis)
+        rms = np.sqrt(((X @ Phi) ** 2).mean(0))
+        Phi = Phi * (rms * np.sqrt(N / (rms**2).sum()))
+    return Phi, {"captured": captured, "components": k, "samples": n}
+
+
 def prior_basis(problem, k: int, samples: int | None = None, seed: int = 20_161, chunk: int = 128,
                 scaled: bool = True, uncaptured: float = 0.0):
     """``Φ`` (``N × k'``): the span of the ``k' ≤ k`` leading L²(Ω) principal components of fields
@@ -97,59 +172,45 @@ def prior_basis(problem, k: int, samples: int | None = None, seed: int = 20_161,
     Returns ``(Φ, info)``; ``info``: the captured fraction, the components kept and the draws.
     Deterministic (``seed``), so a saved network rebuilds the same buffer.
     """
-    import numpy as np
-    import scipy.linalg as sla
-
-    n = samples or 4 * k
-    rng = np.random.default_rng(seed)
-    X = np.vstack([problem.draws(min(chunk, n - i), rng) for i in range(0, n, chunk)])
-    M = problem.disc.M if problem.disc is not None else None
-    N = X.shape[1]
-    if N < n:  # the N × N side: generalized eigenvectors of (M XᵀX M, M), M-orthonormal
-        Md = np.eye(N) if M is None else M.toarray()
-        XM = X @ Md
-        lam, vecs = sla.eigh(XM.T @ XM, Md)
-    else:  # the n × n side: X M Xᵀ = U S² Uᵀ, directions Xᵀ U S⁻¹
-        lam, vecs = np.linalg.eigh(X @ (M @ X.T) if M is not None else X @ X.T)
-    lam, vecs = lam[::-1], vecs[:, ::-1]
-    rank = int((lam > lam[0] * 1e-14).sum())
-    tail = 1.0 - np.cumsum(lam[:rank]) / lam[lam > 0].sum()  # uncaptured after j + 1 components
-    k = min(k, rank, int(np.searchsorted(-tail, -uncaptured)) + 1)
-    dirs = vecs[:, :k] if N < n else X.T @ (vecs[:, :k] / np.sqrt(lam[:k]))
-    Phi = np.linalg.qr(dirs)[0]
-    if scaled:  # column j ∝ the prior's rms amplitude along it, Σ_j ‖Φ_j‖² = N (see the docstring)
-        rms = np.sqrt(((X @ Phi) ** 2).mean(0))
-        Phi = Phi * (rms * np.sqrt(N / (rms**2).sum()))
-    return Phi, {"captured": float(lam[:k].sum() / lam[lam > 0].sum()), "components": k, "samples": n}
+    X = _Draws(problem, seed, chunk).take(samples or 4 * k)
+    return _basis(X, _mass(problem), k, scaled, uncaptured)
 
 
 def decoder_basis(problem, k: int = REDUCED_K, k_max: int = REDUCED_K_MAX, samples: int | None = None,
-                  scaled: bool = True, uncaptured: float = REDUCED_UNCAPTURED):
+                  scaled: bool = True, uncaptured: float = REDUCED_UNCAPTURED, at_most: float | None = None):
     """:func:`prior_basis` with at most ``k`` columns (where ``k < k_max < N``: as many as the first ``4k``
     draws resolve at two per column, up to ``k_max``); where all are kept and they still leave more
     than ``uncaptured`` of the drawn energy out, once more with at most ``k_max`` columns from
-    ``samples`` or ``2·k_max`` draws (:data:`REDUCED_K_MAX`), provided ``k_max`` is below the ``N`` unknowns:
-    a decoder is a reduction, and a prior that no fewer than ``N`` columns hold is left to
-    :func:`~pdeinv.nets.defaults.linear_default`'s check (heat_boxes at 961 unknowns: the whitened map). The
-    first, small draw decides for the scenes that need few columns (heat_2d: ~280), so they pay nothing for
-    the second."""
-    n = problem.operator.n_in
+    ``samples`` or ``2·k_max`` draws (:data:`REDUCED_K_MAX`; the first draws among them), provided
+    ``k_max`` is below the ``N`` unknowns: a decoder is a reduction, and a prior that no fewer than ``N``
+    columns hold is left to :func:`~pdeinv.nets.defaults.linear_default`'s check (heat_boxes at 961
+    unknowns: the whitened map). The first, small draw decides for the scenes that need few columns
+    (heat_2d: ~280), so they pay nothing for the second. Each pass decides from the spectrum alone
+    (:func:`_spectrum`); the directions are computed once, for the pass kept. ``at_most``: a decoder that
+    leaves more than this fraction out is not built (``(None, info)``: heat_boxes at 64² decides in a
+    third of the time of building the decoder it then refused)."""
+    n, M = problem.operator.n_in, _mass(problem)
     grows = k < k_max < n
     first = samples or 4 * min(k, n)
     # where it may grow, the first draws already serve up to one column per two draws (a 3-D prior at
     # 1 % noise: ~700 columns from its 2 048 draws, no second draw of 4 096 fields and their Gram)
     wide = min(k_max, max(k, first // 2)) if grows else min(k, n)
-    basis, info = prior_basis(problem, wide, first, scaled=scaled, uncaptured=uncaptured)
-    if info["components"] < wide or 1 - info["captured"] <= uncaptured or not grows:
-        return basis, info
-    return prior_basis(problem, k_max, samples or 2 * k_max, scaled=scaled, uncaptured=uncaptured)
+    draws = _Draws(problem, 20_161, 128)
+    X = draws.take(first)
+    kept, captured = _kept(_spectrum(X, M), wide, uncaptured)
+    if grows and kept >= wide and 1 - captured > uncaptured:
+        X, wide = draws.take(samples or 2 * k_max), k_max
+        kept, captured = _kept(_spectrum(X, M), wide, uncaptured)
+    if at_most is not None and 1 - captured > at_most:
+        return None, {"captured": captured, "components": kept, "samples": len(X)}
+    return _basis(X, M, wide, scaled, uncaptured)
 
 
 def reduced(k_in: int = REDUCED_K_IN, k_out: int = REDUCED_K, body: str = "linear", hidden=(256, 256),
             activation=nn.Tanh, rel_floor: float | None = None, drop: float | str = "edge",
             samples: int | None = None, dtype: torch.dtype = DTYPE, scaled: bool = True,
             rows_per_component: float | None = None, uncaptured: float = REDUCED_UNCAPTURED,
-            k_max: int = REDUCED_K_MAX):
+            k_max: int = REDUCED_K_MAX, at_most: float | None = None):
     """A ``model_factory`` whose *trained* size does not depend on the mesh:
 
         x = Φ · body(z),   z = D_k U_kᵀ (y − μ)
@@ -161,7 +222,9 @@ def reduced(k_in: int = REDUCED_K_IN, k_out: int = REDUCED_K, body: str = "linea
     :func:`prior_basis`: the leading principal components of the prior's fields, a buffer).
     Parameters: ``k_in·k_out + k_out`` for the linear body (262 400 at the defaults),
     whatever ``N``; buffers ``(m + N)·k`` grow linearly. Everything outside the span of
-    ``Φ`` is out of reach: the error floor is the prior's uncaptured part.
+    ``Φ`` is out of reach: the error floor is the prior's uncaptured part. ``at_most``: where the decoder
+    would leave more than this fraction of the prior's energy out, the factory builds nothing and
+    returns ``None`` (:func:`decoder_basis`).
     """
     if body not in BODIES:
         raise ValueError(f"body={body!r} is not allowed; expected one of {', '.join(map(repr, BODIES))}")
@@ -171,7 +234,9 @@ def reduced(k_in: int = REDUCED_K_IN, k_out: int = REDUCED_K, body: str = "linea
 
     def factory(problem) -> nn.Module:
         m = problem.operator.n_out
-        basis, info = decoder_basis(problem, k_out, k_max, samples, scaled, uncaptured)
+        basis, info = decoder_basis(problem, k_out, k_max, samples, scaled, uncaptured, at_most)
+        if basis is None:
+            return None
         pre = Whitening(m, rel_floor, drop, components=min(k_in, m), rows_per_component=rows_per_component)
         net = Net(pre, BODIES[body](pre.k, basis.shape[1], tuple(hidden), activation),
                   Decoder(torch.as_tensor(basis, dtype=dtype))).to(dtype)
