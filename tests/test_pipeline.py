@@ -130,3 +130,25 @@ def test_the_rule_decides_what_the_data_resolve():
     assert sip_prior["x_err"] <= 0.5 * adam_prior["x_err"]
     assert sip_prior["y_err"] < 1e-9  # SIP fits the data, so the final estimate does
     assert adam_prior["y_err"] == pytest.approx(adam["y_err"], rel=1e-6)  # Adam's misfit is Adam's
+
+
+@pytest.mark.parametrize("flags, says", [
+    (["--n-train", "0"], "--n-train 0 is not allowed"),
+    (["--n-test", "0"], "--n-test 0 is not allowed"),
+    (["--net", "modal", "--hidden", "8,8"], "choose two networks"),
+    (["--time-budget", "0"], "--time-budget 0"),
+    (["--hidden", "99999999999"], "of memory, above the budget"),
+])
+def test_explain_refuses_what_the_run_refuses(flags, says, capsys, tmp_path):
+    """A plan of a run that would be refused is no plan: the run's checks, the same line, exit 2."""
+    assert main(["train", "heat_1d", "--set", "n=16", "--explain", *flags]) == 2
+    assert says in capsys.readouterr().err
+    out = tmp_path / "run"
+    assert main(["train", "heat_1d", "--set", "n=16", "--steps", "2", "--prior-fit", "0", "--out", str(out),
+                 *flags]) == 2
+    assert says in capsys.readouterr().err and not out.exists()
+
+
+def test_a_time_budget_of_no_seconds_is_refused_in_python_too():
+    with pytest.raises(ValueError, match="time_budget"):
+        Trainer("heat_1d", "sip", steps=1, n_train=8, n_test=4, time_budget=0)

@@ -18,7 +18,7 @@ from dataclasses import dataclass, field, fields
 
 import torch
 
-from .._checks import count, nonnegative
+from .._checks import count, positive
 from ..methods.base import NonFiniteError, UpdateRule
 from ..methods.guard import Guard
 from ..methods.presets import PRESET, run_defaults
@@ -212,7 +212,7 @@ class Trainer:
         if self.steps is None and self.time_budget is None:
             raise ValueError("give steps=, time_budget= or both; otherwise training never stops")
         self.steps = None if self.steps is None else count(self.steps, "steps")
-        self.time_budget is None or nonnegative(self.time_budget, "time_budget")
+        self.time_budget is None or positive(self.time_budget, "time_budget")
         self.n_test = count(self.n_test, "n_test")
         if self.data is None and self.data_x is not None:  # it was ignored: the run trained on prior draws
             raise ValueError("data_x= was given without data=: data_x holds the true fields of the rows of "

@@ -95,6 +95,13 @@ def _check_flags(args) -> Path:
         raise UsageError("--resume and --overwrite conflict: --resume continues the run in --out, "
                          "--overwrite deletes it; pass one of them")
     out = run_folder(args.out, "--out", replace=args.overwrite or args.resume, outputs=OUTPUTS, create=False)
+    _check_values(args)
+    return out
+
+
+def _check_values(args) -> None:
+    """Refuse flags out of range or in conflict with each other: the run's checks, which ``--explain``
+    makes too (a plan of a run that would be refused is no plan)."""
     if args.checkpoint_every < 0:
         raise UsageError(f"--checkpoint-every {args.checkpoint_every} is not allowed; "
                          "expected an integer >= 1, or 0 for no checkpoints")
@@ -116,7 +123,9 @@ def _check_flags(args) -> Path:
     if args.data and args.fresh_draws:
         raise UsageError("--fresh-draws draws new observations of the scene's prior each step; --data gives "
                          "fixed rows: drop one of them")
-    return out
+    if args.hidden is not None and args.net != "default":
+        raise UsageError(f"--net {args.net} and --hidden {args.hidden} choose two networks (--hidden is the "
+                         "MLP's widths): drop one of them")
 
 
 class _Heartbeat:
@@ -213,11 +222,20 @@ def _train(args) -> int:
 
 def _explain(args) -> int:
     """``--explain``: the run's plan (:func:`pdeinv.training.plan.plan`) on stdout; nothing trained or
-    written."""
+    written. The run's own checks follow it: a run that would be refused (its flags, its memory, a HIG
+    step beyond its time limit) is refused here too, in the same line, after its plan."""
+    from pdeinv.methods.presets import make_rule
+    from pdeinv.nets import NONLINEAR_KINDS
 
+    _check_values(args)
     set_threads(args.threads)
     problem, _, y, x = _problem_and_data(args)
     print(_plan(args, problem, y, x).explain())
+    hidden = _hidden(args.hidden) if args.hidden is not None else None
+    _, hp = make_rule(args.method, problem, problem.noise, linear_net=args.net not in NONLINEAR_KINDS,
+                      lr=args.lr, eta=args.eta, tau=args.tau, batch_size=args.batch_size, hidden=hidden,
+                      optimizer=args.optimizer)
+    _checks.check_run(problem, args, hp)
     return 0
 
 
@@ -257,11 +275,7 @@ def _network_spec(problem, hp: dict, net: str = "default", data: bool = False) -
     """run.json's network: the MLP of ``--hidden``, else ``--net`` (the problem's default network, the
     whitened linear map or the prior decoder, :mod:`pdeinv.nets`), with the preset's
     ``rows_per_component`` cap (first-order rules) where the problem has no model_factory."""
-    if hp["hidden"] is not None:
-        if net != "default":
-            widths = ",".join(map(str, hp["hidden"]))
-            raise UsageError(f"--net {net} and --hidden {widths} choose two networks (--hidden is the "
-                             "MLP's widths): drop one of them")
+    if hp["hidden"] is not None:  # with --net other than default: refused by _check_values
         return {"kind": "mlp", "hidden": list(hp["hidden"])}
     cap = hp.get("rows_per_component")
     own = getattr(problem, "model_factory", None) is not None
@@ -551,7 +565,7 @@ def add_parser(sub) -> None:
 #: the range of each numeric flag whose check the trainer or the rule would otherwise make under its own
 #: name (``steps=-1``, ``time_budget=-1.0``), checked before any work (:func:`pdeinv.cli.check_numbers`)
 RANGES = {"steps": dict(low=1), "lr": dict(above=0), "eta": dict(above=0), "tau": dict(low=0, below=1),
-          "batch_size": dict(low=1), "time_budget": dict(low=0), "eval_every": dict(low=1),
+          "batch_size": dict(low=1), "time_budget": dict(above=0), "eval_every": dict(low=1),
           "max_failures": dict(low=1)}
 
 
