@@ -76,7 +76,7 @@ def test_argparse_errors_are_one_line(capsys, argv, needle):
 @pytest.mark.parametrize("flag, value, allowed", [
     ("--steps", "-1", "an integer >= 1"), ("--lr", "0", "a number > 0"), ("--eta", "-2", "a number > 0"),
     ("--tau", "1", "a number >= 0 and < 1"), ("--batch-size", "0", "an integer >= 1"),
-    ("--time-budget", "-1", "a number >= 0"), ("--eval-every", "0", "an integer >= 1"),
+    ("--time-budget", "-1", "a number > 0"), ("--eval-every", "0", "an integer >= 1"),
     ("--max-failures", "0", "an integer >= 1"), ("--threads", "100000", "an integer from 1 to 1024"),
 ])
 def test_train_flags_are_named_as_flags(capsys, tmp_path, flag, value, allowed):
