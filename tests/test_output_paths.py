@@ -124,6 +124,12 @@ def test_the_policy_functions(tmp_path):
         output_folder(tmp_path / "run" / "run.json")
     assert output_folder(tmp_path / "x" / "y").is_dir()
     assert isinstance(OutputPathError("m"), ValueError)  # the CLI's bad-input exit 2
+    (tmp_path / "user").mkdir()  # a user's own bench.json is not bench's earlier result
+    (tmp_path / "user" / "bench.json").write_text("mine")
+    with pytest.raises(OutputPathError, match=r"holds bench\.json and no bench\.json of its own"):
+        output_folder(tmp_path / "user", record="bench.json")
+    (tmp_path / "user" / "bench.json").write_text('{"format": "pdeinv-bench"}')  # bench's own: replaced
+    assert output_folder(tmp_path / "user", record="bench.json") == (tmp_path / "user").resolve()
 
 
 def test_a_problem_found_in_the_current_folder_is_stored_by_path(tmp_path, monkeypatch):

@@ -21,6 +21,7 @@ import torch
 from ..training import references as refs
 from ..training.trainset import TEST_DATA, TRAIN_DATA, seed_stream
 from ..util.files import atomic_write
+from ..util.outpaths import record_format
 from . import amortize, backends, forward, methods, plots, skips
 from .ratios import operator_ratios, step_ratios
 from .timing import machine
@@ -76,7 +77,8 @@ def _bench(problem, out, quick, budget_s, seed, log) -> dict:
     out.mkdir(parents=True, exist_ok=True)
     n_train, n_test, repeats, batch, sweep = SIZES[bool(quick)]
     notes, t0 = [], time.perf_counter()
-    res = {"problem": problem.name, "settings": {k: str(v) for k, v in problem.settings.items()},
+    res = {"format": record_format("bench.json"), "problem": problem.name,
+           "settings": {k: str(v) for k, v in problem.settings.items()},
            "machine": machine(), "quick": bool(quick), "budget_s": budget_s, "seed": seed, "notes": notes}
 
     log(f"[bench] operator ratios ({problem.operator!r})")

@@ -181,17 +181,32 @@ def output_file(path, flag: str = "out", inputs: Iterable = (), owns: Iterable[s
     return target
 
 
+def record_format(record: str) -> str:
+    """The ``"format"`` a sweep writes into its ``record`` (``bench.json``: ``"pdeinv-bench"``), by which
+    :func:`output_folder` tells its earlier results from a user's file of the same name."""
+    return f"pdeinv-{Path(record).stem}"
+
+
+def _own_record(path: Path) -> bool:
+    try:
+        held = json.loads(path.read_text())
+    except (OSError, ValueError, UnicodeDecodeError):
+        return False
+    return isinstance(held, dict) and held.get("format") == record_format(path.name)
+
+
 def output_folder(path, flag: str = "out", inputs: Iterable = (), record: str | None = None) -> Path:
     """``path`` resolved (:func:`resolve`), as a folder this command may write into (module docstring),
     created. ``record``: the file a sweep writes (``bench.json``, ``stress.json``): the folder must then be
-    new, empty, or hold that command's earlier results (its ``record``, whose files it replaces); a run
-    folder or any other non-empty folder is refused, naming what it holds."""
+    new, empty, or hold that command's earlier results (its ``record``, recognised by its ``"format"``,
+    :func:`record_format`; whose files it replaces); a run folder or any other non-empty folder (a user's
+    own file of the record's name too) is refused, naming what it holds."""
     target = resolve(path, flag)
     named = _named(flag, path, target)
     if target.exists() and not target.is_dir():
         raise OutputPathError(f"{named} is a file; expected a directory")
     held = contents(target) if record and target.is_dir() else []
-    if held and (record not in held or is_run_folder(target)):
+    if held and (record not in held or not _own_record(target / record) or is_run_folder(target)):
         raise OutputPathError(f"{named} holds {_listing(held)} and no {record} of its own earlier results: "
                               f"its results go only into a new or empty folder, or one of its earlier "
                               f"results; choose another {flag}")

@@ -14,6 +14,7 @@ def cmd_stress(args) -> int:
     from pdeinv.bench.run import jsonable
     from pdeinv.bench.timing import machine
     from pdeinv.util.files import atomic_write
+    from pdeinv.util.outpaths import record_format
     from pdeinv.util.runlock import RunLock
 
     no_cache(args)
@@ -23,8 +24,9 @@ def cmd_stress(args) -> int:
     with RunLock(out):  # one run per --out: a second one is refused
         rows = stress.run(todo, log=print)
         summary = stress.counts(rows)
-        text = json.dumps(jsonable({"problem": args.problem, "quick": args.quick, "machine": machine(),
-                                    "counts": summary, "cases": rows}), indent=2, default=str).encode()
+        record = {"format": record_format("stress.json"), "problem": args.problem, "quick": args.quick,
+                  "machine": machine(), "counts": summary, "cases": rows}
+        text = json.dumps(jsonable(record), indent=2, default=str).encode()
         atomic_write(out / "stress.json", lambda fh: fh.write(text))  # a kill never leaves half a file
     print(" ".join(f"{k} {n}" for k, n in summary.items()) + f" -> {out / 'stress.json'}")
     return 0
