@@ -93,5 +93,7 @@ def resolve(spec: dict, overrides: dict, problem: str) -> dict:
     out = {}
     for name, (default, rule) in spec.items():
         value = overrides.get(name, default)
+        if default is None and isinstance(value, str) and value.strip() == "None":
+            value = None  # the default as `pdeinv problems` lists it (--set kappa=None)
         out[name] = rule(value, name) if name in overrides else value
     return out

@@ -23,8 +23,18 @@ AS_IS = (1e-12, 1e12)
 
 def units_of(y: np.ndarray, operator=None, name: str = "data") -> float:
     """The factor ``c`` the rows are divided by: 1 when ``max |y|`` is within :data:`AS_IS` (all zeros
-    included), else the power of ten nearest to it. ``operator`` nonlinear and ``c ≠ 1``: ``ValueError``."""
+    included), else the power of ten nearest to it. ``operator`` nonlinear and ``c ≠ 1``: ``ValueError``.
+    Rows (of a 2-D ``y``) whose largest magnitudes lie further apart than :data:`AS_IS` spans are in no one
+    unit (float32 holds no batch of both): ``ValueError``, naming the two rows."""
     top = float(np.max(np.abs(y))) if np.size(y) else 0.0
+    if np.ndim(y) == 2 and top > 0.0:
+        peaks = np.max(np.abs(y), axis=1)
+        low = int(np.argmin(np.where(peaks > 0, peaks, np.inf)))
+        if peaks[low] * (AS_IS[1] / AS_IS[0]) < top:
+            high = int(np.argmax(peaks))
+            raise ValueError(f"{name} holds rows of magnitude {peaks[low]:.3g} (row {low}) and {top:.3g} "
+                             f"(row {high}), more than {AS_IS[1] / AS_IS[0]:g} apart: the rows are not in "
+                             "one unit; rescale them to one, or train on them separately")
     if top == 0.0 or AS_IS[0] <= top <= AS_IS[1]:
         return 1.0
     c = 10.0 ** round(math.log10(top))

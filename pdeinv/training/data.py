@@ -327,9 +327,13 @@ def split(rows: int, n_test: int, n_val: int = 0, n_cal: int = 0) -> tuple[slice
     return slice(0, n_train), slice(n_train, cal), slice(cal, cal + n_val), slice(cal + n_val, rows)
 
 
-def fingerprint(y: np.ndarray) -> str:
-    """A short hash of the observations: a checkpoint of other data is not resumed."""
-    return hashlib.sha256(np.ascontiguousarray(y, dtype=np.float64).tobytes()).hexdigest()[:16]
+def fingerprint(y: np.ndarray, x: np.ndarray | None = None) -> str:
+    """A short hash of the observations and, where the file has them, their fields (they train the prior
+    and calibration stages): a checkpoint of other data is not resumed."""
+    digest = hashlib.sha256(np.ascontiguousarray(y, dtype=np.float64).tobytes())
+    if x is not None:
+        digest.update(b"x" + np.ascontiguousarray(x, dtype=np.float64).tobytes())
+    return digest.hexdigest()[:16]
 
 
 @dataclass
@@ -386,7 +390,7 @@ def own_data(problem, data, data_x, n_test: int, n_val: int = 0, warn: bool = Tr
         raise ValueError(f"data_x has {len(x)} rows but data has {len(y)}; expected one x per y")
     from ..problem.units import units_of
 
-    print_ = fingerprint(y)
+    print_ = fingerprint(y, x)
     units = units_of(y, problem.operator)
     y, x = y / units, None if x is None else x / units
     mismatch = None if x is None else model_mismatch(problem.operator, x, y)

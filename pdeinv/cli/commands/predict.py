@@ -56,7 +56,7 @@ def cmd_predict(args) -> int:
                          "to give; retrain it with `pdeinv train`")
     y, x = read_npz(args.data, problem.operator.n_out, problem.N)
     read_meta(args.data, problem.points)  # the file's points, if any, are the run's problem's
-    _check_data(args, problem, y, x)
+    _check_data(args, problem, y, x, model)
     xhat = predict(model, y)
     arrays = {"x": xhat} if posterior is None else \
         predictive(model, posterior, y, level, args.samples or 0, seed=args.seed)
@@ -75,7 +75,7 @@ def cmd_predict(args) -> int:
     return 0
 
 
-def _check_data(args, problem, y, x) -> None:
+def _check_data(args, problem, y, x, model) -> None:
     """The observations against the run's physics (module docstring): :class:`BadData` beyond the limit or
     without signal (pure noise, all zeros: the check of ``train`` and ``classical``), unless
     ``--accept-bad``; a warning then, and where they are off by more than the run's noise level explains."""
@@ -83,6 +83,7 @@ def _check_data(args, problem, y, x) -> None:
 
     from pdeinv.training.data import against, beyond_noise, explained, no_signal, read_noise
 
+    _check_units(args, y, model)
     what, figure = against(problem, y, x, args.data)
     beyond = beyond_noise(what, figure, problem.noise)
     why = no_signal(read_noise(y, problem.operator), len(y)) if beyond is None else \
@@ -94,6 +95,24 @@ def _check_data(args, problem, y, x) -> None:
             f"pdeinv predict: warning: --data {args.data!r} "
             + (why if why is not None else f"is off: its {what} is {figure:.3g}, above what the run's noise "
                f"level {problem.noise:g} explains") + "; the predictions are outside what it was trained for")
+
+
+def _check_units(args, y, model) -> None:
+    """Observations whose magnitude, in the units the run was trained in (:mod:`pdeinv.problem.units`), lies
+    outside what it trains on as it is (:data:`~pdeinv.problem.units.AS_IS`) are in other units: the network
+    never saw such inputs (its output was NaN at 1e300 and 1e193 × off at 1e-200). :class:`BadData`, unless
+    ``--accept-bad``."""
+    import numpy as np
+
+    from pdeinv.problem.units import AS_IS, unwrap
+
+    units = unwrap(model)[1]
+    top = float(np.max(np.abs(y))) / units if np.size(y) else 0.0
+    if top != 0.0 and not AS_IS[0] <= top <= AS_IS[1] and not args.accept_bad:
+        raise BadData(f"--data {args.data!r} holds values up to {top * units:.3g}: {top:.3g} times the "
+                      f"units the run was trained in ({units:g}), outside {AS_IS[0]:g} to {AS_IS[1]:g}: "
+                      "other units than the run's; rescale them to the training data's (or train a run on "
+                      "data in these units); --accept-bad predicts anyway")
 
 
 def _level(args) -> float:

@@ -18,6 +18,10 @@ def _samples(text: str | None):
         raise UsageError(f"--samples {text!r} is not a comma-separated list of integers, e.g. 0,2") from None
 
 
+#: what ``--png`` may be written as (matplotlib's raster and vector formats most used)
+IMAGES = (".png", ".pdf", ".svg", ".jpg", ".jpeg")
+
+
 def cmd_show(args) -> int:
     """Read ``DIR/fields.vtu`` (or ``.xdmf``) and write ``DIR/fields.png`` (or ``--png``)."""
     import matplotlib
@@ -40,7 +44,7 @@ def cmd_show(args) -> int:
     target = args.png if args.png is not None else run / "fields.png"
     own = resolve(target, "--png").parent == run.resolve()
     png = output_file(target, "--png", [("the fields file drawn", found[0])],
-                      owns=("fields.png",) if own else (), overwrite=args.overwrite)
+                      owns=("fields.png",) if own else (), overwrite=args.overwrite, suffixes=IMAGES)
     points, cells, fields = read_fields(found[0])
     save_fields_png(png, points, cells, fields, samples=_samples(args.samples), title=run.name)
     print(f"wrote {args.png if args.png is not None else run / 'fields.png'}")

@@ -137,6 +137,7 @@ class _Heartbeat:
     def __init__(self, steps: int | None, plan=None, every_s: float = 60.0, lines: bool = True):
         self.steps, self.plan, self.every_s, self.lines = steps, plan, every_s, lines
         self.last, self.first = time.monotonic(), True
+        self.since = None  # (clock, step) of the first line: what is left at the pace seen since then
 
     def __call__(self, record: dict, model) -> bool:
         log, now = logging.getLogger("pdeinv"), time.monotonic()
@@ -148,6 +149,10 @@ class _Heartbeat:
             errs = "".join(f", {k} {record[k]:.4g}" for k in ("x_err", "y_err") if k in record)
             step, wall = record["step"], record["wall_s"]
             left = wall / step * (self.steps - step) if self.steps and 0 < step < self.steps else 0
+            if self.since is None:
+                self.since = (now, step)
+            elif step > self.since[1] and self.steps and step < self.steps:  # checkpoints, checks included
+                left = (now - self.since[0]) / (step - self.since[1]) * (self.steps - step)
             log.info(f"pdeinv train: step {step}{of}, loss {record['loss']:.4g}{errs}, {wall:.0f} s"
                      + (f", at most ~{left:.0f} s left in the rule's stage" if left >= 1 else ""))
         self.first = False
