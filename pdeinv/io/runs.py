@@ -142,7 +142,7 @@ def problem_spec(name_or_path: str) -> str:
 
 
 def save_run(out: str | os.PathLike, problem, overrides: dict | None = None, network_spec: dict | None = None,
-             model=None, posterior=None) -> Path:
+             model=None, posterior=None, *, overwrite: bool = False) -> Path:
     """Write ``out/run.json`` and ``out/model.pt`` (module docstring), and ``out/posterior.npz`` when
     ``posterior`` (``result.posterior``) is given; returns ``out``.
 
@@ -150,34 +150,27 @@ def save_run(out: str | os.PathLike, problem, overrides: dict | None = None, net
     stands for its ``name``), ``overrides`` its settings (default none), ``network_spec`` the network's
     :data:`NETWORKS` entry (default: the one the Trainer built ``model`` with, else ``{"kind": "default"}``,
     ``problem.model()``), ``model`` the trained
-    network (``result.model``), e.g. ``save_run("runs/a", "heat_2d", model=result.model)``. ``out`` follows
-    the output-path policy (:mod:`pdeinv.util.outpaths`, :func:`~pdeinv.util.outpaths.run_folder`): created
-    with its parents; refused in one line when it cannot be written or is a non-empty folder that holds no
-    pdeinv run (a run's ``run.json`` and ``model.pt`` are replaced).
+    network (``result.model``), e.g. ``save_run("runs/a", "heat_2d", model=result.model)``. The run is
+    checked as :func:`load_run` will read it: the problem loads with ``overrides``, ``model`` maps its
+    observations to its unknowns, ``posterior`` (a :class:`~pdeinv.posterior.Calibration` or ``None``) is
+    for them. ``out`` follows the output-path policy (:mod:`pdeinv.util.outpaths`,
+    :func:`~pdeinv.util.outpaths.run_folder`): created with its parents; refused in one line when it cannot
+    be written, is a non-empty folder that holds no pdeinv run, or holds another run's files (those of
+    :data:`OUTPUTS`) and ``overwrite`` is not ``True`` (then its ``run.json`` and ``model.pt`` are
+    replaced). A folder whose run lock this process holds (``pdeinv train`` writing its own ``--out``,
+    whose ``--overwrite`` / ``--resume`` decided) is its caller's run, not another.
     """
     import torch
 
-    from ..problem.definition import Problem
     from ..training import arguments as _arguments
     from ..util.outpaths import run_folder
 
-    if isinstance(problem, Problem):
-        problem = problem.name
-    if not isinstance(out, (str, os.PathLike)):  # save_run(result, "runs/a"): the arguments swapped
-        raise TypeError(f"{_arguments._named('out', out)} is {_arguments._kind(out)}; expected the run's "
-                        "folder (str or path): save_run(out, problem, model=result.model)")
-    if not isinstance(problem, (str, os.PathLike)) or not os.fspath(problem).strip():
-        # the kind, not the repr: a Result's or a network's repr is many lines
-        hint = "; for a training Result: save_run(out, problem, model=result.model, " \
-            "posterior=result.posterior)" if _arguments._is_result(problem) else ""
-        named, kind = _arguments._named("problem", problem), _arguments._kind(problem)
-        raise TypeError(f"{named} is {kind}; expected the problem's name or module path (str, e.g. "
-                        f"'heat_2d'), or the Problem{hint}")
+    problem, overrides = _saved_problem(out, problem, overrides)
     model = _arguments.model(model, optional=False)
-    overrides = {} if overrides is None else overrides
-    if not isinstance(overrides, dict):
-        raise TypeError(f"overrides={overrides!r} is not allowed; expected a dict of the problem's settings")
+    _arguments.flag(overwrite, "overwrite")
     network_spec = _spec(network_spec, model)
+    _refuse_another_run(run_folder(out, "out", replace=True, outputs=OUTPUTS, create=False), overwrite)
+    _check_loads(problem, overrides, model, posterior)  # before the folder is created
     out = run_folder(out, "out", replace=True, outputs=OUTPUTS)
     buffer = io.BytesIO()
     torch.save(_folded(model).state_dict(), buffer)
@@ -196,12 +189,69 @@ def save_run(out: str | os.PathLike, problem, overrides: dict | None = None, net
     return out
 
 
+def _saved_problem(out, problem, overrides) -> tuple:
+    """:func:`save_run`'s ``out``, ``problem`` and ``overrides`` checked: ``(problem name or path,
+    overrides dict)``."""
+    from ..problem.definition import Problem
+    from ..training import arguments as _arguments
+
+    if isinstance(problem, Problem):
+        problem = problem.name
+    if not isinstance(out, (str, os.PathLike)):  # save_run(result, "runs/a"): the arguments swapped
+        raise TypeError(f"{_arguments._named('out', out)} is {_arguments._kind(out)}; expected the run's "
+                        "folder (str or path): save_run(out, problem, model=result.model)")
+    if not isinstance(problem, (str, os.PathLike)) or not os.fspath(problem).strip():
+        # the kind, not the repr: a Result's or a network's repr is many lines
+        hint = "; for a training Result: save_run(out, problem, model=result.model, " \
+            "posterior=result.posterior)" if _arguments._is_result(problem) else ""
+        named, kind = _arguments._named("problem", problem), _arguments._kind(problem)
+        raise TypeError(f"{named} is {kind}; expected the problem's name or module path (str, e.g. "
+                        f"'heat_2d'), or the Problem{hint}")
+    overrides = {} if overrides is None else overrides
+    if not isinstance(overrides, dict):
+        raise TypeError(f"overrides={overrides!r} is not allowed; expected a dict of the problem's settings")
+    return problem, overrides
+
+
+def _check_loads(problem, overrides: dict, model, posterior) -> None:
+    """What :func:`load_run` will check, checked before anything is written: the problem loads with
+    ``overrides`` (its settings' names and values), ``model`` maps its observations to its unknowns (two
+    zero rows through it: :func:`pdeinv.training.arguments.fits`), ``posterior`` is for them."""
+    from ..posterior.conformal import Calibration
+    from ..problem.definition import first_line, load_problem
+    from ..training import arguments as _arguments
+
+    if posterior is not None and not isinstance(posterior, Calibration):
+        raise TypeError(f"{_arguments._named('posterior', posterior)} is {_arguments._kind(posterior)}; "
+                        "expected None or a pdeinv.posterior.Calibration (result.posterior)")
+    try:
+        built = load_problem(problem, **overrides)
+    except (ValueError, TypeError, FileNotFoundError) as err:
+        raise ValueError(f"problem={os.fspath(problem)!r} with overrides={overrides!r} does not load "
+                         f"({first_line(err, 200)}): load_run could not rebuild this run") from None
+    _arguments.fits(model, built)
+    if posterior is not None and posterior.scale.shape != (built.N,):
+        raise ValueError(f"posterior is for {posterior.scale.shape[0]} unknowns; the run's problem has "
+                         f"{built.N}: not this model's posterior")
+
+
+def _refuse_another_run(out: Path, overwrite: bool) -> None:
+    """Refuse ``out`` holding another run's files (:data:`OUTPUTS`) unless ``overwrite``."""
+    from ..util.outpaths import OutputPathError
+
+    found = existing_outputs(out)
+    if not found or overwrite:
+        return
+    raise OutputPathError(f"out {str(out)!r} holds another pdeinv run ({', '.join(found)}); pass "
+                          "overwrite=True to replace it, or choose another out")
+
+
 def load_posterior(run_dir, problem=None):
     """The run's :class:`~pdeinv.posterior.conformal.Calibration`, or ``None`` when it has none; a file
     that does not fit the run's problem (``problem``) is a ``ValueError``."""
     from ..posterior.conformal import Calibration
 
-    path = Path(run_dir) / POSTERIOR_FILE
+    path = _run_path(run_dir, "run_dir") / POSTERIOR_FILE
     if not path.is_file():
         return None
     try:
@@ -218,14 +268,15 @@ def load_posterior(run_dir, problem=None):
 def load_run(run_dir):
     """``(problem, model)`` of a finished ``pdeinv train`` run folder (``model`` in eval mode).
 
-    ``ValueError`` when ``run_dir`` is not a folder, has no ``run.json`` or ``model.pt``,
-    or they do not fit together.
+    ``TypeError`` when ``run_dir`` is not a path; ``ValueError`` when it is not a folder, has no
+    ``run.json`` or ``model.pt``, a field of ``run.json`` is not what it should be, or they do not fit
+    together.
     """
     import torch
 
     from ..problem.definition import load_problem
 
-    run = Path(run_dir)
+    run = _run_path(run_dir, "run_dir")
     where = f"run folder {os.fspath(run)!r}"
     if not run.is_dir():
         raise ValueError(f"{where} is not a directory; expected the --out DIR of a finished `pdeinv train`")
@@ -233,6 +284,36 @@ def load_run(run_dir):
     if missing:
         raise ValueError(f"{where} holds no {' or '.join(missing)}: no trained model "
                          "(is it the --out DIR of a finished `pdeinv train`?)")
+    record = _record(run, where)
+    problem = load_problem(record["problem"], **record["overrides"])
+    try:
+        model = network(problem, record["network"])
+    except (TypeError, ValueError) as err:  # a kind's settings edited: an unknown name, a wrong value
+        first = (str(err).strip().splitlines() or [type(err).__name__])[0][:160]
+        raise ValueError(f"{where}: {RUN_FILE}'s 'network' {json.dumps(record['network'])[:80]} builds no "
+                         f"network ({first}); rerun `pdeinv train`") from None
+    try:
+        state = torch.load(run / MODEL_FILE, map_location="cpu", weights_only=True)
+    except Exception:  # noqa: BLE001  (torch's unpickling errors are pages long and differ by version)
+        raise ValueError(f"{where}: {MODEL_FILE} cannot be read as a torch state dict (damaged, or not a "
+                         "file pdeinv wrote); rerun `pdeinv train`") from None
+    _check_model_file(run / MODEL_FILE, record.get("model_sha256"), where)
+    _load_state(model, state, where)
+    return problem, model.eval()
+
+
+def _run_path(value, name: str) -> Path:
+    """``value`` as a :class:`~pathlib.Path`; anything but a ``str`` or ``os.PathLike`` (``None``, a number,
+    ``bytes``) is a ``TypeError`` naming ``name``."""
+    if not isinstance(value, (str, os.PathLike)) or isinstance(os.fspath(value), bytes):
+        raise TypeError(f"{name}={value!r:.60} is {type(value).__name__}; expected a path (str or "
+                        "os.PathLike): the --out DIR of a finished `pdeinv train`")
+    return Path(value)
+
+
+def _record(run: Path, where: str) -> dict:
+    """``run/run.json`` read and its fields checked (module docstring): one ``ValueError`` naming the
+    field and what it should be, not a ``TypeError`` from deep inside :func:`load_run`."""
     try:
         record = json.loads((run / RUN_FILE).read_text())
         assert record.get("format") == FORMAT and {"problem", "overrides", "network"} <= set(record)
@@ -242,20 +323,54 @@ def load_run(run_dir):
     if isinstance(version, bool) or not isinstance(version, int) or not 1 <= version <= VERSION:
         raise ValueError(f"{where}: {RUN_FILE} has version {version!r}; this pdeinv reads run records of "
                          f"version 1 to {VERSION}: use the pdeinv that wrote it, or rerun `pdeinv train`")
-    problem = load_problem(record["problem"], **record["overrides"])
-    model = network(problem, record["network"])
-    try:
-        state = torch.load(run / MODEL_FILE, map_location="cpu", weights_only=True)
-    except Exception:  # noqa: BLE001  (torch's unpickling errors are pages long and differ by version)
-        raise ValueError(f"{where}: {MODEL_FILE} cannot be read as a torch state dict (damaged, or not a "
-                         "file pdeinv wrote); rerun `pdeinv train`") from None
-    _check_model_file(run / MODEL_FILE, record.get("model_sha256"), where)
+    problem, overrides, spec = record["problem"], record["overrides"], record["network"]
+    digest = record.get("model_sha256")
+    bad = next(((field, value, expected) for field, value, expected, ok in (
+        ("problem", problem, "the problem's name or module path (a non-empty str)",
+         isinstance(problem, str) and problem.strip()),
+        ("overrides", overrides, "an object of the problem's settings (name: value)",
+         isinstance(overrides, dict)),
+        ("network", spec, f"an object with 'kind' one of {', '.join(map(repr, NETWORKS))}",
+         isinstance(spec, dict) and spec.get("kind") in NETWORKS),
+        ("model_sha256", digest, "the sha256 of model.pt (a str of 64 hex digits)",
+         digest is None or isinstance(digest, str))) if not ok), None)
+    if bad is not None:
+        field, value, expected = bad
+        text = json.dumps(value)
+        text = text if len(text) <= 60 else text[:57] + "..."
+        raise ValueError(f"{where}: {RUN_FILE}'s {field!r} is {text}; expected {expected} (an edited "
+                         f"{RUN_FILE}? rerun `pdeinv train`)")
+    return record
+
+
+def _load_state(model, state, where: str) -> None:
+    """Load ``state`` (strict) into ``model``; a state that does not fit is a ``ValueError`` naming the first
+    trained tensor whose shape differs, with both shapes (buffers such as a folded whitening's resize as they
+    load), else the first missing or unexpected name (no internal class names)."""
+    from collections.abc import Mapping
+
+    import torch
+
+    if not isinstance(state, Mapping):
+        raise ValueError(f"{where}: {MODEL_FILE} holds {type(state).__name__}, not a state dict of named "
+                         "tensors; rerun `pdeinv train`")
     try:
         model.load_state_dict(state)
-    except Exception as err:  # noqa: BLE001  (shape errors differ by torch version)
-        first = (str(err).strip().splitlines() or [type(err).__name__])[0][:120]
-        raise ValueError(f"{where}: {MODEL_FILE} does not fit its {RUN_FILE} ({first})") from None
-    return problem, model.eval()
+        return
+    except Exception as err:  # noqa: BLE001  (torch's words differ by version: say it in ours)
+        why = (str(err).strip().splitlines() or [type(err).__name__])[-1].strip()[:120]
+    have = {k: tuple(v.shape) for k, v in state.items() if isinstance(v, torch.Tensor)}
+    want = model.state_dict()
+    lost, extra = [k for k in want if k not in state], [k for k in state if k not in want]
+    shaped = [(k, tuple(v.shape)) for k, v in model.named_parameters() if k in have and have[k] != v.shape]
+    if shaped:
+        k, shape = shaped[0]
+        why = f"{MODEL_FILE}'s {k!r} is {have[k]}, the network {RUN_FILE} describes has {shape}"
+    elif lost or extra:
+        why = (f"{MODEL_FILE} has no {lost[0]!r}, which the network {RUN_FILE} describes has" if lost else
+               f"{MODEL_FILE}'s {extra[0]!r} is not in the network {RUN_FILE} describes")
+    raise ValueError(f"{where}: {MODEL_FILE} does not fit its {RUN_FILE} ({why}): another problem or "
+                     "settings?") from None
 
 
 def _check_model_file(path: Path, digest, where: str) -> None:

@@ -144,6 +144,9 @@ class _Nonlinear(torch.autograd.Function):
 
 def apply(op: Physics, x: torch.Tensor) -> torch.Tensor:
     """``P x`` (or ``P(x)``) for a batch-first tensor, differentiable in reverse and forward mode."""
+    if not all(hasattr(op, a) for a in ("n_in", "n_out", "forward")):
+        raise TypeError(f"op={op!r:.60} is {type(op).__name__}; expected a pdeinv operator (e.g. "
+                        "problem.operator)")
     if not isinstance(x, torch.Tensor):
         raise ValueError(f"x is a {type(x).__name__}; expected a torch.Tensor (use op.forward for numpy)")
     if x.ndim == 0 or x.shape[-1] != op.n_in:

@@ -16,12 +16,13 @@ from pathlib import Path
 
 import numpy as np
 
-from .._checks import batch, count
+from .._checks import batch, count, nonnegative
 from .._checks import seed as _seed
 from ..fem.forms import Discretization
 from ..physics.base import LinearOperator
 from ..physics.nonlinear import Physics, is_linear
 from ..physics.propagator import chosen
+from ..util.memory import check
 from .sampling import add_noise
 
 #: the package that holds the built-in problems (the repository's ``problems/``, installed as
@@ -66,6 +67,10 @@ class Problem:
         if nodes is not None and nodes != self.operator.n_in:
             raise ValueError(f"problem {self.name!r}: its mesh has {nodes} unknowns but its operator takes "
                              f"{self.operator.n_in}; expected the operator of this mesh")
+        if self.sampler is not None and not callable(self.sampler):
+            raise TypeError(f"sampler={self.sampler!r:.60} is {type(self.sampler).__name__}; expected a "
+                            "function sampler(n, rng) -> (n, N) array of true fields, or None (no prior)")
+        self.noise = nonnegative(self.noise, "noise")  # load_problem's check of the setting, and its words
         if is_linear(self.operator):
             chosen(self.operator, None if self.disc is None else self.disc.M)
 
@@ -81,6 +86,8 @@ class Problem:
         """``(x, y)`` with ``x`` from the sampler and ``y = P x`` (+ noise); seeded."""
         n = count(n, "n")
         rng = np.random.default_rng(_seed(seed))
+        check(8 * n * (self.N + self.operator.n_out), f"problem {self.name!r}: sample(n={n}) (x ({n}, "
+              f"{self.N}) and y ({n}, {self.operator.n_out}) in float64)", "draw fewer rows, in chunks")
         x = self.draws(n, rng)
         return x, add_noise(self.operator.forward(x), self.noise, rng)
 
@@ -126,6 +133,9 @@ class Problem:
         """Relative L²(Ω) error per sample, ``‖x̂ − x‖_M / ‖x‖_M``."""
         xhat, _ = batch(xhat, self.N, "xhat")
         x, _ = batch(x, self.N, "x")
+        if len(xhat) != len(x) and 1 not in (len(xhat), len(x)):
+            raise ValueError(f"xhat has shape {xhat.shape} but x has {x.shape}; expected one estimate per "
+                             "true field (the same shape), or one row against many")
         return self.disc.relative_error(xhat, x)
 
     def __repr__(self):

@@ -79,6 +79,9 @@ class Checkpoint:
         (``ValueError`` naming it), not at the first save."""
         import tempfile
 
+        if not isinstance(self.path, (str, os.PathLike)) or isinstance(os.fspath(self.path), bytes):
+            raise TypeError(f"path={self.path!r:.60} is {type(self.path).__name__}; expected a path (str or "
+                            "os.PathLike), e.g. Checkpoint('run/checkpoint.pt')")
         self.path = Path(self.path)
         self.every = count(self.every, "checkpoint every")
         folder = self.path.parent

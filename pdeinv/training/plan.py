@@ -245,6 +245,48 @@ def _stage_text(st: dict) -> str:
     return f"{st['name']}: the rule trains the network through the physics ({st['steps']} steps{data})"
 
 
+#: the network kinds ``plan(net=...)`` prices by name (``pdeinv train --net``; ``hidden=`` is the MLP)
+NETS = ("default", "linear", "whitened", "reduced", "modal", "unet")
+
+
+def _checked(net, hidden, n_train, steps, batch_size, own, n_test, prior) -> tuple:
+    """:func:`plan`'s arguments checked as :class:`~pdeinv.Trainer` checks them (the same messages), before
+    anything is built: ``(hidden, steps, batch_size, prior)``, ``"preset"`` read as ``None``."""
+    from numbers import Integral
+
+    from .._checks import choice, count
+    from . import arguments
+    from .data import OwnData
+
+    choice(net, "net", NETS)
+    if hidden is not None:
+        widths = "expected a list of integer widths >= 1, e.g. [64, 64] (the CLI's --hidden 64,64)"
+        if isinstance(hidden, (str, bytes)) or not isinstance(hidden, (list, tuple)):
+            raise TypeError(f"hidden={arguments._short(hidden)} is {type(hidden).__name__}; {widths}")
+        if not hidden or any(isinstance(w, bool) or not isinstance(w, Integral) or w < 1 for w in hidden):
+            raise ValueError(f"hidden={arguments._short(hidden)} is not allowed; {widths}")
+        if net != "default":
+            raise ValueError(f"net={net!r} and hidden={list(hidden)} choose two networks (hidden is the "
+                             "MLP's widths): drop one of them")
+        hidden = tuple(hidden)
+    if own is not None and not isinstance(own, OwnData):
+        raise TypeError(f"own={arguments._short(own)} is {arguments._kind(own)}; expected None or the user's "
+                        "rows: pdeinv.training.data.own_data(problem, y, x, n_test, 0, False, stage)")
+    preset = lambda v: v is None or (isinstance(v, str) and v == "preset")  # noqa: E731
+    steps = None if preset(steps) else count(steps, "steps")
+    count(n_test, "n_test")
+    n_train = count(n_train, "n_train", minimum=2)  # the CLI's --n-train range: whitening
+    batch_size = None if preset(batch_size) else count(batch_size, "batch_size")
+    if batch_size is not None and batch_size > n_train and own is None:
+        raise ValueError(f"batch_size={batch_size} is larger than n_train={n_train}; expected batch_size <= "
+                         f"{n_train}")
+    if batch_size is not None and batch_size > n_train:
+        raise ValueError(f"batch_size={batch_size} (--batch-size) is larger than the {n_train} training rows "
+                         f"of data (its rows less n_test={n_test} (--n-test) and the other held-out rows); "
+                         f"expected at most {n_train}")
+    return hidden, steps, batch_size, arguments.prior(prior)
+
+
 def plan(problem, rule: str = "sip", *, net: str = "default", hidden=None, prior="auto",
          n_train: int = N_TRAIN, steps: int | None = None, batch_size: int | None = None, own=None,
          n_test: int = 128, fresh: bool = False, calibration="auto", **settings) -> Plan:
@@ -259,10 +301,9 @@ def plan(problem, rule: str = "sip", *, net: str = "default", hidden=None, prior
     from ..physics.nonlinear import is_linear
     from ..problem import Problem, load_problem
 
+    hidden, steps, batch_size, prior = _checked(net, hidden, n_train, steps, batch_size, own, n_test, prior)
     if not isinstance(problem, Problem):  # a name or a module path, as Trainer takes it
         problem = load_problem(problem)
-    if isinstance(prior, str) and prior == "auto":
-        prior = PriorStage()
     from ..nets import NONLINEAR_KINDS
 
     linear_net = not hidden and net not in NONLINEAR_KINDS

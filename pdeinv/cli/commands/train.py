@@ -470,7 +470,8 @@ def _run(args, out, problem, overrides, net, hp, trainer, fresh, setup=None, cho
         atomic_write(out / "metrics.json", lambda fh: fh.write(text))
         write_csv(result.history, out / "history.csv")
         training_curves(result.history, out / "training.png", f"{problem.name}, {args.method}")
-        save_run(out, args.problem, overrides, net, result.model, result.posterior)
+        # the folder was checked before the run (run_folder: new, or --overwrite / --resume of a run)
+        save_run(out, args.problem, overrides, net, result.model, result.posterior, overwrite=True)
         written = {"metrics.json", "history.csv", "training.png", "model.pt", RUN_FILE, "checkpoint.pt",
                    *([POSTERIOR_FILE] if result.posterior is not None else [])}
         x_test, y_test = trainer.held_out()
