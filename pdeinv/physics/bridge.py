@@ -144,7 +144,7 @@ class _Nonlinear(torch.autograd.Function):
 
 def apply(op: Physics, x: torch.Tensor) -> torch.Tensor:
     """``P x`` (or ``P(x)``) for a batch-first tensor, differentiable in reverse and forward mode."""
-    if not all(hasattr(op, a) for a in ("n_in", "n_out", "forward")):
+    if not isinstance(op, Physics):
         raise TypeError(f"op={op!r:.60} is {type(op).__name__}; expected a pdeinv operator (e.g. "
                         "problem.operator)")
     if not isinstance(x, torch.Tensor):
