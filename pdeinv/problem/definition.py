@@ -70,7 +70,8 @@ class Problem:
         if self.sampler is not None and not callable(self.sampler):
             raise TypeError(f"sampler={self.sampler!r:.60} is {type(self.sampler).__name__}; expected a "
                             "function sampler(n, rng) -> (n, N) array of true fields, or None (no prior)")
-        self.noise = nonnegative(self.noise, "noise")  # load_problem's check of the setting, and its words
+        # load_problem's check of the setting, and its words; None: noise-free, as it always was read
+        self.noise = 0.0 if self.noise is None else nonnegative(self.noise, "noise")
         if is_linear(self.operator):
             chosen(self.operator, None if self.disc is None else self.disc.M)
 
