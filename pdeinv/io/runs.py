@@ -157,8 +157,7 @@ def save_run(out: str | os.PathLike, problem, overrides: dict | None = None, net
     :func:`~pdeinv.util.outpaths.run_folder`): created with its parents; refused in one line when it cannot
     be written, is a non-empty folder that holds no pdeinv run, or holds another run's files (those of
     :data:`OUTPUTS`) and ``overwrite`` is not ``True`` (then its ``run.json`` and ``model.pt`` are
-    replaced). A folder whose run lock this process holds (``pdeinv train`` writing its own ``--out``,
-    whose ``--overwrite`` / ``--resume`` decided) is its caller's run, not another.
+    replaced; ``pdeinv train`` passes it for the ``--out`` it checked before the run).
     """
     import torch
 
