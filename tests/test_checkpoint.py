@@ -200,3 +200,74 @@ def test_a_resumed_default_hig_run_agrees_with_the_uninterrupted_one_to_rounding
     for a, b in zip(losses(ref), losses(resumed), strict=True):
         assert a[0] == b[0] and a[1] == pytest.approx(b[1], rel=1e-9, abs=1e-30)
     assert resumed.metrics["x_err"] == pytest.approx(ref.metrics["x_err"], rel=1e-9)
+
+
+def test_history_columns_give_back_the_rows_and_save_in_time_independent_of_python_rows():
+    """A checkpoint's history is stored as columns (:func:`history_columns`): the same rows come back
+    (ints stay ints, NaN stays NaN, a rejected step's message and a key only some rows have), and a
+    long history saves as a few tensors, not one pickled dict per row."""
+    import io
+    import math
+
+    from pdeinv.training.checkpoint import HistoryColumns, history_columns, history_rows
+    from pdeinv.util.files import same_row
+
+    rows = [{"step": i, "wall_s": 0.01 * i, "loss": 1.0 / i, **({"x_err": 0.5 / i} if i % 3 == 0 else {})}
+            for i in range(1, 2001)]
+    rows[10] = {"step": 11, "wall_s": 0.11, "loss": math.nan, "rejected": "step 11 (sip): NaN"}
+    rows[20]["stopped"] = None
+    buffer = io.BytesIO()
+    torch.save({"history": history_columns(rows)}, buffer)
+    buffer.seek(0)
+    back = history_rows(torch.load(buffer, weights_only=True)["history"])
+    assert len(back) == len(rows)
+    for a, b in zip(back, rows, strict=True):
+        assert a.keys() == b.keys()
+        for k in a:
+            assert type(a[k]) is type(b[k]) and (a[k] == b[k] or (math.isnan(a[k]) and math.isnan(b[k])))
+    assert history_rows(rows) is rows  # a history saved as rows (older checkpoints) loads as it is
+    saved = history_columns(rows)
+    assert history_rows(saved, 1500) == history_rows(saved)[1500:] and history_rows(saved, 2000) == []
+    assert all(same_row(a, b) for a, b in zip(history_rows(saved, 5), rows[5:], strict=True))
+    grown = HistoryColumns()
+    grown(rows[:700])
+    assert grown([*rows[:699], {"step": 700, "loss": 2.0}])["rows"] == 700  # a changed last row: over
+    assert all(same_row(a, b) for a, b in zip(history_rows(grown(rows)), rows, strict=True))  # grown by
+    # the new rows only
+    with pytest.raises(ValueError, match="not a pdeinv run's history"):
+        history_rows({"rows": 3, "columns": {"step": (torch.tensor([0, 7]), torch.tensor([1, 2]))}})
+    columns = history_columns(rows)["columns"]
+    assert isinstance(columns["loss"][1], torch.Tensor) and columns["loss"][1].dtype == torch.float64
+    assert columns["step"][1].dtype == torch.int64 and isinstance(columns["rejected"][1], list)
+
+
+def test_history_csv_grows_by_appending_and_reads_as_a_full_rewrite(tmp_path):
+    """:class:`pdeinv.util.files.CsvLog`: appended rows give the text a full write gives; a new key, a
+    changed last row or a shorter history rewrite the file (and a deleted file is written again)."""
+    from pdeinv.util.files import CsvLog, write_csv
+
+    log, path, ref = CsvLog(tmp_path / "h.csv"), tmp_path / "h.csv", tmp_path / "ref.csv"
+    rows = []
+
+    def same():
+        write_csv(rows, ref)
+        return path.read_text() == ref.read_text()
+
+    for i in range(1, 40):
+        rows.append({"step": i, "loss": 1.0 / i, "x_err": 0.1 * i})
+        if i % 7 == 0:
+            log.write(len(rows), lambda start: rows[start:])
+            assert same()
+    rows.append({"step": 40, "loss": 0.1, "plateau": 0.5})  # a new key: the header changes
+    log.write(len(rows), lambda start: rows[start:])
+    assert same() and "plateau" in path.read_text().splitlines()[0]
+    rows[-1] = {**rows[-1], "x_err": 9.0}  # the last row written changed (the final evaluation)
+    log.write(len(rows), lambda start: rows[start:])
+    assert same()
+    del rows[30:]  # a resumed run's history from an earlier checkpoint
+    log.write(len(rows), lambda start: rows[start:])
+    assert same()
+    path.unlink()
+    rows.append({"step": 31, "loss": 0.2, "x_err": 1.0})
+    log.write(len(rows), lambda start: rows[start:])
+    assert same()

@@ -19,6 +19,7 @@ from pdeinv import Checkpoint, Trainer
 from pdeinv.cli import main
 from pdeinv.methods import GD, HIG, SIP, NonFiniteError, adam, apply_if_finite, sgd
 from pdeinv.nets import MLP
+from pdeinv.training.checkpoint import history_rows
 
 FAULTS = str(Path(__file__).with_name("faults.py"))
 
@@ -94,7 +95,7 @@ def test_consecutive_failures_stop_with_the_last_good_checkpoint(tmp_path):
                                   r"last good checkpoint: '.*c\.pt' \(step 2\)"):
         t.fit()
     saved = ckpt.load()
-    assert saved["position"]["step"] == 2 and [h["step"] for h in saved["history"]] == [1, 2]
+    assert saved["position"]["step"] == 2 and [h["step"] for h in history_rows(saved["history"])] == [1, 2]
     # failures with progress in between do not add up: call 2 rejects step 2 (back to step 0), call 3
     # redoes step 1, call 4 passes step 2 (new parameters: the streak ends), call 5 rejects step 3.
     # (Poison "2,4" would reject step 2 twice in a row: a re-accepted step 1 is no progress.)

@@ -81,6 +81,7 @@ class _Run:
     at: Position
     guard: Guard  # step size, failures, lowest loss, last good state (methods.guard)
     still: int = 0  # accepted steps in a row that moved no parameter (stopping.converged)
+    columns: ckpts.HistoryColumns = field(default_factory=ckpts.HistoryColumns)  # the saved history
 
     def batch(self, size: int, n: int) -> tuple[torch.Tensor, torch.Tensor | None]:
         """The next ``size`` training rows and their float64 targets (``None``: the rows); all: themselves."""
@@ -364,7 +365,7 @@ class Trainer:
         if self.resume:
             saved = ckpts.load_to_resume(self.checkpoint, self.identity(model), self.steps)
             run.state = ckpts.restore(saved, model, self.rule, run.state, run.at, run.guard)
-            self.history, self._saved_step = saved["history"], run.at.step
+            self.history, self._saved_step = ckpts.history_rows(saved["history"]), run.at.step
         if run.at.y_err0 is None:  # a fresh run (a resumed one keeps its starting point's)
             start = self.evaluate(model, test)["y_err"]
             run.at.y_err0 = start if math.isfinite(start) else 1.0
@@ -416,7 +417,7 @@ class Trainer:
         if self.parallel.is_writer and self.checkpoint is not None and (
                 done or at.step % self.checkpoint.every == 0):
             ckpts.save(self.checkpoint, self.identity(run.model), run.model, self.rule, run.state, at,
-                       run.guard, self.history)
+                       run.guard, self.history, run.columns)
             self._saved_step = at.step
         return done
 

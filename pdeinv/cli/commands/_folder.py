@@ -1,5 +1,6 @@
 """The ``--out`` folder of ``pdeinv train`` while it trains: a previous run's files replaced only once
-this run writes (``--overwrite``), and ``history.csv`` rewritten with every checkpoint.
+this run writes (``--overwrite``), and ``history.csv`` grown with every checkpoint
+(:class:`pdeinv.util.files.CsvLog`: the new rows appended).
 
 What the folder holds when the run ends is :mod:`pdeinv.io.runs`. No torch at import: the CLI imports
 every module of :mod:`pdeinv.cli.commands` to build its parser.
@@ -37,9 +38,11 @@ class FolderCheckpoint:
 
     def __init__(self, path, every: int, fresh):
         from pdeinv.training.checkpoint import Checkpoint
+        from pdeinv.util.files import CsvLog
 
         self.checkpoint, self.fresh = Checkpoint(path, every), fresh
         self.path, self.every = self.checkpoint.path, self.checkpoint.every
+        self.log = CsvLog(self.path.parent / "history.csv")
 
     def exists(self) -> bool:
         return self.checkpoint.exists()
@@ -48,9 +51,10 @@ class FolderCheckpoint:
         return self.checkpoint.load()
 
     def save(self, payload: dict) -> None:
-        from pdeinv.util.files import write_csv
+        from pdeinv.training.checkpoint import history_length, history_rows
 
         self.fresh()
         self.checkpoint.save(payload)
-        if payload.get("history"):
-            write_csv(payload["history"], self.path.parent / "history.csv")
+        history = payload.get("history") or []
+        if n := history_length(history):
+            self.log.write(n, lambda start: history_rows(history, start))
