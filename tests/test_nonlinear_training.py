@@ -28,6 +28,33 @@ def test_gauss_newton_inverse_keeps_the_contract_and_reduces_the_residual():
     assert np.allclose(plain(y, x0), p.inverse(y, x0), rtol=0, atol=1e-10)
 
 
+def test_gauss_newton_solves_in_the_chunks_the_physics_keeps_exact_factors_for(monkeypatch):
+    """allen_cahn_2d: where the exact per-step factorizations of all rows do not fit in memory, the
+    physics declares how many do (``linearize_rows``) and the inverse solves chunk by chunk: each chunk
+    as it would be solved alone, the contract kept, and every chunk's tangent the exact one."""
+    from pdeinv.physics import reaction
+
+    p = pdeinv.load_problem("allen_cahn_2d", n=6, steps=10)
+    op = p.operator
+    per_row = op.steps * op.blocks.bytes(1)
+    assert op.linearize_rows == reaction.KEPT_FACTORS_BYTES // per_row  # 1 GB: all rows of this size
+    monkeypatch.setattr(reaction, "KEPT_FACTORS_BYTES", 70 * per_row)
+    assert op.linearize_rows == 70
+    x, y = p.sample(150, seed=0)
+    x0 = 0.7 * x
+    x1 = p.inverse(y, x0)
+    assert p.inverse_simulator.last_info["chunks"] == 3
+    for rows in (slice(0, 70), slice(70, 140), slice(140, 150)):
+        assert np.array_equal(x1[rows], p.inverse(y[rows], x0[rows]))
+    # the contract, to rounding: the chord's frozen matrix depends on the rows marched together
+    assert np.allclose(p.inverse(op.forward(x0), x0), x0, rtol=0, atol=1e-13)
+    res = [np.linalg.norm(op.forward(z) - y, axis=1) for z in (x0, x1)]
+    assert np.all(res[1] < 0.5 * res[0])
+    monkeypatch.setattr(reaction, "KEPT_FACTORS_BYTES", 63 * per_row)  # under 64 rows: the chord's tangent
+    assert op.linearize_rows is None
+    assert np.allclose(p.inverse(y, x0), x1, rtol=0, atol=1e-9)  # any rows at once: the same steps
+
+
 def test_sip_does_not_solve_in_a_decoder_span_of_a_nonlinear_map():
     p = _small()
     model = pdeinv.nets.default_model(p, refine=False)  # a non-reversible operator: the prior decoder

@@ -9,7 +9,8 @@ i.e. ``(Jᵀ M_out J + α M) Δx = Jᵀ M_out (y − y₀)``, solved by CG preco
 (as :class:`~.cg.TikhonovCG` for linear ``P``), every row with its own ``J`` through the
 physics' ``jvp``/``vjp`` at ``x₀`` — or, when the physics offers ``linearize(x₀)`` (a tangent kept
 for many products, e.g. :meth:`pdeinv.physics.reaction.ReactionHeat.linearize`: stored trajectory
-and factorizations, no Newton), through that. The contract holds exactly: at ``y = y₀`` the
+and factorizations, no Newton), through that, in chunks of the rows it declares it keeps its fastest
+tangent for (``linearize_rows``; every row's solve is its own). The contract holds exactly: at ``y = y₀`` the
 right-hand side is zero and ``x̃ = x₀``.
 
 ``α = rel_alpha · λ``, ``λ = λ_max(M⁻¹Jᵀ M_out J)`` of the tangent at 0 (power iteration once, on
@@ -83,6 +84,16 @@ class GaussNewtonInverse:
         if Y.shape[0] != X0.shape[0]:
             raise ValueError(f"y has {Y.shape[0]} rows and x0 {X0.shape[0]}; expected one x0 per y")
         alpha = self.rel_alpha * self.scale()
+        # rows in the chunks whose tangent the physics keeps at its fastest (declared ``linearize_rows``)
+        size = (self.op.linearize_rows if self.op.linearize is not None else None) or Y.shape[0]
+        chunks = [self._solve(Y[i:i + size], X0[i:i + size], alpha) for i in range(0, Y.shape[0], size)]
+        self.last_info = {"iterations": max(c[1] for c in chunks), "alpha": alpha,
+                          "relative_residual": max(c[2] for c in chunks), "chunks": len(chunks)}
+        out = np.concatenate([c[0] for c in chunks])
+        return out[0] if single else out
+
+    def _solve(self, Y, X0, alpha) -> tuple[np.ndarray, int, float]:
+        """One chunk of rows: ``(x₀ + Δx, CG iterations, largest relative residual)``."""
         Y0, T = self._tangent(X0)
 
         def normal(V):
@@ -108,10 +119,7 @@ class GaussNewtonInverse:
             Pd = Z + beta[:, None] * Pd
             rz = rz_new
             it += 1
-        self.last_info = {"iterations": it, "alpha": alpha,
-                          "relative_residual": float(np.sqrt(np.max(np.abs(rz) / rz0)))}
-        out = X0 + X
-        return out[0] if single else out
+        return X0 + X, it, float(np.sqrt(np.max(np.abs(rz) / rz0)))
 
     def __repr__(self):
         return f"GaussNewtonInverse({self.op!r}, rel_alpha={self.rel_alpha:g}, maxiter={self.maxiter})"

@@ -51,6 +51,9 @@ class Physics:
     #: ``linearize(X0) -> (P(X0), tangent operator at X0)`` in closed form (the local inverse's
     #: Gauss–Newton step uses it), or None (jvp/vjp products)
     linearize = None
+    #: the most rows one ``linearize`` call should be given (its fastest tangent fits in memory for that
+    #: many: a local inverse solves more rows in chunks of it), or None (any number)
+    linearize_rows: int | None = None
 
     #: ``jacobian(X) -> (B, n_out, n_in)``, the per-row Jacobians ``P'(x_b)`` in closed form (HIG's
     #: ``"chain"`` Jacobian), or None (HIG forms them from vjps)
