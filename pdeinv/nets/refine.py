@@ -223,6 +223,16 @@ class _Best:
         return False
 
 
+def _adam(params: list, lr: float) -> torch.optim.Adam:
+    """Adam over ``params`` with torch's fused kernel where this torch has one for their device (CPU since
+    torch 2.4): the same update in one pass over the parameters, not a dozen (a dense correction's step at
+    961 unknowns 34 → 27 ms on one thread; the trained weights agree to ~1e-5 after 200 steps)."""
+    try:
+        return torch.optim.Adam(params, lr, fused=True)
+    except (RuntimeError, TypeError, ValueError):  # an older torch, or a device without the kernel
+        return torch.optim.Adam(params, lr)
+
+
 def _blend(feed: _Feed, x, rows) -> float:
     """``λ = Σ⟨x − b, x_T − b⟩ / Σ‖x_T − b‖²`` over ``rows`` (float64 sums): the least-squares blend of the
     base and the physics filter (0 without a filter, or where the two agree)."""
@@ -374,7 +384,7 @@ class Refined(Network):
         before = error(held_out(correct=False))
         # the loss in units of the draws' mean square: Adam's steps (its ε is absolute) the same in any units
         unit = (float(np.mean(x[tr] ** 2)) if len(tr) else 0.0) or 1.0
-        opt = torch.optim.Adam(g.parameters(), settings.lr)
+        opt = _adam(list(g.parameters()), settings.lr)
         track, step = _Best(g, opt, settings, before), 0
         feed.mix = _blend(feed, x, tr if feed.stored else tr[:PREPARE_ROWS])
         if feed.mix != 0.0:
