@@ -255,9 +255,10 @@ def load_posterior(run_dir, problem=None):
         return None
     try:
         cal = Calibration.load(path)
-    except Exception as err:  # noqa: BLE001  (a truncated or foreign file)
-        raise ValueError(f"{os.fspath(path)!r} is not a pdeinv posterior ({type(err).__name__}); rerun "
-                         "`pdeinv train`") from None
+    except Exception as err:  # noqa: BLE001  (a truncated, edited or foreign file)
+        why = str(err) if isinstance(err, ValueError) and str(err).startswith("its ") else type(err).__name__
+        raise ValueError(f"{os.fspath(path)!r} is not a pdeinv posterior ({why}); rerun `pdeinv train`") \
+            from None
     if problem is not None and cal.scale.shape != (problem.N,):
         raise ValueError(f"{os.fspath(path)!r} is for {cal.scale.shape[0]} unknowns; the run's problem has "
                          f"{problem.N}: rerun `pdeinv train`")

@@ -118,9 +118,39 @@ class Calibration:
 
     @classmethod
     def load(cls, path) -> Calibration:
+        """The calibration saved at ``path`` (:meth:`to_bytes`), checked (:meth:`check`)."""
         with np.load(path) as f:
-            return cls(f["scale"], f["residuals"], f["quantiles"], f["ball"],
-                       int(f["pooled"]), float(f["rms"]))
+            cal = cls(f["scale"], f["residuals"], f["quantiles"], f["ball"], int(f["pooled"]),
+                      float(f["rms"]))
+        return cal.check()
+
+    def check(self) -> Calibration:
+        """``self`` if its arrays are what :meth:`fit` makes (a ``ValueError`` naming the first that is not:
+        an edited or foreign file gave reversed intervals or NaN error bars with exit 0)."""
+        n = self.scale.shape[0] if self.scale.ndim == 1 else -1
+
+        def finite(a):
+            return bool(np.all(np.isfinite(a)))
+
+        def rising(a):
+            return bool(np.all(np.diff(a) >= 0))
+
+        problems = [
+            ("scale", n > 0 and finite(self.scale) and bool(np.all(self.scale > 0)),
+             "a positive finite number per node"),
+            ("residuals", self.residuals.ndim == 2 and self.residuals.shape[0] >= 1
+             and self.residuals.shape[1] == n and finite(self.residuals),
+             "at least one finite row of the nodes' normalized residuals"),
+            ("quantiles", self.quantiles.shape == (QUANTILE_POINTS,) and finite(self.quantiles)
+             and rising(self.quantiles), f"{QUANTILE_POINTS} finite non-decreasing values"),
+            ("ball", self.ball.ndim == 1 and self.ball.size >= 1 and finite(self.ball)
+             and bool(np.all(self.ball >= 0)) and rising(self.ball), "sorted finite non-negative scores"),
+            ("pooled", self.pooled >= 1, "a count >= 1"),
+            ("rms", np.isfinite(self.rms) and self.rms > 0, "a positive finite number")]
+        for name, ok, expected in problems:
+            if not ok:
+                raise ValueError(f"its {name!r} is not {expected}")
+        return self
 
 
 def _level(level) -> float:

@@ -53,6 +53,12 @@ def predictive(model, posterior, y, level: float = 0.9, samples: int = 0, seed: 
                         "pdeinv.io.runs.load_posterior(run_dir))")
     if isinstance(samples, bool) or not isinstance(samples, (int, np.integer)) or samples < 0:
         raise ValueError(f"samples={samples!r} is not allowed; expected a count >= 0 (0: no samples)")
+    kept = len(posterior.residuals)
+    if samples > kept:  # every sample is one of the kept residuals: more would repeat them
+        raise ValueError(f"samples={samples} is not allowed: the posterior keeps {kept} residuals, each "
+                         f"sample is one of them; expected at most {kept}")
+    if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
+        raise ValueError(f"seed={seed!r} is not allowed; expected an integer >= 0")
     y = _observations(y, None if problem is None else problem.operator.n_out)
     B, K, N = len(y), int(samples), posterior.scale.shape[0]
     check(SAMPLE_BYTES * B * K * N, f"predictive(samples={K}) ({B} x {K} x {N} float64 draws)",

@@ -16,7 +16,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .._checks import batch, count, nonnegative
+from .._checks import batch, count, noise_level
 from .._checks import seed as _seed
 from ..fem.forms import Discretization
 from ..physics.base import LinearOperator
@@ -71,7 +71,7 @@ class Problem:
             raise TypeError(f"sampler={self.sampler!r:.60} is {type(self.sampler).__name__}; expected a "
                             "function sampler(n, rng) -> (n, N) array of true fields, or None (no prior)")
         # load_problem's check of the setting, and its words; None: noise-free, as it always was read
-        self.noise = 0.0 if self.noise is None else nonnegative(self.noise, "noise")
+        self.noise = 0.0 if self.noise is None else noise_level(self.noise, "noise")
         if is_linear(self.operator):
             chosen(self.operator, None if self.disc is None else self.disc.M)
 
@@ -95,11 +95,16 @@ class Problem:
     def draws(self, n: int, rng: np.random.Generator) -> np.ndarray:
         """``n`` fields from the sampler, checked: shape ``(n, N)``, finite (a ``ValueError`` naming the
         problem otherwise)."""
-        x = self.sampler(n, rng)
+        try:
+            x = self.sampler(n, rng)
+        except Exception as err:  # a user's sampler: one line, its file and line; pdeinv's own errors stand
+            raise _sampler_failure(self.name, err) or err
+        x = _as_array(self.name, x, (n, self.N))
         shape = np.shape(x)
         if shape != (n, self.N):
             raise ValueError(f"problem {self.name!r}: its sampler returned shape {shape} for {n} draws; "
                              f"expected ({n}, {self.N}), one row of the {self.N} unknowns per draw")
+        x = x if x.dtype == np.float64 else x.astype(np.float64)  # ints, float32: the physics' float64
         if not np.isfinite(x).all():
             bad = int((~np.isfinite(x)).sum())
             raise ValueError(f"problem {self.name!r}: its sampler returned {bad} NaN/Inf values; expected "
@@ -188,6 +193,42 @@ def find_module(name_or_path: str | os.PathLike) -> Path:
     return path
 
 
+def _as_array(name: str, x, shape: tuple) -> np.ndarray:
+    """What a sampler returned as a real array: a list or a torch tensor converted, anything else (None,
+    text, complex numbers) a ``ValueError`` naming the problem and what was expected."""
+    expected = (f"expected a numpy array of shape {shape}, one row of the {shape[1]} unknowns per draw")
+    what = type(x).__name__
+    if not isinstance(x, np.ndarray):
+        try:
+            x = np.asarray(x.detach().cpu() if hasattr(x, "detach") else x, dtype=float)
+        except (TypeError, ValueError, RuntimeError):
+            x = None
+        if x is None or x.ndim == 0:
+            raise ValueError(f"problem {name!r}: its sampler returned {what}; {expected}")
+    elif not np.issubdtype(x.dtype, np.number) or np.issubdtype(x.dtype, np.complexfloating):
+        raise ValueError(f"problem {name!r}: its sampler returned an array of {x.dtype}; {expected} of real "
+                         "numbers")
+    return x
+
+
+def _sampler_failure(name: str, err: Exception) -> ValueError | None:
+    """``err`` raised in a user's sampler (its innermost frame outside pdeinv) as one line naming the
+    sampler's file and line, or None (pdeinv's own error, whose message stands)."""
+    import traceback
+
+    frames = traceback.extract_tb(err.__traceback__)
+    package = Path(__file__).resolve().parent.parent
+    if not frames or Path(frames[-1].filename).resolve().is_relative_to(package):
+        return None
+    mine = [f for f in frames if not Path(f.filename).resolve().is_relative_to(package)]
+    where = f"{mine[-1].filename}, line {mine[-1].lineno}, in {mine[-1].name}"
+    text = first_line(err)
+    error = ValueError(f"problem {name!r}: its sampler raised {type(err).__name__}"
+                       + (f": {text}" if text else "") + f" ({where})")
+    error.__cause__ = err
+    return error
+
+
 class ProblemModuleError(ValueError):
     """A user's problem module that cannot be imported, whose ``make`` raises or exits, or that returns no
     :class:`Problem`. The message is one line: the module's file, the line that failed (the innermost in
@@ -263,7 +304,22 @@ def _run_module(path: Path, overrides: dict, where: str) -> Problem:
     if not isinstance(problem, Problem):
         raise ProblemModuleError(f"problem module {where}: make() returned {type(problem).__name__}; "
                                  "expected a pdeinv.Problem")
+    ignored = [k for k, v in overrides.items() if k in problem.settings and _differs(problem.settings[k], v)]
+    if ignored and not builtin:  # a run would record the override and train on the module's own value
+        k = ignored[0]
+        raise ProblemModuleError(f"problem module {where}: make({k}={overrides[k]!r}) returned a Problem "
+                                 f"whose settings have {k}={problem.settings[k]!r}: make ignores the "
+                                 "override (pass them to settings.resolve(SETTINGS, overrides, name))")
     return problem
+
+
+def _differs(value, override) -> bool:
+    """Whether a Problem's numeric setting is not the number it was given (``--set n=8``: the string '8');
+    settings that are not numbers (names, paths, flags) are not compared."""
+    try:
+        return float(value) != float(override) and not isinstance(value, bool)
+    except (TypeError, ValueError):
+        return False
 
 
 def load_problem(name_or_path: str | os.PathLike, **overrides) -> Problem:

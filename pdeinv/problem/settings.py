@@ -30,8 +30,8 @@ def _in_range(value, name, text):
         raise ValueError(f"{name}={text!r} is out of range; expected a number of magnitude at most "
                          f"{FLOAT_MAX:g}")
     if isinstance(value, float) and 0 < abs(value) < 1 / FLOAT_MAX:
-        raise ValueError(f"{name}={text!r} is out of range; expected 0 or a number of magnitude at least "
-                         f"{1 / FLOAT_MAX:g}")
+        raise ValueError(f"{name}={text!r} is out of range; expected a magnitude of at least "
+                         f"{1 / FLOAT_MAX:g} (or 0, where {name} may be 0)")
     return value
 
 
@@ -44,8 +44,8 @@ def _number(cast, check):
             except ValueError:
                 raise ValueError(f"{name}={value!r} is not a number") from None
             if cast is int and not value.is_integer():
-                kind = "a whole number" if math.isfinite(value) else "finite"
-                raise ValueError(f"{name}={value!r} is not allowed; expected an integer (not {kind})")
+                kind = "is not a whole number" if math.isfinite(value) else "is not finite"
+                raise ValueError(f"{name}={value!r} is not allowed ({value:g} {kind}); expected an integer")
         if cast is int and isinstance(value, float) and value.is_integer():
             value = int(value)
         return check(_in_range(value, name, text), name)
@@ -57,6 +57,7 @@ positive_int = _number(int, _checks.count)
 nonnegative_int = _number(int, lambda value, name: _checks.count(value, name, minimum=0))
 positive = _number(float, _checks.positive)
 nonnegative = _number(float, _checks.nonnegative)
+noise_level = _number(float, _checks.noise_level)
 
 
 def one_of(*allowed):

@@ -234,8 +234,9 @@ def read_meta(path, points) -> dict:
     out = {}
     if "noise" in meta:
         v = meta["noise"]
-        if v.size != 1 or not np.issubdtype(v.dtype, np.number) or not np.isfinite(v).all() or float(v) < 0:
-            raise ValueError(f"{where}: noise={v.tolist()!r} is not allowed; expected one number >= 0 "
+        if v.size != 1 or not np.issubdtype(v.dtype, np.number) or not np.isfinite(v).all() \
+                or not 0 <= float(v) <= 1:
+            raise ValueError(f"{where}: noise={v.tolist()!r} is not allowed; expected one number in [0, 1] "
                              "(the relative noise level, as --set noise=)")
         out["noise"] = float(v)
     if "points" in meta:

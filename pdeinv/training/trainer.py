@@ -202,6 +202,7 @@ class Trainer:
     _saved_step: int | None = field(default=None, init=False, repr=False)
     _rule: object = field(default=None, init=False, repr=False)
     _preset: dict = field(default_factory=dict, init=False, repr=False)
+    _batch_preset: bool = field(default=False, init=False, repr=False)  # batch_size was the preset's
     #: seconds of each set-up phase of the last :meth:`fit` (``metrics["setup"]``): network (when built
     #: here), samples (training and test draws), fit (input transform and target), rule (its state and
     #: calibration), stop (the stopping rule's held-out draws)
@@ -219,6 +220,10 @@ class Trainer:
             raise ValueError("data_x= was given without data=: data_x holds the true fields of the rows of "
                              "data= (for the errors only); pass the observations as data= too, or drop it")
         if self.data is not None:
+            if self.n_train != N_TRAIN:  # it would be ignored: the data's rows are the training rows
+                raise ValueError(f"n_train={self.n_train!r} does not apply with data=: every row of the data "
+                                 "not held out (n_test, the stopping and calibration rows) trains; drop n_train, "
+                                 "or pass fewer rows")
             self._own = own_data(self.problem, self.data, self.data_x, self.n_test,
                                  self.stop.n_val if self.stop is not None else 0, self.parallel.is_writer,
                                  self.calibration)
@@ -228,6 +233,8 @@ class Trainer:
                                  "gives fixed rows: drop one of them")
         self.n_train = count(self.n_train, "n_train", minimum=2)  # the CLI's --n-train range: whitening
         self.batch_size = self.n_train if self.batch_size is None else count(self.batch_size, "batch_size")
+        if self._batch_preset:  # gd's 32 rows on 16 training rows: all of them, not a refusal
+            self.batch_size = min(self.batch_size, self.n_train)
         if self.batch_size > self.n_train:
             b, n = self.batch_size, self.n_train
             if self.data is None:
@@ -266,8 +273,8 @@ class Trainer:
         self._preset = run_defaults(self.rule, self.model, self.problem)
         if self.steps == PRESET:
             self.steps = None if self.time_budget is not None else self._preset["steps"]
-        if self.batch_size == PRESET:
-            self.batch_size = self._preset["batch_size"]
+        if self.batch_size == PRESET:  # the preset's rows per step, at most the training rows (below)
+            self.batch_size, self._batch_preset = self._preset["batch_size"], True
 
     def _data(self):
         """``(y_train numpy, y_train torch, (x_test, y_test numpy, y_test torch))`` on ``device``."""

@@ -58,7 +58,7 @@ def cmd_classical(args) -> int:
     # the one output-path policy (pdeinv.util.outpaths): resolved, folder created, never the --data file, a
     # run's file or (without --overwrite) any existing file
     out = None if args.out is None else output_file(args.out, "--out", [("--data", args.data)],
-                                                    overwrite=args.overwrite)
+                                                    suffixes=(".json",), overwrite=args.overwrite)
     set_threads(args.threads)
     problem = build_problem("classical", args.problem, args.set)
     y, x = read_npz(args.data, problem.operator.n_out, problem.N)

@@ -54,6 +54,12 @@ def cmd_predict(args) -> int:
         raise UsageError(f"run {args.run!r} has no calibrated posterior (no posterior.npz: trained on a file "
                          "without x, or before calibration existed), so --level and --samples have nothing "
                          "to give; retrain it with `pdeinv train`")
+    if posterior is not None and (args.samples or 0) > len(posterior.residuals):
+        raise UsageError(f"--samples {args.samples} is not allowed: run {args.run!r} keeps "
+                         f"{len(posterior.residuals)} residuals and each sample is one of them; expected at "
+                         f"most {len(posterior.residuals)}")
+    if args.seed < 0:
+        raise UsageError(f"--seed {args.seed} is not allowed; expected an integer >= 0")
     y, x = read_npz(args.data, problem.operator.n_out, problem.N)
     read_meta(args.data, problem.points)  # the file's points, if any, are the run's problem's
     _check_data(args, problem, y, x, model)
@@ -68,7 +74,7 @@ def cmd_predict(args) -> int:
                      None if posterior is None else arrays)
     error = "" if x is None else f", x_err {float(np.mean(problem.relative_error(xhat, x))):.3g}"
     if posterior is not None:
-        error += f", {round(100 * level)} % intervals" + ("" if x is None else (
+        error += f", {100 * level:.4g} % intervals" + ("" if x is None else (
             f" cover {float(np.mean((arrays['lo'] <= x) & (x <= arrays['hi']))):.3g} of the true values"))
     print(f"{problem.name}: {len(xhat)} predictions{error} -> {args.out}"
           + (f", {args.vtu}" if args.vtu else ""))

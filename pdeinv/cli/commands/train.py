@@ -315,7 +315,7 @@ def _parallel_train(args, out, ckpt, device, parallel) -> int:
     import torch
 
     from pdeinv.io.runs import network
-    from pdeinv.methods.presets import make_rule
+    from pdeinv.methods.presets import PRESET, make_rule
     from pdeinv.training.trainer import Trainer
     from pdeinv.training.trainset import N_TRAIN
 
@@ -347,7 +347,8 @@ def _parallel_train(args, out, ckpt, device, parallel) -> int:
     chosen = _plan(args, problem, y, x) if parallel.is_writer else None  # metrics.json's "plan"
     trainer = Trainer(problem, rule, model, steps=_checks.steps(args, hp),
                       time_budget=args.time_budget,
-                      n_train=args.n_train or N_TRAIN, n_test=args.n_test, batch_size=hp["batch_size"],
+                      n_train=args.n_train or N_TRAIN, n_test=args.n_test,
+                      batch_size=hp["batch_size"] if args.batch_size is not None else PRESET,
                       seed=args.seed, eval_every=args.eval_every, max_failures=args.max_failures,
                       checkpoint=FolderCheckpoint(ckpt, args.checkpoint_every, fresh) if args.checkpoint_every
                       else None,
