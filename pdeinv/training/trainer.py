@@ -221,9 +221,9 @@ class Trainer:
                              "data= (for the errors only); pass the observations as data= too, or drop it")
         if self.data is not None:
             if self.n_train != N_TRAIN:  # it would be ignored: the data's rows are the training rows
-                raise ValueError(f"n_train={self.n_train!r} does not apply with data=: every row of the data "
-                                 "not held out (n_test, the stopping and calibration rows) trains; drop n_train, "
-                                 "or pass fewer rows")
+                raise ValueError(f"n_train={self.n_train!r} does not apply with data=: every row of the "
+                                 "data not held out (n_test, the stopping and calibration rows) trains; drop "
+                                 "n_train, or pass fewer rows")
             self._own = own_data(self.problem, self.data, self.data_x, self.n_test,
                                  self.stop.n_val if self.stop is not None else 0, self.parallel.is_writer,
                                  self.calibration)
