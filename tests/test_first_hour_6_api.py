@@ -78,10 +78,16 @@ def test_predictive_refuses_a_wrong_posterior_y_or_sample_count(heat, net, poste
     one_line(err)
     with pytest.raises(ValueError, match=rf"^y has shape \(4, 4\); expected \(B, {heat.operator.n_out}\)"):
         predictive(net, posterior, y[:, :4], problem=heat)
-    monkeypatch.setenv("PDEINV_MAX_MEMORY_GB", "1")
-    with pytest.raises(ValueError, match=r"^predictive\(samples=1000000000\) \(4 x 1000000000 x \d+ float64 "
-                                         r"draws\) needs about .* GB of memory, above the budget of 1 GB"):
+    kept = len(posterior.residuals)  # every sample is one of the kept residuals
+    with pytest.raises(ValueError, match=rf"^samples=1000000000 is not allowed: the posterior keeps {kept} "
+                                         rf"residuals, each sample is one of them; expected at most {kept}"):
         predictive(net, posterior, y, samples=10**9)
+    with pytest.raises(ValueError, match=r"^seed=-1 is not allowed; expected an integer >= 0"):
+        predictive(net, posterior, y, samples=2, seed=-1)
+    monkeypatch.setenv("PDEINV_MAX_MEMORY_GB", "1e-6")
+    with pytest.raises(ValueError, match=rf"^predictive\(samples={kept}\) \(400 x {kept} x \d+ float64 "
+                                         r"draws\) needs about .* GB of memory, above the budget of 1e-06 GB"):
+        predictive(net, posterior, np.repeat(y, 100, axis=0), samples=kept)
 
 
 def test_a_problem_refuses_bad_parts_and_sizes(heat, monkeypatch):

@@ -142,3 +142,8 @@ def test_a_problem_found_in_the_current_folder_is_stored_by_path(tmp_path, monke
     monkeypatch.chdir(tmp_path)
     assert problem_spec("mine") == str((tmp_path / "mine.py").resolve())
     assert problem_spec("heat_1d") == "heat_1d"  # a built-in stays a name
+    shadow = tmp_path / "shadow"  # a heat_1d on PDEINV_PROBLEMS: a run of it must not reload the built-in
+    shadow.mkdir()
+    (shadow / "heat_1d.py").write_text(builtin.read_text())
+    monkeypatch.setenv("PDEINV_PROBLEMS", str(shadow))
+    assert problem_spec("heat_1d") == str((shadow / "heat_1d.py").resolve())

@@ -125,20 +125,20 @@ def network(problem, spec: dict):
 def problem_spec(name_or_path: str) -> str:
     """A problem name as given, or a module path made absolute (the run can be loaded from elsewhere).
 
-    A name found in the current folder or its ``problems/`` (:func:`pdeinv.problem.find_module`) is
-    stored as its module's absolute path: by name, ``pdeinv predict`` run from another folder said
-    "unknown problem". Built-in names and those on ``PDEINV_PROBLEMS`` stay names."""
+    Only a built-in stays a name: a name found anywhere else (the current folder, its ``problems/``,
+    ``PDEINV_PROBLEMS``: :func:`pdeinv.problem.find_module`) is stored as its module's absolute path. By
+    name, ``pdeinv predict`` run from another folder said "unknown problem", and one run without the
+    variable loaded the built-in of the same name (another physics, silently where the shapes agree)."""
     spec = os.fspath(name_or_path)
     if spec.endswith(".py") or os.sep in spec or "/" in spec:
         return str(Path(spec).resolve())
-    from ..problem.definition import find_module
+    from ..problem.definition import builtin_dir, find_module
 
     try:
-        folder = find_module(spec).resolve().parent
+        path = find_module(spec).resolve()
     except (ValueError, FileNotFoundError):
         return spec
-    local = {Path.cwd().resolve(), (Path.cwd() / "problems").resolve()}
-    return str(find_module(spec).resolve()) if folder in local else spec
+    return spec if path.parent == builtin_dir().resolve() else str(path)
 
 
 def save_run(out: str | os.PathLike, problem, overrides: dict | None = None, network_spec: dict | None = None,

@@ -223,8 +223,8 @@ def _sampler_failure(name: str, err: Exception) -> ValueError | None:
     mine = [f for f in frames if not Path(f.filename).resolve().is_relative_to(package)]
     where = f"{mine[-1].filename}, line {mine[-1].lineno}, in {mine[-1].name}"
     text = first_line(err)
-    error = ValueError(f"problem {name!r}: its sampler raised {type(err).__name__}"
-                       + (f": {text}" if text else "") + f" ({where})")
+    error = ValueError(f"{where}: {type(err).__name__}" + (f": {text}" if text else "")
+                       + f" (the sampler of problem {name!r})")
     error.__cause__ = err
     return error
 

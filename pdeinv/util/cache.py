@@ -36,6 +36,7 @@ from __future__ import annotations
 import hashlib
 import json
 import os
+import re
 import warnings
 import zipfile
 from pathlib import Path
@@ -78,11 +79,17 @@ def max_bytes() -> float:
     return value * 1e9
 
 
+#: the name of an entry: ``<kind>-<sha256 hex>.npz`` (:func:`key`)
+_ENTRY = re.compile(r"[A-Za-z0-9_]+-[0-9a-f]{64}\.npz")
+
+
 def evict(where: Path, keep: Path) -> list[Path]:
     """Delete the least recently used entries of ``where`` until it fits :func:`max_bytes`
     (never ``keep``); returns what was deleted. Entries another process removes first are skipped."""
     entries = []
     for path in where.glob("*-*.npz"):
+        if not _ENTRY.fullmatch(path.name):  # only this cache's own names (kind-sha256): never a user's file
+            continue
         try:
             st = path.stat()
         except OSError:
