@@ -86,7 +86,7 @@ def test_predictive_refuses_a_wrong_posterior_y_or_sample_count(heat, net, poste
         predictive(net, posterior, y, samples=2, seed=-1)
     monkeypatch.setenv("PDEINV_MAX_MEMORY_GB", "1e-6")
     with pytest.raises(ValueError, match=rf"^predictive\(samples={kept}\) \(400 x {kept} x \d+ float64 "
-                                         r"draws\) needs about .* GB of memory, above the budget of 1e-06 GB"):
+                                         r"draws\) needs about .* GB of memory, above the budget of 1e-06"):
         predictive(net, posterior, np.repeat(y, 100, axis=0), samples=kept)
 
 

@@ -65,9 +65,9 @@ def _refused(capsys, argv, match, folder):
       "heat_1d", *SMALL, "--out", f"{READ_ONLY}/run"], "is not a writable directory"),
     # bench and stress wrote bench.json, forward.png, methods.png / stress.json into any folder, exit 0
     (["bench", "heat_1d", "--quick", "--set", "n=8", "--out", "{run}"], "holds .pdeinv-run, checkpoint.pt"),
-    (["bench", "heat_1d", "--quick", "--set", "n=8", "--out", "{d}"], "holds obs.npz, run and no bench.json"),
-    (["stress", "heat_1d", "--quick", "--set", "n=8", "--out", "{run}"], "and no stress.json of its own"),
-    (["stress", "heat_1d", "--quick", "--set", "n=8", "--out", "{d}"], "run and no stress.json"),
+    (["bench", "heat_1d", "--quick", "--set", "n=8", "--out", "{d}"], "holds obs.npz, run: it is not"),
+    (["stress", "heat_1d", "--quick", "--set", "n=8", "--out", "{run}"], "more: it is not a folder"),
+    (["stress", "heat_1d", "--quick", "--set", "n=8", "--out", "{d}"], "holds obs.npz, run: it is not"),
 ], ids=["show-training-png", "show-metrics", "show-its-input", "predict-vtu-run-file", "classical-metrics",
         "classical-its-data", "show-read-only", "predict-read-only", "predict-vtu-read-only",
         "classical-read-only", "show-under-a-file", "train-read-only", "bench-into-a-run",
@@ -126,7 +126,7 @@ def test_the_policy_functions(tmp_path):
     assert isinstance(OutputPathError("m"), ValueError)  # the CLI's bad-input exit 2
     (tmp_path / "user").mkdir()  # a user's own bench.json is not bench's earlier result
     (tmp_path / "user" / "bench.json").write_text("mine")
-    with pytest.raises(OutputPathError, match=r"holds bench\.json and no bench\.json of its own"):
+    with pytest.raises(OutputPathError, match=r"holds bench\.json: its bench\.json is not one this command"):
         output_folder(tmp_path / "user", record="bench.json")
     (tmp_path / "user" / "bench.json").write_text('{"format": "pdeinv-bench"}')  # bench's own: replaced
     assert output_folder(tmp_path / "user", record="bench.json") == (tmp_path / "user").resolve()

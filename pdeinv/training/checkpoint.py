@@ -179,6 +179,11 @@ def _differences(saved: dict, current: dict) -> str:
     return _few([f"{k}={saved.get(k)!r} (checkpoint) vs {current.get(k)!r} (this run)" for k in keys])
 
 
+#: the CLI's flags of the trainer's data settings (a refusal names both)
+TRAINER_FLAGS = {"seed": "--seed", "n_train": "--n-train", "n_test": "--n-test", "batch_size": "--batch-size",
+                 "data": "--data", "fresh": "--fresh-draws"}
+
+
 def check_identity(saved: dict, current: dict, path) -> None:
     """Refuse (``ValueError``) when the checkpoint at ``path`` belongs to a different run."""
     where = f"checkpoint {str(path)!r}"
@@ -192,6 +197,10 @@ def check_identity(saved: dict, current: dict, path) -> None:
         raise ValueError(f"{where} was written with rule {saved['rule']!r}; this run has {current['rule']!r} "
                          "(resume with the same rule, the CLI's --method, or use another output folder)")
     s_net, c_net = saved["network"], current["network"]
+    if s_net.get("class") != c_net.get("class"):  # another kind of network: its parts say nothing more
+        raise ValueError(f"{where} holds a {s_net.get('class')} network; this run's is a "
+                         f"{c_net.get('class')} (another --net, --hidden or data file?): resume with the "
+                         "same ones, or use another output folder")
     if s_net != c_net:
         diff = _differences(s_net.get("architecture", {}), c_net.get("architecture", {}))
         raise ValueError(f"{where} holds network {_describe_network(s_net, c_net)}; this run's network is "
@@ -201,8 +210,13 @@ def check_identity(saved: dict, current: dict, path) -> None:
         raise ValueError(f"{where} was written with rule {saved['rule']!r} and other hyper-parameters: "
                          f"{diff}; resume with the same settings (only --steps / --time-budget may change)")
     if saved["trainer"] != current["trainer"]:
-        raise ValueError(f"{where} was written with trainer {saved['trainer']!r}; "
-                         f"this run has {current['trainer']!r}")
+        keys = [k for k in dict.fromkeys([*saved["trainer"], *current["trainer"]])
+                if saved["trainer"].get(k) != current["trainer"].get(k)]
+        old, new = saved["trainer"], current["trainer"]
+        said = _few([f"{k}={old.get(k)!r} (checkpoint) vs {new.get(k)!r} (this run)"
+                     + (f" ({TRAINER_FLAGS[k]})" if k in TRAINER_FLAGS else "") for k in keys])
+        raise ValueError(f"{where} was written with other data settings: {said}; resume with the same ones, "
+                         "or use another output folder")
 
 
 def run_identity(problem, rule, model: torch.nn.Module, trainer: dict) -> dict:

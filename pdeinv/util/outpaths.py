@@ -100,9 +100,14 @@ def contents(folder) -> list[str]:
     return sorted(p.name for p in Path(folder).iterdir() if p.name not in IGNORED)
 
 
+#: a listed name longer than this is cut (a cache folder's 64-digit hashes made a 767-character line)
+NAME_CHARS = 32
+
+
 def _listing(names: list[str]) -> str:
     more = len(names) - LISTED
-    return ", ".join(names[:LISTED]) + (f" and {more} more" if more > 0 else "")
+    cut = [n if len(n) <= NAME_CHARS else n[:NAME_CHARS - 1] + "…" for n in names[:LISTED]]
+    return ", ".join(cut) + (f" and {more} more" if more > 0 else "")
 
 
 def _writable(folder: Path, flag: str, named: str, target: Path) -> None:
@@ -207,9 +212,10 @@ def output_folder(path, flag: str = "out", inputs: Iterable = (), record: str | 
         raise OutputPathError(f"{named} is a file; expected a directory")
     held = contents(target) if record and target.is_dir() else []
     if held and (record not in held or not _own_record(target / record) or is_run_folder(target)):
-        raise OutputPathError(f"{named} holds {_listing(held)} and no {record} of its own earlier results: "
-                              f"its results go only into a new or empty folder, or one of its earlier "
-                              f"results; choose another {flag}")
+        why = (f"its {record} is not one this command wrote" if record in held
+               else "it is not a folder of this command's earlier results")
+        raise OutputPathError(f"{named} holds {_listing(held)}: {why}; its results go only into a new or "
+                              f"empty folder, or one of its earlier results; choose another {flag}")
     _not_an_input(target, named, flag, inputs)
     _writable(target, flag, named, target)
     return target
