@@ -57,7 +57,7 @@ CLI = [
     ("problem-not-py", ["{d}/module.txt"], r"is not a \.py file"),
     ("seed-negative", ["heat_1d", "--seed", "-1"], r"--seed -1 is not allowed; expected an integer from 0"),
     ("seed-overflow", ["heat_1d", "--seed", str(2**70)], r"--seed 1180591620717411303424 is not allowed"),
-    ("n-fraction", ["heat_2d", "--set", "n=1.5"], r"n=1\.5 is not allowed; expected an integer"),
+    ("n-fraction", ["heat_2d", "--set", "n=1.5"], r"n=1\.5 is not allowed \(1\.5 is not a whole number\)"),
     ("kappa-overflow", ["heat_1d", "--set", "kappa=1e308"],
      r"kappa='1e308' is out of range; expected a number of magnitude at most 1e\+150"),
 ]

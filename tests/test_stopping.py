@@ -131,7 +131,7 @@ def test_cli_refuses_an_optimizer_for_a_rule_without_one(tmp_path, capsys):
     assert main(["train", "--prior-fit", "0",
                  "heat_1d", "--method", "adam", "--optimizer", "sgd", "--steps", "2",
                  "--out", str(tmp_path / "o")]) == 2
-    assert "optimizer does not apply to method 'adam'" in capsys.readouterr().err
+    assert "optimizer (--optimizer) does not apply to method 'adam'" in capsys.readouterr().err
     assert not (tmp_path / "o" / "metrics.json").exists()
 
 

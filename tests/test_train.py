@@ -203,7 +203,7 @@ def test_cli_train_writes_metrics_history_and_plot(tmp_path, capsys):
 
 
 @pytest.mark.parametrize("argv, match", [
-    (["heat_1d", "--method", "adam", "--tau", "1e-5"], "tau does not apply to method 'adam'"),
+    (["heat_1d", "--method", "adam", "--tau", "1e-5"], r"tau \(--tau\) does not apply to method 'adam'"),
     (["heat_1d", "--method", "hig", "--eta", "-1"], "--eta -1 is not allowed; expected a number > 0"),
     (["heat_1d", "--set", "kappa=hot"], "kappa='hot' is not a number"),
     (["nowhere"], "unknown problem 'nowhere'"),

@@ -165,6 +165,15 @@ def run_defaults(rule, model=None, problem=None) -> dict:
     return {"steps": steps, "batch_size": batch, "rows_per_component": hp.get("rows_per_component")}
 
 
+#: the settings ``pdeinv train`` has a flag for (``batch_size``: ``--batch-size``)
+FLAGS = ("lr", "eta", "tau", "batch_size", "hidden", "optimizer", "steps")
+
+
+def _flagged(key: str) -> str:
+    """``key`` and, where the CLI has one, its flag: ``"lr (--lr)"``."""
+    return f"{key} (--{key.replace('_', '-')})" if key in FLAGS else key
+
+
 def hyperparameters(method: str, problem, noise: float = 0.0, linear_net: bool = True, **overrides) -> dict:
     """Defaults for ``method`` on ``problem`` (a :class:`~pdeinv.Problem` or its name) with observation
     ``noise``, ``overrides`` applied (unknown keys refused). ``linear_net=False``: the network is not
@@ -178,8 +187,8 @@ def hyperparameters(method: str, problem, noise: float = 0.0, linear_net: bool =
     hp.setdefault("rows_per_component", None)
     bad = sorted(k for k, v in overrides.items() if v is not None and (k not in hp or k == "steps"))
     if bad:
-        raise ValueError(f"{', '.join(bad)} does not apply to method {method!r} "
-                         f"(its settings: {', '.join(sorted(hp))})")
+        raise ValueError(f"{', '.join(map(_flagged, bad))} does not apply to method {method!r} "
+                         f"(--method {method}); it takes {', '.join(map(_flagged, sorted(hp)))}")
     hp.update({k: v for k, v in overrides.items() if v is not None})
     nonlinear_net = hp["hidden"] is not None or not linear_net
     if method == "hig" and nonlinear_net and overrides.get("batch_size") is None:

@@ -251,8 +251,8 @@ def network_size(problem, kind: str = "default", hidden=None, rows_per_component
 
         size = modal_size(problem)
         if size is None:
-            raise ValueError(f"net 'modal' needs an operator with a spectral basis; problem "
-                             f"{problem.name!r}'s has none")
+            raise ValueError(f"net 'modal' (--net modal) needs an operator with a spectral basis; the "
+                             f"operator of problem {problem.name!r} has none (heat's modal backend has one)")
         size = {**size, "build": 0}
     elif kind == "whitened":
         size = whitened_size(min(m, n))

@@ -83,8 +83,8 @@ def modal(dtype: torch.dtype = DTYPE, rows_per_component: float | None = None):
     def build(problem) -> Net:
         found = visible_modes(problem)
         if found is None:
-            raise ValueError(f"net 'modal' needs an operator with a spectral basis; problem "
-                             f"{problem.name!r}'s has none")
+            raise ValueError(f"net 'modal' (--net modal) needs an operator with a spectral basis; the "
+                             f"operator of problem {problem.name!r} has none (heat's modal backend has one)")
         proj, synth = found
         pre = ModalFeatures(proj, rows_per_component)
         q = np.linalg.qr(synth)[0]  # the span's orthonormal basis (module docstring)

@@ -116,7 +116,7 @@ def check_run(problem, args, hp: dict) -> None:
                 f"--hidden {','.join(map(str, hp['hidden'] or ()))} --batch-size {batch}); "
                 f"limit {HIG_MAX_STEP_S:g} s: use e.g. --hidden 16 --batch-size 1, the default network "
                 "(no --hidden: HIG's exact Kronecker route), or pass --allow-slow")
-    if args.export_samples > args.n_test:
+    if args.export_samples is not None and args.export_samples > args.n_test:  # the default: quietly fewer
         print(f"pdeinv train: warning: --export-samples {args.export_samples} is more than the "
               f"{args.n_test} test samples (--n-test); exporting {args.n_test}", file=sys.stderr)
 

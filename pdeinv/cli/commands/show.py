@@ -35,6 +35,9 @@ def cmd_show(args) -> int:
     if not run.is_dir():
         raise UsageError(f"{str(run)!r} is not a directory; expected the --out DIR of `pdeinv train`")
     found = [run / name for name in ("fields.vtu", "fields.xdmf") if (run / name).is_file()]
+    if not found and (run / "run.json").is_file():  # a run that wrote no fields (--export-samples 0)
+        raise UsageError(f"run {str(run)!r} wrote no fields.vtu (trained with --export-samples 0?): nothing "
+                         "to draw; retrain with --export-samples K")
     if not found:
         raise UsageError(f"{str(run)!r} holds no fields.vtu or fields.xdmf; "
                          "expected the --out DIR of `pdeinv train`")
@@ -45,8 +48,19 @@ def cmd_show(args) -> int:
     own = resolve(target, "--png").parent == run.resolve()
     png = output_file(target, "--png", [("the fields file drawn", found[0])],
                       owns=("fields.png",) if own else (), overwrite=args.overwrite, suffixes=IMAGES)
-    points, cells, fields = read_fields(found[0])
-    save_fields_png(png, points, cells, fields, samples=_samples(args.samples), title=run.name)
+    try:
+        points, cells, fields = read_fields(found[0])
+    except ValueError as err:
+        if "x_true" not in str(err) or not (run / "run.json").is_file():
+            raise
+        raise UsageError(f"run {str(run)!r} was trained on data without x: its {found[0].name} holds the "
+                         "estimates, and show draws true against predicted; open it in ParaView") from None
+    try:
+        save_fields_png(png, points, cells, fields, samples=_samples(args.samples), title=run.name)
+    except ValueError as err:  # the samples' range, in the flag's words
+        if not str(err).startswith("samples="):
+            raise
+        raise UsageError(f"--samples {args.samples} is not allowed; {str(err).split('; ', 1)[1]}") from None
     print(f"wrote {args.png if args.png is not None else run / 'fields.png'}")
     return 0
 

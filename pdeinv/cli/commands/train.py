@@ -33,6 +33,10 @@ def _discrepancy(problem, steps=None, model=None):
     return DiscrepancyStop(noise=None if problem.noise else "estimate")
 
 
+#: test samples a run writes to fields.vtu/png when --export-samples is not given (at most --n-test)
+EXPORT_SAMPLES = 3
+
+
 def _plateau(problem, steps=None, model=None):
     """The held-out residual's plateau, checked about 30 times a run (every step of SIP's 30)."""
     from pdeinv.training.stopping import PlateauStop
@@ -107,7 +111,7 @@ def _check_values(args) -> None:
                          "expected an integer >= 1, or 0 for no checkpoints")
     if args.resume and args.checkpoint_every == 0:
         raise UsageError("--resume needs checkpoints; drop --checkpoint-every 0")
-    if args.export_samples < 0:
+    if args.export_samples is not None and args.export_samples < 0:
         raise UsageError(f"--export-samples {args.export_samples} is not allowed; expected an integer >= 0")
     if args.n_train is not None and args.n_train < 2:
         raise UsageError(f"--n-train {args.n_train} is not allowed; expected an integer >= 2 (the whitening "
@@ -476,11 +480,13 @@ def _run(args, out, problem, overrides, net, hp, trainer, fresh, setup=None, cho
         written = {"metrics.json", "history.csv", "training.png", "model.pt", RUN_FILE, "checkpoint.pt",
                    *([POSTERIOR_FILE] if result.posterior is not None else [])}
         x_test, y_test = trainer.held_out()
-        if args.export_samples:  # ParaView files and a picture of a few held-out samples
+        if args.export_samples is None or args.export_samples:  # ParaView files and a picture of a few
+            # held-out samples (EXPORT_SAMPLES unless --export-samples says)
             from pdeinv.io.export import export_run
 
             files = export_run(out, problem, result.model, x_test, y_test,
-                               samples=min(args.export_samples, len(y_test)), posterior=result.posterior)
+                               samples=min(args.export_samples or EXPORT_SAMPLES, len(y_test)),
+                               posterior=result.posterior)
             written |= {Path(p).name for p in files.values()}
         clear_outputs(out, keep=written)  # e.g. fields.vtu of an earlier run or a resumed one
         print(f"{problem.name} {'; '.join(_stage_line(st) for st in metrics['stages'])}; "
@@ -647,8 +653,9 @@ def _run_arguments(t) -> None:
                    help="threads of torch and of numpy/scipy's BLAS/OpenMP pools (default 1: on 2 cores a "
                         "heat_2d step of an MLP took 6.8 ms with one thread and 18-20 ms with two, idle "
                         "machine; pdeinv.util.threads)")
-    t.add_argument("--export-samples", type=int, default=3, metavar="K",
-                   help="write fields.vtu (ParaView) and fields.png for K test samples (0: none)")
+    t.add_argument("--export-samples", type=int, default=None, metavar="K",
+                   help=f"write fields.vtu (ParaView) and fields.png for K test samples (default "
+                        f"{EXPORT_SAMPLES}, at most --n-test; 0: none)")
     t.add_argument("--overwrite", action="store_true",
                    help="delete the previous run's files in DIR first (only files pdeinv train writes: "
                         "metrics.json, checkpoint.pt, model.pt, fields.vtu, ...; only in a folder pdeinv "
