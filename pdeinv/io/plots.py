@@ -101,6 +101,20 @@ def _plot_slices(plt, points, cells, true, pred, err, rows):
     return fig
 
 
+def _rows(samples) -> list[int]:
+    """``samples`` (an index or indices) as a list of ints; anything else a ``TypeError`` naming it."""
+    if isinstance(samples, (int, np.integer)) and not isinstance(samples, bool):
+        return [int(samples)]
+    try:
+        rows = list(samples)
+    except TypeError:
+        rows = None
+    if rows is None or not all(isinstance(k, (int, np.integer)) and not isinstance(k, bool) for k in rows):
+        raise TypeError(f"samples={samples!r:.60} is not allowed; expected None (all), an index or a list of "
+                        "indices, e.g. [0, 2]")
+    return [int(k) for k in rows]
+
+
 def plot_fields(points, cells, fields: dict, samples=None, title: str = "", sensors=None):
     """Figure with one row per sample: x_true | x_pred | x_error (2-D), lines (1-D), or
     three rows per sample, one per mid-plane slice (3-D, :func:`mid_slice`).
@@ -114,10 +128,13 @@ def plot_fields(points, cells, fields: dict, samples=None, title: str = "", sens
     """
     plt = _pyplot()
     B = len(fields["x_true"])
-    rows = list(range(B)) if samples is None else [int(k) for k in samples]
+    rows = list(range(B)) if samples is None else _rows(samples)
     bad = [k for k in rows if not 0 <= k < B]
+    if B == 0:
+        raise ValueError("the fields hold no samples (0 rows); expected at least one to draw")
     if bad or not rows:
-        raise ValueError(f"samples={rows!r} is not allowed; the file holds samples 0..{B - 1}")
+        shown = samples if isinstance(samples, (int, np.integer)) else rows
+        raise ValueError(f"samples={shown!r} is not allowed; the file holds samples 0..{B - 1}")
     true, pred = fields["x_true"], fields["x_pred"]
     err = fields.get("x_error", pred - true)
     if cells.shape[1] not in (2, 3, 4):

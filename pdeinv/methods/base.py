@@ -118,6 +118,10 @@ def make_optimizer(factory, params: list) -> torch.optim.Optimizer:
     if not isinstance(opt, torch.optim.Optimizer):
         raise ValueError(f"optimizer factory returned {type(opt).__name__}; "
                          "expected a torch.optim.Optimizer (e.g. partial(torch.optim.Adam, lr=1e-3))")
+    if isinstance(opt, torch.optim.LBFGS):  # its step re-evaluates the loss through a closure
+        raise ValueError("optimizer LBFGS is not allowed: its step needs a closure that re-evaluates the "
+                         "loss (a line search), and a rule takes one step per batch; expected a first-order "
+                         "optimizer (pdeinv.adam(lr), pdeinv.sgd(lr), torch.optim.AdamW, ...)")
     given = {id(p) for p in params}
     held = {id(p) for group in opt.param_groups for p in group["params"]}
     if not held & given or held - given:  # it would step tensors the model does not have: trains nothing

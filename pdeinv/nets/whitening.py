@@ -189,6 +189,9 @@ class Whitening(Network):
         return True
 
     def forward(self, y: torch.Tensor) -> torch.Tensor:
+        if y.shape[-1] != self.m:  # before the fitted check: another problem's network says its size
+            raise RuntimeError(f"this Whitening takes {self.m} observations per row; got shape "
+                               f"{tuple(y.shape)}")
         if self.folded:
             return y - self.mean
         if not self._ready:
