@@ -59,7 +59,8 @@ class DataConsistency(nn.Module):
         self.register_buffer("In", as64(modes.In), persistent=False)
         self.register_buffer("proj", as64(modes.proj), persistent=False)
         self.register_buffer("synth", as64(modes.synth), persistent=False)
-        self.register_buffer("weight", as64(g**2 / (g**2 + alpha)))
+        den = g**2 + alpha  # 0 only where every gain is 0 (nothing observed): weight 0
+        self.register_buffer("weight", as64(np.divide(g**2, den, out=np.zeros_like(g), where=den > 0)))
         self.register_buffer("resolved", as64(g**2) >= alpha, persistent=False)  # g² ≥ α, a part of R
 
     #: moves with its network (a device) but stays float64, as the filter does: ``1/g`` reaches the

@@ -93,7 +93,9 @@ class SpectralFilter(nn.Module):
         g = np.asarray(modes.g, dtype=float)
         alpha = rel_alpha * float(np.max(g**2)) if g.size else 0.0
         self.register_buffer("proj", torch.as_tensor(np.asarray(modes.proj, dtype=float)), persistent=False)
-        self.register_buffer("filt", torch.as_tensor(g / (g**2 + alpha)), persistent=False)
+        den = g**2 + alpha  # 0 only where every gain is 0 (a κT that leaves nothing): a zero filter
+        filt = np.divide(g, den, out=np.zeros_like(g), where=den > 0)
+        self.register_buffer("filt", torch.as_tensor(filt), persistent=False)
         self.register_buffer("synth", torch.as_tensor(np.asarray(modes.synth, dtype=float)), persistent=False)
 
     def _apply(self, fn, recurse=True):

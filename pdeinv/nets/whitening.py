@@ -125,7 +125,10 @@ class Whitening(Network):
         lam = np.zeros(self.k)
         lam[: min(s.size, self.k)] = s[: self.k] ** 2 / (n - 1)
         if not lam[0] > 0:
-            raise ValueError("whitening: the observations are constant (zero covariance); nothing to fit")
+            raise ValueError("the training observations do not vary (zero covariance): every y is the same, "
+                             "so there is nothing to learn from them (does the physics leave anything to "
+                             "observe, e.g. a κT that lets every field decay to 0? does the sampler return "
+                             "one field?)")
         cut = (n * np.finfo(float).eps) ** 2 * lam[0]  # the SVD's numerical rank, from the n rows
         if noise:
             sigma2 = noise_variance(y, noise)
