@@ -118,6 +118,9 @@ def _check_values(args) -> None:
                          "fits a covariance)")
     if args.n_test is not None and args.n_test < 1:
         raise UsageError(f"--n-test {args.n_test} is not allowed; expected an integer >= 1")
+    if args.batch_size is not None and args.n_train is not None and args.batch_size > args.n_train:
+        raise UsageError(f"--batch-size {args.batch_size} is larger than --n-train {args.n_train}; expected "
+                         f"--batch-size <= {args.n_train}")
     if args.data is not None and not str(args.data).strip():
         raise UsageError("--data '' names no file; expected an .npz with y (B, m) (or drop --data to train "
                          "on the problem's own draws)")
