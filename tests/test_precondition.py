@@ -98,7 +98,7 @@ def test_rank_deficient_data_drops_the_unvisited_directions():
 
 
 @pytest.mark.parametrize("bad, match", [
-    (np.ones((50, 8)), "constant"),
+    (np.ones((50, 8)), "do not vary"),
     (np.full((50, 8), np.nan), "NaN"),
     (np.zeros((1, 8)), "at least 2"),
     (np.zeros((50, 7)), r"shape \(50, 7\); expected \(n, 8\)"),

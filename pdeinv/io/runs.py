@@ -363,6 +363,8 @@ def _load_state(model, state, where: str) -> None:
     want = model.state_dict()
     lost, extra = [k for k in want if k not in state], [k for k in state if k not in want]
     shaped = [(k, tuple(v.shape)) for k, v in model.named_parameters() if k in have and have[k] != v.shape]
+    shaped = shaped or [(k, tuple(v.shape)) for k, v in want.items()  # else a buffer (a fitted layer's)
+                        if isinstance(v, torch.Tensor) and k in have and have[k] != tuple(v.shape)]
     if shaped:
         k, shape = shaped[0]
         why = f"{MODEL_FILE}'s {k!r} is {have[k]}, the network {RUN_FILE} describes has {shape}"

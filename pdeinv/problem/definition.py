@@ -200,7 +200,7 @@ def _as_array(name: str, x, shape: tuple) -> np.ndarray:
     what = type(x).__name__
     if not isinstance(x, np.ndarray):
         try:
-            x = np.asarray(x.detach().cpu() if hasattr(x, "detach") else x, dtype=float)
+            x = np.asarray(x, dtype=float)  # a CPU tensor without grad converts; others say what they are
         except (TypeError, ValueError, RuntimeError):
             x = None
         if x is None or x.ndim == 0:

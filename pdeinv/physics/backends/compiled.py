@@ -106,8 +106,41 @@ class Dense:
         return R @ self.P
 
 
-def _chol(M, n: int):
-    return np.eye(n) if M is None else la.cholesky(M.toarray() if sp.issparse(M) else M, lower=True)
+class _Identity:
+    """The Cholesky factor of no mass (the Euclidean norm), never formed: records of 10⁵ observations asked
+    ``np.eye`` for 75 GiB."""
+
+    T = property(lambda self: self)
+
+    def __matmul__(self, X):
+        return X
+
+    def solve(self, X):
+        return X
+
+
+class _Factor:
+    """``L`` with ``M = L Lᵀ``: products ``L @ X``, ``L.T @ X`` and triangular solves with either."""
+
+    def __init__(self, L, transposed: bool = False):
+        self.L, self.transposed = L, transposed
+
+    @property
+    def T(self):
+        return _Factor(self.L, not self.transposed)
+
+    def __matmul__(self, X):
+        return (self.L.T if self.transposed else self.L) @ X
+
+    def solve(self, X):
+        return la.solve_triangular(self.L, X, lower=True, trans="T" if self.transposed else "N")
+
+
+def _chol(M):
+    """``M``'s Cholesky factor (:class:`_Factor`), or the identity for ``None``."""
+    if M is None:
+        return _Identity()
+    return _Factor(la.cholesky(M.toarray() if sp.issparse(M) else M, lower=True))
 
 
 class SVD(Spectral):
@@ -130,16 +163,16 @@ class SVD(Spectral):
         if not 0 < rtol < 1:
             raise ValueError(f"rtol={rtol!r} is not allowed; expected 0 < rtol < 1")
         m, n = P.shape
-        L, Lo = _chol(M, n), _chol(M_out, m)
-        Q = Lo.T @ la.solve_triangular(L, P.T, lower=True).T  # L_oᵀ P L⁻ᵀ
+        L, Lo = _chol(M), _chol(M_out)
+        Q = Lo.T @ L.solve(P.T).T  # L_oᵀ P L⁻ᵀ
         U, s, Vt = np.linalg.svd(Q, full_matrices=False)
         keep = s >= rtol * s[0] if s.size and s[0] > 0 else np.zeros(s.size, bool)
         U, V = U[:, keep], Vt[keep].T
         self.g, self.mass_out = s[keep], M_out
         self.In = np.ascontiguousarray(L @ V)
-        self.out = np.ascontiguousarray(la.solve_triangular(Lo.T, U, lower=False))
+        self.out = np.ascontiguousarray(Lo.T.solve(U))
         self.proj = np.ascontiguousarray(Lo @ U)
-        self.synth = np.ascontiguousarray(la.solve_triangular(L.T, V, lower=False))
+        self.synth = np.ascontiguousarray(L.T.solve(V))
 
     @staticmethod
     def nbytes(n_in: int, n_out: int) -> int:
