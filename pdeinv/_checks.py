@@ -70,16 +70,6 @@ def nonnegative(value, name: str) -> float:
     return float(value)
 
 
-def noise_level(value, name: str = "noise") -> float:
-    """A relative noise level: a finite number in [0, 1] (1: noise as large as the signal, which leaves
-    nothing to recover; a file declaring noise=1e6 of noise-free data trained with exit 0)."""
-    level = nonnegative(value, name)
-    if level > 1:
-        raise ValueError(f"{name}={value!r} is not allowed; expected a relative noise level in [0, 1] (0.01: "
-                         "1 % of the signal's rms)")
-    return level
-
-
 def finite(value, name: str) -> float:
     """A finite real number (any sign)."""
     if isinstance(value, bool) or not isinstance(value, Real) or not math.isfinite(value):

@@ -123,17 +123,19 @@ def test_predict_samples_at_most_the_kept_residuals_and_its_level_as_given(run, 
     assert "99.9 % intervals" in capsys.readouterr().out
 
 
-def test_noise_levels_are_relative_and_at_most_one(run, tmp_path, capsys):
+def test_a_declared_noise_level_the_files_x_contradict_is_refused(tmp_path, capsys):
+    """noise=1e6 declared on noise-free data trained with exit 0; a level its rows do show trains."""
     p = pdeinv.load_problem("heat_1d")
     x, y = p.sample(80, seed=1)
+    args = ["train", "heat_1d", "--threads", "1", "-q", "--steps", "2", "--prior-fit", "0", "--n-test", "16"]
     np.savez(tmp_path / "loud.npz", x=x, y=y, noise=1e6)
-    assert main(["train", "heat_1d", "--data", str(tmp_path / "loud.npz"), "--threads", "1", "-q", "--steps",
-                 "2", "--prior-fit", "0", "--out", str(tmp_path / "r")]) == 2
-    assert "noise=1000000.0 is not allowed; expected one number in [0, 1]" in _one_error(capsys)
-    assert main(["train", "heat_1d", "--set", "noise=2", "--explain"]) == 2
-    assert "noise=2.0 is not allowed; expected a relative noise level in [0, 1]" in _one_error(capsys)
-    with pytest.raises(ValueError, match=r"^noise=1\.5 is not allowed; expected a relative noise level"):
-        pdeinv.Problem(p.name, p.disc, p.operator, p.sampler, noise=1.5)
+    assert main([*args, "--data", str(tmp_path / "loud.npz"), "--out", str(tmp_path / "r")]) == 3
+    assert "it declares noise=1e+06, but its y differ from P x by" in _one_error(capsys)
+    assert not (tmp_path / "r").exists() or not any((tmp_path / "r").iterdir())
+    noisy = p.sample(80, seed=1)[1] + 0.05 * np.sqrt(np.mean(y**2, axis=1, keepdims=True)) * \
+        np.random.default_rng(0).standard_normal(y.shape)
+    np.savez(tmp_path / "noisy.npz", x=x, y=noisy, noise=0.05)
+    assert main([*args, "--data", str(tmp_path / "noisy.npz"), "--out", str(tmp_path / "n")]) == 0
 
 
 def test_a_presets_batch_is_capped_at_the_training_rows_and_a_given_one_is_checked(tmp_path, capsys):
@@ -197,3 +199,5 @@ def test_stress_on_a_nonlinear_scene_builds_only_the_cases_it_can_run(tmp_path, 
     matrix_only = [c for c in record["cases"] if c["sweep"] in ("noise", "explicit") or "alpha" in c["sweep"]]
     assert not matrix_only
     assert "FailedRun" not in capsys.readouterr().err
+    assert main(["classical", "heat_1d", "--data", str(tmp_path / "loud.npz")]) == 3
+    assert "the file's noise level: it declares noise=1e+06" in _one_error(capsys)

@@ -16,7 +16,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .._checks import batch, count, noise_level
+from .._checks import batch, count, nonnegative
 from .._checks import seed as _seed
 from ..fem.forms import Discretization
 from ..physics.base import LinearOperator
@@ -71,7 +71,7 @@ class Problem:
             raise TypeError(f"sampler={self.sampler!r:.60} is {type(self.sampler).__name__}; expected a "
                             "function sampler(n, rng) -> (n, N) array of true fields, or None (no prior)")
         # load_problem's check of the setting, and its words; None: noise-free, as it always was read
-        self.noise = 0.0 if self.noise is None else noise_level(self.noise, "noise")
+        self.noise = 0.0 if self.noise is None else nonnegative(self.noise, "noise")
         if is_linear(self.operator):
             chosen(self.operator, None if self.disc is None else self.disc.M)
 

@@ -25,7 +25,7 @@ COMMON = {
     "element": ("P1", s.one_of("P1", "P2")),
     "T": (1.0, s.positive),
     "steps": (100, s.positive_int),
-    "noise": (0.0, s.noise_level),
+    "noise": (0.0, s.nonnegative),
     "prior": ("bumps", s.one_of(*PRIORS)),  # what x is drawn from (pdeinv.problem.sampling)
 }
 

@@ -57,7 +57,6 @@ positive_int = _number(int, _checks.count)
 nonnegative_int = _number(int, lambda value, name: _checks.count(value, name, minimum=0))
 positive = _number(float, _checks.positive)
 nonnegative = _number(float, _checks.nonnegative)
-noise_level = _number(float, _checks.noise_level)
 
 
 def one_of(*allowed):

@@ -234,9 +234,8 @@ def read_meta(path, points) -> dict:
     out = {}
     if "noise" in meta:
         v = meta["noise"]
-        if v.size != 1 or not np.issubdtype(v.dtype, np.number) or not np.isfinite(v).all() \
-                or not 0 <= float(v) <= 1:
-            raise ValueError(f"{where}: noise={v.tolist()!r} is not allowed; expected one number in [0, 1] "
+        if v.size != 1 or not np.issubdtype(v.dtype, np.number) or not np.isfinite(v).all() or float(v) < 0:
+            raise ValueError(f"{where}: noise={v.tolist()!r} is not allowed; expected one number >= 0 "
                              "(the relative noise level, as --set noise=)")
         out["noise"] = float(v)
     if "points" in meta:
@@ -302,6 +301,23 @@ def beyond_noise(what: str, figure: float, noise: float) -> str | None:
     return (f"its {what} is {figure:.3g}, above {limit:.3g}, the most noise of level {noise:g} explains "
             f"({MISMATCH_FACTOR:g}× the level, at least {MISMATCH_FLOOR:g}): the data come from another "
             "physics or other settings (κ, T, the mesh?)")
+
+
+#: a declared noise level ``δ`` is refused when the file's own ``x`` show a model mismatch below this
+#: fraction of what noise of level ``δ`` gives (``δ/√(1+δ²)`` for ``y = P x + δ·rms(P x)·ε``): a mean over
+#: rows of norms over all observations, so within a few % of it for real noise of that level
+BELOW_FACTOR = 0.1
+
+
+def below_noise(figure: float, noise: float) -> str | None:
+    """Why a model mismatch ``figure`` (:func:`model_mismatch`, the file has ``x``) contradicts a declared
+    noise level ``noise``: far less than noise of that level leaves (a ``noise=1e6`` on noise-free data);
+    None where it does not."""
+    expected = noise / np.sqrt(1.0 + noise**2)
+    if noise <= 0 or figure >= BELOW_FACTOR * expected:
+        return None
+    return (f"it declares noise={noise:g}, but its y differ from P x by {figure:.3g} (mean ‖P x − y‖/‖y‖), "
+            f"below {BELOW_FACTOR:g}× the {expected:.3g} noise of that level leaves: a wrong noise level?")
 
 
 def against(problem, y: np.ndarray, x: np.ndarray | None, path=None) -> tuple[str, float]:

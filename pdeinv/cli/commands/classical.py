@@ -85,7 +85,7 @@ def cmd_classical(args) -> int:
 
     rows = _solves(problem, y, x, noise, source, err)
     _finite(rows)
-    failed = _failed(problem, rows, x, y, noise)
+    failed = _failed(problem, rows, x, y, noise, None if problem.noise else declared)
     _in_units(rows, c)
     for name, value in rows.items():
         print(f"{problem.name} {name}: {json.dumps(value)}")
@@ -208,17 +208,20 @@ def _finite(rows: dict) -> None:
                                      "check the data with numpy.isfinite)")
 
 
-def _failed(problem, rows: dict, x, y, noise: float) -> str | None:
+def _failed(problem, rows: dict, x, y, noise: float, declared: float | None = None) -> str | None:
     """Why the classical solves cannot be right, or None: with x, a model mismatch far above the noise
     (beyond :func:`pdeinv.training.data.mismatch_limit`, the limit of ``train`` and ``predict`` too: another
-    physics or other settings, e.g. κ) or every estimate no better than zero (x_err ≥ 1);
+    physics or other settings, e.g. κ), far below the level the file ``declared``
+    (:func:`~pdeinv.training.data.below_noise`), or every estimate no better than zero (x_err ≥ 1);
     without x, estimates over :data:`pdeinv.training.verdict.AMPLITUDE` times the prior's rms amplitude."""
     import numpy as np
 
-    from pdeinv.training.data import mismatch_limit
+    from pdeinv.training.data import below_noise, mismatch_limit
     from pdeinv.training.verdict import AMPLITUDE, WORSE_THAN_ZERO
 
     mismatch = rows.get("model_mismatch")
+    if mismatch is not None and declared and (why := below_noise(mismatch, declared)) is not None:
+        return f"the file's noise level: {why}"
     if mismatch is not None and not mismatch <= mismatch_limit(noise):
         return (f"the file's y differ from this problem's P x by {mismatch:.3g} (mean ‖P x − y‖/‖y‖), far "
                 f"above its noise level {noise:g}: the data come from another physics or other settings (κ, "

@@ -384,6 +384,8 @@ def _problem_and_data(args):
     shows (``args.set`` gets it, so run.json and ``--resume`` see the level trained with) and the data
     file's rows (``None`` without ``--data``)."""
     from pdeinv.training.data import (
+        against,
+        below_noise,
         no_signal,
         npz_rounding_level,
         read_meta,
@@ -399,6 +401,10 @@ def _problem_and_data(args):
     if "noise" in meta and "noise" in overrides and float(overrides["noise"]) != meta["noise"]:
         raise UsageError(f"--set noise={overrides['noise']} conflicts with the noise={meta['noise']:g} the "
                          f"data file {args.data!r} declares; drop one of them")
+    if "noise" in meta and x is not None and not args.accept_bad:  # its x show its y have that noise
+        why = below_noise(against(problem, y, x)[1], meta["noise"])
+        if why is not None:
+            raise BadData(f"--data {args.data!r}: {why}; --accept-bad trains at it anyway")
     if "noise" in meta and "noise" not in overrides and "noise" in problem.settings:  # the file's level
         args.set = [*args.set, f"noise={meta['noise']:g}"]
         overrides = parse_sets(args.set)
