@@ -136,6 +136,9 @@ def test_a_declared_noise_level_the_files_x_contradict_is_refused(tmp_path, caps
         np.random.default_rng(0).standard_normal(y.shape)
     np.savez(tmp_path / "noisy.npz", x=x, y=noisy, noise=0.05)
     assert main([*args, "--data", str(tmp_path / "noisy.npz"), "--out", str(tmp_path / "n")]) == 0
+    capsys.readouterr()
+    assert main(["classical", "heat_1d", "--data", str(tmp_path / "loud.npz")]) == 3
+    assert "the file's noise level: it declares noise=1e+06" in _one_error(capsys)
 
 
 def test_a_presets_batch_is_capped_at_the_training_rows_and_a_given_one_is_checked(tmp_path, capsys):
@@ -199,5 +202,3 @@ def test_stress_on_a_nonlinear_scene_builds_only_the_cases_it_can_run(tmp_path, 
     matrix_only = [c for c in record["cases"] if c["sweep"] in ("noise", "explicit") or "alpha" in c["sweep"]]
     assert not matrix_only
     assert "FailedRun" not in capsys.readouterr().err
-    assert main(["classical", "heat_1d", "--data", str(tmp_path / "loud.npz")]) == 3
-    assert "the file's noise level: it declares noise=1e+06" in _one_error(capsys)

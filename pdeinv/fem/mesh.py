@@ -19,6 +19,8 @@ or by geometry lives in :mod:`pdeinv.fem.forms`.
 
 from __future__ import annotations
 
+import contextlib
+import io
 import os
 from dataclasses import dataclass
 
@@ -143,7 +145,8 @@ def load(path: str | os.PathLike, dim: int | None = None) -> skfem.Mesh:
     if not os.path.isfile(path):
         raise FileNotFoundError(f"mesh file {path!r} does not exist")
     try:
-        m = meshio.read(path)
+        with contextlib.redirect_stdout(io.StringIO()):  # its gmsh reader prints blank lines to stdout
+            m = meshio.read(path)
     except (Exception, SystemExit) as err:  # meshio raises many types (even SystemExit)
         raise ValueError(
             f"mesh file {path!r} could not be read by meshio ({type(err).__name__}: {err}); "

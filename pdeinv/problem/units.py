@@ -30,7 +30,7 @@ def units_of(y: np.ndarray, operator=None, name: str = "data") -> float:
     if np.ndim(y) == 2 and top > 0.0:
         peaks = np.max(np.abs(y), axis=1)
         low = int(np.argmin(np.where(peaks > 0, peaks, np.inf)))
-        if peaks[low] * (AS_IS[1] / AS_IS[0]) < top:
+        if peaks[low] < top / (AS_IS[1] / AS_IS[0]):  # divided: 1e300 × 1e24 overflowed (a warning)
             high = int(np.argmax(peaks))
             raise ValueError(f"{name} holds rows of magnitude {peaks[low]:.3g} (row {low}) and {top:.3g} "
                              f"(row {high}), more than {AS_IS[1] / AS_IS[0]:g} apart: the rows are not in "
