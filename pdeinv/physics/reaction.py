@@ -574,7 +574,7 @@ class ReactionHeat(Physics):
         tangent :meth:`linearize` keeps for them costs one solve per step and product, the chord's ~10
         Richardson solves), or None where fewer than :data:`BLOCK_COLUMNS` rows fit (the chord's tangent
         serves any number). allen_cahn_2d at 16²: 372 rows; a Gauss–Newton step of 1 024 rows 54 s by the
-        chord's tangent, 25 s in chunks of exact factors, the same to 1e-12."""
+        chord's tangent, 25 s in chunks of exact factors (each chunk's CG stops on its own rows)."""
         rows = KEPT_FACTORS_BYTES // max(self.steps * self.blocks.bytes(1), 1)
         return int(rows) if rows >= BLOCK_COLUMNS else None
 
