@@ -194,16 +194,39 @@ def cmd_train(args) -> int:
 
 
 def _train(args) -> int:
-    from pdeinv.physics.backends.device import resolve
-    from pdeinv.training.distributed import from_env
-    from pdeinv.training.verdict import FailedRun
-
     if args.explain:
         return _explain(args)
     if args.out is None:
         raise UsageError("--out DIR is required: the folder for the run's files (or --explain to see the "
                          "plan without training)")
     out = _check_flags(args)  # resolved: links and `..` taken (pdeinv.util.outpaths)
+    new = not out.exists()
+    try:
+        code = _train_into(args, out)
+    except BaseException:
+        _remove_if_empty(out, new)
+        raise
+    if code:
+        _remove_if_empty(out, new)
+    return code
+
+
+def _remove_if_empty(out: Path, new: bool) -> None:
+    """A refused or failed run leaves no folder it created and wrote nothing into (its checkpoint's folder
+    is made when the run is set up, before later checks)."""
+    from pdeinv.util.outpaths import contents
+
+    if new and out.is_dir() and not contents(out):
+        for left in out.iterdir():  # a lock a killed run left, Finder's file (outpaths.IGNORED)
+            left.unlink(missing_ok=True)
+        out.rmdir()
+
+
+def _train_into(args, out: Path) -> int:
+    from pdeinv.physics.backends.device import resolve
+    from pdeinv.training.distributed import from_env
+    from pdeinv.training.verdict import FailedRun
+
     ckpt = out / "checkpoint.pt"
     try:
         device = resolve(args.device)
