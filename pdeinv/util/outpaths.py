@@ -119,7 +119,8 @@ def _writable(folder: Path, flag: str, named: str, target: Path) -> None:
             pass
     except OSError as err:
         why = "a file is in the way" if isinstance(err, (FileExistsError, NotADirectoryError)) else \
-            err.strerror or str(err)
+            "no file can be made in it" if isinstance(err, FileNotFoundError) and folder.is_dir() else \
+            err.strerror or str(err)  # /proc: a folder that exists, whose new files "do not exist"
         raise OutputPathError(f"{named}{where} is not a writable directory ({why}); "
                               f"choose another {flag}") from None
 
