@@ -407,8 +407,6 @@ def _problem_and_data(args):
     shows (``args.set`` gets it, so run.json and ``--resume`` see the level trained with) and the data
     file's rows (``None`` without ``--data``)."""
     from pdeinv.training.data import (
-        against,
-        below_noise,
         no_signal,
         npz_rounding_level,
         read_meta,
@@ -424,10 +422,6 @@ def _problem_and_data(args):
     if "noise" in meta and "noise" in overrides and float(overrides["noise"]) != meta["noise"]:
         raise UsageError(f"--set noise={overrides['noise']} conflicts with the noise={meta['noise']:g} the "
                          f"data file {args.data!r} declares; drop one of them")
-    if "noise" in meta and x is not None and not args.accept_bad:  # its x show its y have that noise
-        why = below_noise(against(problem, y, x)[1], meta["noise"])
-        if why is not None:
-            raise BadData(f"--data {args.data!r}: {why}; --accept-bad trains at it anyway")
     if "noise" in meta and "noise" not in overrides and "noise" in problem.settings:  # the file's level
         args.set = [*args.set, f"noise={meta['noise']:g}"]
         overrides = parse_sets(args.set)
@@ -456,13 +450,16 @@ def _problem_and_data(args):
 
 def _refuse_mismatch(args, problem, y, x) -> None:
     """``--data`` whose y are beyond what the run's noise explains (:func:`pdeinv.training.data.beyond_noise`,
-    the limit of ``classical`` and ``predict`` too): :class:`BadData` (exit 3, one line), unless
+    the limit of ``classical`` and ``predict`` too), or far below a noise level the file declares
+    (:func:`~pdeinv.training.data.below_noise`): :class:`BadData` (exit 3, one line), unless
     ``--accept-bad``, which trains on it with the trainer's warning."""
     if x is None or args.accept_bad:
         return
-    from pdeinv.training.data import against, beyond_noise
+    from pdeinv.training.data import against, below_noise, beyond_noise, read_meta
 
-    why = beyond_noise(*against(problem, y, x), problem.noise)
+    what, figure = against(problem, y, x)  # one forward pass of the file's rows for both checks
+    declared = read_meta(args.data, problem.points).get("noise")
+    why = beyond_noise(what, figure, problem.noise) or (below_noise(figure, declared) if declared else None)
     if why is not None:
         raise BadData(f"--data {args.data!r}: {why}; --accept-bad trains on it anyway")
 
