@@ -119,3 +119,26 @@ def choice(value, name: str, allowed) -> str:
             f"{name}={value!r} is not allowed; expected one of {', '.join(map(repr, allowed))}"
         )
     return value
+
+
+def problem(value, name: str = "problem", needs: tuple = ("disc", "operator")):
+    """A :class:`pdeinv.Problem`, or an object with its attributes ``needs`` (a name is not one: a TypeError
+    that says how to load it)."""
+    if isinstance(value, str | bytes) or not all(hasattr(value, k) for k in needs):
+        hint = (f"; load it with pdeinv.load_problem({value!r})" if isinstance(value, str)
+                else "; expected a pdeinv.Problem (pdeinv.load_problem(name))")
+        raise TypeError(f"{name}={value!r:.80} is {type(value).__name__}, not a pdeinv.Problem{hint}")
+    return value
+
+
+def widths(value, name: str = "hidden") -> tuple[int, ...]:
+    """A sequence of layer widths, each an integer >= 1 (``()``: no hidden layer)."""
+    if isinstance(value, str | bytes) or not hasattr(value, "__iter__"):
+        raise TypeError(f"{name}={value!r:.80} is {type(value).__name__}; expected a tuple of integer widths, "
+                        "e.g. (64, 64)")
+    out = tuple(value)
+    for w in out:
+        if isinstance(w, bool) or not isinstance(w, Integral) or w < 1:
+            raise ValueError(f"{name}={out!r:.80} is not allowed; expected integer widths >= 1, e.g. (64, 64)")
+    return tuple(int(w) for w in out)
+

@@ -132,7 +132,7 @@ def test_classical_train_and_predict_share_one_threshold(files, run, tmp_path, c
     """Raising the one limit (:data:`pdeinv.training.data.MISMATCH_FLOOR`) lets every command through."""
     kappa = str(files / "kappa.npz")
     assert main(["classical", "heat_1d", *SCENE, "--data", kappa]) == 3
-    assert "far above its noise level" in capsys.readouterr().err
+    assert "far above the noise level" in capsys.readouterr().err
     monkeypatch.setattr(data_module, "MISMATCH_FLOOR", 10.0)
     assert main(["classical", "heat_1d", *SCENE, "--data", kappa]) == 0
     assert main(["train", "heat_1d", *SCENE, *TRAIN, "--data", kappa, "--out", str(tmp_path / "r")]) == 0

@@ -31,7 +31,7 @@ def test_classical_refuses_data_of_other_settings_and_passes_its_own(files, caps
     out = files / "c.json"
     assert main([*run, str(files / "other.npz"), "--out", str(out)]) == 3
     err = capsys.readouterr().err.strip().splitlines()
-    assert len(err) == 1 and "far above its noise level" in err[0] and "--accept-bad" in err[0]
+    assert len(err) == 1 and "far above the noise level" in err[0] and "--accept-bad" in err[0]
     assert "differ from this problem's P x" in json.loads(out.read_text())["failed"]  # written anyway
     assert main([*run, str(files / "other.npz"), "--accept-bad"]) == 0
     assert "warning" in capsys.readouterr().err

@@ -37,10 +37,15 @@ RETRY_S = 0.02
 def _held_back(frame) -> bool:
     """Whether ``frame`` runs inside an import (an importlib frame on its stack) or a finalizer (a
     ``__del__``: Python prints an exception raised there as "Exception ignored in" and goes on, so the
-    signal would be lost: numpy's ``NpzFile.__del__`` once swallowed a SIGTERM this way)."""
+    signal would be lost: numpy's ``NpzFile.__del__`` once swallowed a SIGTERM this way) — unless a user's
+    problem module's own code comes first (:data:`~pdeinv.util.critical.USER_MODULE_PREFIX`: a loop at its
+    top level was stoppable only by SIGKILL); an import *it* makes is held back as any other."""
     while frame is not None:
         if frame.f_code.co_filename.startswith("<frozen importlib") or frame.f_code.co_name == "__del__":
             return True
+        name = frame.f_globals.get("__name__")
+        if isinstance(name, str) and name.startswith(critical.USER_MODULE_PREFIX):
+            return False
         frame = frame.f_back
     return False
 

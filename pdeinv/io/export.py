@@ -19,11 +19,13 @@ outside that table is refused. Pictures come from :mod:`pdeinv.io.plots` (3-D: m
 from __future__ import annotations
 
 import os
+from collections.abc import Mapping
 from pathlib import Path
 
 import numpy as np
 
 from .._checks import batch
+from .._checks import problem as _problem
 from ..fem.mesh import cell_type, points_3d
 from ..physics.capabilities import observes_field
 from .plots import save_fields_png
@@ -61,7 +63,7 @@ def write_fields(path, problem, x_true, x_pred, y_obs=None, y_pred=None, bars=No
     if path.suffix not in (".vtu", ".xdmf"):
         raise ValueError(f"fields file {str(path)!r}: suffix {path.suffix!r} is not allowed; "
                          "expected '.vtu' or '.xdmf'")
-    disc = problem.disc
+    disc = _problem(problem, needs=("disc",)).disc
     x_pred, _ = batch(x_pred, disc.N, "x_pred")
     fields = {"x_pred": x_pred}
     if x_true is not None:
@@ -70,9 +72,16 @@ def write_fields(path, problem, x_true, x_pred, y_obs=None, y_pred=None, bars=No
             raise ValueError(f"x_true has shape {x_true.shape} but x_pred has {x_pred.shape}")
         fields = {"x_true": x_true, "x_pred": x_pred, "x_error": x_pred - x_true}
     if bars is not None:
-        fields.update(x_std=bars["std"], x_lo=bars["lo"], x_hi=bars["hi"])
+        if not (isinstance(bars, Mapping) and all(k in bars for k in ("std", "lo", "hi"))):
+            raise TypeError(f"bars={bars!r:.80} is not allowed; expected a dict with 'std', 'lo' and 'hi' "
+                            "(pdeinv.posterior.predictive's result)")
+        b = {k: batch(bars[k], disc.N, f"bars[{k!r}]")[0] for k in ("std", "lo", "hi")}
+        wrong = [k for k, v in b.items() if v.shape != x_pred.shape]
+        if wrong:
+            raise ValueError(f"bars[{wrong[0]!r}] has shape {b[wrong[0]].shape} but x_pred has {x_pred.shape}")
+        fields.update({f"x_{k}": v for k, v in b.items()})
         if x_true is not None:
-            fields["x_outside"] = (x_true > bars["hi"]).astype(float) - (x_true < bars["lo"])
+            fields["x_outside"] = (x_true > b["hi"]).astype(float) - (x_true < b["lo"])
     for name, y in (("y_obs", y_obs), ("y_pred", y_pred)):
         if y is not None and observes_field(problem.operator):
             fields[name] = batch(y, disc.N, name)[0]

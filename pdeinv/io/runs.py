@@ -174,17 +174,18 @@ def save_run(out: str | os.PathLike, problem, overrides: dict | None = None, net
     buffer = io.BytesIO()
     torch.save(_folded(model).state_dict(), buffer)
     weights = buffer.getvalue()
+    data = None if posterior is None else posterior.to_bytes()
     record = {"format": FORMAT, "version": VERSION, "problem": problem_spec(problem),
               "overrides": {k: str(v) for k, v in overrides.items()}, "network": network_spec,
-              "model_sha256": hashlib.sha256(weights).hexdigest()}
+              "model_sha256": hashlib.sha256(weights).hexdigest(),
+              "posterior_sha256": None if data is None else hashlib.sha256(data).hexdigest()}
     text = json.dumps(record, indent=2).encode()
     atomic_write(out / MODEL_FILE, lambda fh: fh.write(weights))
-    atomic_write(out / RUN_FILE, lambda fh: fh.write(text))
-    if posterior is not None:
-        data = posterior.to_bytes()
+    if data is not None:
         atomic_write(out / POSTERIOR_FILE, lambda fh: fh.write(data))
     elif (out / POSTERIOR_FILE).is_file():  # an earlier run's: not this model's
         (out / POSTERIOR_FILE).unlink()
+    atomic_write(out / RUN_FILE, lambda fh: fh.write(text))  # last: the record of files that are there
     return out
 
 
@@ -250,7 +251,9 @@ def load_posterior(run_dir, problem=None):
     that does not fit the run's problem (``problem``) is a ``ValueError``."""
     from ..posterior.conformal import Calibration
 
-    path = _run_path(run_dir, "run_dir") / POSTERIOR_FILE
+    run = _run_path(run_dir, "run_dir")
+    path = run / POSTERIOR_FILE
+    digest = _posterior_digest(run, path)
     if not path.is_file():
         return None
     try:
@@ -262,6 +265,10 @@ def load_posterior(run_dir, problem=None):
     if problem is not None and cal.scale.shape != (problem.N,):
         raise ValueError(f"{os.fspath(path)!r} is for {cal.scale.shape[0]} unknowns; the run's problem has "
                          f"{problem.N}: rerun `pdeinv train`")
+    if digest is not None and _sha256(path) != digest:
+        raise ValueError(f"run folder {os.fspath(run)!r}: {POSTERIOR_FILE} is not the posterior its {RUN_FILE} "
+                         "was written with (its sha256 differs: another run's posterior, or an edited file); "
+                         "copy a run's files together, or rerun `pdeinv train`")
     return cal
 
 
@@ -333,7 +340,11 @@ def _record(run: Path, where: str) -> dict:
         ("network", spec, f"an object with 'kind' one of {', '.join(map(repr, NETWORKS))}",
          isinstance(spec, dict) and spec.get("kind") in NETWORKS),
         ("model_sha256", digest, "the sha256 of model.pt (a str of 64 hex digits)",
-         digest is None or isinstance(digest, str))) if not ok), None)
+         digest is None or isinstance(digest, str)),
+        ("posterior_sha256", record.get("posterior_sha256"),
+         "the sha256 of posterior.npz (a str of 64 hex digits), or null for a run without one",
+         record.get("posterior_sha256") is None or isinstance(record.get("posterior_sha256"), str)),
+    ) if not ok), None)
     if bad is not None:
         field, value, expected = bad
         text = json.dumps(value)
@@ -375,17 +386,43 @@ def _load_state(model, state, where: str) -> None:
                      "settings?") from None
 
 
+def _sha256(path: Path) -> str:
+    h = hashlib.sha256()
+    with open(path, "rb") as fh:
+        for block in iter(lambda: fh.read(1 << 20), b""):
+            h.update(block)
+    return h.hexdigest()
+
+
+def _posterior_digest(run: Path, path: Path) -> str | None:
+    """The sha256 ``run.json`` records for ``posterior.npz``, checked against what is there: a deleted
+    posterior of a calibrated run (it silently dropped the error bars) and a posterior where the record
+    says the run has none are refused. ``None`` for records without the field (earlier pdeinv versions),
+    folders without ``run.json`` and runs without a posterior (nothing to compare the file's bytes with;
+    :func:`load_posterior` compares them, after checking what the file holds)."""
+    try:
+        record = json.loads((run / RUN_FILE).read_text())
+    except (OSError, ValueError):
+        return None
+    if not isinstance(record, dict) or "posterior_sha256" not in record:
+        return None
+    digest, where = record["posterior_sha256"], f"run folder {os.fspath(run)!r}"
+    if digest is None and path.is_file():
+        raise ValueError(f"{where}: its {RUN_FILE} records no posterior, but a {POSTERIOR_FILE} is there "
+                         "(another run's?); remove it, or rerun `pdeinv train`")
+    if digest is not None and not path.is_file():
+        raise ValueError(f"{where}: its {POSTERIOR_FILE} is missing (the run was calibrated: its "
+                         f"{RUN_FILE} records one); copy a run's files together, or rerun `pdeinv train`")
+    return digest if isinstance(digest, str) else None
+
+
 def _check_model_file(path: Path, digest, where: str) -> None:
     """``model.pt`` must be the file its ``run.json`` was written with (``model_sha256``; records of
     earlier pdeinv versions have none and are not checked): a model of the same shape copied from another
     run loads without a shape error and predicts another run's answers."""
     if digest is None:
         return
-    h = hashlib.sha256()
-    with open(path, "rb") as fh:
-        for block in iter(lambda: fh.read(1 << 20), b""):
-            h.update(block)
-    if h.hexdigest() != digest:
+    if _sha256(path) != digest:
         raise ValueError(f"{where}: {MODEL_FILE} is not the model its {RUN_FILE} was written with (its "
                          "sha256 differs: another run's model, or an edited file); copy a run's files "
                          "together, or rerun `pdeinv train`")

@@ -59,6 +59,9 @@ def default_model(problem, rows_per_component: float | None = None, refine: bool
     :mod:`pdeinv.methods.presets`). Those rules keep the whitened linear map below
     :data:`REDUCED_ABOVE` on every scene: they stop far from the fit in the decoder's span that makes
     the prior extrapolate (Adam on heat_cavity_3d: x-error 0.315 with the decoder, 0.171 without)."""
+    from .._checks import problem as _problem
+
+    _problem(problem)
     if base not in ("auto", "whitened"):
         raise ValueError(f"base={base!r} is not allowed; expected 'auto' or 'whitened'")
     net = _whitened_fallback(problem, rows_per_component) if base == "whitened" else \

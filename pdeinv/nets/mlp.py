@@ -84,10 +84,17 @@ def mlp(hidden=(256, 256), activation=nn.Tanh):
 
     The factory receives the problem and sizes the MLP to it (observations in,
     unknowns out).
+    ``hidden``: the widths of the hidden layers (integers >= 1); ``activation``: an ``nn.Module`` class
+    (called once per hidden layer).
     """
+    from .._checks import widths
+
+    hidden = widths(hidden)
+    if not (isinstance(activation, type) and issubclass(activation, nn.Module)):
+        raise TypeError(f"activation={activation!r:.80} is not allowed; expected a torch.nn.Module class, "
+                        "e.g. torch.nn.Tanh")
 
     def factory(problem) -> nn.Module:
-        return MLP(problem.operator.n_out, problem.operator.n_in, hidden=tuple(hidden),
-                   activation=activation)
+        return MLP(problem.operator.n_out, problem.operator.n_in, hidden=hidden, activation=activation)
 
     return factory

@@ -75,10 +75,11 @@ class PriorFit:
     seed: int = 0
 
     def __post_init__(self):
-        from .._checks import count
+        from .._checks import count, seed
 
         if self.steps is not None:  # 0: the blend and the data-consistency layer only
             count(self.steps, "PriorFit(steps)", minimum=0)
+        seed(self.seed, "PriorFit(seed)")
         count(self.patience, "PriorFit(patience)")
         count(self.decays, "PriorFit(decays)", minimum=0)
         if self.batch is not None:

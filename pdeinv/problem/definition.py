@@ -282,14 +282,24 @@ def _pdeinvs_own(path: Path, err: Exception) -> bool:
     return False
 
 
+def import_module(path: Path):
+    """The user's or built-in problem module at ``path``, executed (its exceptions propagate) under the name
+    :data:`~pdeinv.util.critical.USER_MODULE_PREFIX` + its stem, which keeps Ctrl-C and SIGTERM working
+    while its own code runs (:mod:`pdeinv.cli.signals`)."""
+    from ..util.critical import USER_MODULE_PREFIX
+
+    spec = importlib.util.spec_from_file_location(f"{USER_MODULE_PREFIX}{path.stem}", path)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
 def _run_module(path: Path, overrides: dict, where: str) -> Problem:
     """Import the module at ``path`` and call its ``make(**overrides)``. A user's module that fails is a
     :class:`ProblemModuleError` in one line; a built-in's failure keeps its own exception (a bug)."""
     builtin = path.parent == builtin_dir().resolve()
-    mod_spec = importlib.util.spec_from_file_location(f"pdeinv_problem_{path.stem}", path)
-    module = importlib.util.module_from_spec(mod_spec)
     try:
-        mod_spec.loader.exec_module(module)
+        module = import_module(path)
         make = getattr(module, "make", None)
         if not callable(make):
             raise ProblemModuleError(f"problem module {where} has no function make(**overrides)")

@@ -8,6 +8,7 @@ one or raises ``ValueError`` naming the value and what is allowed.
 from __future__ import annotations
 
 import math
+import numbers
 import os
 
 from .. import _checks
@@ -38,6 +39,10 @@ def _in_range(value, name, text):
 def _number(cast, check):
     def rule(value, name):
         text = value
+        if isinstance(value, numbers.Integral) and not isinstance(value, int):  # numpy's integers
+            value = int(value)
+        elif isinstance(value, numbers.Real) and not isinstance(value, int | float):  # np.float32(8)
+            value = float(value)
         if isinstance(value, str):
             try:
                 value = float(value)  # "1e2" is a number too; an int rule takes it if it is whole

@@ -123,6 +123,10 @@ def model(value, name: str = "model", optional: bool = True):
     if value is None and optional:
         return None
     if isinstance(value, torch.nn.Module):
+        if any(t.is_meta for t in (*value.parameters(), *value.buffers())):
+            raise ValueError(f"{name} has tensors on the 'meta' device (shapes only, no values); expected a "
+                             "network with its weights on the cpu or a cuda device (Trainer(device=...) "
+                             "moves it)")
         return value
     if _is_result(value):
         raise TypeError(f"{name} is a training Result; expected its network: pass result.model")

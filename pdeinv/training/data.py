@@ -47,13 +47,16 @@ def as_observations(data, m: int, name: str = "data") -> np.ndarray:
     if isinstance(data, Dataset):
         items = [data[i] for i in range(len(data))]
         items = [item[0] if isinstance(item, (tuple, list)) else item for item in items]
-        data = np.stack([_numpy(item) for item in items]) if items else np.zeros((0, m))
-    return _rows(_numpy(data), m, name)
+        data = np.stack([_numpy(item, name) for item in items]) if items else np.zeros((0, m))
+    return _rows(_numpy(data, name), m, name)
 
 
-def _numpy(a) -> np.ndarray:
+def _numpy(a, name: str = "data") -> np.ndarray:
     import torch
 
+    if isinstance(a, torch.Tensor) and a.is_meta:
+        raise ValueError(f"{name} is a tensor on the 'meta' device (shapes only, no values); expected "
+                         "numbers: a numpy array or a tensor on the cpu or a cuda device")
     return a.detach().cpu().numpy() if isinstance(a, torch.Tensor) else np.asarray(a)
 
 
@@ -265,11 +268,29 @@ def model_mismatch(op, x: np.ndarray, y: np.ndarray) -> float:
     float64 (:func:`pdeinv.problem.units.for_checks`: the figure is scale-free)."""
     from ..problem.units import for_checks
 
+    from ..fem.forms import relative_norms
+
     c = for_checks(y, op)
     x, y = x / c, y / c
     r = np.linalg.norm(np.asarray(op.forward(x)) - y, axis=1)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        return float(np.mean(np.where(r == 0, 0.0, r / np.linalg.norm(y, axis=1))))
+    return float(np.mean(relative_norms(r, np.linalg.norm(y, axis=1))))  # a zero row of y: on the rows' scale
+
+
+def zero_rows(y: np.ndarray, x: np.ndarray | None = None) -> str | None:
+    """A clause naming the rows of ``y`` that are all zero (with ``x``: whose ``x`` are not, so ``P x`` is
+    not zero either: observations missing, not an empty field), or None."""
+    zero = ~np.any(y != 0, axis=1)
+    if x is not None:
+        zero &= np.any(x != 0, axis=1)
+    rows = np.flatnonzero(zero)
+    if not rows.size:
+        return None
+    if rows[-1] - rows[0] + 1 == rows.size:
+        which = f"row {rows[0]}" if rows.size == 1 else f"rows {rows[0]}–{rows[-1]}"
+    else:
+        shown = ", ".join(map(str, rows[:5])) + (", …" if rows.size > 5 else "")
+        which = f"rows {shown} ({rows.size} in all)"
+    return f"{which} of y are all zero" + (" while their x are not" if x is not None else "")
 
 
 def explained(mismatch: float, noise: float) -> bool:
@@ -291,10 +312,13 @@ def mismatch_limit(noise: float) -> float:
     return max(MISMATCH_FACTOR * noise, MISMATCH_FLOOR)
 
 
-def beyond_noise(what: str, figure: float, noise: float) -> str | None:
+def beyond_noise(what: str, figure: float, noise: float, y=None, x=None) -> str | None:
     """Why observations whose ``what`` (of :func:`against`) is ``figure`` are not of a problem at noise
     level ``noise`` — ``figure`` above :func:`mismatch_limit` (or not a number) —, in one clause; None
-    within it."""
+    within it. With the file's ``y`` and ``x``: rows of ``y`` all zero whose ``x`` are not (:func:`zero_rows`)
+    are named, whatever the mean (``P x`` of a nonzero field is not zero: observations missing)."""
+    if y is not None and x is not None and (zero := zero_rows(y, x)) is not None:
+        return f"{zero}: observations missing? (P x of a nonzero x is not zero); drop those rows"
     limit = mismatch_limit(noise)
     if figure <= limit:
         return None

@@ -287,6 +287,16 @@ def _checked(net, hidden, n_train, steps, batch_size, own, n_test, prior) -> tup
     return hidden, steps, batch_size, arguments.prior(prior)
 
 
+def prior_part(problem, net: str = "default", hidden=None) -> bool:
+    """Whether the network ``--net net`` (``--hidden``: an MLP) of ``problem`` has a part the prior stage
+    fits (:class:`~pdeinv.nets.refine.Refined`): the default network and the U-Net, where the problem has a
+    correction for its mesh and no network of its own."""
+    from ..nets.defaults import correction_kind
+
+    return (not hidden and net in ("default", "unet") and problem.model_factory is None
+            and correction_kind(problem) is not None)
+
+
 def plan(problem, rule: str = "sip", *, net: str = "default", hidden=None, prior="auto",
          n_train: int = N_TRAIN, steps: int | None = None, batch_size: int | None = None, own=None,
          n_test: int = 128, fresh: bool = False, calibration="auto", **settings) -> Plan:
@@ -319,8 +329,7 @@ def plan(problem, rule: str = "sip", *, net: str = "default", hidden=None, prior
             "backend": getattr(op, "choice", None) or type(op).__name__,
             "inverse": repr(problem.inverse_simulator), **({"units": own.units} if own is not None else {})}
     stages = [{"name": rule_obj.name, "steps": steps, "batch": batch, "fresh": bool(fresh)}]
-    refined = kind in ("default", "unet") and problem.model_factory is None and \
-        correction_kind(problem) is not None
+    refined = prior_part(problem, net, hidden)
     prior_draws = 0
     if refined and prior is not None:
         st = prior.planned(problem, correction_kind(problem), own)

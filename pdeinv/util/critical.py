@@ -14,6 +14,11 @@ from __future__ import annotations
 import contextlib
 from collections.abc import Callable
 
+#: the module names a user's problem module is imported under (:func:`pdeinv.problem.definition.
+#: import_module`): its own code runs with an import on the stack, but an interrupt there is safe (a slow
+#: loop or read of the user's, not a C extension's initialisation), so signals are not held back for it
+USER_MODULE_PREFIX = "pdeinv_problem_"
+
 _depth = 0
 _held: Callable[[], None] | None = None
 

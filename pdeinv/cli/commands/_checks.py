@@ -66,10 +66,15 @@ def check_run(problem, args, hp: dict) -> None:
     """Refuse a run that would not fit in memory (:func:`pdeinv.training.plan.check_training`) or a HIG
     run whose step would take longer than :data:`HIG_MAX_STEP_S` (unless ``--allow-slow``);
     warn when ``--export-samples`` is above ``--n-test``."""
-    from pdeinv.training.plan import check_training
+    from pdeinv.training.plan import check_training, prior_part
     from pdeinv.training.trainset import N_TRAIN
 
     n_train = args.n_train or N_TRAIN
+    if (getattr(args, "prior_fit", None) or 0) > 0 and not prior_part(problem, getattr(args, "net", "default"),
+                                                                       args.hidden):
+        what = f"--hidden {args.hidden}" if args.hidden else f"--net {getattr(args, 'net', 'default')}"
+        raise UsageError(f"--prior-fit {args.prior_fit} does not apply: {what} of {problem.name} has no part "
+                         "fitted on prior draws (the default network and --net unet have one); drop it")
     # the trainer checks it under the API's names (a data file's rows: there, with the flags too)
     given = getattr(args, "batch_size", None) is not None  # a preset's rows per step are capped there
     if given and not getattr(args, "data", None) and (hp["batch_size"] or 0) > n_train:
@@ -124,9 +129,9 @@ def check_run(problem, args, hp: dict) -> None:
 def _prior_draws(problem, args) -> int:
     """The prior draws the trainer will hold for the default network's prior stage (0 without one):
     :func:`pdeinv.training.plan.draw_count`."""
-    from pdeinv.training.plan import draw_count
+    from pdeinv.training.plan import draw_count, prior_part
 
-    if args.prior_fit == 0 or getattr(args, "net", "default") not in ("default", "unet") or args.hidden:
+    if args.prior_fit == 0 or not prior_part(problem, getattr(args, "net", "default"), args.hidden):
         return 0
     return draw_count(problem.N)
 

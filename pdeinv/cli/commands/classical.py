@@ -85,7 +85,7 @@ def cmd_classical(args) -> int:
 
     rows = _solves(problem, y, x, noise, source, err)
     _finite(rows)
-    failed = _failed(problem, rows, x, y, noise, None if problem.noise else declared)
+    failed = _failed(problem, rows, x, y, problem.noise or declared or 0.0, None if problem.noise else declared)
     _in_units(rows, c)
     for name, value in rows.items():
         print(f"{problem.name} {name}: {json.dumps(value)}")
@@ -210,22 +210,27 @@ def _finite(rows: dict) -> None:
 
 def _failed(problem, rows: dict, x, y, noise: float, declared: float | None = None) -> str | None:
     """Why the classical solves cannot be right, or None: with x, a model mismatch far above the noise
-    (beyond :func:`pdeinv.training.data.mismatch_limit`, the limit of ``train`` and ``predict`` too: another
-    physics or other settings, e.g. κ), far below the level the file ``declared``
+    level ``noise`` the problem or the file declares (beyond :func:`pdeinv.training.data.mismatch_limit`, the
+    limit of ``train`` and ``predict`` too, which read no level off the file: a level estimated from the y
+    absorbed a mismatch of another κ; another physics or other settings), far below the level the file
+    ``declared``
     (:func:`~pdeinv.training.data.below_noise`), or every estimate no better than zero (x_err ≥ 1);
     without x, estimates over :data:`pdeinv.training.verdict.AMPLITUDE` times the prior's rms amplitude."""
     import numpy as np
 
-    from pdeinv.training.data import below_noise, mismatch_limit
+    from pdeinv.training.data import below_noise, mismatch_limit, zero_rows
     from pdeinv.training.verdict import AMPLITUDE, WORSE_THAN_ZERO
 
     mismatch = rows.get("model_mismatch")
     if mismatch is not None and declared and (why := below_noise(mismatch, declared)) is not None:
         return f"the file's noise level: {why}"
+    if x is not None and (zero := zero_rows(y, x)) is not None:
+        return f"in the file, {zero}: observations missing? (P x of a nonzero x is not zero); drop those rows"
     if mismatch is not None and not mismatch <= mismatch_limit(noise):
+        declare = "" if noise else " (noisy data: declare the level with --set noise=… or a 'noise' array)"
         return (f"the file's y differ from this problem's P x by {mismatch:.3g} (mean ‖P x − y‖/‖y‖), far "
-                f"above its noise level {noise:g}: the data come from another physics or other settings (κ, "
-                "T, the mesh?), so no estimate here means anything")
+                f"above the noise level {noise:g}{declare}: the data come from another physics or other "
+                "settings (κ, T, the mesh?), so no estimate here means anything")
     errs = {k: v["x_err"] for k, v in rows.items() if isinstance(v, dict) and v.get("x_err") is not None}
     if errs and min(errs.values()) >= WORSE_THAN_ZERO:
         return f"every classical estimate is no better than zero: x_err {min(errs.values()):.3g} at best"

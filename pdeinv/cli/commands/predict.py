@@ -91,7 +91,7 @@ def _check_data(args, problem, y, x, model) -> None:
 
     _check_units(args, y, model)
     what, figure = against(problem, y, x, args.data)
-    beyond = beyond_noise(what, figure, problem.noise)
+    beyond = beyond_noise(what, figure, problem.noise, y, x)
     why = no_signal(read_noise(y, problem.operator), len(y)) if beyond is None else \
         f"is not of this run's physics (run {problem.name}): {beyond}"
     if why is not None and not args.accept_bad:

@@ -11,22 +11,29 @@ ORDER = 3
 
 
 def describe(name: str) -> str:
-    """``name: first docstring line`` and one line of ``key=default`` settings."""
-    import importlib.util
-
-    from pdeinv.problem.definition import find_module
+    """``name: first docstring line`` and one line of ``key=default`` settings; a module that cannot be
+    imported (it raises, calls ``sys.exit``) or whose ``SETTINGS`` is not ``{name: (default, rule)}`` is one
+    line saying so, and the listing goes on."""
+    from pdeinv.problem.definition import find_module, first_line, import_module
 
     path = find_module(name)
-    spec = importlib.util.spec_from_file_location(f"pdeinv_problem_{path.stem}", path)
-    module = importlib.util.module_from_spec(spec)
     try:
-        spec.loader.exec_module(module)
-    except Exception as err:  # a broken module of the user's: listed, not fatal
-        return f"{name}: cannot be imported ({type(err).__name__}: {err})"
+        module = import_module(path)
+    except KeyboardInterrupt:
+        raise
+    except SystemExit as err:
+        return f"{name}: cannot be imported (it calls sys.exit({err.code!r}))\n    from {path}"
+    except BaseException as err:  # noqa: BLE001  a broken module of the user's: listed, not fatal
+        return f"{name}: cannot be imported ({type(err).__name__}: {first_line(err, 200)})\n    from {path}"
     doc = (module.__doc__ or "").strip().splitlines()
     settings = getattr(module, "SETTINGS", None)
-    shown = ("settings: " + ", ".join(f"{k}={v[0]!r}" for k, v in settings.items())
-             if isinstance(settings, dict) else "settings: see its make()")
+    if settings is None:
+        shown = "settings: see its make()"
+    elif isinstance(settings, dict) and all(isinstance(v, tuple) and v for v in settings.values()):
+        shown = "settings: " + ", ".join(f"{k}={v[0]!r}" for k, v in settings.items())
+    else:
+        shown = ("settings: its SETTINGS is not a dict of (default, rule) pairs "
+                 f"({type(settings).__name__}: {first_line(ValueError(repr(settings)), 80)})")
     return f"{name}: {doc[0] if doc else ''}\n    {shown}\n    from {path}"
 
 

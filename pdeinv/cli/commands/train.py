@@ -95,9 +95,6 @@ def _check_flags(args) -> Path:
     from pdeinv.io.runs import OUTPUTS
     from pdeinv.util.outpaths import run_folder
 
-    if args.resume and args.overwrite:
-        raise UsageError("--resume and --overwrite conflict: --resume continues the run in --out, "
-                         "--overwrite deletes it; pass one of them")
     out = run_folder(args.out, "--out", replace=args.overwrite or args.resume, outputs=OUTPUTS, create=False)
     _check_values(args)
     return out
@@ -106,6 +103,9 @@ def _check_flags(args) -> Path:
 def _check_values(args) -> None:
     """Refuse flags out of range or in conflict with each other: the run's checks, which ``--explain``
     makes too (a plan of a run that would be refused is no plan)."""
+    if args.resume and args.overwrite:
+        raise UsageError("--resume and --overwrite conflict: --resume continues the run in --out, "
+                         "--overwrite deletes it; pass one of them")
     if args.checkpoint_every < 0:
         raise UsageError(f"--checkpoint-every {args.checkpoint_every} is not allowed; "
                          "expected an integer >= 1, or 0 for no checkpoints")
@@ -223,15 +223,11 @@ def _remove_if_empty(out: Path, new: bool) -> None:
 
 
 def _train_into(args, out: Path) -> int:
-    from pdeinv.physics.backends.device import resolve
     from pdeinv.training.distributed import from_env
     from pdeinv.training.verdict import FailedRun
 
     ckpt = out / "checkpoint.pt"
-    try:
-        device = resolve(args.device)
-    except ValueError as err:
-        raise UsageError(f"--{err}") from None
+    device = _device(args)
     parallel = from_env(device)  # torchrun: joins the process group (a barrier); else one process
     try:
         parallel.check_same("command line", {k: v for k, v in vars(args).items() if k != "func"})
@@ -255,6 +251,16 @@ def _train_into(args, out: Path) -> int:
         parallel.close()
 
 
+def _device(args):
+    """``--device`` as a ``torch.device`` of this machine (a usage error naming it otherwise)."""
+    from pdeinv.physics.backends.device import resolve
+
+    try:
+        return resolve(args.device)
+    except ValueError as err:
+        raise UsageError(f"--{err}") from None
+
+
 def _explain(args) -> int:
     """``--explain``: the run's plan (:func:`pdeinv.training.plan.plan`) on stdout; nothing trained or
     written. The run's own checks follow it: a run that would be refused (its flags, its memory, a HIG
@@ -271,6 +277,7 @@ def _explain(args) -> int:
                       lr=args.lr, eta=args.eta, tau=args.tau, batch_size=args.batch_size, hidden=hidden,
                       optimizer=args.optimizer)
     _checks.check_run(problem, args, hp)
+    _device(args)
     return 0
 
 
@@ -459,7 +466,7 @@ def _refuse_mismatch(args, problem, y, x) -> None:
 
     what, figure = against(problem, y, x)  # one forward pass of the file's rows for both checks
     declared = read_meta(args.data, problem.points).get("noise")
-    why = beyond_noise(what, figure, problem.noise) or (below_noise(figure, declared) if declared else None)
+    why = beyond_noise(what, figure, problem.noise, y, x) or (below_noise(figure, declared) if declared else None)
     if why is not None:
         raise BadData(f"--data {args.data!r}: {why}; --accept-bad trains on it anyway")
 
