@@ -134,11 +134,12 @@ def problem(value, name: str = "problem", needs: tuple = ("disc", "operator")):
 def widths(value, name: str = "hidden") -> tuple[int, ...]:
     """A sequence of layer widths, each an integer >= 1 (``()``: no hidden layer)."""
     if isinstance(value, str | bytes) or not hasattr(value, "__iter__"):
-        raise TypeError(f"{name}={value!r:.80} is {type(value).__name__}; expected a tuple of integer widths, "
-                        "e.g. (64, 64)")
+        raise TypeError(f"{name}={value!r:.80} is {type(value).__name__}; expected a tuple of integer "
+                        "widths, e.g. (64, 64)")
     out = tuple(value)
     for w in out:
         if isinstance(w, bool) or not isinstance(w, Integral) or w < 1:
-            raise ValueError(f"{name}={out!r:.80} is not allowed; expected integer widths >= 1, e.g. (64, 64)")
+            raise ValueError(f"{name}={out!r:.80} is not allowed; expected integer widths >= 1, "
+                             "e.g. (64, 64)")
     return tuple(int(w) for w in out)
 

@@ -78,7 +78,8 @@ def write_fields(path, problem, x_true, x_pred, y_obs=None, y_pred=None, bars=No
         b = {k: batch(bars[k], disc.N, f"bars[{k!r}]")[0] for k in ("std", "lo", "hi")}
         wrong = [k for k, v in b.items() if v.shape != x_pred.shape]
         if wrong:
-            raise ValueError(f"bars[{wrong[0]!r}] has shape {b[wrong[0]].shape} but x_pred has {x_pred.shape}")
+            raise ValueError(f"bars[{wrong[0]!r}] has shape {b[wrong[0]].shape} but x_pred has "
+                             f"{x_pred.shape}")
         fields.update({f"x_{k}": v for k, v in b.items()})
         if x_true is not None:
             fields["x_outside"] = (x_true > b["hi"]).astype(float) - (x_true < b["lo"])

@@ -147,7 +147,8 @@ def save_run(out: str | os.PathLike, problem, overrides: dict | None = None, net
     ``posterior`` (``result.posterior``) is given; returns ``out``.
 
     ``problem``: the name or module path the run's problem is loaded from (a :class:`~pdeinv.Problem`
-    stands for its ``name``), ``overrides`` its settings (default none), ``network_spec`` the network's
+    stands for its ``name`` and, without ``overrides``, for its settings that differ from the module's
+    defaults), ``overrides`` its settings (default none), ``network_spec`` the network's
     :data:`NETWORKS` entry (default: the one the Trainer built ``model`` with, else ``{"kind": "default"}``,
     ``problem.model()``), ``model`` the trained
     network (``result.model``), e.g. ``save_run("runs/a", "heat_2d", model=result.model)``. The run is
@@ -161,15 +162,17 @@ def save_run(out: str | os.PathLike, problem, overrides: dict | None = None, net
     """
     import torch
 
+    from ..problem.definition import Problem
     from ..training import arguments as _arguments
     from ..util.outpaths import run_folder
 
+    given = problem if overrides is None and isinstance(problem, Problem) else None  # its own settings
     problem, overrides = _saved_problem(out, problem, overrides)
     model = _arguments.model(model, optional=False)
     _arguments.flag(overwrite, "overwrite")
     network_spec = _spec(network_spec, model)
     _refuse_another_run(run_folder(out, "out", replace=True, outputs=OUTPUTS, create=False), overwrite)
-    _check_loads(problem, overrides, model, posterior)  # before the folder is created
+    overrides = _check_loads(problem, overrides, model, posterior, given)  # before the folder is created
     out = run_folder(out, "out", replace=True, outputs=OUTPUTS)
     buffer = io.BytesIO()
     torch.save(_folded(model).state_dict(), buffer)
@@ -213,10 +216,12 @@ def _saved_problem(out, problem, overrides) -> tuple:
     return problem, overrides
 
 
-def _check_loads(problem, overrides: dict, model, posterior) -> None:
+def _check_loads(problem, overrides: dict, model, posterior, given=None) -> dict:
     """What :func:`load_run` will check, checked before anything is written: the problem loads with
     ``overrides`` (its settings' names and values), ``model`` maps its observations to its unknowns (two
-    zero rows through it: :func:`pdeinv.training.arguments.fits`), ``posterior`` is for them."""
+    zero rows through it: :func:`pdeinv.training.arguments.fits`), ``posterior`` is for them. ``given``: the
+    :class:`~pdeinv.Problem` passed without overrides, whose settings that differ from its module's
+    defaults become the overrides (``load_problem('heat_1d', n=8)`` is saved as ``n=8``); the overrides."""
     from ..posterior.conformal import Calibration
     from ..problem.definition import first_line, load_problem
     from ..training import arguments as _arguments
@@ -224,15 +229,31 @@ def _check_loads(problem, overrides: dict, model, posterior) -> None:
     if posterior is not None and not isinstance(posterior, Calibration):
         raise TypeError(f"{_arguments._named('posterior', posterior)} is {_arguments._kind(posterior)}; "
                         "expected None or a pdeinv.posterior.Calibration (result.posterior)")
-    try:
-        built = load_problem(problem, **overrides)
-    except (ValueError, TypeError, FileNotFoundError) as err:
-        raise ValueError(f"problem={os.fspath(problem)!r} with overrides={overrides!r} does not load "
-                         f"({first_line(err, 200)}): load_run could not rebuild this run") from None
+    def build(overrides):
+        try:
+            return load_problem(problem, **overrides)
+        except (ValueError, TypeError, FileNotFoundError) as err:
+            raise ValueError(f"problem={os.fspath(problem)!r} with overrides={overrides!r} does not load "
+                             f"({first_line(err, 200)}): load_run could not rebuild this run") from None
+
+    built = build(overrides)
+    own = {} if given is None else {k: v for k, v in given.settings.items()
+                                    if k in built.settings and _other(built.settings[k], v)}
+    if own:
+        overrides, built = own, build(own)
     _arguments.fits(model, built)
     if posterior is not None and posterior.scale.shape != (built.N,):
         raise ValueError(f"posterior is for {posterior.scale.shape[0]} unknowns; the run's problem has "
                          f"{built.N}: not this model's posterior")
+    return overrides
+
+
+def _other(a, b) -> bool:
+    """Whether two settings' values differ (arrays and other objects by their repr)."""
+    try:
+        return bool(a != b)
+    except (TypeError, ValueError):
+        return repr(a) != repr(b)
 
 
 def _refuse_another_run(out: Path, overwrite: bool) -> None:
@@ -266,9 +287,9 @@ def load_posterior(run_dir, problem=None):
         raise ValueError(f"{os.fspath(path)!r} is for {cal.scale.shape[0]} unknowns; the run's problem has "
                          f"{problem.N}: rerun `pdeinv train`")
     if digest is not None and _sha256(path) != digest:
-        raise ValueError(f"run folder {os.fspath(run)!r}: {POSTERIOR_FILE} is not the posterior its {RUN_FILE} "
-                         "was written with (its sha256 differs: another run's posterior, or an edited file); "
-                         "copy a run's files together, or rerun `pdeinv train`")
+        raise ValueError(f"run folder {os.fspath(run)!r}: {POSTERIOR_FILE} is not the posterior its "
+                         f"{RUN_FILE} was written with (its sha256 differs: another run's posterior, or an "
+                         "edited file); copy a run's files together, or rerun `pdeinv train`")
     return cal
 
 

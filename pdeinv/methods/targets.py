@@ -199,7 +199,8 @@ class SpectralWiener:
 
         basis = self._basis(problem, model)
         s = basis.g
-        f = s**2 / (s**2 + REL_ALPHA * (s[0] ** 2 if s.size else 0.0))
+        den = s**2 + REL_ALPHA * (s[0] ** 2 if s.size else 0.0)  # 0 where the physics observes nothing
+        f = np.divide(s**2, den, out=np.zeros_like(den), where=den > 0)
         return Filtered(basis.proj, basis.out, f, {"name": "tikhonov_rounding", "modes": int(s.size),
                                                    "kept": int(s.size), "rel_alpha": REL_ALPHA})
 

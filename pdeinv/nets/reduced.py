@@ -197,6 +197,9 @@ def decoder_basis(problem, k: int = REDUCED_K, k_max: int = REDUCED_K_MAX, sampl
     wide = min(k_max, max(k, first // 2)) if grows else min(k, n)
     draws = _Draws(problem, 20_161, 128)
     X = draws.take(first)
+    if not X.any():
+        raise ValueError(f"problem {problem.name!r}: its {len(X)} prior draws are all zero fields (does the "
+                         "sampler return zeros?): there is nothing to learn the prior from")
     kept, captured = _kept(_spectrum(X, M), wide, uncaptured)
     if grows and kept >= wide and 1 - captured > uncaptured:
         X, wide = draws.take(samples or 2 * k_max), k_max

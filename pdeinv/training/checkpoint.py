@@ -184,6 +184,13 @@ TRAINER_FLAGS = {"seed": "--seed", "n_train": "--n-train", "n_test": "--n-test",
                  "data": "--data", "fresh": "--fresh-draws"}
 
 
+def _data_value(key: str, value) -> str:
+    """A data setting as the user gave it: the data file by its rows' fingerprint, or none."""
+    if key == "data":
+        return "none (the scene's draws)" if value is None else f"a file of fingerprint {value}"
+    return repr(value)
+
+
 def check_identity(saved: dict, current: dict, path) -> None:
     """Refuse (``ValueError``) when the checkpoint at ``path`` belongs to a different run."""
     where = f"checkpoint {str(path)!r}"
@@ -196,6 +203,15 @@ def check_identity(saved: dict, current: dict, path) -> None:
     if saved["rule"] != current["rule"]:  # before the network, which another rule often changes too
         raise ValueError(f"{where} was written with rule {saved['rule']!r}; this run has {current['rule']!r} "
                          "(resume with the same rule, the CLI's --method, or use another output folder)")
+    if saved["trainer"] != current["trainer"]:  # a data file builds its own network: said first
+        keys = [k for k in dict.fromkeys([*saved["trainer"], *current["trainer"]])
+                if saved["trainer"].get(k) != current["trainer"].get(k)]
+        keys = ["data"] if "data" in keys else keys  # another file: its rows and batch follow from it
+        old, new = saved["trainer"], current["trainer"]
+        said = _few([f"{k}={_data_value(k, old.get(k))} (checkpoint) vs {_data_value(k, new.get(k))} "
+                     "(this run)" + (f" ({TRAINER_FLAGS[k]})" if k in TRAINER_FLAGS else "") for k in keys])
+        raise ValueError(f"{where} was written with other data settings: {said}; resume with the same ones, "
+                         "or use another output folder")
     s_net, c_net = saved["network"], current["network"]
     if s_net.get("class") != c_net.get("class"):  # another kind of network: its parts say nothing more
         raise ValueError(f"{where} holds a {s_net.get('class')} network; this run's is a "
@@ -209,14 +225,6 @@ def check_identity(saved: dict, current: dict, path) -> None:
     if diff:
         raise ValueError(f"{where} was written with rule {saved['rule']!r} and other hyper-parameters: "
                          f"{diff}; resume with the same settings (only --steps / --time-budget may change)")
-    if saved["trainer"] != current["trainer"]:
-        keys = [k for k in dict.fromkeys([*saved["trainer"], *current["trainer"]])
-                if saved["trainer"].get(k) != current["trainer"].get(k)]
-        old, new = saved["trainer"], current["trainer"]
-        said = _few([f"{k}={old.get(k)!r} (checkpoint) vs {new.get(k)!r} (this run)"
-                     + (f" ({TRAINER_FLAGS[k]})" if k in TRAINER_FLAGS else "") for k in keys])
-        raise ValueError(f"{where} was written with other data settings: {said}; resume with the same ones, "
-                         "or use another output folder")
 
 
 def run_identity(problem, rule, model: torch.nn.Module, trainer: dict) -> dict:

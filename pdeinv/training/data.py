@@ -266,9 +266,8 @@ def model_mismatch(op, x: np.ndarray, y: np.ndarray) -> float:
     """Mean over rows of ``‖P x_i − y_i‖ / ‖y_i‖`` (Euclidean): how far data ``(x, y)`` made elsewhere is
     from ``op`` (module docstring); on rows divided by a power of ten where their squares would leave
     float64 (:func:`pdeinv.problem.units.for_checks`: the figure is scale-free)."""
-    from ..problem.units import for_checks
-
     from ..fem.forms import relative_norms
+    from ..problem.units import for_checks
 
     c = for_checks(y, op)
     x, y = x / c, y / c

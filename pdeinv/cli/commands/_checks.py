@@ -70,8 +70,8 @@ def check_run(problem, args, hp: dict) -> None:
     from pdeinv.training.trainset import N_TRAIN
 
     n_train = args.n_train or N_TRAIN
-    if (getattr(args, "prior_fit", None) or 0) > 0 and not prior_part(problem, getattr(args, "net", "default"),
-                                                                       args.hidden):
+    net = getattr(args, "net", "default")
+    if (getattr(args, "prior_fit", None) or 0) > 0 and not prior_part(problem, net, args.hidden):
         what = f"--hidden {args.hidden}" if args.hidden else f"--net {getattr(args, 'net', 'default')}"
         raise UsageError(f"--prior-fit {args.prior_fit} does not apply: {what} of {problem.name} has no part "
                          "fitted on prior draws (the default network and --net unet have one); drop it")

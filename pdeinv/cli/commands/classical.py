@@ -85,7 +85,8 @@ def cmd_classical(args) -> int:
 
     rows = _solves(problem, y, x, noise, source, err)
     _finite(rows)
-    failed = _failed(problem, rows, x, y, problem.noise or declared or 0.0, None if problem.noise else declared)
+    assumed = problem.noise or declared or 0.0  # the level train and predict judge the mismatch at
+    failed = _failed(problem, rows, x, y, assumed, None if problem.noise else declared)
     _in_units(rows, c)
     for name, value in rows.items():
         print(f"{problem.name} {name}: {json.dumps(value)}")

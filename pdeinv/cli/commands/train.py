@@ -466,7 +466,8 @@ def _refuse_mismatch(args, problem, y, x) -> None:
 
     what, figure = against(problem, y, x)  # one forward pass of the file's rows for both checks
     declared = read_meta(args.data, problem.points).get("noise")
-    why = beyond_noise(what, figure, problem.noise, y, x) or (below_noise(figure, declared) if declared else None)
+    why = beyond_noise(what, figure, problem.noise, y, x) or (
+        below_noise(figure, declared) if declared else None)
     if why is not None:
         raise BadData(f"--data {args.data!r}: {why}; --accept-bad trains on it anyway")
 
