@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import math
 import sys
+from collections.abc import Iterable
 from numbers import Integral, Real
 
 import numpy as np
@@ -121,10 +122,12 @@ def choice(value, name: str, allowed) -> str:
     return value
 
 
-def problem(value, name: str = "problem", needs: tuple = ("disc", "operator")):
-    """A :class:`pdeinv.Problem`, or an object with its attributes ``needs`` (a name is not one: a TypeError
-    that says how to load it)."""
-    if isinstance(value, str | bytes) or not all(hasattr(value, k) for k in needs):
+def problem(value, name: str = "problem"):
+    """A :class:`pdeinv.Problem` (or an object standing in for one), not its name, a path, a number or
+    ``None``: a TypeError that says how to load it."""
+    import os
+
+    if value is None or isinstance(value, str | bytes | os.PathLike | Real | np.ndarray):
         hint = (f"; load it with pdeinv.load_problem({value!r})" if isinstance(value, str)
                 else "; expected a pdeinv.Problem (pdeinv.load_problem(name))")
         raise TypeError(f"{name}={value!r:.80} is {type(value).__name__}, not a pdeinv.Problem{hint}")
@@ -133,7 +136,7 @@ def problem(value, name: str = "problem", needs: tuple = ("disc", "operator")):
 
 def widths(value, name: str = "hidden") -> tuple[int, ...]:
     """A sequence of layer widths, each an integer >= 1 (``()``: no hidden layer)."""
-    if isinstance(value, str | bytes) or not hasattr(value, "__iter__"):
+    if isinstance(value, str | bytes) or not isinstance(value, Iterable):
         raise TypeError(f"{name}={value!r:.80} is {type(value).__name__}; expected a tuple of integer "
                         "widths, e.g. (64, 64)")
     out = tuple(value)

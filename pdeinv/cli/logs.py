@@ -19,11 +19,23 @@ import sys
 LOGGER = logging.getLogger("pdeinv")
 
 
+#: the library's progress lines (the trainer's stages) carry no command name: the handler says whose they are
+PROGRESS = "pdeinv.progress"
+
+
 class _Stderr(logging.Handler):
-    """Writes each message to the *current* ``sys.stderr`` (a test's capture included), one line."""
+    """Writes each message to the *current* ``sys.stderr`` (a test's capture included), one line; a
+    :data:`PROGRESS` line after the running command's name (``pdeinv bench: …`` where bench trains)."""
+
+    def __init__(self, command: str | None = None):
+        super().__init__()
+        self.command = command
 
     def emit(self, record: logging.LogRecord) -> None:
-        print(self.format(record), file=sys.stderr, flush=True)
+        text = self.format(record)
+        if record.name == PROGRESS:
+            text = f"pdeinv {self.command or 'train'}: {text}"
+        print(text, file=sys.stderr, flush=True)
 
 
 def add_arguments(parser) -> None:
@@ -43,7 +55,7 @@ def level(args) -> int:
 @contextlib.contextmanager
 def cli_logging(args):
     """The ``pdeinv`` logger at the level of ``--quiet`` / ``--verbose`` for one command, then as before."""
-    handler, before, propagate = _Stderr(), LOGGER.level, LOGGER.propagate
+    handler, before, propagate = _Stderr(getattr(args, "command", None)), LOGGER.level, LOGGER.propagate
     LOGGER.addHandler(handler)
     LOGGER.setLevel(level(args))
     LOGGER.propagate = False

@@ -63,7 +63,7 @@ def write_fields(path, problem, x_true, x_pred, y_obs=None, y_pred=None, bars=No
     if path.suffix not in (".vtu", ".xdmf"):
         raise ValueError(f"fields file {str(path)!r}: suffix {path.suffix!r} is not allowed; "
                          "expected '.vtu' or '.xdmf'")
-    disc = _problem(problem, needs=("disc",)).disc
+    disc = _problem(problem).disc
     x_pred, _ = batch(x_pred, disc.N, "x_pred")
     fields = {"x_pred": x_pred}
     if x_true is not None:

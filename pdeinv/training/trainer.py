@@ -473,9 +473,10 @@ class Trainer:
 
     def _say(self, line: str) -> None:
         """What a stage is doing, for whoever listens (logger ``"pdeinv"``, INFO: the CLI's progress
-        lines; silent with ``--quiet`` and for Python users who did not configure logging)."""
+        lines, after the running command's name; silent with ``--quiet`` and for Python users who did not
+        configure logging)."""
         if self.parallel.is_writer:
-            logging.getLogger("pdeinv").info(f"pdeinv train: {line}")
+            logging.getLogger("pdeinv.progress").info(line)
 
     def _calibration_rows(self, n: int):
         """The calibration stage's ``n`` held-out prior pairs: stream ``CALIBRATION_DATA`` of the seed."""

@@ -66,15 +66,11 @@ def check_run(problem, args, hp: dict) -> None:
     """Refuse a run that would not fit in memory (:func:`pdeinv.training.plan.check_training`) or a HIG
     run whose step would take longer than :data:`HIG_MAX_STEP_S` (unless ``--allow-slow``);
     warn when ``--export-samples`` is above ``--n-test``."""
-    from pdeinv.training.plan import check_training, prior_part
+    from pdeinv.training.plan import check_training
     from pdeinv.training.trainset import N_TRAIN
 
     n_train = args.n_train or N_TRAIN
-    net = getattr(args, "net", "default")
-    if (getattr(args, "prior_fit", None) or 0) > 0 and not prior_part(problem, net, args.hidden):
-        what = f"--hidden {args.hidden}" if args.hidden else f"--net {getattr(args, 'net', 'default')}"
-        raise UsageError(f"--prior-fit {args.prior_fit} does not apply: {what} of {problem.name} has no part "
-                         "fitted on prior draws (the default network and --net unet have one); drop it")
+    _prior_fit_applies(problem, args)
     # the trainer checks it under the API's names (a data file's rows: there, with the flags too)
     given = getattr(args, "batch_size", None) is not None  # a preset's rows per step are capped there
     if given and not getattr(args, "data", None) and (hp["batch_size"] or 0) > n_train:
@@ -124,6 +120,17 @@ def check_run(problem, args, hp: dict) -> None:
     if args.export_samples is not None and args.export_samples > args.n_test:  # the default: quietly fewer
         print(f"pdeinv train: warning: --export-samples {args.export_samples} is more than the "
               f"{args.n_test} test samples (--n-test); exporting {args.n_test}", file=sys.stderr)
+
+
+def _prior_fit_applies(problem, args) -> None:
+    """``--prior-fit N`` (N > 0) on a network with no part the prior stage fits: refused (was ignored)."""
+    from pdeinv.training.plan import prior_part
+
+    net = getattr(args, "net", "default")
+    if (getattr(args, "prior_fit", None) or 0) > 0 and not prior_part(problem, net, args.hidden):
+        what = f"--hidden {args.hidden}" if args.hidden else f"--net {net}"
+        raise UsageError(f"--prior-fit {args.prior_fit} does not apply: {what} of {problem.name} has no part "
+                         "fitted on prior draws (the default network and --net unet have one); drop it")
 
 
 def _prior_draws(problem, args) -> int:
