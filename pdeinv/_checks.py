@@ -145,4 +145,3 @@ def widths(value, name: str = "hidden") -> tuple[int, ...]:
             raise ValueError(f"{name}={out!r:.80} is not allowed; expected integer widths >= 1, "
                              "e.g. (64, 64)")
     return tuple(int(w) for w in out)
-

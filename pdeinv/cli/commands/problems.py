@@ -33,7 +33,7 @@ def describe(name: str) -> str:
         shown = "settings: " + ", ".join(f"{k}={v[0]!r}" for k, v in settings.items())
     else:
         shown = ("settings: its SETTINGS is not a dict of (default, rule) pairs "
-                 f"({type(settings).__name__}: {first_line(ValueError(repr(settings)), 80)})")
+                 f"({type(settings).__name__}: {repr(settings)[:80]})")
     return f"{name}: {doc[0] if doc else ''}\n    {shown}\n    from {path}"
 
 
