@@ -41,10 +41,12 @@ def row_count(N: int) -> int:
 #: for the calibration (the rest trains), and at least OWN_MIN rows, else none (too few for its two halves)
 OWN_SHARE, OWN_MIN = 0.2, 64
 
-#: stored residuals for samples: at most this many numbers (float16: 8 MB), 256 to 2048 rows. Every
+#: stored residuals for samples: at most this many numbers (float16: 17 MB), 256 to 2048 rows. Every
 #: sample of every observation is one of them, so their count bounds how well samples are calibrated
-#: (SBC against ``k`` references errs by about ``1/√k``)
-KEEP_NUMBERS, KEEP_ROWS = 4_000_000, (256, 2048)
+#: (SBC against ``k`` references errs by about ``0.8/√k``): heat_boxes 64² at 1 % kept 1 007 under 4·10⁶
+#: numbers, and its 2 000-row field-mean SBC p rose from 0.26 / 3e-7 / 0.11 to 0.70 / 1e-4 / 0.28 with 2 048
+#: (three calibration seeds, benchmarks/notes/posterior.md)
+KEEP_NUMBERS, KEEP_ROWS = 2**23, (256, 2048)
 
 
 @dataclass(frozen=True)
