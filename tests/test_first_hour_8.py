@@ -207,3 +207,29 @@ def test_numpy_numbers_are_settings_too():
     assert pdeinv.load_problem("heat_1d", n=np.int32(8)).N == n8
     with pytest.raises(ValueError, match=r"^n=8.5 is not allowed; expected an integer"):
         pdeinv.load_problem("heat_1d", n=np.float32(8.5))
+
+
+def test_round_8b_device_stage_name_posterior_folder_and_a_module_without_make(tmp_path, monkeypatch, capsys):
+    from pdeinv.physics.backends.device import resolve
+    from pdeinv.training.plan import PriorStage
+
+    with pytest.raises(ValueError, match=r"^device 'cpu:1' is not supported"):
+        resolve("cpu:1")
+    with pytest.raises(TypeError, match=r"^PriorStage\(name\)=5 is int"):
+        PriorStage(name=5)
+    with pytest.raises(ValueError, match=r"is not a directory"):
+        pdeinv.io.runs.load_posterior(tmp_path / "nope")
+    (tmp_path / "no_make.py").write_text("x = 1\n")
+    monkeypatch.setenv("PDEINV_PROBLEMS", str(tmp_path))
+    assert main(["problems"]) == 0
+    assert "no_make: has no function make(**overrides)" in capsys.readouterr().out
+
+
+def test_predict_warns_on_a_run_that_failed_its_own_check(runs, tmp_path, capsys):
+    run = tmp_path / "a"
+    shutil.copytree(runs / "a", run)
+    metrics = json.loads((run / "metrics.json").read_text())
+    (run / "metrics.json").write_text(json.dumps({**metrics, "failed": "the held-out x_err is 1"}))
+    assert main(["predict", str(run), "--data", str(runs / "clean.npz"), "--out", str(tmp_path / "p.npz"),
+                 "--threads", "1"]) == 0
+    assert "failed its own check (the held-out x_err is 1)" in capsys.readouterr().err

@@ -273,6 +273,9 @@ def load_posterior(run_dir, problem=None):
     from ..posterior.conformal import Calibration
 
     run = _run_path(run_dir, "run_dir")
+    if not run.is_dir():
+        raise ValueError(f"run folder {os.fspath(run)!r} is not a directory; expected the --out DIR of a "
+                         "finished `pdeinv train`")
     path = run / POSTERIOR_FILE
     digest = _posterior_digest(run, path)
     if not path.is_file():

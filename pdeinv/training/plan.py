@@ -92,6 +92,9 @@ class PriorStage:
     name: str = "prior"
 
     def __post_init__(self):
+        from .._checks import label
+
+        label(self.name, "PriorStage(name)")
         if not isinstance(self.fit, PriorFit):
             raise TypeError(f"PriorStage(fit={self.fit!r}) is not allowed; expected a "
                             "pdeinv.nets.refine.PriorFit")

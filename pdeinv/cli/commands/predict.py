@@ -50,6 +50,7 @@ def cmd_predict(args) -> int:
     set_threads(args.threads)
     problem, model = load_run(args.run)
     posterior = load_posterior(args.run, problem)
+    _say_if_failed(run)
     if posterior is None and (args.level is not None or args.samples is not None):
         raise UsageError(f"run {args.run!r} has no calibrated posterior (no posterior.npz: trained on a file "
                          "without x, or before calibration existed), so --level and --samples have nothing "
@@ -79,6 +80,21 @@ def cmd_predict(args) -> int:
     print(f"{problem.name}: {len(xhat)} predictions{error} -> {args.out}"
           + (f", {args.vtu}" if args.vtu else ""))
     return 0
+
+
+def _say_if_failed(run: Path) -> None:
+    """A warning when the run's own verdict failed it (``metrics.json``'s ``failed``, kept by
+    ``--accept-bad`` or written before its exit 3): its predictions are no better than that verdict."""
+    import json
+    import logging
+
+    try:
+        failed = json.loads((run / "metrics.json").read_text()).get("failed")
+    except (OSError, ValueError, AttributeError):
+        return
+    if failed:
+        logging.getLogger("pdeinv").warning(f"pdeinv predict: warning: run {str(run)!r} failed its own check "
+                                            f"({str(failed)[:160]}); its predictions are no better")
 
 
 def _check_data(args, problem, y, x, model) -> None:

@@ -25,6 +25,8 @@ def describe(name: str) -> str:
         return f"{name}: cannot be imported (it calls sys.exit({err.code!r}))\n    from {path}"
     except BaseException as err:  # noqa: BLE001  a broken module of the user's: listed, not fatal
         return f"{name}: cannot be imported ({type(err).__name__}: {first_line(err, 200)})\n    from {path}"
+    if not callable(vars(module).get("make")):
+        return f"{name}: has no function make(**overrides), so nothing can be built from it\n    from {path}"
     doc = (module.__doc__ or "").strip().splitlines()
     settings = getattr(module, "SETTINGS", None)
     if settings is None:

@@ -42,6 +42,8 @@ def resolve(device) -> torch.device:
         raise ValueError(f"device {device!r} is not a torch device; "
                          "allowed: 'cpu', 'cuda', 'cuda:N'") from None
     if dev.type == "cpu":
+        if dev.index not in (None, 0):  # torch takes cpu:1 and runs on the one CPU device
+            raise ValueError(f"device {device!r} is not supported; allowed: 'cpu', 'cuda', 'cuda:N'")
         return dev
     if dev.type != "cuda":
         raise ValueError(f"device {device!r} is not supported; allowed: 'cpu', 'cuda', 'cuda:N'")
