@@ -50,7 +50,6 @@ def cmd_predict(args) -> int:
     set_threads(args.threads)
     problem, model = load_run(args.run)
     posterior = load_posterior(args.run, problem)
-    _say_if_failed(run)
     if posterior is None and (args.level is not None or args.samples is not None):
         raise UsageError(f"run {args.run!r} has no calibrated posterior (no posterior.npz: trained on a file "
                          "without x, or before calibration existed), so --level and --samples have nothing "
@@ -64,6 +63,7 @@ def cmd_predict(args) -> int:
     y, x = read_npz(args.data, problem.operator.n_out, problem.N)
     read_meta(args.data, problem.points)  # the file's points, if any, are the run's problem's
     _check_data(args, problem, y, x, model)
+    _say_if_failed(run)  # after the checks: a refused input is one line
     xhat = predict(model, y)
     arrays = {"x": xhat} if posterior is None else \
         predictive(model, posterior, y, level, args.samples or 0, seed=args.seed)
