@@ -66,7 +66,9 @@ def _deliver(kind: type[BaseException], frame) -> None:
         signal.setitimer(signal.ITIMER_REAL, RETRY_S)
         return
     _pending = None
-    raise kind()
+    err = kind()
+    err.from_signal = True  # a user's module raising KeyboardInterrupt itself is not (from_signal)
+    raise err
 
 
 def _on_interrupt(signum, frame):
@@ -104,6 +106,13 @@ def terminate_as_interrupt():
         critical.hold(None)
         for sig, handler in previous.items():
             signal.signal(sig, handler)
+
+
+def from_signal(err: BaseException) -> bool:
+    """Whether ``err`` is a Ctrl-C or SIGTERM of the user's (raised by these handlers, or by Python's own
+    where they are not installed), not a ``KeyboardInterrupt`` a module raised by itself."""
+    ours = signal.getsignal(signal.SIGINT) is _on_interrupt
+    return getattr(err, "from_signal", False) or not ours
 
 
 def exit_code(err: BaseException) -> int:

@@ -241,11 +241,33 @@ def _check_loads(problem, overrides: dict, model, posterior, given=None) -> dict
                                     if k in built.settings and _other(built.settings[k], v)}
     if own:
         overrides, built = own, build(own)
+    _same_problem(model, built)
     _arguments.fits(model, built)
     if posterior is not None and posterior.scale.shape != (built.N,):
         raise ValueError(f"posterior is for {posterior.scale.shape[0]} unknowns; the run's problem has "
                          f"{built.N}: not this model's posterior")
     return overrides
+
+
+def _same_problem(model, problem) -> None:
+    """Refuse ``model`` trained (by the Trainer: its ``trained_on``) on another problem than ``problem``, or
+    on other settings: of the same size it maps the observations, and the saved run would predict with
+    another physics' network."""
+    from ..problem.units import unwrap
+
+    seen = getattr(model, "trained_on", None) or getattr(unwrap(model)[0], "trained_on", None)
+    if not isinstance(seen, dict):  # a network the user trained by hand: nothing recorded
+        return
+    settings = seen.get("settings") or {}
+    other = [k for k, v in settings.items() if k in problem.settings and _other(problem.settings[k], v)]
+    if seen.get("problem") == problem.name and not other:
+        return
+    if seen.get("problem") != problem.name:
+        raise ValueError(f"model was trained on problem {seen.get('problem')!r}, not on {problem.name!r}; "
+                         "save it with the problem it was trained on")
+    k = other[0]
+    raise ValueError(f"model was trained on {problem.name} with {k}={settings[k]!r}; the problem saved has "
+                     f"{k}={problem.settings[k]!r}: save it with the settings it was trained on")
 
 
 def _other(a, b) -> bool:
@@ -289,6 +311,8 @@ def load_posterior(run_dir, problem=None):
     if problem is not None and cal.scale.shape != (problem.N,):
         raise ValueError(f"{os.fspath(path)!r} is for {cal.scale.shape[0]} unknowns; the run's problem has "
                          f"{problem.N}: rerun `pdeinv train`")
+    if problem is not None:
+        _recorded_problem(run, problem)
     if digest is not None and _sha256(path) != digest:
         raise ValueError(f"run folder {os.fspath(run)!r}: {POSTERIOR_FILE} is not the posterior its "
                          f"{RUN_FILE} was written with (its sha256 differs: another run's posterior, or an "
@@ -416,6 +440,34 @@ def _sha256(path: Path) -> str:
         for block in iter(lambda: fh.read(1 << 20), b""):
             h.update(block)
     return h.hexdigest()
+
+
+def _recorded_problem(run: Path, problem) -> None:
+    """Refuse ``problem`` where ``run.json`` names another built-in problem or records other settings (the
+    posterior of heat_1d at n=8 has the size of wave_1d's at n=8). A module path is not compared by name
+    (its Problem's name is the module's choice); records that cannot be read are :func:`load_run`'s."""
+    from ..problem.definition import find_module, import_module
+    from ..problem.settings import resolve
+
+    try:
+        record = json.loads((run / RUN_FILE).read_text())
+        name, overrides = record["problem"], dict(record["overrides"])
+    except (OSError, ValueError, KeyError, TypeError):
+        return
+    try:  # the settings the run was trained with: its module's defaults and the overrides it records
+        trained = resolve(import_module(find_module(name)).SETTINGS, overrides, name)
+    except Exception:  # noqa: BLE001  (a module without SETTINGS, moved or broken: only what was recorded)
+        trained = overrides
+    where = f"run folder {os.fspath(run)!r}"
+    if isinstance(name, str) and not (name.endswith(".py") or "/" in name or os.sep in name) \
+            and name != problem.name:
+        raise ValueError(f"{where} is a run of problem {name!r}, not of {problem.name!r}; pass the run's "
+                         "own problem (pdeinv.load_run(run_dir)[0])")
+    for k, v in trained.items():
+        if k in problem.settings and _other(problem.settings[k], v) and str(problem.settings[k]) != str(v):
+            raise ValueError(f"{where} was trained with {k}={v}; the problem given has "
+                             f"{k}={problem.settings[k]!r}: pass the run's own problem "
+                             "(pdeinv.load_run(run_dir)[0])")
 
 
 def _posterior_digest(run: Path, path: Path) -> str | None:

@@ -86,15 +86,28 @@ class Resumable(Protocol):
 
 
 def adam(lr: float = 1e-3, **kw) -> OptimizerFactory:
-    """``params -> torch.optim.Adam(params, lr=lr, **kw)``; ``lr`` a finite number > 0 (checked here, not
-    at the first step)."""
-    return partial(torch.optim.Adam, lr=positive(lr, "adam lr"), **kw)
+    """``params -> torch.optim.Adam(params, lr=lr, **kw)``; ``lr`` a finite number > 0 and ``kw`` what
+    Adam takes (checked here, not at the first step)."""
+    return _checked(torch.optim.Adam, "adam", lr=positive(lr, "adam lr"), **kw)
 
 
 def sgd(lr: float = 1e-2, **kw) -> OptimizerFactory:
-    """``params -> torch.optim.SGD(params, lr=lr, **kw)``; ``lr`` a finite number > 0 (checked here, not
-    at the first step)."""
-    return partial(torch.optim.SGD, lr=positive(lr, "sgd lr"), **kw)
+    """``params -> torch.optim.SGD(params, lr=lr, **kw)``; ``lr`` a finite number > 0 and ``kw`` what SGD
+    takes (checked here, not at the first step)."""
+    return _checked(torch.optim.SGD, "sgd", lr=positive(lr, "sgd lr"), **kw)
+
+
+def _checked(cls, name: str, **settings) -> OptimizerFactory:
+    """``partial(cls, **settings)`` once ``cls`` has accepted ``settings`` on one scalar parameter: torch
+    checks ``betas``, ``weight_decay``, ``momentum`` … only when the optimizer is built, at the first step of
+    a run; here a bad one is a ``ValueError`` naming the call and the setting."""
+    try:
+        cls([torch.zeros(1, requires_grad=True)], **settings)
+    except (ValueError, TypeError) as err:
+        shown = ", ".join(f"{k}={v!r}" for k, v in settings.items() if k != "lr")
+        raise ValueError(f"pdeinv.{name}({shown}) is not allowed: {err}; expected the settings of "
+                         f"torch.optim.{cls.__name__}") from None
+    return partial(cls, **settings)
 
 
 def make_optimizer(factory, params: list) -> torch.optim.Optimizer:

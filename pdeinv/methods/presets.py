@@ -187,8 +187,9 @@ def hyperparameters(method: str, problem, noise: float = 0.0, linear_net: bool =
     hp.setdefault("rows_per_component", None)
     bad = sorted(k for k, v in overrides.items() if v is not None and (k not in hp or k == "steps"))
     if bad:
+        takes = sorted({k for k in hp if k in FLAGS} | {"steps"})  # the ones a user can set
         raise ValueError(f"{', '.join(map(_flagged, bad))} does not apply to method {method!r} "
-                         f"(--method {method}); it takes {', '.join(map(_flagged, sorted(hp)))}")
+                         f"(--method {method}); it takes {', '.join(map(_flagged, takes))}")
     hp.update({k: v for k, v in overrides.items() if v is not None})
     nonlinear_net = hp["hidden"] is not None or not linear_net
     if method == "hig" and nonlinear_net and overrides.get("batch_size") is None:

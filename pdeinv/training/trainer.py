@@ -344,6 +344,8 @@ class Trainer:
             # what rebuilds it: pdeinv.save_run's default network_spec (a data file's base is another)
             self.model.network_spec = {"kind": "default", **settings}
             lap("network")
+        # the problem it is trained on: pdeinv.save_run refuses to save it as another of the same size
+        self.model.trained_on = {"problem": self.problem.name, "settings": dict(self.problem.settings)}
         first = next(iter(self.model.parameters()), None)
         self.dtype = self.dtype or (torch.float32 if first is None else first.dtype)
         model = self.model.to(device=self.device, dtype=self.dtype)

@@ -14,13 +14,16 @@ def describe(name: str) -> str:
     """``name: first docstring line`` and one line of ``key=default`` settings; a module that cannot be
     imported (it raises, calls ``sys.exit``) or whose ``SETTINGS`` is not ``{name: (default, rule)}`` is one
     line saying so, and the listing goes on."""
+    from pdeinv.cli.signals import from_signal
     from pdeinv.problem.definition import find_module, first_line, import_module
 
     path = find_module(name)
     try:
         module = import_module(path)
-    except KeyboardInterrupt:
-        raise
+    except KeyboardInterrupt as err:
+        if from_signal(err):  # the user's Ctrl-C stops the listing
+            raise
+        return f"{name}: cannot be imported (it raises KeyboardInterrupt)\n    from {path}"
     except SystemExit as err:
         return f"{name}: cannot be imported (it calls sys.exit({err.code!r}))\n    from {path}"
     except BaseException as err:  # noqa: BLE001  a broken module of the user's: listed, not fatal
