@@ -328,7 +328,7 @@ API = [
      r"seed=-1 is not allowed; expected an integer from 0 to 4294967295"),
     ("train-seed-float", lambda: _trainer(seed=1.5), ValueError, r"seed=1\.5 is not allowed"),
     ("train-stop-unknown-name", lambda: _trainer(stop="early"), ValueError,
-     r"stop='early' is not allowed; expected one of 'discrepancy', 'plateau', 'none'"),
+     r"stop='early' is not allowed; expected one of 'auto', 'discrepancy', 'plateau', 'none'"),
     ("train-stop-is-a-class", lambda: _trainer(stop=pdeinv.DiscrepancyStop), TypeError,
      r"stop=.* is a class: call it, DiscrepancyStop\(\)"),
     ("train-checkpoint-number", lambda: _trainer(checkpoint=5), TypeError,

@@ -184,22 +184,25 @@ def test_plateau_stop_puts_the_network_back_to_its_lowest_residual():
     assert float(state.kept["s"]) == 0.9 and state.kept["s"].data_ptr() != model.s.data_ptr()
 
 
-def test_cli_auto_stops_nonlinear_runs_on_the_plateau():
-    """`--stop auto`: nonlinear physics gets the plateau stop, checked ~30 times a run; linear noise-free
-    runs none; `pdeinv.train(..., stop="plateau")` builds it by name."""
-    from pdeinv.cli.commands.train import STOPS
-    from pdeinv.training.stopping import PlateauStop
+def test_auto_stops_nonlinear_runs_on_the_plateau_in_python_as_in_the_cli():
+    """`--stop auto` and Python's default `stop="auto"` (one chooser): nonlinear physics gets the plateau
+    stop, checked ~30 times a run; linear noise-free runs none; a Trainer given no stop stops a nonlinear
+    run on the plateau as `pdeinv train` does (it ran all its steps before)."""
+    from pdeinv.training.arguments import stop
+    from pdeinv.training.stopping import PlateauStop, chosen
 
     ac = pdeinv.load_problem("allen_cahn_1d", n=16, steps=10)
-    assert STOPS["auto"](ac, 30) == PlateauStop(every=1) and STOPS["auto"](ac, 1000).every == 33
-    assert STOPS["auto"](pdeinv.load_problem("heat_1d", n=16), 30) is None
+    assert chosen(ac, 30) == PlateauStop(every=1) and chosen(ac, 1000).every == 33
+    assert stop("plateau", ac, 1000) == chosen(ac, 1000)  # by name, as --stop plateau
+    assert chosen(pdeinv.load_problem("heat_1d", n=16), 30) is None
     # noisy data: none where a denoised target fits, in the basis of P D with the network's decoder too
     wave = pdeinv.load_problem("wave_2d", n=12, noise=0.01, backend="steps")  # no spectral basis of its own
-    assert STOPS["auto"](wave, 30).name == "discrepancy"
-    assert STOPS["auto"](wave, 30, pdeinv.nets.reduced(k_in=8, k_out=16, k_max=16)(wave)) is None
+    assert chosen(wave, 30).name == "discrepancy"
+    assert chosen(wave, 30, pdeinv.nets.reduced(k_in=8, k_out=16, k_max=16)(wave)) is None
     res = pdeinv.Trainer(ac, "sip", steps=30, n_train=64, n_test=8, seed=0, progress=False,
-                         stop="plateau", prior=None).fit()
+                         prior=None, calibration=None).fit()
     assert res.metrics["stopped_by"] == "plateau" and res.metrics["steps"] < 30
+    assert pdeinv.Trainer(ac, "sip", stop=None, prior=None, calibration=None).stop is None
 
 
 def test_a_step_that_moves_nothing_ends_the_run_and_changes_no_result(monkeypatch):

@@ -76,13 +76,13 @@ def setup(problem, cand: Candidate, scale: float = 1.0, seed: int = 0):
 def train_once(problem, cand: Candidate, scale: float, seed: int, budget_s: float,
                n_train: int, n_test: int, eval_every: int) -> dict:
     """One run (with ``--stop auto``); a NaN/Inf is an outcome (``x_err = inf``), not a crash."""
-    from ..cli.commands.train import STOPS
+    from ..training.stopping import chosen
 
     rule, hp, model = setup(problem, cand, scale, seed)
     batch = None if hp["batch_size"] is None else min(hp["batch_size"], n_train)
     trainer = Trainer(problem, rule, model, steps=None, time_budget=budget_s, n_train=n_train,
                       n_test=n_test, batch_size=batch, seed=seed, eval_every=eval_every, progress=False,
-                      stop=STOPS["auto"](problem, None, model), prior=None)  # the rules alone, at equal time
+                      stop=chosen(problem, None, model), prior=None)  # the rules alone, at equal time
     try:
         with warnings.catch_warnings():  # rejected steps are counted in the result, not printed
             warnings.simplefilter("ignore", RuntimeWarning)

@@ -137,17 +137,19 @@ def model(value, name: str = "model", optional: bool = True):
                     f"(problem.model(), or result.model of a finished run){hint}")
 
 
-def stop(value, problem_):
-    """A stopping rule (``init``/``check``, ``n_val``, ``every``), ``None``, or a name: ``"discrepancy"``
-    (:class:`~pdeinv.DiscrepancyStop` as ``pdeinv train --stop discrepancy`` builds it), ``"plateau"``
-    (:class:`~pdeinv.PlateauStop`) or ``"none"``."""
+def stop(value, problem_, steps=None, model_=None):
+    """A stopping rule (``init``/``check``, ``n_val``, ``every``), ``None``, or a name, as ``pdeinv train
+    --stop`` builds it: ``"auto"`` (:func:`~pdeinv.training.stopping.chosen` for the run's ``steps`` and
+    network ``model_``), ``"discrepancy"`` (:class:`~pdeinv.DiscrepancyStop`), ``"plateau"``
+    (:class:`~pdeinv.PlateauStop`, checked about 30 times in ``steps``) or ``"none"``."""
     if value is None:
         return None
     if isinstance(value, str):
-        from .stopping import DiscrepancyStop, PlateauStop
+        from .stopping import DiscrepancyStop, PlateauStop, chosen
 
-        names = {"discrepancy": lambda: DiscrepancyStop(noise=None if problem_.noise else "estimate"),
-                 "plateau": PlateauStop, "none": lambda: None}
+        names = {"auto": lambda: chosen(problem_, steps, model_),
+                 "discrepancy": lambda: DiscrepancyStop(noise=None if problem_.noise else "estimate"),
+                 "plateau": lambda: PlateauStop(every=max(1, (steps or 30) // 30)), "none": lambda: None}
         if value not in names:
             raise ValueError(f"stop={value!r} is not allowed; expected one of {', '.join(map(repr, names))}, "
                              "None or a stopping rule such as pdeinv.DiscrepancyStop()")

@@ -235,3 +235,34 @@ class PlateauStop:
         if fired:
             model.load_state_dict(state.kept)
         return state, {"plateau": r2}, fired
+
+
+def chosen(problem, steps: int | None = None, model=None):
+    """The stopping rule a run gets by default (``Trainer(stop="auto")``, ``pdeinv train --stop auto``):
+
+    * nonlinear physics (declared): :class:`PlateauStop` checked about 30 times a run (every
+      ``steps // 30`` steps; SIP's 30: every step). The discrepancy stop never fired in the nonlinear runs
+      of benchmarks/notes/nonlinear.md, and SIP's steps there cost 75 s each after the third had converged;
+    * noise-free linear physics: none (the rule's steps);
+    * noisy linear physics: none where the trainer fits its denoised target
+      (:class:`pdeinv.methods.targets.SpectralWiener`): its fixed point is regularized, and a discrepancy
+      stop would only end slower rules (HIG: 0.141 at step 10 against 0.12 at step 100 on heat_2d at 1 %)
+      before they reach it; else :class:`DiscrepancyStop` (the problem's level, or one estimated).
+
+    Whether the target applies is asked with ``model``: a network with a prior decoder gets the Wiener
+    filter in the basis of ``P D`` where the operator has no spectral basis of its own. ``model=None``
+    stands for the default network, which has a prior decoder where the operator is not reversible
+    (:mod:`pdeinv.nets.defaults`)."""
+    from ..methods.targets import SpectralWiener
+    from ..physics.capabilities import reversible
+    from ..physics.nonlinear import is_linear
+
+    if not is_linear(problem.operator):
+        return PlateauStop(every=max(1, (steps or 30) // 30))
+    if not problem.noise:
+        return None
+    wiener = SpectralWiener()
+    decoded = model is None and not reversible(problem.operator)
+    if decoded or wiener.applies(problem, problem.noise, model):
+        return None
+    return DiscrepancyStop(noise=None if problem.noise else "estimate")

@@ -109,7 +109,9 @@ class Trainer:
     **Arguments.** ``problem`` is a :class:`~pdeinv.Problem` or a name / module path (loaded with
     :func:`~pdeinv.load_problem`); ``rule`` an update rule or a method name (``"sip"``, ``"gd"``,
     ``"adam"``, ``"hig"``, ``"supervised"``: :func:`pdeinv.methods.presets.make_rule`, the CLI's
-    ``--method``); ``stop`` a stopping rule, ``"discrepancy"`` or ``None``; ``checkpoint`` a
+    ``--method``); ``stop`` a stopping rule, ``None`` or a name as ``pdeinv train --stop`` takes it
+    (default ``"auto"``: :func:`pdeinv.training.stopping.chosen`, the CLI's default; ``None``: only
+    ``steps``, ``time_budget`` and the rule's fixed point end the run); ``checkpoint`` a
     :class:`~pdeinv.Checkpoint` or a path. Every argument is checked here: a wrong kind of object is a
     ``TypeError``, a wrong value a ``ValueError``, each naming the argument and what is allowed.
 
@@ -175,7 +177,7 @@ class Trainer:
     seed: int = 0
     eval_every: int = 50
     fit_scaling: bool = True
-    stop: object | str | None = None  # a stopping rule (.stopping), strategy object, or "discrepancy"
+    stop: object | str | None = "auto"  # a stopping rule (.stopping), None, or a name: "auto", "plateau", …
     target: object = "auto"  # what P f(y) must match (pdeinv.methods.targets): "auto", None or a strategy
     callbacks: list[Callback] = field(default_factory=list)
     progress: bool | None = None
@@ -260,7 +262,6 @@ class Trainer:
         self.target = args.target(self.target)
         self.rule = declared(args.rule(self.rule, self.problem, self.model))
         self.seed = args.seed(self.seed)
-        self.stop = args.stop(self.stop, self.problem)
         self.checkpoint = args.checkpoint(self.checkpoint)
         self.callbacks = args.callbacks(self.callbacks)
         self.dtype = args.dtype(self.dtype)
@@ -273,6 +274,8 @@ class Trainer:
         self._preset = run_defaults(self.rule, self.model, self.problem)
         if self.steps == PRESET:
             self.steps = None if self.time_budget is not None else self._preset["steps"]
+        # "auto": the CLI's --stop auto for these steps and this network (None: the default one)
+        self.stop = args.stop(self.stop, self.problem, self.steps, self.model)
         if self.batch_size == PRESET:  # the preset's rows per step, at most the training rows (below)
             self.batch_size, self._batch_preset = self._preset["batch_size"], True
 

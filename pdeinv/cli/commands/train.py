@@ -27,51 +27,15 @@ from . import (
 ORDER = 1
 
 
-def _discrepancy(problem, steps=None, model=None):
-    from pdeinv.training.stopping import DiscrepancyStop
-
-    return DiscrepancyStop(noise=None if problem.noise else "estimate")
-
-
 #: test samples a run writes to fields.vtu/png when --export-samples is not given (at most --n-test)
 EXPORT_SAMPLES = 3
 
 
-def _plateau(problem, steps=None, model=None):
-    """The held-out residual's plateau, checked about 30 times a run (every step of SIP's 30)."""
-    from pdeinv.training.stopping import PlateauStop
-
-    return PlateauStop(every=max(1, (steps or 30) // 30))
-
-
-def _auto(problem, steps=None, model=None):
-    """Nonlinear physics (declared): the plateau stop (:class:`pdeinv.training.stopping.PlateauStop`; the
-    discrepancy stop never fired in the nonlinear runs of benchmarks/notes/nonlinear.md, and SIP's steps there
-    cost 75 s each after the third had converged). Noisy data: the trainer's denoised target
-    (pdeinv.methods.targets) when it can fit one — its fixed point is regularized, and a discrepancy stop
-    would only end slower rules (HIG: 0.141 at step 10 against 0.12 at step 100 on heat_2d at 1 %) before
-    they reach it —, else the discrepancy stop. Whether it can is asked with the run's ``model``: a network
-    with a prior decoder gets the Wiener filter in the basis of ``P D`` where the operator has no spectral
-    basis of its own (wave_3d at 29 791 unknowns: no 128 held-out rows drawn by 50 Newmark steps each)."""
-    from pdeinv.methods.targets import SpectralWiener
-    from pdeinv.physics.nonlinear import is_linear
-
-    if not is_linear(problem.operator):
-        return _plateau(problem, steps)
-    if not problem.noise or SpectralWiener().applies(problem, problem.noise, model):
-        return None
-    return _discrepancy(problem)
-
-
-#: --stop: name -> (problem, steps, model) -> stopping rule (or None). 'auto' stops nonlinear runs on the
-#: held-out residual's plateau and noisy data by the discrepancy principle where no denoised target
-#: regularizes it, and leaves other runs to --steps / --time-budget.
-STOPS = {
-    "auto": _auto,
-    "discrepancy": _discrepancy,
-    "plateau": _plateau,
-    "none": lambda problem, steps=None, model=None: None,
-}
+#: --stop's names, built as Python's ``Trainer(stop=name)`` (:func:`pdeinv.training.arguments.stop`): 'auto'
+#: stops nonlinear runs on the held-out residual's plateau and noisy data by the discrepancy principle where
+#: no denoised target regularizes it, and leaves other runs to --steps / --time-budget
+#: (:func:`pdeinv.training.stopping.chosen`)
+STOPS = ("auto", "discrepancy", "plateau", "none")
 
 
 def _hidden(text: str) -> tuple[int, ...]:
@@ -380,7 +344,9 @@ def _parallel_train(args, out, ckpt, device, parallel) -> int:
     t_net, c_net = time.perf_counter(), time.process_time()
     model = network(problem, net)
     setup["network"], setup_cpu["network"] = time.perf_counter() - t_net, time.process_time() - c_net
-    stop = STOPS[args.stop](problem, _checks.steps(args, hp), model)
+    from pdeinv.training.arguments import stop as stopping_rule
+
+    stop = stopping_rule(args.stop, problem, _checks.steps(args, hp), model)
     chosen = _plan(args, problem, y, x) if parallel.is_writer else None  # metrics.json's "plan"
     trainer = Trainer(problem, rule, model, steps=_checks.steps(args, hp),
                       time_budget=args.time_budget,
