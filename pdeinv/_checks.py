@@ -145,3 +145,62 @@ def widths(value, name: str = "hidden") -> tuple[int, ...]:
             raise ValueError(f"{name}={out!r:.80} is not allowed; expected integer widths >= 1, "
                              "e.g. (64, 64)")
     return tuple(int(w) for w in out)
+
+
+def shown(value, limit: int = 80) -> str:
+    """``repr(value)`` on one line, at most ``limit`` characters (an array's or a module's repr spans
+    several)."""
+    text = " ".join(repr(value).split())
+    return text if len(text) <= limit else text[: limit - 3] + "..."
+
+
+def activation_class(activation, name: str = "activation"):
+    """``activation`` when it is an ``nn.Module`` class (called once per hidden layer), else a
+    ``TypeError`` that names it."""
+    from torch import nn
+
+    if not (isinstance(activation, type) and issubclass(activation, nn.Module)):
+        raise TypeError(f"{name}={shown(activation)} is not allowed; expected a torch.nn.Module class, "
+                        "e.g. torch.nn.Tanh")
+    return activation
+
+
+def float_dtype(value, name: str = "dtype"):
+    """``value`` when it is one of torch's real floating-point dtypes (a network factory's ``dtype=``): a
+    ``TypeError`` for anything not a ``torch.dtype`` (a string, a numpy type), a ``ValueError`` for an
+    integer, boolean or complex one."""
+    import torch
+
+    floats = (torch.float16, torch.bfloat16, torch.float32, torch.float64)
+    allowed = ", ".join(map(str, floats[:-1])) + f" or {floats[-1]}"
+    if not isinstance(value, torch.dtype):
+        raise TypeError(f"{name}={shown(value)} is {type(value).__name__}; expected a torch dtype: {allowed}")
+    if value not in floats:
+        raise ValueError(f"{name}={value!r} is not allowed; expected a floating-point dtype: {allowed}")
+    return value
+
+
+def matrix(value, name: str):
+    """``value`` when it is a real ``(m, k)`` array or tensor with ``m, k >= 1`` and finite entries (a
+    float tensor or array as given, anything else as float64 numpy): a ``TypeError`` for what is not a real
+    numeric array (a string, ``None``, objects), a ``ValueError`` for another shape or a NaN/Inf."""
+    import torch
+
+    a = value
+    if not (isinstance(a, torch.Tensor) and a.is_floating_point()):
+        a = np.asarray(value.detach().cpu() if isinstance(value, torch.Tensor) else value)
+        if value is None or a.dtype == object or a.dtype == bool or not np.issubdtype(a.dtype, np.number) \
+                or np.iscomplexobj(a):
+            kind = "" if value is None else f" of dtype {a.dtype}"
+            raise TypeError(f"{name}={shown(value)} is {type(value).__name__}{kind}; expected a real (m, k) "
+                            "array")
+        if not np.issubdtype(a.dtype, np.floating):
+            a = a.astype(float)
+    if a.ndim != 2 or 0 in a.shape:
+        raise ValueError(f"{name} has shape {tuple(a.shape)}; expected a 2-D (m, k) array with m, k >= 1")
+    finite = torch.isfinite(a) if isinstance(a, torch.Tensor) else np.isfinite(a)
+    if not bool(finite.all()):
+        bad = (~finite).nonzero()
+        first = tuple(int(i[0]) for i in bad) if isinstance(bad, tuple) else tuple(int(i) for i in bad[0])
+        raise ValueError(f"{name} contains NaN or Inf (first at index {first}); expected finite values")
+    return a

@@ -59,7 +59,7 @@ def test_save_run_refuses_another_problem_of_the_same_size(trained, tmp_path):
     assert (w.N, w.operator.n_out) == (h.N, h.operator.n_out)  # the shapes cannot tell them apart
     with pytest.raises(ValueError, match="trained on problem 'heat_1d', not on 'wave_1d'"):
         save_run(tmp_path / "w", w, model=result.model)
-    with pytest.raises(ValueError, match="kappa=0.01; the problem saved has kappa=0.02"):
+    with pytest.raises(ValueError, match="kappa=0.01; the problem given has kappa=0.02"):
         save_run(tmp_path / "k", "heat_1d", {"n": 8, "kappa": 0.02}, model=result.model)
     assert not (tmp_path / "w").exists() and not (tmp_path / "k").exists()
 

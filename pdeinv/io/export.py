@@ -45,8 +45,13 @@ def _cells(mesh) -> list:
     return [(cell_type(mesh).cell, mesh.t.T)]
 
 
-def write_fields(path, problem, x_true, x_pred, y_obs=None, y_pred=None, bars=None) -> Path:
+def write_fields(path, problem, x_true, x_pred, y_obs=None, y_pred=None, bars=None, *,
+                 overwrite: bool = False) -> Path:
     """Write true/predicted/error initial fields (and field observations) of a few samples.
+
+    ``path`` (``.vtu`` or ``.xdmf``) follows the output-path policy of ``pdeinv predict --vtu``
+    (:func:`pdeinv.util.outpaths.output_file`): its folder is created; an existing file is replaced only
+    with ``overwrite=True``, and a run folder's own files never.
 
     ``bars`` (:func:`pdeinv.posterior.predictive`'s ``{"std", "lo", "hi"}``, rows as ``x_pred``) adds
     ``x_std``, ``x_lo``, ``x_hi`` and, with ``x_true``, ``x_outside``: +1 where the truth lies above the
@@ -57,12 +62,28 @@ def write_fields(path, problem, x_true, x_pred, y_obs=None, y_pred=None, bars=No
     written only if the operator declares its observations fields on the mesh
     (:func:`pdeinv.physics.capabilities.observes_field`; sensor records are not). Returns the path.
     """
-    import meshio
+    from ..training.arguments import _kind, flag
+    from ..util.outpaths import output_file
 
-    path = Path(path)
-    if path.suffix not in (".vtu", ".xdmf"):
-        raise ValueError(f"fields file {str(path)!r}: suffix {path.suffix!r} is not allowed; "
+    if not isinstance(path, (str, os.PathLike)) or isinstance(os.fspath(path), bytes):
+        raise TypeError(f"path={path!r:.60} is {_kind(path)}; expected the file to write (str or path, "
+                        "ending in .vtu or .xdmf)")
+    flag(overwrite, "overwrite")
+    if Path(path).suffix not in (".vtu", ".xdmf"):
+        raise ValueError(f"fields file {os.fspath(path)!r}: suffix {Path(path).suffix!r} is not allowed; "
                          "expected '.vtu' or '.xdmf'")
+    data = _point_data(problem, x_true, x_pred, y_obs, y_pred, bars)  # checked before any folder is made
+    return _write(output_file(path, "path", suffixes=(".vtu", ".xdmf"), overwrite=overwrite), problem, data)
+
+
+def fields_file(path: Path, problem, x_true, x_pred, y_obs=None, y_pred=None, bars=None) -> Path:
+    """:func:`write_fields` into ``path`` as it is: for a caller that applied the output-path policy
+    itself (``pdeinv train`` into its run folder, ``pdeinv predict --vtu``)."""
+    return _write(Path(path), problem, _point_data(problem, x_true, x_pred, y_obs, y_pred, bars))
+
+
+def _point_data(problem, x_true, x_pred, y_obs, y_pred, bars) -> dict:
+    """The arrays :func:`write_fields` writes, at the mesh vertices, by name (``x_pred_0``, …), checked."""
     disc = _problem(problem).disc
     x_pred, _ = batch(x_pred, disc.N, "x_pred")
     fields = {"x_pred": x_pred}
@@ -86,8 +107,13 @@ def write_fields(path, problem, x_true, x_pred, y_obs=None, y_pred=None, bars=No
     for name, y in (("y_obs", y_obs), ("y_pred", y_pred)):
         if y is not None and observes_field(problem.operator):
             fields[name] = batch(y, disc.N, name)[0]
-    mesh = disc.basis.mesh
-    data = {f"{name}_{k}": v for name, X in fields.items() for k, v in enumerate(vertex_values(disc, X))}
+    return {f"{name}_{k}": v for name, X in fields.items() for k, v in enumerate(vertex_values(disc, X))}
+
+
+def _write(path: Path, problem, data: dict) -> Path:
+    import meshio
+
+    mesh = problem.disc.basis.mesh
     if path.suffix == ".xdmf":
         with meshio.xdmf.TimeSeriesWriter(os.fspath(path), data_format="XML") as w:
             w.write_points_cells(points_3d(mesh), _cells(mesh))
@@ -162,6 +188,7 @@ def predict(model, y, problem=None) -> np.ndarray:
     """
     import torch
 
+    from ..problem.trained import trained_for
     from ..problem.units import input_dtype
     from ..training import arguments as _arguments
 
@@ -170,6 +197,8 @@ def predict(model, y, problem=None) -> np.ndarray:
         y = y.detach().cpu().numpy()
     if isinstance(y, torch.nn.Module) or _arguments._is_result(y):
         raise TypeError("y is a network; the arguments are predict(model, y): swapped?")
+    if problem is not None:
+        trained_for(model, _problem(problem))
     width = None if problem is None else problem.operator.n_out
     Y = np.asarray(y)
     if width is None and Y.ndim in (1, 2) and Y.size:
@@ -211,7 +240,7 @@ def export_run(out, problem, model, x, y, samples: int = 3, png: bool = True, po
         from ..posterior import predictive
 
         bars = predictive(model, posterior, y)
-    written = {"fields": write_fields(out / "fields.vtu", problem, x, xhat, y, yhat, bars)}
+    written = {"fields": fields_file(out / "fields.vtu", problem, x, xhat, y, yhat, bars)}
     points = problem.settings.get("sensor_points") if isinstance(problem.settings, dict) else None
     if points is not None:
         written["sensors"] = write_sensors(out / "sensors.vtu", points)

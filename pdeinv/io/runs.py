@@ -7,7 +7,9 @@
      "network": {"kind": "default"} | {"kind": "mlp", "hidden": [64, 64]}
                 | {"kind": "reduced", "k_in": 256, "k_out": 256, "body": "linear"}
                 (+ "units": c when the data were divided by c: pdeinv.problem.units),
-     "model_sha256": "<hex digest of model.pt>"}
+     "model_sha256": "<hex digest of model.pt>",
+     "posterior_sha256": "<hex digest of posterior.npz>" | null,
+     "problem_sha256": "<hex digest of problem, overrides and network>"}
 
 and ``DIR/model.pt`` the network's state dict, the fitted whitening / input scaling
 buffers included. ``load_run(DIR)`` calls ``load_problem(problem, **overrides)``,
@@ -27,6 +29,7 @@ import hashlib
 import io
 import json
 import os
+import warnings
 from pathlib import Path
 
 from ..util.files import atomic_write, remove_stale_temporaries
@@ -182,6 +185,7 @@ def save_run(out: str | os.PathLike, problem, overrides: dict | None = None, net
               "overrides": {k: str(v) for k, v in overrides.items()}, "network": network_spec,
               "model_sha256": hashlib.sha256(weights).hexdigest(),
               "posterior_sha256": None if data is None else hashlib.sha256(data).hexdigest()}
+    record["problem_sha256"] = _problem_digest(record)
     text = json.dumps(record, indent=2).encode()
     atomic_write(out / MODEL_FILE, lambda fh: fh.write(weights))
     if data is not None:
@@ -224,6 +228,7 @@ def _check_loads(problem, overrides: dict, model, posterior, given=None) -> dict
     defaults become the overrides (``load_problem('heat_1d', n=8)`` is saved as ``n=8``); the overrides."""
     from ..posterior.conformal import Calibration
     from ..problem.definition import first_line, load_problem
+    from ..problem.trained import trained_for
     from ..training import arguments as _arguments
 
     if posterior is not None and not isinstance(posterior, Calibration):
@@ -241,33 +246,23 @@ def _check_loads(problem, overrides: dict, model, posterior, given=None) -> dict
                                     if k in built.settings and _other(built.settings[k], v)}
     if own:
         overrides, built = own, build(own)
-    _same_problem(model, built)
+    trained_for(model, built)
     _arguments.fits(model, built)
     if posterior is not None and posterior.scale.shape != (built.N,):
         raise ValueError(f"posterior is for {posterior.scale.shape[0]} unknowns; the run's problem has "
                          f"{built.N}: not this model's posterior")
+    if posterior is not None:
+        from ..posterior.predictive import forward
+
+        posterior.check_network(lambda rows: forward(model, rows))
     return overrides
 
 
-def _same_problem(model, problem) -> None:
-    """Refuse ``model`` trained (by the Trainer: its ``trained_on``) on another problem than ``problem``, or
-    on other settings: of the same size it maps the observations, and the saved run would predict with
-    another physics' network."""
-    from ..problem.units import unwrap
-
-    seen = getattr(model, "trained_on", None) or getattr(unwrap(model)[0], "trained_on", None)
-    if not isinstance(seen, dict):  # a network the user trained by hand: nothing recorded
-        return
-    settings = seen.get("settings") or {}
-    other = [k for k, v in settings.items() if k in problem.settings and _other(problem.settings[k], v)]
-    if seen.get("problem") == problem.name and not other:
-        return
-    if seen.get("problem") != problem.name:
-        raise ValueError(f"model was trained on problem {seen.get('problem')!r}, not on {problem.name!r}; "
-                         "save it with the problem it was trained on")
-    k = other[0]
-    raise ValueError(f"model was trained on {problem.name} with {k}={settings[k]!r}; the problem saved has "
-                     f"{k}={problem.settings[k]!r}: save it with the settings it was trained on")
+def _problem_digest(record: dict) -> str:
+    """The sha256 of what rebuilds the run's problem and network (``problem``, ``overrides``, ``network``
+    of ``run.json``): an edit of them (another κ for the trained model) is refused by :func:`load_run`."""
+    what = {k: record[k] for k in ("problem", "overrides", "network")}
+    return hashlib.sha256(json.dumps(what, sort_keys=True).encode()).hexdigest()
 
 
 def _other(a, b) -> bool:
@@ -292,9 +287,12 @@ def _refuse_another_run(out: Path, overwrite: bool) -> None:
 def load_posterior(run_dir, problem=None):
     """The run's :class:`~pdeinv.posterior.conformal.Calibration`, or ``None`` when it has none; a file
     that does not fit the run's problem (``problem``) is a ``ValueError``."""
+    from .._checks import problem as checked
     from ..posterior.conformal import Calibration
 
     run = _run_path(run_dir, "run_dir")
+    if problem is not None:
+        checked(problem)
     if not run.is_dir():
         raise ValueError(f"run folder {os.fspath(run)!r} is not a directory; expected the --out DIR of a "
                          "finished `pdeinv train`")
@@ -348,12 +346,22 @@ def load_run(run_dir):
         raise ValueError(f"{where}: {RUN_FILE}'s 'network' {json.dumps(record['network'])[:80]} builds no "
                          f"network ({first}); rerun `pdeinv train`") from None
     try:
-        state = torch.load(run / MODEL_FILE, map_location="cpu", weights_only=True)
+        with warnings.catch_warnings():  # torch's note on a pickle protocol names its own source file
+            warnings.simplefilter("ignore", UserWarning)
+            state = torch.load(run / MODEL_FILE, map_location="cpu", weights_only=True)
     except Exception:  # noqa: BLE001  (torch's unpickling errors are pages long and differ by version)
         raise ValueError(f"{where}: {MODEL_FILE} cannot be read as a torch state dict (damaged, or not a "
                          "file pdeinv wrote); rerun `pdeinv train`") from None
     _check_model_file(run / MODEL_FILE, record.get("model_sha256"), where)
     _load_state(model, state, where)
+    digest = record.get("problem_sha256")  # records of earlier pdeinv versions have none
+    if digest is not None and digest != _problem_digest(record):  # an edit the checks above let through
+        raise ValueError(f"{where}: {RUN_FILE}'s problem, overrides or network were edited after the run "
+                         "(they no longer match its problem_sha256): the model was trained with the ones "
+                         f"recorded; restore {RUN_FILE}, or rerun `pdeinv train` with the settings you want")
+    from ..problem.trained import mark_trained
+
+    mark_trained(model, problem)  # save_run and predict refuse it with another problem
     return problem, model.eval()
 
 
@@ -389,6 +397,9 @@ def _record(run: Path, where: str) -> dict:
          isinstance(spec, dict) and spec.get("kind") in NETWORKS),
         ("model_sha256", digest, "the sha256 of model.pt (a str of 64 hex digits)",
          digest is None or isinstance(digest, str)),
+        ("problem_sha256", record.get("problem_sha256"),
+         "the sha256 of its problem, overrides and network (a str of 64 hex digits)",
+         record.get("problem_sha256") is None or isinstance(record.get("problem_sha256"), str)),
         ("posterior_sha256", record.get("posterior_sha256"),
          "the sha256 of posterior.npz (a str of 64 hex digits), or null for a run without one",
          record.get("posterior_sha256") is None or isinstance(record.get("posterior_sha256"), str)),

@@ -7,10 +7,13 @@ from __future__ import annotations
 import torch
 from torch import nn
 
+from .._checks import flag, shown, widths
+from .._checks import problem as _problem
 from ..physics.nonlinear import is_linear
 from .net import DTYPE, whitened
 from .protocol import declared
 from .reduced import REDUCED_K_IN, REDUCED_K_MAX, decoder_uncaptured, reduced
+from .whitening import check_settings
 
 #: the largest fraction of the prior's energy a decoder may leave out before :func:`linear_default`
 #: takes the whitened map instead (an error floor of 0.1 %)
@@ -59,11 +62,12 @@ def default_model(problem, rows_per_component: float | None = None, refine: bool
     :mod:`pdeinv.methods.presets`). Those rules keep the whitened linear map below
     :data:`REDUCED_ABOVE` on every scene: they stop far from the fit in the decoder's span that makes
     the prior extrapolate (Adam on heat_cavity_3d: x-error 0.315 with the decoder, 0.171 without)."""
-    from .._checks import problem as _problem
-
     _problem(problem)
-    if base not in ("auto", "whitened"):
-        raise ValueError(f"base={base!r} is not allowed; expected 'auto' or 'whitened'")
+    check_settings(rows_per_component=rows_per_component)
+    flag(refine, "refine")
+    if not isinstance(base, str) or base not in ("auto", "whitened"):
+        raise ValueError(f"base={shown(base)} is not allowed; expected 'auto' or 'whitened'")
+    _correction(correction)
     net = _whitened_fallback(problem, rows_per_component) if base == "whitened" else \
         linear_default(problem, rows_per_component)
     return refined(problem, net, correction) if refine else net
@@ -74,6 +78,7 @@ def data_base(problem) -> str:
     fitted on the file's ``y`` with at most :data:`FALLBACK_COMPONENTS` components, so that nothing comes
     from the scene's sampler (a prior decoder would be the scene's prior, and on heat_2d files drawn from
     other priors it left SIP up to 1.7× best-α Tikhonov)."""
+    _problem(problem)
     return "whitened"
 
 
@@ -100,6 +105,8 @@ def linear_default(problem, rows_per_component: float | None = None) -> nn.Modul
     physics the whitened map, and above :data:`REDUCED_ABOVE` the reduced network's whitened input, keep one
     direction per :data:`NONLINEAR_ROWS_PER_COMPONENT` rows (one direction per row fits the training rows
     and amplifies the held-out residual)."""
+    _problem(problem)
+    check_settings(rows_per_component=rows_per_component)
     big = max(problem.operator.n_in, problem.operator.n_out) > REDUCED_ABOVE
     kw = {"rows_per_component": rows_per_component}
     nonlinear = rows_per_component is None and not is_linear(problem.operator)
@@ -144,6 +151,7 @@ def correction_kind(problem) -> str | None:
       misses the mixing (sine_gordon_2d at 16 129 unknowns: 0.20 against the U-Net's 0.56)."""
     from ..physics.nonlinear import is_linear
 
+    _problem(problem)
     mesh = None if problem.disc is None else problem.disc.basis.mesh
     dim = problem.points.shape[0] if mesh is not None else 0
     if not 1 <= dim <= 3:
@@ -152,6 +160,14 @@ def correction_kind(problem) -> str | None:
     if not small and nonlinear:
         return "span"  # in the base's decoder span; the U-Net where the base has no decoder (refined)
     return "dense" if small and (dim == 1 or nonlinear) else "grid"
+
+
+def _correction(correction) -> str:
+    """:func:`refined`'s ``correction``: ``'auto'``, ``'grid'``, ``'dense'`` or ``'span'``."""
+    if not isinstance(correction, str) or correction not in ("auto", "grid", "dense", "span"):
+        raise ValueError(f"correction={shown(correction)} is not allowed; expected 'auto', 'grid', 'dense' "
+                         "or 'span'")
+    return correction
 
 
 def refined(problem, base: nn.Module, correction: str = "auto") -> nn.Module:
@@ -169,10 +185,12 @@ def refined(problem, base: nn.Module, correction: str = "auto") -> nn.Module:
     from .corrections import DenseCorrection, SpanCorrection
     from .refine import Refined, SpectralFilter
 
+    _problem(problem)
+    if not isinstance(base, nn.Module):
+        raise TypeError(f"base={shown(base)} is {type(base).__name__}; expected a torch.nn.Module (the "
+                        "linear network, e.g. pdeinv.nets.linear_default(problem))")
+    _correction(correction)
     kind = correction_kind(problem)
-    if correction not in ("auto", "grid", "dense", "span"):
-        raise ValueError(f"correction={correction!r} is not allowed; expected 'auto', 'grid', 'dense' or "
-                         "'span'")
     if kind is None:
         return base
     decoder = declared(base).decoder
@@ -204,6 +222,7 @@ def default_size(problem) -> tuple[int, int]:
     the decoder may keep fewer than :data:`REDUCED_K_MAX` columns); a problem
     with its own ``model_factory`` gets the dense bound ``m² + m n + n`` (an upper bound for
     the scenes' MLP)."""
+    _problem(problem)
     m, n = problem.operator.n_out, problem.operator.n_in
     k = min(m, n)  # the whitening's components (:func:`whitened`)
     dense = m * k + k * n + n
@@ -218,6 +237,16 @@ def default_size(problem) -> tuple[int, int]:
     return dense + refined_size(problem), max(m, n)
 
 
+def _size_arguments(problem, kind, hidden, rows_per_component):
+    """:func:`network_size`'s arguments checked; ``hidden`` as widths (``()``: no MLP) or None."""
+    _problem(problem)
+    check_settings(rows_per_component=rows_per_component)
+    if not isinstance(kind, str):
+        raise ValueError(f"kind={shown(kind)} is not allowed; expected 'default', 'linear', 'whitened', "
+                         "'reduced', 'modal' or 'unet' (or hidden widths for the MLP)")
+    return None if hidden is None else widths(hidden)
+
+
 def network_size(problem, kind: str = "default", hidden=None, rows_per_component=None) -> dict:
     """What the network of ``--net kind`` (or the MLP of ``--hidden``) for ``problem`` will hold, without
     building it: ``params`` (trained), ``buffers`` (fixed arrays: whitening basis, decoder, grid maps),
@@ -227,11 +256,9 @@ def network_size(problem, kind: str = "default", hidden=None, rows_per_component
     training state per parameter. ``kind``: 'default', 'linear', 'whitened', 'reduced', 'modal'
     (:mod:`pdeinv.nets.modal`), 'unet' (:mod:`pdeinv.nets.unet`) or 'mlp' (``hidden`` given);
     ``rows_per_component``: the rule's cap (first-order rules), which decides the default's fallback."""
+    hidden = _size_arguments(problem, kind, hidden, rows_per_component)
     m, n = problem.operator.n_out, problem.operator.n_in
     itemsize = torch.finfo(DTYPE).bits // 8
-
-    def whitened_size(k):
-        return _whitened_size(m, n, k)
 
     def reduced_size():
         k_in, k_out = min(REDUCED_K_IN, m), min(REDUCED_K_MAX, n)
@@ -258,7 +285,7 @@ def network_size(problem, kind: str = "default", hidden=None, rows_per_component
                              f"operator of problem {problem.name!r} has none (heat's modal backend has one)")
         size = {**size, "build": 0}
     elif kind == "whitened":
-        size = whitened_size(min(m, n))
+        size = _whitened_size(m, n, min(m, n))
     elif kind == "reduced":
         size = reduced_size()
     elif kind in ("default", "linear"):
@@ -271,7 +298,7 @@ def network_size(problem, kind: str = "default", hidden=None, rows_per_component
             size = {k: max(red[k], fall[k]) for k in ("params", "buffers")}
             size["build"] = red["build"]
         else:
-            size = whitened_size(min(m, n))
+            size = _whitened_size(m, n, min(m, n))
         if kind == "default":  # the correction (.refine): U-Net parameters (trained) and grid maps
             size["params"] += refined_size(problem)
     else:
@@ -303,7 +330,7 @@ def refined_size(problem) -> int:
     where it adds nothing."""
     from .corrections import UNet
 
-    kind = correction_kind(problem)
+    kind = correction_kind(problem)  # checks the problem
     if kind is None:
         return 0
     if kind == "dense":

@@ -7,6 +7,8 @@ from __future__ import annotations
 import torch
 from torch import nn
 
+from .._checks import activation_class, count, shown, widths
+from .._checks import problem as _problem
 from .protocol import Network
 
 
@@ -19,8 +21,8 @@ class MLP(Network):
 
     def __init__(self, n_in: int, n_out: int, hidden=(256, 256), activation=nn.Tanh):
         super().__init__()
-        self.body = dense(n_in, n_out, hidden, activation)
-        self.register_buffer("shift", torch.zeros(n_in))
+        self.body = dense(n_in, n_out, hidden, activation)  # checks the arguments
+        self.register_buffer("shift", torch.zeros(int(n_in)))
         self.register_buffer("scale", torch.ones(()))
 
     def fit_observations(self, y, noise: float | None = None, **settings) -> MLP:
@@ -41,7 +43,11 @@ class MLP(Network):
 
 
 def dense(n_in: int, n_out: int, hidden=(256, 256), activation=nn.Tanh) -> nn.Sequential:
-    """``W_L σ(… σ(W_1 z) …)`` with a zero-initialized last layer (no input scaling)."""
+    """``W_L σ(… σ(W_1 z) …)`` with a zero-initialized last layer (no input scaling). ``n_in``, ``n_out``:
+    integers >= 1; ``hidden``: integer widths >= 1 (``()``: one linear layer); ``activation``: an
+    ``nn.Module`` class."""
+    n_in, n_out = count(n_in, "n_in"), count(n_out, "n_out")
+    hidden, activation = widths(hidden), activation_class(activation)
     layers, width = [], n_in
     for h in hidden:
         layers += [nn.Linear(width, h), activation()]
@@ -57,6 +63,8 @@ def zero_last_layer(model: nn.Module) -> nn.Module:
     Do this to a network of your own: a random head emits components the physics cannot
     see, and no update rule removes them. ``ValueError`` if the model has no ``nn.Linear``.
     """
+    if not isinstance(model, nn.Module):
+        raise TypeError(f"model={shown(model)} is {type(model).__name__}; expected a torch.nn.Module")
     linears = [m for m in model.modules() if isinstance(m, nn.Linear)]
     if not linears:
         raise ValueError(f"zero_last_layer: {type(model).__name__} has no torch.nn.Linear layer; "
@@ -87,14 +95,10 @@ def mlp(hidden=(256, 256), activation=nn.Tanh):
     ``hidden``: the widths of the hidden layers (integers >= 1); ``activation``: an ``nn.Module`` class
     (called once per hidden layer).
     """
-    from .._checks import widths
-
-    hidden = widths(hidden)
-    if not (isinstance(activation, type) and issubclass(activation, nn.Module)):
-        raise TypeError(f"activation={activation!r:.80} is not allowed; expected a torch.nn.Module class, "
-                        "e.g. torch.nn.Tanh")
+    hidden, activation = widths(hidden), activation_class(activation)
 
     def factory(problem) -> nn.Module:
+        problem = _problem(problem)
         return MLP(problem.operator.n_out, problem.operator.n_in, hidden=hidden, activation=activation)
 
     return factory

@@ -27,11 +27,13 @@ from __future__ import annotations
 import numpy as np
 import torch
 
+from .._checks import float_dtype, matrix
+from .._checks import problem as _problem
 from .mlp import dense
 from .net import DTYPE, Net
 from .protocol import Network
 from .reduced import Decoder
-from .whitening import Whitening
+from .whitening import Whitening, check_settings
 
 
 class ModalFeatures(Network):
@@ -41,7 +43,8 @@ class ModalFeatures(Network):
 
     def __init__(self, proj: np.ndarray, rows_per_component: float | None = None):
         super().__init__()
-        self.register_buffer("proj", torch.as_tensor(np.asarray(proj, dtype=float)), persistent=False)
+        proj = np.asarray(matrix(proj, "proj"), dtype=float)
+        self.register_buffer("proj", torch.as_tensor(proj), persistent=False)
         self.whitening = Whitening(self.proj.shape[1], rows_per_component=rows_per_component)
 
     @property
@@ -70,6 +73,7 @@ def visible_modes(problem):
     ``None`` where the operator has no spectral basis."""
     from ..physics.capabilities import modal_basis
 
+    _problem(problem)
     modes = modal_basis(problem.operator)
     if modes is None:
         return None
@@ -80,7 +84,11 @@ def modal(dtype: torch.dtype = DTYPE, rows_per_component: float | None = None):
     """A ``model_factory``: the linear map in the operator's visible modes (module docstring); a
     ``ValueError`` where the operator has no spectral basis. ``rows_per_component``: the whitening's cap
     for first-order rules (:class:`~pdeinv.nets.whitening.Whitening`)."""
+    dtype = float_dtype(dtype)
+    check_settings(rows_per_component=rows_per_component)
+
     def build(problem) -> Net:
+        _problem(problem)
         found = visible_modes(problem)
         if found is None:
             raise ValueError(f"net 'modal' (--net modal) needs an operator with a spectral basis; the "

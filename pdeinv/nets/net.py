@@ -10,9 +10,11 @@ from typing import NamedTuple
 import torch
 from torch import nn
 
+from .._checks import activation_class, float_dtype, shown, widths
+from .._checks import problem as _problem
 from .mlp import Residual, dense
 from .protocol import Network, declared
-from .whitening import Whitening
+from .whitening import Whitening, check_settings
 
 
 class Net(Network):
@@ -23,6 +25,10 @@ class Net(Network):
 
     def __init__(self, pre: nn.Module, body: nn.Module, post: nn.Module | None = None):
         super().__init__()
+        for name, part in (("pre", pre), ("body", body), ("post", post)):
+            if not (isinstance(part, nn.Module) or (name == "post" and part is None)):
+                allowed = "a torch.nn.Module or None" if name == "post" else "a torch.nn.Module"
+                raise TypeError(f"{name}={shown(part)} is {type(part).__name__}; expected {allowed}")
         self.pre, self.body = pre, body
         self.post = nn.Identity() if post is None else post
 
@@ -145,6 +151,8 @@ def fit_preconditioning(model: nn.Module, y, noise: float | None = None, **setti
     (it sets the whitening floor); ``settings`` go to the whitening (``drop=0``: floor at the noise,
     drop nothing). A model that declares nothing is left alone.
     """
+    if not isinstance(model, nn.Module):
+        raise TypeError(f"model={shown(model)} is {type(model).__name__}; expected a torch.nn.Module")
     declared(model).fit_observations(y, noise, **settings)
     return model
 
@@ -157,6 +165,13 @@ BODIES = {
 }
 
 
+def check_body(body) -> str:
+    """``body`` when it names one of :data:`BODIES`, else a ``ValueError`` that lists them."""
+    if not isinstance(body, str) or body not in BODIES:
+        raise ValueError(f"body={shown(body)} is not allowed; expected one of {', '.join(map(repr, BODIES))}")
+    return body
+
+
 def whitened(body: str = "linear", hidden=(256, 256), activation=nn.Tanh, rel_floor: float | None = None,
              drop: float | str = "edge", dtype: torch.dtype = DTYPE, rows_per_component: float | None = None,
              components: int | None = None):
@@ -167,10 +182,12 @@ def whitened(body: str = "linear", hidden=(256, 256), activation=nn.Tanh, rel_fl
     the body shrink from ``m`` to ``N`` inputs (wave_sensors_2d: 3072 → 1089). ``rows_per_component``:
     keep at most one whitened direction per that many training rows (for first-order rules,
     :class:`~pdeinv.nets.whitening.Whitening`)."""
-    if body not in BODIES:
-        raise ValueError(f"body={body!r} is not allowed; expected one of {', '.join(map(repr, BODIES))}")
+    body = check_body(body)
+    hidden, activation, dtype = widths(hidden), activation_class(activation), float_dtype(dtype)
+    check_settings(rel_floor, drop, components, rows_per_component)
 
     def factory(problem) -> nn.Module:
+        problem = _problem(problem)
         m, n = problem.operator.n_out, problem.operator.n_in
         k = min(m, n) if components is None else min(components, m, n)
         pre = Whitening(m, rel_floor, drop, components=k if k < m else None,

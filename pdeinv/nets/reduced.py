@@ -14,9 +14,12 @@ from __future__ import annotations
 import torch
 from torch import nn
 
-from .net import BODIES, DTYPE, Net
+from .._checks import activation_class, count, flag, float_dtype, matrix, nonnegative, widths
+from .._checks import problem as _problem
+from .._checks import seed as _seed
+from .net import BODIES, DTYPE, Net, check_body
 from .protocol import Network
-from .whitening import Whitening
+from .whitening import Whitening, check_settings
 
 #: at most this many decoder columns out of :func:`reduced` (``k_out``); fewer when they hold all but
 #: :data:`REDUCED_UNCAPTURED` of the prior's energy. 512: heat_3d's decoder error nearly halves from 256
@@ -55,13 +58,21 @@ def decoder_uncaptured(noise: float | None) -> float:
 REDUCED_K_IN = 1024
 
 
+def _samples(samples) -> None:
+    """``samples``: ``None`` (the default draws) or an integer >= 1."""
+    if samples is not None:
+        count(samples, "samples")
+
+
 class Decoder(Network):
     """``x = Φ c``: a fixed basis ``Φ`` (``N × k``, a buffer, not trained) times coefficients ``c``.
     ``persistent=False``: the basis is rebuilt from the problem, not saved (:mod:`pdeinv.nets.modal`)."""
 
     def __init__(self, basis: torch.Tensor, persistent: bool = True):
         super().__init__()
-        self.register_buffer("basis", torch.as_tensor(basis).T.contiguous(), persistent=persistent)  # (k, N)
+        flag(persistent, "persistent")
+        basis = torch.as_tensor(matrix(basis, "basis"))
+        self.register_buffer("basis", basis.T.contiguous(), persistent=persistent)  # (k, N)
 
     def forward(self, c: torch.Tensor) -> torch.Tensor:
         return c @ self.basis
@@ -172,6 +183,11 @@ def prior_basis(problem, k: int, samples: int | None = None, seed: int = 20_161,
     Returns ``(Φ, info)``; ``info``: the captured fraction, the components kept and the draws.
     Deterministic (``seed``), so a saved network rebuilds the same buffer.
     """
+    _problem(problem)
+    k, chunk, seed = count(k, "k"), count(chunk, "chunk"), _seed(seed)
+    _samples(samples)
+    flag(scaled, "scaled")
+    nonnegative(uncaptured, "uncaptured")
     X = _Draws(problem, seed, chunk).take(samples or 4 * k)
     return _basis(X, _mass(problem), k, scaled, uncaptured)
 
@@ -189,6 +205,13 @@ def decoder_basis(problem, k: int = REDUCED_K, k_max: int = REDUCED_K_MAX, sampl
     (:func:`_spectrum`); the directions are computed once, for the pass kept. ``at_most``: a decoder that
     leaves more than this fraction out is not built (``(None, info)``: heat_boxes at 64² decides in a
     third of the time of building the decoder it then refused)."""
+    _problem(problem)
+    k, k_max = count(k, "k"), count(k_max, "k_max")
+    _samples(samples)
+    flag(scaled, "scaled")
+    nonnegative(uncaptured, "uncaptured")
+    if at_most is not None:
+        nonnegative(at_most, "at_most")
     n, M = problem.operator.n_in, _mass(problem)
     grows = k < k_max < n
     first = samples or 4 * min(k, n)
@@ -229,13 +252,18 @@ def reduced(k_in: int = REDUCED_K_IN, k_out: int = REDUCED_K, body: str = "linea
     would leave more than this fraction of the prior's energy out, the factory builds nothing and
     returns ``None`` (:func:`decoder_basis`).
     """
-    if body not in BODIES:
-        raise ValueError(f"body={body!r} is not allowed; expected one of {', '.join(map(repr, BODIES))}")
-    for name, k in (("k_in", k_in), ("k_out", k_out), ("k_max", k_max)):
-        if isinstance(k, bool) or not isinstance(k, int) or k < 1:
-            raise ValueError(f"{name}={k!r} is not allowed; expected an integer >= 1")
+    body = check_body(body)
+    k_in, k_out, k_max = count(k_in, "k_in"), count(k_out, "k_out"), count(k_max, "k_max")
+    hidden, activation, dtype = widths(hidden), activation_class(activation), float_dtype(dtype)
+    check_settings(rel_floor, drop, None, rows_per_component)
+    _samples(samples)
+    flag(scaled, "scaled")
+    nonnegative(uncaptured, "uncaptured")
+    if at_most is not None:
+        nonnegative(at_most, "at_most")
 
     def factory(problem) -> nn.Module:
+        _problem(problem)
         m = problem.operator.n_out
         basis, info = decoder_basis(problem, k_out, k_max, samples, scaled, uncaptured, at_most)
         if basis is None:

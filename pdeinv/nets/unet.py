@@ -29,6 +29,8 @@ from __future__ import annotations
 import numpy as np
 import torch
 
+from .._checks import count, flag, shown
+from .._checks import problem as _problem
 from .corrections import SpectralFilter, UNet
 from .protocol import Network
 
@@ -49,6 +51,17 @@ class MeshUNet(Network):
     def __init__(self, grid, physics: SpectralFilter | None, observed: bool, channels: int = CHANNELS,
                  residual: bool = False):
         super().__init__()
+        from ..fem.grid import GridMap
+
+        if not isinstance(grid, GridMap):
+            raise TypeError(f"grid={shown(grid)} is {type(grid).__name__}; expected a "
+                            "pdeinv.fem.grid.GridMap of the unknowns, GridMap(problem.points, spacing(mesh))")
+        if physics is not None and not isinstance(physics, torch.nn.Module):
+            raise TypeError(f"physics={shown(physics)} is {type(physics).__name__}; expected a "
+                            "pdeinv.nets.corrections.SpectralFilter (a torch.nn.Module y -> x) or None")
+        flag(observed, "observed")
+        channels = count(channels, "channels")
+        flag(residual, "residual")
         if physics is None and not observed:
             raise ValueError("MeshUNet needs an input: observations on the unknowns (m = N) or a physics "
                              "estimate (physics=SpectralFilter)")
@@ -96,6 +109,7 @@ def inputs(problem) -> int:
     the physics estimate where the operator has a spectral basis."""
     from ..physics.capabilities import modal_basis
 
+    _problem(problem)
     return int(problem.operator.n_out == problem.N) + int(modal_basis(problem.operator) is not None)
 
 
@@ -104,6 +118,8 @@ def size(problem, channels: int = CHANNELS) -> dict:
     same on every mesh of a dimension), ``buffers`` (the grid maps' ``2^dim`` indices and weights per
     unknown, an upper bound of ``4N`` grid points, two scales) and ``widest`` (one sample's largest
     activation: ``3c`` channels on at most ``4N`` grid points)."""
+    _problem(problem)
+    channels = count(channels, "channels")
     dim = problem.points.shape[0]
     params = sum(q.numel() for q in UNet(dim, channels, max(inputs(problem), 1)).parameters())
     return {"params": params, "buffers": 2 * problem.N * 2**dim + 4 * problem.N + 2,
@@ -120,11 +136,17 @@ def unet(channels: int = CHANNELS, residual: bool | None = None, refine: bool = 
     the default network's base (:func:`pdeinv.nets.defaults.refined`): a correction and a data-consistency
     layer, off and untrained, for the prior stage to fit on top of what the rule trained (``prior=None`` /
     ``--prior-fit 0``: the U-Net alone)."""
+    channels = count(channels, "channels")
+    if residual is not None:
+        flag(residual, "residual")
+    flag(refine, "refine")
+
     def build(problem) -> torch.nn.Module:
         from ..fem.grid import GridMap, spacing
         from ..inverse import NOISE_FREE_REL_ALPHA
         from ..physics.capabilities import modal_basis
 
+        _problem(problem)
         mesh = None if problem.disc is None else problem.disc.basis.mesh
         if mesh is None or not 1 <= problem.points.shape[0] <= 3:
             raise ValueError(f"net 'unet' needs unknowns at the nodes of a 1-3-D mesh; problem "
@@ -132,7 +154,7 @@ def unet(channels: int = CHANNELS, residual: bool | None = None, refine: bool = 
         modes = modal_basis(problem.operator)
         noise = float(problem.noise or 0.0)
         physics = None if modes is None else SpectralFilter(modes, max(noise, NOISE_FREE_REL_ALPHA**0.5) ** 2)
-        observed = problem.operator.n_out == problem.N
+        observed = bool(problem.operator.n_out == problem.N)
         if physics is None and not observed:
             raise ValueError(f"net 'unet' on problem {problem.name!r}: its observations are not on the "
                              "unknowns and its operator has no spectral basis for a physics estimate; use "

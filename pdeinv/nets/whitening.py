@@ -58,9 +58,12 @@ travel with the state dict (checkpoints, ``model.pt``) and ``fitted`` says wheth
 
 from __future__ import annotations
 
+from numbers import Integral, Real
+
 import numpy as np
 import torch
 
+from .._checks import count, shown
 from ..inverse.noise import noise_variance
 from .protocol import Network
 
@@ -71,26 +74,35 @@ REL_FLOORS = {torch.float64: 0.0, torch.float32: 1e-10}
 REL_FLOOR = REL_FLOORS[torch.float32]
 
 
+def check_settings(rel_floor=None, drop="edge", components=None, rows_per_component=None) -> None:
+    """A ``ValueError`` naming the first of :class:`Whitening`'s settings that is not allowed; the
+    factories that build one (:func:`~pdeinv.nets.whitened`, :func:`~pdeinv.nets.reduced`,
+    :func:`~pdeinv.nets.modal`) call it when they are made, not when they build."""
+    r = rows_per_component
+    if r is not None and (isinstance(r, bool) or not isinstance(r, Real) or not r >= 1 or not np.isfinite(r)):
+        raise ValueError(f"rows_per_component={shown(r)} is not allowed; expected a number >= 1 or None")
+    if components is not None and (isinstance(components, bool) or not isinstance(components, Integral)
+                                   or components < 1):
+        raise ValueError(f"components={shown(components)} is not allowed; expected an integer >= 1 or None")
+    number = isinstance(rel_floor, Real) and not isinstance(rel_floor, bool)
+    if rel_floor is not None and not (number and rel_floor > 0 and np.isfinite(rel_floor)):
+        raise ValueError(f"rel_floor={shown(rel_floor)} is not allowed; expected a number > 0 or None")
+    if not (isinstance(drop, str) and drop == "edge") and not (
+            isinstance(drop, Real) and not isinstance(drop, bool) and drop >= 0 and np.isfinite(drop)):
+        raise ValueError(f"drop={shown(drop)} is not allowed; expected 'edge' or a number >= 0")
+
+
 class Whitening(Network):
     """``z = D Uᵀ (y − μ)`` fitted by :meth:`fit` on training observations (module docstring)."""
 
     def __init__(self, m: int, rel_floor: float | None = None, drop: float | str = "edge",
                  components: int | None = None, rows_per_component: float | None = None):
         super().__init__()
+        m = count(m, "m")
+        check_settings(rel_floor, drop, components, rows_per_component)
         r = rows_per_component
-        if r is not None and (isinstance(r, bool) or not isinstance(r, (int, float)) or not r >= 1
-                              or not np.isfinite(r)):
-            raise ValueError(f"rows_per_component={r!r} is not allowed; expected a number >= 1 or None")
         self.rows_per_component = None if r is None else float(r)
-        if components is not None and (isinstance(components, bool) or not isinstance(components, int)
-                                       or components < 1):
-            raise ValueError(f"components={components!r} is not allowed; expected an integer >= 1 or None")
-        number = isinstance(rel_floor, (int, float)) and not isinstance(rel_floor, bool)
-        if rel_floor is not None and not (number and rel_floor > 0 and np.isfinite(rel_floor)):
-            raise ValueError(f"rel_floor={rel_floor!r} is not allowed; expected a number > 0 or None")
-        if drop != "edge" and not (isinstance(drop, (int, float)) and drop >= 0 and np.isfinite(drop)):
-            raise ValueError(f"drop={drop!r} is not allowed; expected 'edge' or a number >= 0")
-        self.m, self.drop = int(m), drop
+        self.m, self.drop = m, drop
         self.rel_floor = None if rel_floor is None else float(rel_floor)
         self.k = self.m if components is None else min(int(components), self.m)
         self.register_buffer("mean", torch.zeros(m))

@@ -30,12 +30,18 @@ from __future__ import annotations
 
 import io
 from dataclasses import dataclass
+from numbers import Real
 
 import numpy as np
 
 #: the per-node scale is this quantile of ``|x − μ|`` (a Gaussian's ±1 std; an rms would follow the few
 #: rows of a heavy tail: 2048 rows of one run gave two halves 1.6× apart)
 ROBUST = 0.6827
+
+#: how far a network's mean on the probe row may be from the one stored (relative to its norm): float32
+#: rounding and a folded input transform (``model.pt`` stores the folded map) change it by ~1e-6, a GPU's
+#: TF32 convolutions by ~1e-3; another run's network differs by its own error (0.6 and 33 measured)
+PROBE_RTOL = 1e-2
 
 #: points of the stored quantile function (probabilities ``0, 1/(G−1), …, 1``); interpolated between
 QUANTILE_POINTS = 4001
@@ -59,6 +65,8 @@ class Calibration:
     ball: np.ndarray         # (n,) sorted ball scores t_(1..n)
     pooled: int              # n·N: the number of pooled signed scores
     rms: float               # rms(s) of the pooled signed scores
+    probe_y: np.ndarray | None = None  # (m,) one calibration row's observations, and the network's
+    probe_x: np.ndarray | None = None  # (N,) mean for it: the network this posterior was fitted for
 
     @classmethod
     def fit(cls, spread: np.ndarray, conformal: np.ndarray, mass=None, keep: int = 256) -> Calibration:
@@ -109,19 +117,39 @@ class Calibration:
         pick = np.random.default_rng(seed).integers(len(self.residuals), size=(len(mean), k))
         return mean[:, None, :] + self.scale * self.residuals[pick].astype(np.float64)
 
+    def check_network(self, mean_of) -> None:
+        """Refuse a network this posterior was not fitted for: ``mean_of(rows) -> (B, N)`` (the network's
+        mean) must give back the stored probe row's mean, to :data:`PROBE_RTOL` of its norm. A posterior of
+        another run of the same size gave that network's intervals with exit 0. No probe (a file of an
+        earlier pdeinv): nothing to compare."""
+        if self.probe_y is None or self.probe_x is None:
+            return
+        got = np.asarray(mean_of(self.probe_y[None]), dtype=float)[0]
+        top = max(float(np.max(np.abs(self.probe_x))), np.finfo(float).tiny)  # data of 1e200: no squares
+        ref = max(float(np.linalg.norm(self.probe_x / top)), 1e-300)
+        gap = float(np.linalg.norm((got - self.probe_x) / top)) / ref
+        if not gap <= PROBE_RTOL:
+            raise ValueError(f"the posterior was fitted for another network (on its probe row this one's "
+                             f"mean differs by {gap:.3g} of its norm); use the posterior of the same run "
+                             "as the network (result.posterior, or load_posterior of the run it was loaded "
+                             "from)")
+
     # -- files -----------------------------------------------------------------------------------------
     def to_bytes(self) -> bytes:
         buffer = io.BytesIO()
+        probe = {} if self.probe_y is None else {"probe_y": self.probe_y, "probe_x": self.probe_x}
         np.savez(buffer, scale=self.scale, residuals=self.residuals,
-                 quantiles=self.quantiles, ball=self.ball, pooled=self.pooled, rms=self.rms)
+                 quantiles=self.quantiles, ball=self.ball, pooled=self.pooled, rms=self.rms, **probe)
         return buffer.getvalue()
 
     @classmethod
     def load(cls, path) -> Calibration:
         """The calibration saved at ``path`` (:meth:`to_bytes`), checked (:meth:`check`)."""
         with np.load(path) as f:
+            probe = (f["probe_y"], f["probe_x"]) if "probe_y" in f.files and "probe_x" in f.files else \
+                (None, None)
             cal = cls(f["scale"], f["residuals"], f["quantiles"], f["ball"], int(f["pooled"]),
-                      float(f["rms"]))
+                      float(f["rms"]), *probe)
         return cal.check()
 
     def check(self) -> Calibration:
@@ -146,7 +174,11 @@ class Calibration:
             ("ball", self.ball.ndim == 1 and self.ball.size >= 1 and finite(self.ball)
              and bool(np.all(self.ball >= 0)) and rising(self.ball), "sorted finite non-negative scores"),
             ("pooled", self.pooled >= 1, "a count >= 1"),
-            ("rms", np.isfinite(self.rms) and self.rms > 0, "a positive finite number")]
+            ("rms", np.isfinite(self.rms) and self.rms > 0, "a positive finite number"),
+            ("probe_x", self.probe_x is None or (np.shape(self.probe_x) == (n,) and finite(self.probe_x)
+                                                 and self.probe_y is not None and np.ndim(self.probe_y) == 1
+                                                 and finite(self.probe_y)),
+             "the network's finite mean for one finite row of observations")]
         for name, ok, expected in problems:
             if not ok:
                 raise ValueError(f"its {name!r} is not {expected}")
@@ -154,10 +186,10 @@ class Calibration:
 
 
 def _level(level) -> float:
-    try:
-        value = float(level)
-    except (TypeError, ValueError):
-        raise TypeError(f"level={level!r} is not allowed; expected a number in (0, 1)") from None
+    """``level`` as a float in (0, 1); a string ('0.9') is a ``TypeError`` as any other non-number."""
+    if isinstance(level, bool) or not isinstance(level, Real):
+        raise TypeError(f"level={level!r:.60} is {type(level).__name__}; expected a number in (0, 1)")
+    value = float(level)
     if not 0 < value < 1:
         raise ValueError(f"level={level!r} is not allowed; expected a number in (0, 1) (0.9: 90 % intervals)")
     return value

@@ -10,10 +10,11 @@ from __future__ import annotations
 import numpy as np
 import torch
 
+from .. import _checks
 from .._checks import batch
 from ..problem.units import input_dtype
 from ..util.memory import check
-from .conformal import Calibration
+from .conformal import Calibration, _level
 
 
 @torch.no_grad()
@@ -57,8 +58,12 @@ def predictive(model, posterior, y, level: float = 0.9, samples: int = 0, seed: 
     if samples > kept:  # every sample is one of the kept residuals: more would repeat them
         raise ValueError(f"samples={samples} is not allowed: the posterior keeps {kept} residuals, each "
                          f"sample is one of them; expected at most {kept}")
-    if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
-        raise ValueError(f"seed={seed!r} is not allowed; expected an integer >= 0")
+    seed = _checks.seed(seed)  # numpy's generators take 0 .. 2³²−1, as every seed= of pdeinv
+    if problem is not None:
+        from ..problem.trained import trained_for
+
+        trained_for(model, _checks.problem(problem))
+    level = _level(level)
     y = _observations(y, None if problem is None else problem.operator.n_out)
     B, K, N = len(y), int(samples), posterior.scale.shape[0]
     check(SAMPLE_BYTES * B * K * N, f"predictive(samples={K}) ({B} x {K} x {N} float64 draws)",
@@ -75,6 +80,7 @@ def predictive(model, posterior, y, level: float = 0.9, samples: int = 0, seed: 
     if mean.shape[1] != posterior.scale.shape[0]:
         raise ValueError(f"the network gives {mean.shape[1]} unknowns; the posterior is for "
                          f"{posterior.scale.shape[0]}: not this network's")
+    posterior.check_network(lambda rows: forward(model, rows))
     lo, hi = posterior.interval(mean, level)
     out = {"x": mean, "std": np.broadcast_to(posterior.std, mean.shape).copy(), "lo": lo, "hi": hi}
     if samples:

@@ -18,7 +18,7 @@ stage says so and the run has no posterior.
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -103,12 +103,14 @@ class CalibrationStage:
         else:
             x, y = draw(self.rows or row_count(problem.N))
         rows = len(x)
-        residual = x - predict(model, y)
+        mean = predict(model, y)
+        residual = x - mean
         half = rows // 2
         mass = problem.disc.M if problem.disc is not None else None
         lo, hi = KEEP_ROWS
         keep = self.keep or int(np.clip(KEEP_NUMBERS // problem.N, lo, hi))
         cal = Calibration.fit(residual[:half], residual[half:], mass, keep)
+        cal = replace(cal, probe_y=np.array(y[0], dtype=float), probe_x=mean[0])  # its network
         info = {"name": self.name, "rows": rows, "spread_rows": half, "conformal_rows": rows - half,
                 "source": "prior" if own is None else "data"}
         x_test, y_test = test[0], test[1]

@@ -90,7 +90,9 @@ def in_units(model, posterior, record: dict, units: float):
     if posterior is not None:
         import dataclasses
 
-        posterior = dataclasses.replace(posterior, scale=posterior.scale * units)
+        probe = {} if posterior.probe_y is None else {"probe_y": posterior.probe_y * units,
+                                                      "probe_x": posterior.probe_x * units}
+        posterior = dataclasses.replace(posterior, scale=posterior.scale * units, **probe)
     if "width_90" in record.get("posterior", {}):
         record["posterior"]["width_90"] *= units
     return wrap(model, units), posterior

@@ -191,8 +191,10 @@ def _data_value(key: str, value) -> str:
     return repr(value)
 
 
-def check_identity(saved: dict, current: dict, path) -> None:
-    """Refuse (``ValueError``) when the checkpoint at ``path`` belongs to a different run."""
+def check_problem(saved: dict, current: dict, path) -> None:
+    """Refuse (``ValueError``) when the checkpoint at ``path`` is of another problem or other settings
+    (``saved``, ``current``: identities with ``problem`` and ``settings``; ``pdeinv train --explain
+    --resume`` checks this much before anything is built)."""
     where = f"checkpoint {str(path)!r}"
     if saved["problem"] != current["problem"]:
         raise ValueError(f"{where} is of problem {saved['problem']!r}, this run is {current['problem']!r}; "
@@ -200,6 +202,12 @@ def check_identity(saved: dict, current: dict, path) -> None:
     diff = _differences(saved["settings"], current["settings"])
     if diff:
         raise ValueError(f"{where} is of problem {saved['problem']!r} with other settings: {diff}")
+
+
+def check_identity(saved: dict, current: dict, path) -> None:
+    """Refuse (``ValueError``) when the checkpoint at ``path`` belongs to a different run."""
+    where = f"checkpoint {str(path)!r}"
+    check_problem(saved, current, path)
     if saved["rule"] != current["rule"]:  # before the network, which another rule often changes too
         raise ValueError(f"{where} was written with rule {saved['rule']!r}; this run has {current['rule']!r} "
                          "(resume with the same rule, the CLI's --method, or use another output folder)")
@@ -240,11 +248,9 @@ def run_identity(problem, rule, model: torch.nn.Module, trainer: dict) -> dict:
 REQUIRED = ("identity", "model", "rule_state", "position", "rng", "history")
 
 
-def load_to_resume(ckpt: Checkpoint, identity: dict, steps: int | None) -> dict:
-    """The payload of ``ckpt`` for a run of ``identity`` going to ``steps`` (None: no step limit).
-
-    ``FileNotFoundError`` when there is none; ``ValueError`` when it was not written by a trainer,
-    belongs to another run (:func:`check_identity`) or has more steps done than ``steps``."""
+def _saved(ckpt: Checkpoint) -> dict:
+    """What ``ckpt`` holds: ``FileNotFoundError`` when there is none, ``ValueError`` when it was not
+    written by a trainer."""
     if not ckpt.exists():
         raise FileNotFoundError(f"resume: there is no checkpoint at {str(ckpt.path)!r} to resume from "
                                 "(start without resume / --resume)")
@@ -253,6 +259,22 @@ def load_to_resume(ckpt: Checkpoint, identity: dict, steps: int | None) -> dict:
     if missing:
         raise ValueError(f"checkpoint {str(ckpt.path)!r} lacks {', '.join(missing)}: not written by "
                          "pdeinv.Trainer; delete it to start over")
+    return saved
+
+
+def resumable_for(ckpt: Checkpoint, problem) -> None:
+    """Refuse resuming ``ckpt`` on ``problem`` before anything is built: no checkpoint, not a trainer's,
+    or of another problem or settings (the network, rule and data are compared when the run starts)."""
+    check_problem(_saved(ckpt)["identity"], {"problem": problem.name, "settings": plain(problem.settings)},
+                  ckpt.path)
+
+
+def load_to_resume(ckpt: Checkpoint, identity: dict, steps: int | None) -> dict:
+    """The payload of ``ckpt`` for a run of ``identity`` going to ``steps`` (None: no step limit).
+
+    ``FileNotFoundError`` when there is none; ``ValueError`` when it was not written by a trainer,
+    belongs to another run (:func:`check_identity`) or has more steps done than ``steps``."""
+    saved = _saved(ckpt)
     check_identity(saved["identity"], identity, ckpt.path)
     done = saved["position"]["step"]
     if steps is not None and steps < done:

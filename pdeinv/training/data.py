@@ -418,12 +418,14 @@ def _no_repeats(y: np.ndarray, warn: bool = True) -> None:
 
 
 def own_data(problem, data, data_x, n_test: int, n_val: int = 0, warn: bool = True,
-             calibration=None) -> OwnData:
+             calibration=None, *, accept_bad: bool = False) -> OwnData:
     """``data`` (``(B, m)`` observations) and ``data_x`` (their fields or None) checked against ``problem``
     and split by :func:`split`; ``warn``: say when the mismatch exceeds the noise, and what the default
     split held out (the writer process of a data-parallel run); ``calibration``: the run's calibration stage
     (:class:`pdeinv.posterior.CalibrationStage`, or None), which takes its rows of a file with ``x``
-    (``own_rows``) before the rules and the prior stage see any."""
+    (``own_rows``) before the rules and the prior stage see any. A mismatch beyond what the noise explains
+    (:func:`beyond_noise`, the limit ``pdeinv train --data`` refuses with exit 3) is a ``ValueError`` unless
+    ``accept_bad`` (the CLI's ``--accept-bad``)."""
     y = as_observations(data, problem.operator.n_out, "data")
     x = None if data_x is None else as_observations(data_x, problem.N, "data_x")
     if x is not None and len(x) != len(y):
@@ -434,6 +436,10 @@ def own_data(problem, data, data_x, n_test: int, n_val: int = 0, warn: bool = Tr
     units = units_of(y, problem.operator)
     y, x = y / units, None if x is None else x / units
     mismatch = None if x is None else model_mismatch(problem.operator, x, y)
+    why = None if x is None or accept_bad else beyond_noise("model mismatch mean ‖P x − y‖/‖y‖", mismatch,
+                                                            problem.noise, y, x)
+    if why is not None:
+        raise ValueError(f"data: {why}; accept_bad=True (the CLI's --accept-bad) trains on it anyway")
     if mismatch is not None and not explained(mismatch, problem.noise) and warn:
         warnings.warn(f"the data's y differ from this problem's P x by {mismatch:.3g} (mean "
                       f"‖P x − y‖/‖y‖ over the file's rows), more than its noise level "

@@ -27,6 +27,7 @@ from ..physics.backends.device import placed, resolve
 from ..posterior.stage import CalibrationStage
 from ..posterior.stage import stage as calibration_stage
 from ..problem.definition import Problem
+from ..problem.trained import mark_trained
 from ..problem.units import in_units
 from ..util.progress import progress
 from . import arguments as args
@@ -193,6 +194,7 @@ class Trainer:
     device: str | torch.device = "cpu"
     data: object = None  # own observations (B, m): array, tensor or torch Dataset
     data_x: object = None  # their true fields (B, N), for errors only
+    accept_bad: bool = False  # train on data whose y the noise does not explain (the CLI's --accept-bad)
     parallel: object = field(default_factory=Single)  # pdeinv.training.distributed: Single or DataParallel
     prior: PriorStage | None | str = "auto"  # the stage after the rule's (pdeinv.training.plan)
     fresh: bool = False  # each step's batch: new draws of the scene's prior (the SIP paper's protocol)
@@ -228,7 +230,7 @@ class Trainer:
                                  "n_train, or pass fewer rows")
             self._own = own_data(self.problem, self.data, self.data_x, self.n_test,
                                  self.stop.n_val if self.stop is not None else 0, self.parallel.is_writer,
-                                 self.calibration)
+                                 self.calibration, accept_bad=self.accept_bad)
             self.n_train = len(self._own.y)
             if self.fresh:
                 raise ValueError("fresh=True draws new observations of the scene's prior each step; data= "
@@ -267,6 +269,7 @@ class Trainer:
         self.dtype = args.dtype(self.dtype)
         self.fit_scaling = args.flag(self.fit_scaling, "fit_scaling")
         self.resume = args.flag(self.resume, "resume")
+        self.accept_bad = args.flag(self.accept_bad, "accept_bad")
         self.progress = args.flag(self.progress, "progress", optional=True)
         self.prior = args.prior(self.prior)
         self.fresh = args.flag(self.fresh, "fresh")
@@ -347,8 +350,7 @@ class Trainer:
             # what rebuilds it: pdeinv.save_run's default network_spec (a data file's base is another)
             self.model.network_spec = {"kind": "default", **settings}
             lap("network")
-        # the problem it is trained on: pdeinv.save_run refuses to save it as another of the same size
-        self.model.trained_on = {"problem": self.problem.name, "settings": dict(self.problem.settings)}
+        mark_trained(self.model, self.problem)  # save_run, predict: not with another of the same size
         first = next(iter(self.model.parameters()), None)
         self.dtype = self.dtype or (torch.float32 if first is None else first.dtype)
         model = self.model.to(device=self.device, dtype=self.dtype)

@@ -13,8 +13,9 @@ predictions explains the observations no better than ``x̂ = 0`` (whose ``y_err`
 come from this problem's physics and settings (another κ, T, mesh, scene), or the run diverged (a
 heat_2d run fed wave_2d data reaches 1.45; every built-in scene stays far below 1).
 
-**Without x**, predictions whose rms amplitude is more than :data:`AMPLITUDE` (100) times the prior's
-cannot be this problem's fields: data from another physics can be fitted by fields far larger than the
+**Without x**, predictions whose rms amplitude is more than :data:`AMPLITUDE` (100) times the prior's,
+per unit of the observations' amplitude (so that data in any units get the same verdict), cannot be this
+problem's fields: data from another physics can be fitted by fields far larger than the
 prior's (wave_1d data fed to heat_1d: ~1e8 times), while data from another prior stay within a few times.
 
 Beyond that the run cannot be scored; what can be checked is the unseen-energy test
@@ -90,8 +91,9 @@ def failure(x_err: float | None, unseen: dict | None, n_unknowns: int,
                 f"the energy the scene's prior puts in the {n_unknowns - unseen['seen']} directions the "
                 "physics cannot see (pdeinv.training.verdict; data from another prior can fail it too)")
     if amplitude is not None and not (math.isfinite(amplitude) and amplitude < AMPLITUDE):
-        return (f"without x to score it, the predictions are {amplitude:.3g}× the prior's rms amplitude (at "
-                f"most {AMPLITUDE:g} passes): no field of this problem's prior explains these observations "
+        return (f"without x to score it, the predictions are {amplitude:.3g}× the prior's rms amplitude, per "
+                f"unit of the observations' (a run passes below {AMPLITUDE:g}×): no field of this problem's "
+                "prior explains these observations "
                 "(data from another physics or settings such as κ, T or the mesh, or undeclared noise?)")
     return y_why
 
@@ -136,16 +138,27 @@ def unseen_energy(problem, xhat: np.ndarray, xref: np.ndarray) -> tuple[dict | N
 
 @torch.no_grad()
 def amplitude(problem, model, test: tuple, seed: int) -> float:
-    """``√(mean ‖x̂‖² / mean ‖x_ref‖²)``: the predictions' rms amplitude in units of the prior's (the
-    reference as in :func:`of_predictions`), for any operator."""
+    """``(rms x̂ / rms x_ref) / (rms y / rms y_ref)``: the predictions' rms amplitude in units of the
+    prior's, per unit of the observations' (the reference ``x_ref`` as in :func:`of_predictions`, ``y_ref``
+    its noise-free observations). Observations ``c`` times the prior's (a file in other units) give
+    predictions ``c`` times the prior's, and the same figure: the test asks whether the physics explains
+    the observations with fields of the prior's size, not in which units they are. Observations all zero:
+    the predictions' amplitude alone."""
     from .trainset import TEST_DATA, seed_stream
 
-    x, _, y_t = test
+    x, y, y_t = test
     if x is None:
         x = problem.sample(len(y_t), seed_stream(seed, TEST_DATA))[0]
+    x = np.asarray(x, dtype=float)
     xhat = model(y_t).double().cpu().numpy()
-    ref = float(np.mean(np.sum(np.asarray(x, dtype=float) ** 2, axis=1)))
-    return float(np.sqrt(np.mean(np.sum(xhat**2, axis=1)) / max(ref, np.finfo(float).tiny)))
+
+    def ms(a):  # mean squared norm of the rows
+        return float(np.mean(np.sum(np.asarray(a, dtype=float) ** 2, axis=1)))
+
+    tiny = np.finfo(float).tiny
+    ratio = math.sqrt(ms(xhat) / max(ms(x), tiny))
+    y_obs, y_ref = ms(y), ms(problem.operator.forward(x))
+    return ratio / math.sqrt(y_obs / y_ref) if y_obs > 0 and y_ref > 0 else ratio
 
 
 @torch.no_grad()

@@ -72,7 +72,11 @@ def resolve(path, flag: str = "out") -> Path:
     does not exist (where the operating system would create ``out/new`` on the way and then reach
     ``runs/h1`` anyway)."""
     _empty(path, flag)
-    return Path(os.path.realpath(os.path.abspath(os.fspath(path))))
+    target = Path(os.path.realpath(os.path.abspath(os.fspath(path))))
+    if os.path.islink(target):  # realpath stops inside a loop of links
+        raise OutputPathError(f"{flag} {_text(path)!r} leads into a loop of symbolic links (at "
+                              f"{str(target)!r}); choose another {flag}")
+    return target
 
 
 def is_run_folder(folder) -> bool:
@@ -182,7 +186,8 @@ def output_file(path, flag: str = "out", inputs: Iterable = (), owns: Iterable[s
         raise OutputPathError(f"{named} is not a regular file (a device, a pipe or a socket); "
                               f"choose another {flag}")
     if target.is_file() and not in_run and not overwrite:
-        raise OutputPathError(f"{named} exists; pass --overwrite to replace it, or choose another {flag}")
+        how = "--overwrite" if flag.startswith("--") else "overwrite=True"  # a flag, or a Python argument
+        raise OutputPathError(f"{named} exists; pass {how} to replace it, or choose another {flag}")
     _writable(target.parent, flag, named, target)
     return target
 

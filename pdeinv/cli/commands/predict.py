@@ -31,7 +31,7 @@ def cmd_predict(args) -> int:
 
     import numpy as np
 
-    from pdeinv.io.export import predict, write_fields
+    from pdeinv.io.export import fields_file, predict
     from pdeinv.io.runs import load_posterior, load_run
     from pdeinv.posterior import predictive
     from pdeinv.training.data import read_meta, read_npz
@@ -71,7 +71,7 @@ def cmd_predict(args) -> int:
     np.savez(buffer, **arrays)
     atomic_write(out, lambda fh: fh.write(buffer.getvalue()))
     if vtu is not None:
-        write_fields(vtu, problem, x, xhat, y, problem.operator.forward(xhat),
+        fields_file(vtu, problem, x, xhat, y, problem.operator.forward(xhat),
                      None if posterior is None else arrays)
     error = "" if x is None else f", x_err {float(np.mean(problem.relative_error(xhat, x))):.3g}"
     if posterior is not None:

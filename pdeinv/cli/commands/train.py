@@ -199,6 +199,9 @@ def _train_into(args, out: Path) -> int:
             warnings.simplefilter("always", RuntimeWarning)
             # numpy's and scipy's overflow notes are internals: our checks report what they lead to
             warnings.filterwarnings("ignore", category=RuntimeWarning, module=r"(numpy|scipy)(\.|$)")
+            # the same notes raised by numpy's C loops, attributed to pdeinv's line that called them
+            warnings.filterwarnings("ignore", category=RuntimeWarning,
+                                    message=r"(overflow|invalid value|divide by zero|underflow) encountered")
             warnings.filterwarnings("ignore", category=FailedRun)  # _run says it, as an error or not
             warnings.showwarning = _one_line
             return _parallel_train(args, out, ckpt, device, parallel)
@@ -232,10 +235,15 @@ def _explain(args) -> int:
     from pdeinv.methods.presets import make_rule
     from pdeinv.nets import NONLINEAR_KINDS
 
+    out = None if args.out is None else _check_flags(args)  # the run's --out policy, nothing created
     _check_values(args)
     set_threads(args.threads)
     problem, _, y, x = _problem_and_data(args)
     print(_plan(args, problem, y, x).explain())
+    if out is not None and args.resume:
+        from pdeinv.training.checkpoint import Checkpoint, resumable_for
+
+        resumable_for(Checkpoint(out / "checkpoint.pt"), problem)
     hidden = _hidden(args.hidden) if args.hidden is not None else None
     _, hp = make_rule(args.method, problem, problem.noise, linear_net=args.net not in NONLINEAR_KINDS,
                       lr=args.lr, eta=args.eta, tau=args.tau, batch_size=args.batch_size, hidden=hidden,
@@ -255,7 +263,7 @@ def _plan(args, problem, y=None, x=None):
         from pdeinv.posterior import CalibrationStage
         from pdeinv.training.data import own_data
 
-        own = own_data(problem, y, x, args.n_test, 0, False, CalibrationStage())
+        own = own_data(problem, y, x, args.n_test, 0, False, CalibrationStage(), accept_bad=args.accept_bad)
     hidden = _hidden(args.hidden) if args.hidden is not None else None
     return plan(problem, args.method, net=args.net, hidden=hidden, prior=_prior_stage(args),
                 fresh=args.fresh_draws,
@@ -317,6 +325,8 @@ def _parallel_train(args, out, ckpt, device, parallel) -> int:
 
     from pdeinv.io.runs import network
     from pdeinv.methods.presets import PRESET, make_rule
+    from pdeinv.nets import NONLINEAR_KINDS
+    from pdeinv.training.arguments import stop as stopping_rule
     from pdeinv.training.trainer import Trainer
     from pdeinv.training.trainset import N_TRAIN
 
@@ -332,8 +342,6 @@ def _parallel_train(args, out, ckpt, device, parallel) -> int:
     # metrics.json "setup" (wall seconds) and "setup_cpu" (CPU seconds), with the trainer's phases
     setup = {"build": time.perf_counter() - t_build}
     setup_cpu = {"build": time.process_time() - c_build}
-    from pdeinv.nets import NONLINEAR_KINDS
-
     rule, hp = make_rule(args.method, problem, problem.noise, linear_net=args.net not in NONLINEAR_KINDS,
                          lr=args.lr, eta=args.eta, tau=args.tau, batch_size=args.batch_size, hidden=hidden,
                          optimizer=args.optimizer)
@@ -344,8 +352,6 @@ def _parallel_train(args, out, ckpt, device, parallel) -> int:
     t_net, c_net = time.perf_counter(), time.process_time()
     model = network(problem, net)
     setup["network"], setup_cpu["network"] = time.perf_counter() - t_net, time.process_time() - c_net
-    from pdeinv.training.arguments import stop as stopping_rule
-
     stop = stopping_rule(args.stop, problem, _checks.steps(args, hp), model)
     chosen = _plan(args, problem, y, x) if parallel.is_writer else None  # metrics.json's "plan"
     trainer = Trainer(problem, rule, model, steps=_checks.steps(args, hp),
@@ -355,7 +361,8 @@ def _parallel_train(args, out, ckpt, device, parallel) -> int:
                       seed=args.seed, eval_every=args.eval_every, max_failures=args.max_failures,
                       checkpoint=FolderCheckpoint(ckpt, args.checkpoint_every, fresh) if args.checkpoint_every
                       else None,
-                      resume=args.resume, stop=stop, data=y, data_x=x, device=device, parallel=parallel,
+                      resume=args.resume, stop=stop, data=y, data_x=x, accept_bad=args.accept_bad,
+                      device=device, parallel=parallel,
                       prior=_prior_stage(args), fresh=args.fresh_draws,
                       progress=False if getattr(args, "quiet", False) else None,
                       callbacks=[_Heartbeat(_checks.steps(args, hp), chosen,

@@ -1,0 +1,192 @@
+"""Bad and odd inputs of the ninth round (issue 48): `--explain` checks --out and --resume as the run
+does, `write_fields` follows the output-path policy, a run's network, posterior and record are bound to each
+other and to their problem, the no-field verdict does not depend on the data's units, Python refuses a
+file of another physics as the CLI does, and a loop of links is named. Each case failed (a wrong exit 0, a
+file replaced, an internal error, a verdict that changed with the units) on the code before."""
+
+from __future__ import annotations
+
+import json
+import os
+
+import numpy as np
+import pytest
+
+import pdeinv
+from pdeinv.cli import main
+from pdeinv.io import export
+from pdeinv.io.runs import load_posterior, load_run, save_run
+from pdeinv.posterior import predictive
+
+SMALL = ["--set", "n=8", "--steps", "2", "--n-train", "32", "--n-test", "8", "--prior-fit", "0",
+         "--threads", "1", "-q"]
+
+
+def _one_error(capsys) -> str:
+    err = capsys.readouterr().err
+    assert "Traceback" not in err and err.count("\n") == 1, err
+    return err
+
+
+@pytest.fixture(scope="module")
+def runs(tmp_path_factory):
+    """Two heat_1d n=8 runs with posteriors, κ 0.01 and 0.02."""
+    tmp = tmp_path_factory.mktemp("runs")
+    assert main(["train", "heat_1d", *SMALL, "--out", str(tmp / "base")]) == 0
+    assert main(["train", "heat_1d", *SMALL, "--set", "kappa=0.02", "--out", str(tmp / "k2")]) == 0
+    return tmp
+
+
+@pytest.mark.parametrize("out, said", [
+    ("docs", "holds notes.txt and is not a pdeinv run folder"),
+    ("base", "metrics.json exists"),
+    ("afile", "is a file"),
+    ("afile/sub", "a file is in the way"),
+])
+def test_explain_checks_out_as_the_run_does(runs, tmp_path, monkeypatch, capsys, out, said):
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "docs").mkdir()
+    (tmp_path / "docs" / "notes.txt").write_text("mine")
+    (tmp_path / "afile").write_text("f")
+    os.symlink(runs / "base", tmp_path / "base")
+    assert main(["train", "heat_1d", "--set", "n=8", "--explain", "--out", out]) == 2
+    assert said in _one_error(capsys)
+    assert (tmp_path / "docs" / "notes.txt").read_text() == "mine"
+
+
+def test_explain_checks_resume(runs, tmp_path, capsys):
+    (tmp_path / "e").mkdir()
+    assert main(["train", "heat_1d", "--set", "n=8", "--explain", "--resume",
+                 "--out", str(tmp_path / "e")]) == 2
+    assert "there is no checkpoint" in _one_error(capsys)
+    assert main(["train", "heat_1d", "--set", "n=8", "--set", "kappa=0.02", "--explain", "--resume",
+                 "--out", str(runs / "base")]) == 2
+    assert "with other settings: kappa=0.01 (checkpoint) vs 0.02 (this run)" in _one_error(capsys)
+    assert main(["train", "heat_1d", *SMALL, "--explain", "--resume", "--out", str(runs / "base")]) == 0
+    assert main(["train", "heat_1d", *SMALL, "--explain", "--out", str(tmp_path / "new")]) == 0
+    assert not (tmp_path / "new").exists()  # nothing created
+
+
+def test_write_fields_follows_the_output_path_policy(runs, tmp_path):
+    p = pdeinv.load_problem("heat_1d", n=8)
+    x, _ = p.sample(2)
+    before = (runs / "base" / "fields.vtu").read_bytes()
+    with pytest.raises(ValueError, match="one of that run's own files"):
+        export.write_fields(runs / "base" / "fields.vtu", p, x, x)
+    assert (runs / "base" / "fields.vtu").read_bytes() == before
+    (tmp_path / "keep.vtu").write_text("mine")
+    with pytest.raises(ValueError, match=r"exists; pass overwrite=True"):
+        export.write_fields(tmp_path / "keep.vtu", p, x, x)
+    assert (tmp_path / "keep.vtu").read_text() == "mine"
+    assert export.write_fields(tmp_path / "keep.vtu", p, x, x, overwrite=True).stat().st_size > 100
+    with pytest.raises(TypeError, match="path=5 is int"):
+        export.write_fields(5, p, x, x)
+    with pytest.raises(ValueError, match="x_true has shape"):
+        export.write_fields(tmp_path / "z" / "q.vtu", p, x[:, :3], x)
+    assert not (tmp_path / "z").exists()  # the arrays are checked before any folder is made
+    assert export.write_fields(tmp_path / "new" / "a" / "b.vtu", p, x, x).is_file()  # folders made
+
+
+def test_a_loaded_network_is_saved_and_used_only_with_its_problem(runs, tmp_path):
+    pb, mb = load_run(runs / "base")
+    _, mk = load_run(runs / "k2")
+    with pytest.raises(ValueError, match="kappa=0.02; the problem given has kappa=0.01"):
+        save_run(tmp_path / "o", pb, model=mk)
+    wave = pdeinv.load_problem("wave_1d", n=8)
+    _, y = pb.sample(4, seed=5)
+    post = load_posterior(runs / "base")
+    with pytest.raises(ValueError, match="trained on problem 'heat_1d', not on 'wave_1d'"):
+        predictive(mb, post, y, problem=wave)
+    with pytest.raises(ValueError, match="trained on problem 'heat_1d', not on 'wave_1d'"):
+        export.predict(mb, y, problem=wave)
+    assert predictive(mb, post, y, problem=pb)["x"].shape == (4, pb.N)
+    assert not (tmp_path / "o").exists()
+
+
+def test_a_posterior_is_used_only_with_its_network(runs, tmp_path):
+    pb, mb = load_run(runs / "base")
+    _, mk = load_run(runs / "k2")
+    _, y = pb.sample(4, seed=5)
+    with pytest.raises(ValueError, match="the posterior was fitted for another network"):
+        predictive(mk, load_posterior(runs / "base"), y)
+    with pytest.raises(ValueError, match="the posterior was fitted for another network"):
+        save_run(tmp_path / "o", pb, model=mb, posterior=load_posterior(runs / "k2"))
+    ok = save_run(tmp_path / "ok", pb, model=mb, posterior=load_posterior(runs / "base"))
+    assert load_posterior(ok, pb) is not None
+
+
+@pytest.mark.parametrize("call, exc, match", [
+    (lambda run, p, m, y: load_posterior(run, problem="heat_1d"), TypeError, "problem='heat_1d' is str"),
+    (lambda run, p, m, y: predictive(m, load_posterior(run), y, level="0.9"), TypeError,
+     "level='0.9' is str"),
+    (lambda run, p, m, y: predictive(m, load_posterior(run), y, samples=2, seed=2**80), ValueError,
+     "expected an integer from 0 to 4294967295"),
+])
+def test_posterior_arguments_named(runs, call, exc, match):
+    p, m = load_run(runs / "base")
+    _, y = p.sample(2, seed=1)
+    with pytest.raises(exc, match=match):
+        call(runs / "base", p, m, y)
+
+
+def test_an_edited_run_record_is_refused(runs, tmp_path, capsys):
+    import shutil
+
+    run = tmp_path / "edited"
+    shutil.copytree(runs / "base", run)
+    record = json.loads((run / "run.json").read_text())
+    record["overrides"]["kappa"] = "0.05"
+    (run / "run.json").write_text(json.dumps(record))
+    p = pdeinv.load_problem("heat_1d", n=8)
+    _, y = p.sample(3, seed=2)
+    np.savez(tmp_path / "obs.npz", y=y)
+    assert main(["predict", str(run), "--data", str(tmp_path / "obs.npz"),
+                 "--out", str(tmp_path / "p.npz")]) == 2
+    assert "were edited after the run" in _one_error(capsys)
+    assert not (tmp_path / "p.npz").exists()
+
+
+@pytest.mark.parametrize("units", [1.0, 1e3, 1e5, 1e13])
+def test_the_no_field_verdict_does_not_depend_on_the_units(tmp_path, capsys, units):
+    p = pdeinv.load_problem("heat_1d", n=8)
+    _, y = p.sample(300, seed=2)
+    np.savez(tmp_path / "y.npz", y=y * units)
+    code = main(["train", "heat_1d", "--set", "n=8", "--steps", "2", "--n-test", "8", "--prior-fit", "0",
+                 "--threads", "1", "-q", "--data", str(tmp_path / "y.npz"), "--out", str(tmp_path / "r")])
+    assert code == 0, capsys.readouterr().err
+    metrics = json.loads((tmp_path / "r" / "metrics.json").read_text())
+    assert metrics["failed"] is None and metrics["amplitude"] < 10
+
+
+def test_data_of_another_physics_is_still_refused_without_x(tmp_path, capsys):
+    w = pdeinv.load_problem("wave_1d", n=8)
+    _, y = w.sample(300, seed=2)
+    np.savez(tmp_path / "wave.npz", y=y)
+    code = main(["train", "heat_1d", "--set", "n=8", "--steps", "2", "--n-test", "8", "--prior-fit", "0",
+                 "--threads", "1", "-q", "--data", str(tmp_path / "wave.npz"), "--out", str(tmp_path / "r")])
+    assert code == 3
+    assert "the prior's rms amplitude, per unit of the observations'" in capsys.readouterr().err
+
+
+def test_python_refuses_a_file_of_other_settings_as_the_cli_does():
+    p = pdeinv.load_problem("heat_1d", n=8)
+    x, y = pdeinv.load_problem("heat_1d", n=8, kappa=0.05).sample(300, seed=3)
+    with pytest.raises(ValueError, match="come from another physics or other settings.*accept_bad=True"):
+        pdeinv.Trainer(p, "sip", steps=2, n_test=8, prior=None, data=y, data_x=x)
+    with pytest.warns(RuntimeWarning, match="differ from this problem's P x"):
+        t = pdeinv.Trainer(p, "sip", steps=2, n_test=8, prior=None, calibration=None, data=y, data_x=x,
+                           accept_bad=True)
+    assert t.fit().metrics["x_err"] > 0
+
+
+def test_a_loop_of_links_as_out_is_named(tmp_path, capsys):
+    os.symlink(tmp_path / "b", tmp_path / "a")
+    os.symlink(tmp_path / "a", tmp_path / "b")
+    assert main(["train", "heat_1d", *SMALL, "--out", str(tmp_path / "a")]) == 2
+    assert "leads into a loop of symbolic links" in _one_error(capsys)
+
+
+def test_an_overflowing_step_says_its_own_words_only(tmp_path, capsys):
+    assert main(["train", "heat_1d", *SMALL, "--eta", "1e308", "--out", str(tmp_path / "r")]) == 1
+    err = capsys.readouterr().err
+    assert "encountered" not in err and "numerical failure" in err
