@@ -103,7 +103,7 @@ def test_sensors_on_the_boundary_faces_and_inside():
     lin = lambda P: 1 + P[0] - 2 * P[1] + 3 * P[2]  # noqa: E731
     np.testing.assert_allclose(S @ lin(free.points), lin(np.vstack([on, inside]).T), atol=1e-12)
     disc = discretize(m)
-    with pytest.raises(ValueError, match=r"lies on the Dirichlet boundary"):
+    with pytest.raises(ValueError, match=r"lies where the field is fixed at 0 \(on the Dirichlet boundary"):
         observe.sensor_matrix(disc, on)
     op = Heat(disc.M, disc.K, steps=6, backend="steps").sensors(observe.sensor_matrix(disc, inset), 2)
     assert op.n_out == 20 * 3

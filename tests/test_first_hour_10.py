@@ -190,3 +190,19 @@ def test_an_overflowing_step_says_its_own_words_only(tmp_path, capsys):
     assert main(["train", "heat_1d", *SMALL, "--eta", "1e308", "--out", str(tmp_path / "r")]) == 1
     err = capsys.readouterr().err
     assert "encountered" not in err and "numerical failure" in err
+
+
+def test_a_sample_of_the_users_that_returns_nan_is_named(tmp_path, capsys):
+    module = tmp_path / "nan_sample.py"
+    module.write_text("import numpy as np\nfrom pdeinv import load_problem\n\n\ndef make(**kw):\n"
+                      "    p = load_problem('heat_1d', n=8)\n    orig = p.sample\n\n"
+                      "    def sample(b, seed=0):\n        x, y = orig(b, seed=seed)\n"
+                      "        x = x.copy()\n        x[0, 0] = np.nan\n        return x, y\n\n"
+                      "    p.sample = sample\n    return p\n")
+    assert main(["train", str(module), *SMALL[2:], "--out", str(tmp_path / "r")]) == 2
+    assert "its sample(32) returned x with NaN or Inf" in _one_error(capsys)
+
+
+def test_more_sensors_than_unknowns_is_said():
+    with pytest.raises(ValueError, match="100000 sensors on a mesh of 9 unknowns see at most 9"):
+        pdeinv.load_problem("heat_sensors_2d", n=4, sensors=100000)

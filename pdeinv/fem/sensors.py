@@ -97,10 +97,13 @@ def sensor_matrix(disc, points) -> sp.csr_matrix:
     S = sp.vstack([sp.csr_matrix(disc.basis.probes(c.T)) for c in _chunks(P)], format="csr")[:, disc.free]
     dead = np.flatnonzero(np.abs(S).sum(axis=1).A1 == 0)
     if len(dead):
+        many = (f"; {len(P)} sensors on a mesh of {len(disc.free)} unknowns see at most {len(disc.free)} "
+                "independent values: fewer sensors, or a finer mesh") if len(P) > len(disc.free) else ""
         raise ValueError(
-            f"sensor {dead[0]} at {P[dead[0]].tolist()} lies on the Dirichlet boundary, where the field "
-            f"is fixed at 0 ({len(dead)} such sensor(s)); allowed: points where the field is free — move "
-            "it inside (e.g. boundary_points(mesh, n, inset=h)) or make that boundary natural (Neumann)"
+            f"sensor {dead[0]} at {P[dead[0]].tolist()} lies where the field is fixed at 0 (on the "
+            f"Dirichlet boundary, or in an element whose nodes all lie on it; {len(dead)} such sensor(s)); "
+            "allowed: points where the field is free — move it inside (e.g. boundary_points(mesh, n, "
+            f"inset=h)), refine the mesh, or make that boundary natural (Neumann){many}"
         )
     S.eliminate_zeros()
     return S

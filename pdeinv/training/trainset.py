@@ -37,27 +37,40 @@ def seed_stream(seed: int, stream: int) -> int:
     return int(np.random.SeedSequence([seed, stream]).generate_state(1)[0])
 
 
+
+def _sample(problem, n: int, seed) -> tuple:
+    """``problem.sample(n, seed)``, its rows checked finite: a ``sample`` of the user's own that returns
+    NaN was named only as "x contains NaN" by the error evaluation, far from its cause."""
+    import numpy as np
+
+    x, y = problem.sample(n, seed)
+    for name, a in (("x", x), ("y", y)):
+        if not np.isfinite(np.asarray(a, dtype=float)).all():
+            raise ValueError(f"problem {problem.name!r}: its sample({n}) returned {name} with NaN or Inf; "
+                             "expected finite fields and observations (check its sampler and sample)")
+    return x, y
+
 def training_rows(problem, own, n_train: int, seed: int):
     """The training observations (numpy): own data's first rows, or ``n_train`` seeded samples."""
-    return own.y if own is not None else problem.sample(n_train, seed_stream(seed, TRAIN_DATA))[1]
+    return own.y if own is not None else _sample(problem, n_train, seed_stream(seed, TRAIN_DATA))[1]
 
 
 def fresh_rows(problem, size: int, seed: int, step: int):
     """Step ``step``'s ``size`` new observations of the scene's prior (``Trainer(fresh=True)``, the SIP
     paper's protocol): sub-stream ``step`` of stream ``FRESH_DATA`` (:func:`seed_stream`), so a resumed or
     repeated run draws the same; their ``x`` is discarded."""
-    return problem.sample(size, seed_stream(seed_stream(seed, FRESH_DATA), step))[1]
+    return _sample(problem, size, seed_stream(seed_stream(seed, FRESH_DATA), step))[1]
 
 
 def test_rows(problem, own, n_test: int, seed: int) -> tuple:
     """The test set ``(x or None, y)`` (numpy): own data's last rows, or the seeded samples."""
     return (own.x_test, own.y_test) if own is not None else \
-        problem.sample(n_test, seed_stream(seed, TEST_DATA))
+        _sample(problem, n_test, seed_stream(seed, TEST_DATA))
 
 
 def stop_rows(problem, own, n_val: int, seed: int):
     """The stopping rule's held-out observations (their ``x`` is never drawn into the run)."""
-    return own.y_val if own is not None else problem.sample(n_val, seed_stream(seed, VAL_DATA))[1]
+    return own.y_val if own is not None else _sample(problem, n_val, seed_stream(seed, VAL_DATA))[1]
 
 
 def prior_rows(problem, own, n: int, seed: int, stream: int = 0) -> tuple[tuple | None, str]:
@@ -80,7 +93,7 @@ def prior_rows(problem, own, n: int, seed: int, stream: int = 0) -> tuple[tuple 
         return first if stream == 0 and i == 0 else seed_stream(seed_stream(first, stream), i)
 
     sizes = [min(PRIOR_CHUNK, n - i) for i in range(0, n, PRIOR_CHUNK)]
-    parts = [problem.sample(k, chunk_seed(i)) for i, k in enumerate(sizes)]
+    parts = [_sample(problem, k, chunk_seed(i)) for i, k in enumerate(sizes)]
     x, y = (np.concatenate(a) for a in zip(*parts, strict=True))
     return (x, y), f"{len(x)} draws of the scene's prior ({prior})"
 
@@ -95,7 +108,7 @@ def training_fields(problem, own, n_train: int, seed: int):
     (the same stream as :func:`training_rows`, so the same rows)."""
     if own is not None:
         return own.x
-    return problem.sample(n_train, seed_stream(seed, TRAIN_DATA))[0]
+    return _sample(problem, n_train, seed_stream(seed, TRAIN_DATA))[0]
 
 
 def fit_inputs(problem, rule, target, model, y_np, y_train, fit_scaling: bool, fields=None):
