@@ -228,7 +228,7 @@ def _check_loads(problem, overrides: dict, model, posterior, given=None) -> dict
     defaults become the overrides (``load_problem('heat_1d', n=8)`` is saved as ``n=8``); the overrides."""
     from ..posterior.conformal import Calibration
     from ..problem.definition import first_line, load_problem
-    from ..problem.trained import trained_for
+    from ..problem.trained import differ, trained_for
     from ..training import arguments as _arguments
 
     if posterior is not None and not isinstance(posterior, Calibration):
@@ -243,7 +243,7 @@ def _check_loads(problem, overrides: dict, model, posterior, given=None) -> dict
 
     built = build(overrides)
     own = {} if given is None else {k: v for k, v in given.settings.items()
-                                    if k in built.settings and _other(built.settings[k], v)}
+                                    if k in built.settings and differ(built.settings[k], v)}
     if own:
         overrides, built = own, build(own)
     trained_for(model, built)
@@ -263,14 +263,6 @@ def _problem_digest(record: dict) -> str:
     of ``run.json``): an edit of them (another κ for the trained model) is refused by :func:`load_run`."""
     what = {k: record[k] for k in ("problem", "overrides", "network")}
     return hashlib.sha256(json.dumps(what, sort_keys=True).encode()).hexdigest()
-
-
-def _other(a, b) -> bool:
-    """Whether two settings' values differ (arrays and other objects by their repr)."""
-    try:
-        return bool(a != b)
-    except (TypeError, ValueError):
-        return repr(a) != repr(b)
 
 
 def _refuse_another_run(out: Path, overwrite: bool) -> None:
@@ -459,6 +451,7 @@ def _recorded_problem(run: Path, problem) -> None:
     (its Problem's name is the module's choice); records that cannot be read are :func:`load_run`'s."""
     from ..problem.definition import find_module, import_module
     from ..problem.settings import resolve
+    from ..problem.trained import differ
 
     try:
         record = json.loads((run / RUN_FILE).read_text())
@@ -475,7 +468,7 @@ def _recorded_problem(run: Path, problem) -> None:
         raise ValueError(f"{where} is a run of problem {name!r}, not of {problem.name!r}; pass the run's "
                          "own problem (pdeinv.load_run(run_dir)[0])")
     for k, v in trained.items():
-        if k in problem.settings and _other(problem.settings[k], v) and str(problem.settings[k]) != str(v):
+        if k in problem.settings and differ(problem.settings[k], v) and str(problem.settings[k]) != str(v):
             raise ValueError(f"{where} was trained with {k}={v}; the problem given has "
                              f"{k}={problem.settings[k]!r}: pass the run's own problem "
                              "(pdeinv.load_run(run_dir)[0])")

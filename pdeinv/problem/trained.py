@@ -33,14 +33,14 @@ def trained_for(model, problem, name: str = "model") -> None:
     if seen["problem"] != problem.name:
         raise ValueError(f"{name} was trained on problem {seen['problem']!r}, not on {problem.name!r}; "
                          "use it with the problem it was trained on")
-    other = [k for k, v in settings.items() if k in problem.settings and _differ(problem.settings[k], v)]
+    other = [k for k, v in settings.items() if k in problem.settings and differ(problem.settings[k], v)]
     if other:
         k = other[0]
         raise ValueError(f"{name} was trained on {problem.name} with {k}={settings[k]!r}; the problem given "
                          f"has {k}={problem.settings[k]!r}: use it with the settings it was trained on")
 
 
-def _differ(a, b) -> bool:
+def differ(a, b) -> bool:
     """Whether two settings' values differ (arrays and other objects by their repr)."""
     try:
         return bool(a != b)
