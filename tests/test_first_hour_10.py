@@ -142,7 +142,7 @@ def test_an_edited_run_record_is_refused(runs, tmp_path, capsys):
     np.savez(tmp_path / "obs.npz", y=y)
     assert main(["predict", str(run), "--data", str(tmp_path / "obs.npz"),
                  "--out", str(tmp_path / "p.npz")]) == 2
-    assert "were edited after the run" in _one_error(capsys)
+    assert "run.json was edited after the run" in _one_error(capsys)
     assert not (tmp_path / "p.npz").exists()
 
 
@@ -206,3 +206,87 @@ def test_a_sample_of_the_users_that_returns_nan_is_named(tmp_path, capsys):
 def test_more_sensors_than_unknowns_is_said():
     with pytest.raises(ValueError, match="100000 sensors on a mesh of 9 unknowns see at most 9"):
         pdeinv.load_problem("heat_sensors_2d", n=4, sensors=100000)
+
+
+def test_a_deleted_model_digest_is_an_edit(runs, tmp_path, capsys):
+    import shutil
+
+    run = tmp_path / "nodigest"
+    shutil.copytree(runs / "base", run)
+    record = json.loads((run / "run.json").read_text())
+    del record["model_sha256"]
+    (run / "run.json").write_text(json.dumps(record))
+    with pytest.raises(ValueError, match="run.json was edited after the run"):
+        load_run(run)
+
+
+def test_explain_checks_the_checkpoint_as_resume_does(tmp_path, capsys):
+    run = tmp_path / "r"
+    assert main(["train", "heat_1d", *SMALL, "--checkpoint-every", "1", "--out", str(run)]) == 0
+    base = ["train", "heat_1d", "--set", "n=8", "--n-train", "32", "--n-test", "8", "--prior-fit", "0",
+            "--threads", "1", "-q", "--resume", "--explain", "--out", str(run)]
+    for extra, said in ((["--steps", "1"], "has 2 steps done; steps=1 is below that"),
+                        (["--seed", "9"], "seed=0 (checkpoint) vs 9 (this run) (--seed)"),
+                        (["--method", "adam"], "written with rule 'sip'; this run has 'adam'")):
+        assert main([*base, *extra]) == 2
+        assert said in _one_error(capsys)
+    assert main([*base, "--steps", "3"]) == 0
+
+
+def test_classical_reads_the_noise_level_off_the_files_x(tmp_path, capsys):
+    p = pdeinv.load_problem("heat_1d", n=8)  # 7 observations: all signal, no spectral tail to read noise off
+    x, y = p.sample(80, seed=1)
+    np.savez(tmp_path / "exact.npz", y=y, x=x)
+    xn, yn = pdeinv.load_problem("heat_1d", n=8, noise=0.01).sample(80, seed=1)
+    np.savez(tmp_path / "noisy.npz", y=yn, x=xn)
+    for name, lo, hi in (("exact", 0.0, 0.0), ("noisy", 0.008, 0.012)):
+        assert main(["classical", "heat_1d", "--set", "n=8", "--threads", "1", "--data",
+                     str(tmp_path / f"{name}.npz")]) == 0
+        noise = json.loads(capsys.readouterr().out.split("heat_1d noise: ")[1].splitlines()[0])
+        assert lo <= noise["level"] <= hi, noise
+    np.savez(tmp_path / "huge.npz", y=y, x=x, noise=1e308)
+    assert main(["classical", "heat_1d", "--set", "n=8", "--data", str(tmp_path / "huge.npz")]) == 2
+    assert "is out of range" in _one_error(capsys)
+
+
+def test_api_arguments_of_round_ten(tmp_path):
+    from pdeinv.nets.refine import PriorFit
+    from pdeinv.posterior import CalibrationStage
+
+    with pytest.raises(ValueError, match=r"PriorFit\(min_gain=-0.1\) is not allowed"):
+        PriorFit(min_gain=-0.1)
+    with pytest.raises(TypeError, match=r"CalibrationStage\(name\)=None is NoneType"):
+        CalibrationStage(name=None)
+    with pytest.raises(ValueError, match="holds no run.json: not a pdeinv run"):
+        load_posterior(tmp_path)
+    with pytest.raises(ValueError, match="problem module '.*nope.py' does not exist"):  # also FileNotFound
+        pdeinv.load_problem(str(tmp_path / "nope.py"))
+    p = pdeinv.load_problem("heat_1d", n=8)
+    x, _ = p.sample(2)
+    one_line = r"^bars=\{'std': array\(\[\[1\., 1\., 1\.\], \[1\., 1\., 1\.\]\]\)\} "
+    with pytest.raises(TypeError, match=one_line):
+        export.write_fields(tmp_path / "m.vtu", p, x, x, bars={"std": np.ones((2, 3))})
+
+
+def test_a_users_module_leaves_no_bytecode_in_its_folder(tmp_path, monkeypatch, capsys):
+    (tmp_path / "helper_mod.py").write_text("X = 1\n")
+    (tmp_path / "lam.py").write_text('"""lam"""\nimport helper_mod\nfrom pdeinv import load_problem\n\n\n'
+                                     "def make(**kw):\n    return load_problem('heat_1d', n=8)\n")
+    assert main(["train", str(tmp_path / "lam.py"), *SMALL[2:], "--out", str(tmp_path / "r")]) == 0
+    monkeypatch.setenv("PDEINV_PROBLEMS", str(tmp_path))
+    assert main(["problems"]) == 0
+    assert "lam: lam" in capsys.readouterr().out  # its sibling imported in the listing's child too
+    assert not (tmp_path / "__pycache__").exists()
+
+
+def test_predict_refuses_observations_of_another_physics_without_x(runs, tmp_path, capsys):
+    w = pdeinv.load_problem("wave_1d", n=8)
+    _, y = w.sample(80, seed=4)
+    np.savez(tmp_path / "wave.npz", y=y)
+    out = tmp_path / "p.npz"
+    assert main(["predict", str(runs / "base"), "--data", str(tmp_path / "wave.npz"), "--out", str(out)]) == 3
+    assert "is no field of this run's prior" in _one_error(capsys)
+    assert not out.exists()
+    _, y = pdeinv.load_problem("heat_1d", n=8).sample(80, seed=4)
+    np.savez(tmp_path / "heat.npz", y=y)
+    assert main(["predict", str(runs / "base"), "--data", str(tmp_path / "heat.npz"), "--out", str(out)]) == 0

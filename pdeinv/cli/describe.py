@@ -93,6 +93,7 @@ def child(argv: list[str]) -> None:
     _exit_when_orphaned(int(fd))
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # the parent stops it: a Ctrl-C here is the module's own
     sys.path[:] = json.loads(search)  # what the module would see in the parent
+    sys.path.insert(0, str(Path(path).parent))  # and its siblings, as pdeinv.load_problem adds them
     out = os.dup(1)
     os.dup2(2, 1)  # the module's prints, even at the C level, stay out of the result
     sys.stdout = sys.stderr

@@ -24,7 +24,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .._checks import batch
+from .._checks import batch, shown
 from .._checks import problem as _problem
 from ..fem.mesh import cell_type, points_3d
 from ..physics.capabilities import observes_field
@@ -94,7 +94,7 @@ def _point_data(problem, x_true, x_pred, y_obs, y_pred, bars) -> dict:
         fields = {"x_true": x_true, "x_pred": x_pred, "x_error": x_pred - x_true}
     if bars is not None:
         if not (isinstance(bars, Mapping) and all(k in bars for k in ("std", "lo", "hi"))):
-            raise TypeError(f"bars={bars!r:.80} is not allowed; expected a dict with 'std', 'lo' and 'hi' "
+            raise TypeError(f"bars={shown(bars)} is not allowed; expected a dict with 'std', 'lo' and 'hi' "
                             "(pdeinv.posterior.predictive's result)")
         b = {k: batch(bars[k], disc.N, f"bars[{k!r}]")[0] for k in ("std", "lo", "hi")}
         wrong = [k for k, v in b.items() if v.shape != x_pred.shape]

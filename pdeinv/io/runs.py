@@ -9,7 +9,7 @@
                 (+ "units": c when the data were divided by c: pdeinv.problem.units),
      "model_sha256": "<hex digest of model.pt>",
      "posterior_sha256": "<hex digest of posterior.npz>" | null,
-     "problem_sha256": "<hex digest of problem, overrides and network>"}
+     "record_sha256": "<hex digest of the fields above>"}
 
 and ``DIR/model.pt`` the network's state dict, the fitted whitening / input scaling
 buffers included. ``load_run(DIR)`` calls ``load_problem(problem, **overrides)``,
@@ -185,7 +185,7 @@ def save_run(out: str | os.PathLike, problem, overrides: dict | None = None, net
               "overrides": {k: str(v) for k, v in overrides.items()}, "network": network_spec,
               "model_sha256": hashlib.sha256(weights).hexdigest(),
               "posterior_sha256": None if data is None else hashlib.sha256(data).hexdigest()}
-    record["problem_sha256"] = _problem_digest(record)
+    record["record_sha256"] = _record_digest(record)
     text = json.dumps(record, indent=2).encode()
     atomic_write(out / MODEL_FILE, lambda fh: fh.write(weights))
     if data is not None:
@@ -258,11 +258,12 @@ def _check_loads(problem, overrides: dict, model, posterior, given=None) -> dict
     return overrides
 
 
-def _problem_digest(record: dict) -> str:
-    """The sha256 of what rebuilds the run's problem and network (``problem``, ``overrides``, ``network``
-    of ``run.json``): an edit of them (another κ for the trained model) is refused by :func:`load_run`."""
-    what = {k: record[k] for k in ("problem", "overrides", "network")}
-    return hashlib.sha256(json.dumps(what, sort_keys=True).encode()).hexdigest()
+def _record_digest(record: dict) -> str:
+    """The sha256 of what ``run.json`` records (``problem``, ``overrides``, ``network`` and the digests of
+    ``model.pt`` and ``posterior.npz``): an edit of any (another κ for the trained model, a digest deleted)
+    is refused by :func:`load_run`."""
+    fields = ("problem", "overrides", "network", "model_sha256", "posterior_sha256")
+    return hashlib.sha256(json.dumps({k: record.get(k) for k in fields}, sort_keys=True).encode()).hexdigest()
 
 
 def _refuse_another_run(out: Path, overwrite: bool) -> None:
@@ -288,6 +289,9 @@ def load_posterior(run_dir, problem=None):
     if not run.is_dir():
         raise ValueError(f"run folder {os.fspath(run)!r} is not a directory; expected the --out DIR of a "
                          "finished `pdeinv train`")
+    if not (run / RUN_FILE).is_file():  # a folder of anything else has no posterior, and no run either
+        raise ValueError(f"run folder {os.fspath(run)!r} holds no {RUN_FILE}: not a pdeinv run (is it the "
+                         "--out DIR of a finished `pdeinv train`?)")
     path = run / POSTERIOR_FILE
     digest = _posterior_digest(run, path)
     if not path.is_file():
@@ -346,11 +350,12 @@ def load_run(run_dir):
                          "file pdeinv wrote); rerun `pdeinv train`") from None
     _check_model_file(run / MODEL_FILE, record.get("model_sha256"), where)
     _load_state(model, state, where)
-    digest = record.get("problem_sha256")  # records of earlier pdeinv versions have none
-    if digest is not None and digest != _problem_digest(record):  # an edit the checks above let through
-        raise ValueError(f"{where}: {RUN_FILE}'s problem, overrides or network were edited after the run "
-                         "(they no longer match its problem_sha256): the model was trained with the ones "
-                         f"recorded; restore {RUN_FILE}, or rerun `pdeinv train` with the settings you want")
+    digest = record.get("record_sha256")  # records of earlier pdeinv versions have none
+    if digest is not None and digest != _record_digest(record):  # an edit the checks above let through
+        raise ValueError(f"{where}: {RUN_FILE} was edited after the run (its problem, overrides, network or "
+                         "file digests no longer match its record_sha256): the model was trained with the "
+                         f"ones recorded; restore {RUN_FILE}, or rerun `pdeinv train` with the settings you "
+                         "want")
     from ..problem.trained import mark_trained
 
     mark_trained(model, problem)  # save_run and predict refuse it with another problem
@@ -389,9 +394,9 @@ def _record(run: Path, where: str) -> dict:
          isinstance(spec, dict) and spec.get("kind") in NETWORKS),
         ("model_sha256", digest, "the sha256 of model.pt (a str of 64 hex digits)",
          digest is None or isinstance(digest, str)),
-        ("problem_sha256", record.get("problem_sha256"),
-         "the sha256 of its problem, overrides and network (a str of 64 hex digits)",
-         record.get("problem_sha256") is None or isinstance(record.get("problem_sha256"), str)),
+        ("record_sha256", record.get("record_sha256"),
+         "the sha256 of its other fields (a str of 64 hex digits)",
+         record.get("record_sha256") is None or isinstance(record.get("record_sha256"), str)),
         ("posterior_sha256", record.get("posterior_sha256"),
          "the sha256 of posterior.npz (a str of 64 hex digits), or null for a run without one",
          record.get("posterior_sha256") is None or isinstance(record.get("posterior_sha256"), str)),

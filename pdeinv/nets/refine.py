@@ -89,6 +89,10 @@ class PriorFit:
         if not 0 < self.held_out < 1:
             raise ValueError(f"PriorFit(held_out={self.held_out!r}) is not allowed; expected a fraction in "
                              "(0, 1)")
+        if isinstance(self.min_gain, bool) or not isinstance(self.min_gain, float | int) \
+                or not 0 <= self.min_gain < 1:
+            raise ValueError(f"PriorFit(min_gain={self.min_gain!r}) is not allowed; expected a fraction in "
+                             "[0, 1) (the relative improvement a check must make)")
 
     def applies(self, model) -> bool:
         """Whether ``model`` has a part fitted on prior draws (:class:`PriorFitted`)."""

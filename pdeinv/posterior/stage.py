@@ -60,6 +60,9 @@ class CalibrationStage:
     name: str = "calibration"
 
     def __post_init__(self):
+        from .._checks import label
+
+        label(self.name, "CalibrationStage(name)")
         for key, value, low in (("rows", self.rows, 4), ("keep", self.keep, 1)):
             if value is None:
                 continue

@@ -180,7 +180,10 @@ def find_module(name_or_path: str | os.PathLike) -> Path:
             raise ValueError(f"problem module {spec!r} is a directory; expected a .py file with "
                              "make(**overrides), or a problem name")
         if not path.is_file():
-            raise FileNotFoundError(f"problem module {spec!r} does not exist")
+            names = ", ".join(available()[:4])
+            raise ProblemNotFoundError(f"problem module {spec!r} does not exist; expected the path of a .py "
+                                       f"file with make(**overrides), or a problem name ({names}, ...: "
+                                       "pdeinv.available())")
         if path.suffix != ".py":
             raise ValueError(f"problem module {spec!r} is not a .py file; expected a Python module "
                              "with make(**overrides), or a problem name")
@@ -227,6 +230,11 @@ def _sampler_failure(name: str, err: Exception) -> ValueError | None:
                        + f" (the sampler of problem {name!r})")
     error.__cause__ = err
     return error
+
+
+class ProblemNotFoundError(FileNotFoundError, ValueError):
+    """A problem module path that names no file: a ``FileNotFoundError`` and, as every bad argument of
+    pdeinv's, a ``ValueError``."""
 
 
 class ProblemModuleError(ValueError):
@@ -290,7 +298,11 @@ def import_module(path: Path):
 
     spec = importlib.util.spec_from_file_location(f"{USER_MODULE_PREFIX}{path.stem}", path)
     module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
+    kept, sys.dont_write_bytecode = sys.dont_write_bytecode, True  # no __pycache__ in the user's folder
+    try:
+        spec.loader.exec_module(module)
+    finally:
+        sys.dont_write_bytecode = kept
     return module
 
 

@@ -24,7 +24,13 @@ from .scenes import COMMON, prior
 
 
 def _optional_steps(value, name):
-    return None if value in (None, "", "auto", 0, "0") else s.positive_int(value, name)
+    """``None`` (chosen: by the CFL limit, or every step kept) for None, '', 'auto' or 0; else an int >= 1."""
+    if value in (None, "", "auto", 0, "0"):
+        return None
+    try:
+        return s.positive_int(value, name)
+    except ValueError as err:
+        raise ValueError(f"{err} (or 0 / auto: chosen by pdeinv)") from None
 
 
 #: Allen–Cahn heat: θ-scheme with Newton per step

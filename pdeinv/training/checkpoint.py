@@ -262,11 +262,30 @@ def _saved(ckpt: Checkpoint) -> dict:
     return saved
 
 
-def resumable_for(ckpt: Checkpoint, problem) -> None:
-    """Refuse resuming ``ckpt`` on ``problem`` before anything is built: no checkpoint, not a trainer's,
-    or of another problem or settings (the network, rule and data are compared when the run starts)."""
-    check_problem(_saved(ckpt)["identity"], {"problem": problem.name, "settings": plain(problem.settings)},
-                  ckpt.path)
+def resumable_for(ckpt: Checkpoint, problem, rule: str | None = None, steps: int | None = None,
+                  trainer: dict | None = None) -> None:
+    """Refuse resuming ``ckpt`` before anything is built (``pdeinv train --explain --resume``): no
+    checkpoint, not a trainer's, of another problem or settings, another ``rule`` (its name), fewer
+    ``steps`` than it has done, or other ``trainer`` data settings among those given (``seed``, …); the
+    network and the rule's hyper-parameters are compared when the run starts."""
+    saved = _saved(ckpt)
+    identity = saved["identity"]
+    check_problem(identity, {"problem": problem.name, "settings": plain(problem.settings)}, ckpt.path)
+    where = f"checkpoint {str(ckpt.path)!r}"
+    if rule is not None and identity["rule"] != rule:
+        raise ValueError(f"{where} was written with rule {identity['rule']!r}; this run has {rule!r} "
+                         "(resume with the same rule, the CLI's --method, or use another output folder)")
+    old = identity.get("trainer", {})
+    keys = [k for k, v in (trainer or {}).items() if k in old and old[k] != v]
+    if keys:
+        said = _few([f"{k}={_data_value(k, old[k])} (checkpoint) vs {_data_value(k, trainer[k])} (this run)"
+                     + (f" ({TRAINER_FLAGS[k]})" if k in TRAINER_FLAGS else "") for k in keys])
+        raise ValueError(f"{where} was written with other data settings: {said}; resume with the same ones, "
+                         "or use another output folder")
+    done = saved["position"]["step"]
+    if steps is not None and steps < done:
+        raise ValueError(f"resume: {where} has {done} steps done; steps={steps} is below that (give "
+                         f"steps >= {done} to extend the run, or start over)")
 
 
 def load_to_resume(ckpt: Checkpoint, identity: dict, steps: int | None) -> dict:

@@ -240,7 +240,9 @@ def read_meta(path, points) -> dict:
         if v.size != 1 or not np.issubdtype(v.dtype, np.number) or not np.isfinite(v).all() or float(v) < 0:
             raise ValueError(f"{where}: noise={v.tolist()!r} is not allowed; expected one number >= 0 "
                              "(the relative noise level, as --set noise=)")
-        out["noise"] = float(v)
+        from ..problem.settings import _in_range
+
+        out["noise"] = _in_range(float(v), f"{where}: noise", f"{float(v):g}")  # --set noise='s range
     if "points" in meta:
         got, ref = meta["points"], np.asarray(points, dtype=float)
         if got.shape != ref.shape or not np.issubdtype(got.dtype, np.number):

@@ -73,7 +73,7 @@ def resolve(path, flag: str = "out") -> Path:
     ``runs/h1`` anyway)."""
     _empty(path, flag)
     target = Path(os.path.realpath(os.path.abspath(os.fspath(path))))
-    if os.path.islink(target):  # realpath stops inside a loop of links
+    if any(os.path.islink(part) for part in (target, *target.parents)):  # realpath stops inside a loop
         raise OutputPathError(f"{flag} {_text(path)!r} leads into a loop of symbolic links (at "
                               f"{str(target)!r}); choose another {flag}")
     return target

@@ -110,6 +110,8 @@ def _check_data(args, problem, y, x, model) -> None:
     beyond = beyond_noise(what, figure, problem.noise, y, x)
     why = no_signal(read_noise(y, problem.operator), len(y)) if beyond is None else \
         f"is not of this run's physics (run {problem.name}): {beyond}"
+    if why is None and x is None:  # y alone: the verdict train gives such a file (pdeinv.training.verdict)
+        why = _no_field(args, problem, y, model)
     if why is not None and not args.accept_bad:
         raise BadData(f"--data {args.data!r} {why}; --accept-bad predicts anyway")
     if why is not None or not explained(figure, problem.noise):
@@ -117,6 +119,30 @@ def _check_data(args, problem, y, x, model) -> None:
             f"pdeinv predict: warning: --data {args.data!r} "
             + (why if why is not None else f"is off: its {what} is {figure:.3g}, above what the run's noise "
                f"level {problem.noise:g} explains") + "; the predictions are outside what it was trained for")
+
+
+def _no_field(args, problem, y, model) -> str | None:
+    """Why observations without ``x`` are no field of the run's prior: the predictions of their first
+    :data:`AMPLITUDE_ROWS` rows are :data:`~pdeinv.training.verdict.AMPLITUDE` times the prior's amplitude per
+    unit of the observations' or more (:func:`~pdeinv.training.verdict.amplitude`, the test of
+    ``pdeinv train --data`` on y alone: wave_1d data fed to a heat_1d run), else None."""
+    import torch
+
+    from pdeinv.problem.units import input_dtype
+    from pdeinv.training.verdict import AMPLITUDE, amplitude
+
+    rows = y[:AMPLITUDE_ROWS]
+    tensor = torch.as_tensor(rows, dtype=input_dtype(model))
+    ratio = amplitude(problem, model, (None, rows, tensor), args.seed)
+    if ratio < AMPLITUDE:
+        return None
+    return (f"is no field of this run's prior: its predictions are {ratio:.3g}× the prior's rms amplitude, "
+            f"per unit of the observations' (a file passes below {AMPLITUDE:g}×): data from another physics "
+            "or settings such as κ, T or the mesh?")
+
+
+#: the rows of a y-only file the amplitude test of :func:`_no_field` looks at (and as many prior draws)
+AMPLITUDE_ROWS = 128
 
 
 def _check_units(args, y, model) -> None:

@@ -40,7 +40,7 @@ class _Child:
         read, self._watch = os.pipe()  # the child ends when this closes (the listing done or gone)
         try:
             self.proc = subprocess.Popen(
-                [sys.executable, *(["-P"] if sys.version_info >= (3, 11) else []), "-c", _describe.BOOT,
+                [sys.executable, "-B", *(["-P"] if sys.version_info >= (3, 11) else []), "-c", _describe.BOOT,
                  _describe.__file__, name, str(path), USER_MODULE_PREFIX, str(read), _json(sys.path)],
                 stdin=subprocess.DEVNULL, stdout=subprocess.PIPE, stderr=subprocess.DEVNULL,
                 pass_fds=(read,), start_new_session=True)  # its own group: killed with what it started

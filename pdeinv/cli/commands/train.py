@@ -243,7 +243,8 @@ def _explain(args) -> int:
     if out is not None and args.resume:
         from pdeinv.training.checkpoint import Checkpoint, resumable_for
 
-        resumable_for(Checkpoint(out / "checkpoint.pt"), problem)
+        resumable_for(Checkpoint(out / "checkpoint.pt"), problem, args.method, args.steps,
+                      {"seed": args.seed, "n_test": args.n_test, "fresh": args.fresh_draws})
     hidden = _hidden(args.hidden) if args.hidden is not None else None
     _, hp = make_rule(args.method, problem, problem.noise, linear_net=args.net not in NONLINEAR_KINDS,
                       lr=args.lr, eta=args.eta, tau=args.tau, batch_size=args.batch_size, hidden=hidden,
