@@ -4,9 +4,10 @@ Reads ``y`` (and ``x`` if present) like ``pdeinv train --data`` (:func:`pdeinv.t
 reconstructs every row with what needs no training:
 
 * **Tikhonov with Morozov's α** (x-free): the problem's inverse (:func:`pdeinv.inverse.default_inverse`)
-  with :class:`~pdeinv.inverse.Discrepancy` at the noise level — the problem's (``--set noise=``), else
-  the file's, else estimated from the file (:func:`pdeinv.inverse.noise.estimate_noise`; a rounding-level
-  estimate is 0). A noise-free file gets the noise-free α instead (``tikhonov_noise_free``,
+  with :class:`~pdeinv.inverse.Discrepancy` at the noise level — the problem's (``--set noise=``, 0
+  included), else the file's, else read from the file: with its ``x`` off the model mismatch
+  (:func:`_from_mismatch`), without off ``y``'s singular values (:func:`pdeinv.inverse.noise.estimate_noise`;
+  a rounding-level estimate is 0). A noise-free file gets the noise-free α instead (``tikhonov_noise_free``,
   :data:`pdeinv.inverse.NOISE_FREE_REL_ALPHA` of the largest ``g²``);
 * **the y-only Wiener target** (x-free, noisy files, where the operator has a spectral basis): what
   ``pdeinv train`` fits the physics to (:mod:`pdeinv.methods.targets`), solved in closed form;
