@@ -131,6 +131,8 @@ def _no_field(args, problem, y, model) -> str | None:
     from pdeinv.problem.units import input_dtype
     from pdeinv.training.verdict import AMPLITUDE, amplitude
 
+    if problem.sampler is None:  # no prior to compare with
+        return None
     rows = y[:AMPLITUDE_ROWS]
     tensor = torch.as_tensor(rows, dtype=input_dtype(model))
     ratio = amplitude(problem, model, (None, rows, tensor), args.seed)
