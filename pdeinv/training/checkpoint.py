@@ -191,6 +191,22 @@ def _data_value(key: str, value) -> str:
     return repr(value)
 
 
+def _same_rule(saved: str, current: str, where: str) -> None:
+    if saved != current:
+        raise ValueError(f"{where} was written with rule {saved!r}; this run has {current!r} "
+                         "(resume with the same rule, the CLI's --method, or use another output folder)")
+
+
+def _same_data(old: dict, new: dict, keys: list, where: str) -> None:
+    """Refuse data settings ``keys`` that differ between the checkpoint's (``old``) and this run's."""
+    if not keys:
+        return
+    said = _few([f"{k}={_data_value(k, old.get(k))} (checkpoint) vs {_data_value(k, new.get(k))} "
+                 "(this run)" + (f" ({TRAINER_FLAGS[k]})" if k in TRAINER_FLAGS else "") for k in keys])
+    raise ValueError(f"{where} was written with other data settings: {said}; resume with the same ones, "
+                     "or use another output folder")
+
+
 def check_problem(saved: dict, current: dict, path) -> None:
     """Refuse (``ValueError``) when the checkpoint at ``path`` is of another problem or other settings
     (``saved``, ``current``: identities with ``problem`` and ``settings``; ``pdeinv train --explain
@@ -208,18 +224,11 @@ def check_identity(saved: dict, current: dict, path) -> None:
     """Refuse (``ValueError``) when the checkpoint at ``path`` belongs to a different run."""
     where = f"checkpoint {str(path)!r}"
     check_problem(saved, current, path)
-    if saved["rule"] != current["rule"]:  # before the network, which another rule often changes too
-        raise ValueError(f"{where} was written with rule {saved['rule']!r}; this run has {current['rule']!r} "
-                         "(resume with the same rule, the CLI's --method, or use another output folder)")
+    _same_rule(saved["rule"], current["rule"], where)  # before the network, which another rule changes too
     if saved["trainer"] != current["trainer"]:  # a data file builds its own network: said first
         keys = [k for k in dict.fromkeys([*saved["trainer"], *current["trainer"]])
                 if saved["trainer"].get(k) != current["trainer"].get(k)]
-        keys = ["data"] if "data" in keys else keys  # another file: its rows and batch follow from it
-        old, new = saved["trainer"], current["trainer"]
-        said = _few([f"{k}={_data_value(k, old.get(k))} (checkpoint) vs {_data_value(k, new.get(k))} "
-                     "(this run)" + (f" ({TRAINER_FLAGS[k]})" if k in TRAINER_FLAGS else "") for k in keys])
-        raise ValueError(f"{where} was written with other data settings: {said}; resume with the same ones, "
-                         "or use another output folder")
+        _same_data(saved["trainer"], current["trainer"], ["data"] if "data" in keys else keys, where)
     s_net, c_net = saved["network"], current["network"]
     if s_net.get("class") != c_net.get("class"):  # another kind of network: its parts say nothing more
         raise ValueError(f"{where} holds a {s_net.get('class')} network; this run's is a "
@@ -272,16 +281,10 @@ def resumable_for(ckpt: Checkpoint, problem, rule: str | None = None, steps: int
     identity = saved["identity"]
     check_problem(identity, {"problem": problem.name, "settings": plain(problem.settings)}, ckpt.path)
     where = f"checkpoint {str(ckpt.path)!r}"
-    if rule is not None and identity["rule"] != rule:
-        raise ValueError(f"{where} was written with rule {identity['rule']!r}; this run has {rule!r} "
-                         "(resume with the same rule, the CLI's --method, or use another output folder)")
+    if rule is not None:
+        _same_rule(identity["rule"], rule, where)
     old = identity.get("trainer", {})
-    keys = [k for k, v in (trainer or {}).items() if k in old and old[k] != v]
-    if keys:
-        said = _few([f"{k}={_data_value(k, old[k])} (checkpoint) vs {_data_value(k, trainer[k])} (this run)"
-                     + (f" ({TRAINER_FLAGS[k]})" if k in TRAINER_FLAGS else "") for k in keys])
-        raise ValueError(f"{where} was written with other data settings: {said}; resume with the same ones, "
-                         "or use another output folder")
+    _same_data(old, trainer or {}, [k for k, v in (trainer or {}).items() if k in old and old[k] != v], where)
     done = saved["position"]["step"]
     if steps is not None and steps < done:
         raise ValueError(f"resume: {where} has {done} steps done; steps={steps} is below that (give "
