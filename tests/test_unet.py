@@ -117,6 +117,69 @@ def test_cli_trains_saves_and_reloads_the_unet(tmp_path):
     with torch.no_grad():
         assert model(torch.as_tensor(y, dtype=torch.float32)).shape == (4, x.shape[1])
     assert metrics["stages"][0]["name"] == "sip"
+    depth = unet(refine=False)(pdeinv.load_problem("heat_boxes", n=12)).unet.levels
+    assert (run["network"]["depth"], run["network"]["up_convs"]) == (depth, 2)  # what reloads it
+
+
+def test_the_depth_follows_the_grid_down_to_a_few_points_per_axis():
+    """``levels``: as many halvings as keep COARSEST points per axis (stride-2 convolutions round up), at
+    most LEVELS: the SIP paper's four on its 64² grid."""
+    from pdeinv.nets.unet import COARSEST, LEVELS, levels
+
+    assert levels((65, 65)) == levels((63, 63)) == 4 == LEVELS and levels((33, 40)) == 3
+    assert levels((17,)) == 2 and levels((9, 9, 9)) == 1 and levels((5, 5)) == 0
+    for side in range(2, 300):
+        d, coarsest = levels((side,)), side
+        for _ in range(d):
+            coarsest = (coarsest + 1) // 2
+        assert coarsest >= COARSEST or d == 0
+        assert d == LEVELS or (coarsest + 1) // 2 < COARSEST  # no further halving would keep enough
+
+
+@pytest.mark.parametrize("dim,levels,up", [(1, 3, 2), (2, 2, 1), (2, 4, 2), (3, 2, 2)])
+def test_the_multiply_add_count_is_what_the_convolutions_do(dim, levels, up):
+    """``unet_macs`` (the plan's cost model) against the convolutions' own count on a grid whose every
+    level halves exactly: weights per output point times the output points of each."""
+    from pdeinv.nets import corrections
+
+    net, side = corrections.UNet(dim, 4, 2, levels, up), 2 ** (levels + 2)
+    macs = []
+    hooks = [m.register_forward_hook(lambda m, i, o: macs.append(o[0].numel() * m.weight[0].numel()))
+             for m in net.modules() if isinstance(m, torch.nn.modules.conv._ConvNd)]
+    net(torch.zeros(1, 2, *(side,) * dim))
+    for h in hooks:
+        h.remove()
+    assert corrections.unet_macs(side**dim, dim, 4, 2, levels, up) == sum(macs)
+
+
+def test_a_run_saved_before_the_depth_was_recorded_loads_as_the_two_level_net(tmp_path):
+    """run.json's ``{"kind": "unet"}`` without ``depth``: the two-level, one-convolution-up U-Net of those
+    runs, its state dict under the old names (``e1 … u1``), the same function as before."""
+    from pdeinv.io import runs
+
+    problem = pdeinv.load_problem("heat_boxes", n=12)
+    torch.manual_seed(0)
+    old = unet(depth=2, up_convs=1)(problem)
+    torch.nn.init.normal_(old.base.unet.out.weight if hasattr(old, "base") else old.unet.out.weight, std=0.1)
+    out = pdeinv.save_run(tmp_path / "run", "heat_boxes", {"n": 12}, {"kind": "unet"}, model=old)
+    record = json.loads((out / "run.json").read_text())
+    assert (record["network"]["depth"], record["network"]["up_convs"]) == (2, 1)
+    legacy = {"e1.": "down.0.", "e2.": "down.1.", "e3.": "down.2.", "u2.": "up.1.", "u1.": "up.0."}
+    state = {}
+    for k, v in torch.load(out / "model.pt").items():
+        for a, b in legacy.items():
+            k = k.replace("unet." + b, "unet." + a)
+        state[k] = v
+    assert any(".unet.e1." in k or k.startswith("unet.e1.") for k in state)
+    torch.save(state, out / "model.pt")
+    del record["network"]["depth"], record["network"]["up_convs"]
+    record["model_sha256"] = __import__("hashlib").sha256((out / "model.pt").read_bytes()).hexdigest()
+    record["record_sha256"] = runs._record_digest(record)
+    (out / "run.json").write_text(json.dumps(record))
+    _, model = pdeinv.load_run(out)
+    y = torch.as_tensor(problem.sample(3, seed=5)[1], dtype=torch.float32)
+    with torch.no_grad():
+        torch.testing.assert_close(model(y), old(y))
 
 
 def test_fresh_draws_are_seeded_per_step_and_reported(boxes):

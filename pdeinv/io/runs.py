@@ -98,7 +98,25 @@ def _spec(network_spec, model) -> dict:
     if not isinstance(network_spec, dict) or network_spec.get("kind") not in NETWORKS:
         raise ValueError(f"network_spec={network_spec!r} is not allowed; expected a dict with 'kind' one of "
                          f"{', '.join(map(repr, NETWORKS))}")
-    return {**_with_correction(network_spec, inner), **({"units": units} if units != 1.0 else {})}
+    spec = _with_unet_shape(_with_correction(network_spec, inner), inner)
+    return {**spec, **({"units": units} if units != 1.0 else {})}
+
+
+#: the U-Net shape of a ``"unet"`` run recorded before run.json held it: two levels, one convolution up
+_LEGACY_UNET = {"depth": 2, "up_convs": 1}
+
+
+def _with_unet_shape(spec: dict, model) -> dict:
+    """``spec`` of a ``"unet"`` network with its U-Net's ``depth`` and ``up_convs``, which a reloaded run
+    must be built with (the default depth follows the grid, and has changed)."""
+    from ..nets.unet import MeshUNet
+
+    if spec.get("kind") != "unet":
+        return spec
+    found = next((m for m in model.modules() if isinstance(m, MeshUNet)), None)
+    if found is None:
+        return spec
+    return {**spec, "depth": found.unet.levels, "up_convs": found.unet.up_convs}
 
 
 def _with_correction(spec: dict, model) -> dict:
@@ -336,7 +354,9 @@ def load_run(run_dir):
     record = _record(run, where)
     problem = load_problem(record["problem"], **record["overrides"])
     try:
-        model = network(problem, record["network"])
+        spec = record["network"]
+        legacy = isinstance(spec, dict) and spec.get("kind") == "unet" and "depth" not in spec
+        model = network(problem, {**spec, **_LEGACY_UNET} if legacy else spec)
     except (TypeError, ValueError) as err:  # a kind's settings edited: an unknown name, a wrong value
         first = (str(err).strip().splitlines() or [type(err).__name__])[0][:160]
         raise ValueError(f"{where}: {RUN_FILE}'s 'network' {json.dumps(record['network'])[:80]} builds no "

@@ -44,28 +44,50 @@ POINTS = 2**18
 _LAST = {2: torch.channels_last, 3: torch.channels_last_3d}
 
 
-class UNet(nn.Module):
-    """A two-level U-Net ``g`` on ``dim``-dimensional images, ``c`` channels at full resolution
-    (``2c``, ``4c`` below), GELU, skip connections, a zero-initialized 1×1 output: ``g ≡ 0`` at start.
-    Parameters ~ ``60 c²·3^dim / 9``, independent of the mesh."""
+#: the widest level's channels as a multiple of the finest's: ``c·min(2^l, WIDEN)`` on level ``l`` (the
+#: SIP paper's heat network doubles twice, then holds)
+WIDEN = 4
 
-    def __init__(self, dim: int, c: int = 16, channels_in: int = 1):
+#: the legacy two-level layout's module names (runs saved before the level count was a setting)
+_LEGACY = {"e1.": "down.0.", "e2.": "down.1.", "e3.": "down.2.", "u2.": "up.1.", "u1.": "up.0."}
+
+
+def widths(c: int, levels: int) -> tuple[int, ...]:
+    """The channels of each level of :class:`UNet`: ``c·min(2^l, WIDEN)`` for ``l = 0 … levels``."""
+    return tuple(c * min(2**level, WIDEN) for level in range(levels + 1))
+
+
+class UNet(nn.Module):
+    """A U-Net ``g`` on ``dim``-dimensional images: ``levels`` halvings of the grid below the full
+    resolution, :func:`widths` channels (``c`` at full resolution), two 3×3 convolutions per level on the
+    way down, ``up_convs`` per level on the way up (after the upsampled coarser level is concatenated with
+    the skip connection), GELU, and a zero-initialized 1×1 output: ``g ≡ 0`` at start. Parameters
+    ``≈ 3^dim Σ_l (2 + 1 + up_convs) w_l²``, independent of the mesh. ``UNet(dim, c, ch)`` (two levels,
+    one convolution up) is the correction of :class:`GridCorrection`; :func:`pdeinv.nets.unet` uses four
+    levels and two convolutions up, the depth that lets a 64² grid's coarsest level see the whole
+    domain."""
+
+    def __init__(self, dim: int, c: int = 16, channels_in: int = 1, levels: int = 2, up_convs: int = 1):
         super().__init__()
         Conv, act = _conv(dim), nn.GELU
+        w = widths(c, levels)
 
-        def block(a, b, stride=1):
-            return nn.Sequential(Conv(a, b, 3, padding=1, stride=stride), act(),
-                                 Conv(b, b, 3, padding=1), act())
+        def convs(a, b, n, stride=1):
+            layers = [Conv(a, b, 3, padding=1, stride=stride), act()]
+            for _ in range(n - 1):
+                layers += [Conv(b, b, 3, padding=1), act()]
+            return nn.Sequential(*layers)
 
-        self.dim = dim
-        self.e1, self.e2, self.e3 = block(channels_in, c), block(c, 2 * c, 2), block(2 * c, 4 * c, 2)
-        self.u2 = nn.Sequential(Conv(6 * c, 2 * c, 3, padding=1), act())
-        self.u1 = nn.Sequential(Conv(3 * c, c, 3, padding=1), act())
-        self.out = Conv(c, 1, 1)
+        self.dim, self.levels, self.up_convs = dim, levels, up_convs
+        self.down = nn.ModuleList([convs(channels_in, w[0], 2)]
+                                  + [convs(w[i], w[i + 1], 2, stride=2) for i in range(levels)])
+        self.up = nn.ModuleList([convs(w[i + 1] + w[i], w[i], up_convs) for i in range(levels)])
+        self.out = Conv(w[0], 1, 1)
         nn.init.zeros_(self.out.weight)
         nn.init.zeros_(self.out.bias)
         if dim in _LAST:
             self.to(memory_format=_LAST[dim])
+        self._register_load_state_dict_pre_hook(_legacy_names)
 
     def forward(self, g: torch.Tensor) -> torch.Tensor:
         rows = max(1, POINTS // max(1, int(np.prod(g.shape[2:]))))  # chunks of rows (:data:`POINTS`)
@@ -75,12 +97,26 @@ class UNet(nn.Module):
 
     def _levels(self, g: torch.Tensor) -> torch.Tensor:
         mode = {1: "linear", 2: "bilinear", 3: "trilinear"}[self.dim]
-        up = lambda t, ref: F.interpolate(t, size=ref.shape[2:], mode=mode, align_corners=False)  # noqa: E731
-        a = self.e1(g)
-        b = self.e2(a)
-        c = self.e3(b)
-        d = self.u2(torch.cat([up(c, b), b], 1))
-        return self.out(self.u1(torch.cat([up(d, a), a], 1)))
+        skips = []
+        for block in self.down:
+            g = block(g)
+            skips.append(g)
+        h = skips.pop()
+        for level in reversed(range(self.levels)):
+            s = skips.pop()
+            h = F.interpolate(h, size=s.shape[2:], mode=mode, align_corners=False)
+            h = self.up[level](torch.cat([h, s], 1))
+        return self.out(h)
+
+
+def _legacy_names(state, prefix, *_):
+    """Renames a legacy two-level state dict's keys (``e1 … u1``) to this layout's, in place."""
+    for key in [k for k in state if k.startswith(prefix)]:
+        rest = key[len(prefix):]
+        for old, new in _LEGACY.items():
+            if rest.startswith(old):
+                state[prefix + new + rest[len(old):]] = state.pop(key)
+                break
 
 
 class SpectralFilter(nn.Module):
@@ -135,14 +171,19 @@ def fit_batch(kind: str, points: int, dim: int) -> int:
     return int(min(32, max(2, FIT_BATCH_POINTS // (max(points, 1) * 3**dim))))
 
 
-def unet_macs(points: int, dim: int, c: int = 16, channels_in: int = 2) -> int:
+def unet_macs(points: int, dim: int, c: int = 16, channels_in: int = 2, levels: int = 2,
+              up_convs: int = 1) -> int:
     """Multiply-adds of one forward pass of :class:`UNet` on one image of ``points`` pixels: each
-    convolution's weights times the pixels of its level (full, ``2^-dim``, ``4^-dim``)."""
-    k = 3**dim
-    full = channels_in * c * k + c * c * k + 3 * c * c * k + c
-    half = 2 * c * c * k + 4 * c * c * k + 12 * c * c * k
-    quarter = 8 * c * c * k + 16 * c * c * k
-    return int(points * (full + half / 2**dim + quarter / 4**dim))
+    convolution's weights times the pixels of its level (``points·2^(−dim·l)`` on level ``l``)."""
+    k, w = 3**dim, widths(c, levels)
+    total = points * (channels_in * w[0] * k + w[0] * w[0] * k + w[0])  # level 0 down, and the output
+    for level in range(1, levels + 1):
+        below = points / 2 ** (dim * level)
+        total += below * (w[level - 1] * w[level] + w[level] ** 2) * k  # down: strided, then one more
+    for level in range(levels):
+        here = points / 2 ** (dim * level)
+        total += here * ((w[level + 1] + w[level]) * w[level] + (up_convs - 1) * w[level] ** 2) * k
+    return int(total)
 
 
 def mlp_macs(widths) -> int:

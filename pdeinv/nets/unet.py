@@ -6,8 +6,10 @@ through the finite-element interpolation (:class:`~pdeinv.fem.grid.GridMap`: ``�
 
     f(y) = s_x · E U( Ê [y / s_y,  x_T(y) / s_x] )  [+ x_T(y)]
 
-* ``U`` is :class:`~pdeinv.nets.corrections.UNet` (two levels, GELU, skip connections, zero last layer):
-  parameters independent of the mesh, a local, translation-equivariant prior.
+* ``U`` is :class:`~pdeinv.nets.corrections.UNet` (GELU, skip connections, zero last layer): parameters
+  independent of the mesh, a local, translation-equivariant prior. It halves the grid down to a coarsest
+  level of at least :data:`COARSEST` points per axis, at most :data:`LEVELS` times (:func:`levels`), so
+  that level's 3×3 convolutions see the whole domain: a 64² grid gets the SIP paper's four levels.
 * Its input channels are what the physics gives without training: the observation itself where it lives
   on the unknowns (``m = N``: a final state), and the physics' own linear estimate ``x_T(y)`` where the
   operator has a spectral basis (Tikhonov at the noise level, :class:`~pdeinv.nets.corrections.
@@ -20,7 +22,8 @@ through the finite-element interpolation (:class:`~pdeinv.fem.grid.GridMap`: ``�
 The network is not linear in its parameters: SIP fits its proxy with Adam on minibatches (the paper's
 optimizer, :data:`pdeinv.methods.presets.SIP_MLP`), HIG takes its matrix-free route
 (:mod:`pdeinv.methods.hig.randomized`), and GD / Adam the plain gradient. Parameters
-``~60 c²·3^dim/9`` (16 channels in 2-D, two inputs: 106 561), buffers ``O(N·2^dim)``; initialisation is
+``≈ 3^dim Σ_l 5 w_l²`` over the levels' widths ``w_l = c·min(2^l, 4)`` (16 channels, four levels in 2-D,
+two inputs: 487 281), buffers ``O(N·2^dim)``; initialisation is
 seeded by ``torch.manual_seed`` like every pdeinv network.
 """
 
@@ -34,8 +37,26 @@ from .._checks import problem as _problem
 from .corrections import SpectralFilter, UNet
 from .protocol import Network
 
-#: channels of the U-Net at full resolution (``2c``, ``4c`` on the coarser levels): the SIP paper's width
+#: channels of the U-Net at full resolution (``2c``, then ``4c`` on the coarser levels): the SIP paper's width
 CHANNELS = 16
+
+#: the most halvings of the grid: the SIP paper's heat network's four levels
+LEVELS = 4
+
+#: the fewest grid points per axis on the coarsest level: a 3×3 convolution on fewer is mostly padding
+COARSEST = 4
+
+#: 3×3 convolutions per level on the way up (after the skip connection): the paper's two
+UP_CONVS = 2
+
+
+def levels(shape) -> int:
+    """Halvings of a grid of ``shape`` (:data:`LEVELS` at most) that keep :data:`COARSEST` points per
+    axis on the coarsest level; stride-2 convolutions round up (65 → 33 → 17 → 9 → 5: four levels)."""
+    side, count_ = min(int(s) for s in shape), 0
+    while count_ < LEVELS and (side + 1) // 2 >= COARSEST:
+        side, count_ = (side + 1) // 2, count_ + 1
+    return count_
 
 
 def _rms(v: torch.Tensor) -> float:
@@ -46,10 +67,11 @@ def _rms(v: torch.Tensor) -> float:
 class MeshUNet(Network):
     """``f(y)`` of the module docstring. ``grid``: a :class:`~pdeinv.fem.grid.GridMap` of the unknowns;
     ``physics``: a :class:`SpectralFilter` or ``None``; ``observed``: whether ``y`` lives on the unknowns
-    (``m = N``) and enters as a channel."""
+    (``m = N``) and enters as a channel; ``depth``: the U-Net's levels (``None``: :func:`levels` of the
+    grid), ``up_convs``: its convolutions per level on the way up."""
 
     def __init__(self, grid, physics: SpectralFilter | None, observed: bool, channels: int = CHANNELS,
-                 residual: bool = False):
+                 residual: bool = False, depth: int | None = None, up_convs: int = UP_CONVS):
         super().__init__()
         from ..fem.grid import GridMap
 
@@ -62,6 +84,8 @@ class MeshUNet(Network):
         flag(observed, "observed")
         channels = count(channels, "channels")
         flag(residual, "residual")
+        depth = levels(grid.shape) if depth is None else count(depth, "depth", minimum=0)
+        up_convs = count(up_convs, "up_convs")
         if physics is None and not observed:
             raise ValueError("MeshUNet needs an input: observations on the unknowns (m = N) or a physics "
                              "estimate (physics=SpectralFilter)")
@@ -69,7 +93,7 @@ class MeshUNet(Network):
             raise ValueError("MeshUNet(residual=True) needs the physics estimate it adds to (physics=…)")
         self.grid, self.physics, self.observed, self.residual = grid, physics, bool(observed), bool(residual)
         inputs = int(self.observed) + int(physics is not None)
-        self.unet = UNet(len(grid.shape), channels, inputs)
+        self.unet = UNet(len(grid.shape), channels, inputs, depth, up_convs)
         self.register_buffer("y_scale", torch.ones((), dtype=torch.float64))
         self.register_buffer("x_scale", torch.ones((), dtype=torch.float64))
 
@@ -113,20 +137,24 @@ def inputs(problem) -> int:
     return int(problem.operator.n_out == problem.N) + int(modal_basis(problem.operator) is not None)
 
 
-def size(problem, channels: int = CHANNELS) -> dict:
+def size(problem, channels: int = CHANNELS, depth: int | None = None, up_convs: int = UP_CONVS) -> dict:
     """What :func:`unet`'s network holds for ``problem``, without its grid: ``params`` (the U-Net's, the
-    same on every mesh of a dimension), ``buffers`` (the grid maps' ``2^dim`` indices and weights per
-    unknown, an upper bound of ``4N`` grid points, two scales) and ``widest`` (one sample's largest
-    activation: ``3c`` channels on at most ``4N`` grid points)."""
+    same on every mesh of a dimension and depth; ``depth=None``: :data:`LEVELS`, the most any grid gets),
+    ``buffers`` (the grid maps' ``2^dim`` indices and weights per unknown, an upper bound of ``4N`` grid
+    points, two scales) and ``widest`` (one sample's largest activation: ``2c`` channels up plus ``c`` of
+    the skip on at most ``4N`` grid points)."""
     _problem(problem)
     channels = count(channels, "channels")
+    depth = LEVELS if depth is None else count(depth, "depth", minimum=0)
     dim = problem.points.shape[0]
-    params = sum(q.numel() for q in UNet(dim, channels, max(inputs(problem), 1)).parameters())
+    params = sum(q.numel() for q in UNet(dim, channels, max(inputs(problem), 1), depth,
+                                          count(up_convs, "up_convs")).parameters())
     return {"params": params, "buffers": 2 * problem.N * 2**dim + 4 * problem.N + 2,
             "widest": 3 * channels * 4 * problem.N}
 
 
-def unet(channels: int = CHANNELS, residual: bool | None = None, refine: bool = True):
+def unet(channels: int = CHANNELS, residual: bool | None = None, refine: bool = True, depth: int | None = None,
+         up_convs: int = UP_CONVS):
     """``problem -> network``: a :class:`MeshUNet` (in :func:`~pdeinv.nets.defaults.refined`'s wrapper with
     ``refine``) for a problem whose unknowns are nodal values on a mesh of dimension 1–3:
     the physics estimate where the operator has a spectral basis, the observations where ``m = N``.
@@ -135,8 +163,11 @@ def unet(channels: int = CHANNELS, residual: bool | None = None, refine: bool = 
     and the rule has nothing left to fit; from zero the rule trains the whole map. ``refine`` wraps it as
     the default network's base (:func:`pdeinv.nets.defaults.refined`): a correction and a data-consistency
     layer, off and untrained, for the prior stage to fit on top of what the rule trained (``prior=None`` /
-    ``--prior-fit 0``: the U-Net alone)."""
+    ``--prior-fit 0``: the U-Net alone). ``depth`` (``None``: :func:`levels` of the problem's grid) and
+    ``up_convs`` shape the U-Net (:class:`~pdeinv.nets.corrections.UNet`); a saved run records both."""
     channels = count(channels, "channels")
+    depth = None if depth is None else count(depth, "depth", minimum=0)
+    up_convs = count(up_convs, "up_convs")
     if residual is not None:
         flag(residual, "residual")
     flag(refine, "refine")
@@ -160,7 +191,7 @@ def unet(channels: int = CHANNELS, residual: bool | None = None, refine: bool = 
                              "unknowns and its operator has no spectral basis for a physics estimate; use "
                              "--net default")
         res = False if residual is None else residual
-        net = MeshUNet(GridMap(problem.points, spacing(mesh)), physics, observed, channels, res)
+        net = MeshUNet(GridMap(problem.points, spacing(mesh)), physics, observed, channels, res, depth, up_convs)
         if not refine:
             return net
         from .defaults import refined
