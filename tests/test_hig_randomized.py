@@ -75,11 +75,12 @@ def test_capped_sketch_with_power_iterations_finds_the_top_subspace(scene):
 
 def test_auto_goes_matrix_free_only_when_the_dense_jacobian_does_not_fit(scene):
     p, model, y = scene
-    # dense (gram route, 45 × 263 float32 + float64) ≈ 142 kB; the 10-probe sketch ≈ 70 kB; the MLP's
-    # last-layer step (pdeinv.methods.hig.layers) ≈ 2 kB: a dense network takes that instead
-    _, info = _delta(p, model, y, route="auto", probes=10, max_jacobian_gb=100e3 / 2**30)
+    # dense (gram route) ≈ 236 kB; the 10-probe sketch ≈ 102 kB (its arrays ≈ 70 kB and the activations
+    # of the physics' time steps); the MLP's last-layer step (pdeinv.methods.hig.layers) ≈ 2 kB: a dense
+    # network takes that instead
+    _, info = _delta(p, model, y, route="auto", probes=10, max_jacobian_gb=120e3 / 2**30)
     assert info["route"] == "last_layer"
-    _, info = _delta(p, model, y, wrap=True, route="auto", probes=10, max_jacobian_gb=100e3 / 2**30)
+    _, info = _delta(p, model, y, wrap=True, route="auto", probes=10, max_jacobian_gb=120e3 / 2**30)
     assert info["route"] == "randomized" and info["jacobian"] == "matrix-free"
     _, info = _delta(p, model, y, wrap=True, route="auto", probes=10)
     assert info["route"] in ("gram", "svd")
@@ -96,3 +97,48 @@ def test_auto_goes_matrix_free_only_when_the_dense_jacobian_does_not_fit(scene):
 def test_bad_settings(kw, match):
     with pytest.raises(ValueError, match=match):
         HIG(**kw)
+
+
+@pytest.fixture(scope="module")
+def conv_batch():
+    """A small U-Net on heat_boxes as HIG's routes see it: activations, not parameters, dominate."""
+    from pdeinv import load_problem
+    from pdeinv.methods.hig.routes import Batch
+    from pdeinv.methods.hig.rule import compress
+    from pdeinv.nets import unet
+
+    p = load_problem("heat_boxes", n=12)
+    torch.manual_seed(0)
+    net = unet(channels=4, refine=False)(p).double()
+    torch.nn.init.normal_(net.unet.out.weight, std=0.1)
+    y = torch.as_tensor(p.sample(4, seed=1)[1])
+    net.fit_observations(y)
+    return Batch.of(net, compress(p.operator)[0], y)
+
+
+def test_probes_in_chunks_give_the_same_step(conv_batch):
+    """The probes go through vmap in chunks bounded by their activations: one probe at a time gives the
+    step all at once gives, to rounding."""
+    from pdeinv.methods.hig.randomized import randomized_direction
+
+    g = torch.randn(conv_batch.rows, dtype=torch.float64, generator=torch.Generator().manual_seed(0))
+    whole, a = randomized_direction(conv_batch, g, 12, 1, 1e-6, -0.5, 1.0, seed=3, activations=0)
+    alone, b = randomized_direction(conv_batch, g, 12, 1, 1e-6, -0.5, 1.0, seed=3, activations=10**15)
+    assert (a["chunk"], b["chunk"]) == (12, 1)
+    assert float((whole - alone).norm() / whole.norm()) < 1e-10
+
+
+def test_the_matrix_free_memory_counts_the_activations_of_a_chunk(conv_batch):
+    """The route's memory is its arrays, the vjp's saved activations and one chunk of probes' copies:
+    what a batch saves grows with the batch, and a chunk stays within ACTIVATION_BYTES."""
+    from pdeinv.methods.hig import randomized as R
+    from pdeinv.methods.hig.routes import MatrixFree
+
+    act = R.activation_bytes(conv_batch)
+    half = R.activation_bytes(conv_batch._replace(y=conv_batch.y[:2], rows=conv_batch.rows // 2))
+    assert 1.8 < act / half < 2.2  # activations per sample, not per parameter
+    route, probes = MatrixFree(probes=16, power_iters=1, seed=0), 16
+    arrays = R.memory_bytes(conv_batch.n_params, probes, conv_batch.rows)
+    assert route.memory(conv_batch) == arrays + act + probes * R.COPIES * act
+    most = R.chunk(10**6, act)
+    assert most * R.COPIES * act <= R.ACTIVATION_BYTES < (most + 1) * R.COPIES * act

@@ -176,7 +176,8 @@ def test_the_physics_channel_is_the_tikhonov_solve_from_zero():
     p = pdeinv.load_problem("heat_boxes", n=16, noise=0.01)
     _, y = p.sample(4, 0)
     net = p.model()
-    assert isinstance(net.correction.physics, SpectralFilter) and net.correction.unet.e1[0].in_channels == 2
+    assert isinstance(net.correction.physics, SpectralFilter)
+    assert net.correction.unet.down[0][0].in_channels == 2
     ref = SpectralTikhonov(p.operator, RelativeAlpha(0.01**2))(y, np.zeros((4, p.N)))
     assert np.allclose(net.correction.physics(torch.as_tensor(y)).numpy(), ref, rtol=1e-10, atol=1e-12)
     assert not any(k.endswith("physics.proj") for k in net.state_dict())  # rebuilt, not saved

@@ -32,17 +32,24 @@ def spacing(mesh) -> float:
     return float(np.median(ext[ext > 0]))
 
 
+def grid_shape(points: np.ndarray, h: float, max_points: int = 2**21) -> tuple[np.ndarray, np.ndarray]:
+    """``(shape, spacing)`` of :class:`GridMap`'s grid for unknowns at ``points``: spacing about ``h``,
+    grown to keep at most ``max_points`` grid points, and at least 2 points per axis."""
+    dim = points.shape[0]
+    span = points.max(1) - points.min(1)
+    h = max(h, float(np.prod(np.maximum(span, h)) / max_points) ** (1 / dim))
+    shape = np.maximum(np.round(span / h).astype(int) + 1, 2)
+    return shape, np.where(span > 0, span / np.maximum(shape - 1, 1), 1.0)
+
+
 class GridMap(nn.Module):
     """``E`` and ``Ê`` (module docstring) for unknowns at ``points`` (``(dim, N)``) on a grid of
     spacing about ``h`` (at most ``max_points`` grid points: the spacing grows to fit)."""
 
     def __init__(self, points: np.ndarray, h: float, max_points: int = 2**21):
         super().__init__()
-        dim, N = points.shape
-        lo, span = points.min(1), points.max(1) - points.min(1)
-        h = max(h, float(np.prod(np.maximum(span, h)) / max_points) ** (1 / dim))
-        shape = np.maximum(np.round(span / h).astype(int) + 1, 2)
-        step = np.where(span > 0, span / np.maximum(shape - 1, 1), 1.0)
+        dim, lo = points.shape[0], points.min(1)
+        shape, step = grid_shape(points, h, max_points)
         u = (points - lo[:, None]) / step[:, None]  # grid coordinates of the unknowns
         cell = np.clip(np.floor(u + 1e-9).astype(int), 0, shape[:, None] - 2)
         frac = np.clip(u - cell, 0.0, 1.0)

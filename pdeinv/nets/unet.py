@@ -139,22 +139,27 @@ def inputs(problem) -> int:
 
 def size(problem, channels: int = CHANNELS, depth: int | None = None, up_convs: int = UP_CONVS) -> dict:
     """What :func:`unet`'s network holds for ``problem``, without its grid: ``params`` (the U-Net's, the
-    same on every mesh of a dimension and depth; ``depth=None``: :data:`LEVELS`, the most any grid gets),
+    same on every mesh of a dimension and depth; ``depth=None``: :func:`levels` of the problem's grid),
     ``buffers`` (the grid maps' ``2^dim`` indices and weights per unknown, an upper bound of ``4N`` grid
     points, two scales) and ``widest`` (one sample's largest activation: ``2c`` channels up plus ``c`` of
     the skip on at most ``4N`` grid points)."""
+    from ..fem.grid import grid_shape, spacing
+
     _problem(problem)
     channels = count(channels, "channels")
-    depth = LEVELS if depth is None else count(depth, "depth", minimum=0)
     dim = problem.points.shape[0]
+    if depth is None:
+        mesh = None if problem.disc is None else problem.disc.basis.mesh
+        depth = LEVELS if mesh is None else levels(grid_shape(problem.points, spacing(mesh))[0])
+    depth = count(depth, "depth", minimum=0)
     params = sum(q.numel() for q in UNet(dim, channels, max(inputs(problem), 1), depth,
                                           count(up_convs, "up_convs")).parameters())
     return {"params": params, "buffers": 2 * problem.N * 2**dim + 4 * problem.N + 2,
             "widest": 3 * channels * 4 * problem.N}
 
 
-def unet(channels: int = CHANNELS, residual: bool | None = None, refine: bool = True, depth: int | None = None,
-         up_convs: int = UP_CONVS):
+def unet(channels: int = CHANNELS, residual: bool | None = None, refine: bool = True,
+         depth: int | None = None, up_convs: int = UP_CONVS):
     """``problem -> network``: a :class:`MeshUNet` (in :func:`~pdeinv.nets.defaults.refined`'s wrapper with
     ``refine``) for a problem whose unknowns are nodal values on a mesh of dimension 1–3:
     the physics estimate where the operator has a spectral basis, the observations where ``m = N``.
@@ -191,7 +196,8 @@ def unet(channels: int = CHANNELS, residual: bool | None = None, refine: bool = 
                              "unknowns and its operator has no spectral basis for a physics estimate; use "
                              "--net default")
         res = False if residual is None else residual
-        net = MeshUNet(GridMap(problem.points, spacing(mesh)), physics, observed, channels, res, depth, up_convs)
+        grid = GridMap(problem.points, spacing(mesh))
+        net = MeshUNet(grid, physics, observed, channels, res, depth, up_convs)
         if not refine:
             return net
         from .defaults import refined

@@ -377,8 +377,10 @@ def hig_route(problem, batch: int, params: int, linear: bool, dense_net: bool) -
         return f"dense Jacobian {rows} x {params}, decomposed"
     if dense_net:
         return f"the last layer's exact step (the Jacobian {rows} x {params} exceeds {HIG_JACOBIAN_GB:g} GB)"
-    return (f"matrix-free: rank-{HIG.probes} randomized SVD from Jacobian products (the Jacobian "
-            f"{rows} x {params} exceeds {HIG_JACOBIAN_GB:g} GB)")
+    products = (2 + 2 * HIG.power_iters) * HIG.probes  # J Ω, q times J Jᵀ Q, Jᵀ Q
+    return (f"matrix-free: rank-{HIG.probes} randomized SVD from Jacobian products, {products} "
+            f"passes of the batch through network and physics per step (the Jacobian {rows} x {params} "
+            f"exceeds {HIG_JACOBIAN_GB:g} GB)")
 
 
 #: copies per trained parameter in its dtype: value, gradient and, with Adam, two moments

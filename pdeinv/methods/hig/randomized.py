@@ -28,7 +28,9 @@ With ``Bᵀ = Jᵀ Q`` (``n_params × l``) and ``B Bᵀ = Z S² Zᵀ`` (a small 
 It is exact (to rounding) when ``rank(J) ≤ l``; otherwise the update lives in the
 top-``l`` singular subspace, whose accuracy the power iterations improve (the error
 factor falls like ``(σ_(l+1)/σ_k)^(2q+1)``). Memory: about three ``n_params × l``
-float64 arrays at the peak (:func:`memory_bytes`), instead of ``B·n_out × n_params``.
+float64 arrays at the peak, instead of ``B·n_out × n_params``, and the products' own working set: each
+probe carries the batch's activations through the network, so the probes go through ``vmap`` in chunks
+of at most :data:`ACTIVATION_BYTES` of activations (:func:`activation_bytes`, :func:`memory_bytes`).
 """
 
 from __future__ import annotations
@@ -42,10 +44,47 @@ from ...physics.bridge import apply
 #: float64 n_params × probes arrays alive at the peak (a product, its transposed copy, Bᵀ)
 ARRAYS = 3
 
+#: activations of the probes ``vmap`` carries at once: more probes than fit go through in chunks (a
+#: U-Net on a 64² grid holds ~600 MB per probe for a batch of 32; all 128 probes at once needed >24 GB)
+ACTIVATION_BYTES = 2**30
 
-def memory_bytes(n_params: int, probes: int, rows: int) -> int:
-    """Peak bytes of the randomized route: ``ARRAYS`` float64 ``n_params × l`` blocks + ``rows × l``."""
-    return 8 * probes * (ARRAYS * n_params + 2 * rows)
+#: copies of the saved activations a probe's product holds: the tangents (jvp) or the cotangents (vjp)
+#: beside the primal's (measured peaks: 1.85–1.95× the saved bytes, U-Nets on 16² to 64² grids)
+COPIES = 2
+
+
+def activation_bytes(batch) -> int:
+    """What the float64 forward of the batch through network and physics saves for the backward (bytes,
+    each saved tensor once): held once by the ``vjp`` for the whole step, and :data:`COPIES` times by
+    each probe in a ``vmap``-ed product."""
+    b = batch.double()
+    seen, total = set(), [0]
+
+    def pack(t):
+        key = (t.data_ptr(), t.numel(), t.dtype)
+        if key not in seen:
+            seen.add(key)
+            total[0] += t.numel() * t.element_size()
+        return t
+
+    params = {n: p.detach().requires_grad_(True) for n, p in b.params.items()}
+    with torch.autograd.graph.saved_tensors_hooks(pack, lambda t: t), torch.enable_grad():
+        apply(b.op, b.f(params, b.y))
+    return int(total[0])
+
+
+def chunk(probes: int, activations: int) -> int:
+    """Probes per ``vmap`` call: as many as keep their :data:`COPIES` of ``activations`` under
+    :data:`ACTIVATION_BYTES`."""
+    return int(max(1, min(probes, ACTIVATION_BYTES // max(COPIES * activations, 1))))
+
+
+def memory_bytes(n_params: int, probes: int, rows: int, activations: int = 0) -> int:
+    """Peak bytes of the randomized route: ``ARRAYS`` float64 ``n_params × l`` blocks, ``rows × l``, the
+    ``vjp``'s saved ``activations`` and one chunk of probes' copies of them (:func:`chunk`; measured
+    peaks within 5 % of this, U-Nets on 64² grids)."""
+    per_probe = COPIES * activations
+    return 8 * probes * (ARRAYS * n_params + 2 * rows) + activations + chunk(probes, activations) * per_probe
 
 
 def _orth(A: torch.Tensor) -> torch.Tensor:
@@ -53,12 +92,13 @@ def _orth(A: torch.Tensor) -> torch.Tensor:
 
 
 def randomized_direction(batch, g, probes: int, power_iters: int, tau: float, exponent: float, eta: float,
-                         seed: int):
+                         seed: int, activations: int | None = None):
     """``(Δθ, info)``: the HIG step from a rank-``probes`` randomized SVD (module docstring).
 
     ``batch`` is the routes' view of the model and the batch (:class:`~.hig_routes.Batch`, taken
     in float64); ``g`` is the stacked residual ``(B·n_out,)``; ``Δθ`` is flat, in the order of the
-    model's trainable parameters. ``seed`` fixes ``Ω`` (a resumed run repeats it).
+    model's trainable parameters. ``seed`` fixes ``Ω`` (a resumed run repeats it). ``activations``:
+    :func:`activation_bytes` of the batch (``None``: measured here), which sets the probes per ``vmap``.
     """
     b = batch.double()
     params, op, names = b.params, b.op, list(b.params)
@@ -68,6 +108,7 @@ def randomized_direction(batch, g, probes: int, power_iters: int, tau: float, ex
     B = b.y.shape[0]
     rows = B * op.n_out
     probes = min(probes, rows, n_params)
+    at_once = chunk(probes, activation_bytes(batch) if activations is None else activations)
 
     def y_of(p):
         return apply(op, b.f(p, b.y))
@@ -77,13 +118,13 @@ def randomized_direction(batch, g, probes: int, power_iters: int, tau: float, ex
         return {n: t.reshape(V.shape[0], *s) for n, t, s in zip(names, parts, shapes, strict=True)}
 
     def J_times(V):  # (n_params, l) -> (rows, l)
-        out = vmap(lambda v: jvp(y_of, (params,), (v,))[1])(unflat(V.T.contiguous()))
+        out = vmap(lambda v: jvp(y_of, (params,), (v,))[1], chunk_size=at_once)(unflat(V.T.contiguous()))
         return out.reshape(V.shape[1], rows).T
 
     _, pull = vjp(y_of, params)
 
     def JT_times(U):  # (rows, l) -> (n_params, l)
-        (grads,) = vmap(pull)(U.T.reshape(U.shape[1], B, op.n_out).contiguous())
+        (grads,) = vmap(pull, chunk_size=at_once)(U.T.reshape(U.shape[1], B, op.n_out).contiguous())
         return torch.cat([grads[n].reshape(U.shape[1], -1) for n in names], 1).T
 
     omega = torch.from_numpy(np.random.default_rng(seed).standard_normal((n_params, probes)))
@@ -99,6 +140,7 @@ def randomized_direction(batch, g, probes: int, power_iters: int, tau: float, ex
     coef = Zk @ (sk ** (exponent - 1) * (Zk.T @ (Q.T @ g.double()).numpy()))
     delta = -eta * (Bt @ torch.from_numpy(coef))
     info = dict(route="randomized", rank=int(keep.sum()), probes=probes, power_iters=power_iters,
+                chunk=at_once,
                 cond=float(s.max() / sk.min()), sigma_max=float(s.max()),
                 # σ_min of the sketch above τ·σ_max: the rank cap, not τ, cut the spectrum
                 rank_limited=bool(keep.all() and probes < min(rows, n_params)))

@@ -38,7 +38,7 @@ from ...physics.nonlinear import is_linear, require_linear
 from ..base import check_finite
 from . import layers as hig_layers
 from . import structured as hig_structured
-from .randomized import memory_bytes, randomized_direction
+from .randomized import activation_bytes, memory_bytes, randomized_direction
 
 
 class Batch(NamedTuple):
@@ -277,7 +277,8 @@ class MatrixFree(JacobianRoute):
     name = "randomized"
 
     def memory(self, b: Batch) -> int:
-        return memory_bytes(b.n_params, min(self.probes, b.rows, b.n_params), b.rows)
+        """The sketch's arrays and one chunk of probes' activations (a float64 forward of the batch)."""
+        return memory_bytes(b.n_params, min(self.probes, b.rows, b.n_params), b.rows, activation_bytes(b))
 
     def describe(self, b: Batch) -> str:
         return f"matrix-free route: {self.memory(b) / 2**30:.3g} GB with probes={self.probes}"
@@ -285,7 +286,7 @@ class MatrixFree(JacobianRoute):
     def direction(self, b: Batch, r: torch.Tensor, rule, step: int):
         seed = int(np.random.SeedSequence([self.seed, step]).generate_state(1)[0])
         delta, info = randomized_direction(b, r, self.probes, self.power_iters, rule.tau, rule.exponent,
-                                           rule.eta, seed)
+                                           rule.eta, seed, activation_bytes(b))
         return delta, {**info, "jacobian": "matrix-free"}
 
 
