@@ -34,6 +34,18 @@ def test_a_sampler_that_raises_while_training_is_one_line_with_its_file_and_line
     assert err.startswith(f"pdeinv train: error: {module}, line 8, in bad: RuntimeError: sampler broke"), err
 
 
+def test_explain_refuses_a_sampler_the_run_would_refuse(tmp_path, capsys):
+    """``--explain`` prints the plan, then takes the run's first draws: a sampler that raises is refused
+    there, in the run's one line and exit code, not only once the run has started."""
+    body = "    def bad(n, rng):\n        raise RuntimeError('sampler broke')\n    p.sampler = bad\n"
+    module = _module(tmp_path, "raising", body)
+    code = main(["train", str(module), "--prior-fit", "0", "--explain"])
+    out, err = capsys.readouterr()
+    assert code == 2 and "rule" in out and "Traceback" not in err and err.count("\n") == 1, err
+    assert "line 8, in bad: RuntimeError: sampler broke" in err
+    assert main(["train", str(_module(tmp_path, "fine", "")), "--prior-fit", "0", "--explain"]) == 0
+
+
 @pytest.mark.parametrize(("body", "says"), [
     ("    p.sampler = lambda n, rng: np.full((n, p.N), np.nan)\n",
      "its sampler returned 240 NaN/Inf values"),

@@ -228,10 +228,16 @@ def _device(args):
         raise UsageError(f"--{err}") from None
 
 
+#: prior draws ``--explain`` takes from the problem's sampler: a sampler that fails, returns the wrong
+#: shape or non-finite values is refused before the run, not after its plan said it would work
+EXPLAIN_DRAWS = 4
+
+
 def _explain(args) -> int:
     """``--explain``: the run's plan (:func:`pdeinv.training.plan.plan`) on stdout; nothing trained or
     written. The run's own checks follow it: a run that would be refused (its flags, its memory, a HIG
-    step beyond its time limit) is refused here too, in the same line, after its plan."""
+    step beyond its time limit, a sampler whose first :data:`EXPLAIN_DRAWS` draws fail) is refused here
+    too, in the same line, after its plan."""
     from pdeinv.methods.presets import make_rule
     from pdeinv.nets import NONLINEAR_KINDS
 
@@ -240,6 +246,10 @@ def _explain(args) -> int:
     set_threads(args.threads)
     problem, _, y, x = _problem_and_data(args)
     print(_plan(args, problem, y, x).explain())
+    if y is None and problem.sampler is not None:  # the run's first draws, checked as the run checks them
+        import numpy as np
+
+        problem.draws(EXPLAIN_DRAWS, np.random.default_rng(args.seed))
     if out is not None and args.resume:
         from pdeinv.training.checkpoint import Checkpoint, resumable_for
 
