@@ -63,9 +63,9 @@ class UNet(nn.Module):
     way down, ``up_convs`` per level on the way up (after the upsampled coarser level is concatenated with
     the skip connection), GELU, and a zero-initialized 1×1 output: ``g ≡ 0`` at start. Parameters
     ``≈ 3^dim Σ_l (2 + 1 + up_convs) w_l²``, independent of the mesh. ``UNet(dim, c, ch)`` (two levels,
-    one convolution up) is the correction of :class:`GridCorrection`; :func:`pdeinv.nets.unet` uses four
-    levels and two convolutions up, the depth that lets a 64² grid's coarsest level see the whole
-    domain."""
+    one convolution up) is the correction of :class:`GridCorrection`; :func:`pdeinv.nets.unet` takes as
+    many levels as its grid allows, up to four (:func:`pdeinv.nets.unet.levels`: a 64² grid's coarsest
+    level then sees the whole domain), and two convolutions up."""
 
     def __init__(self, dim: int, c: int = 16, channels_in: int = 1, levels: int = 2, up_convs: int = 1):
         super().__init__()
