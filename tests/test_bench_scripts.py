@@ -21,6 +21,8 @@ ROOT = Path(__file__).resolve().parents[1] / "benchmarks"
     ("forward_bare.py", ["--n", "12", "--batch", "4", "--repeats", "1"], "relative difference"),
     ("sip_heat.py", ["--n", "8", "--steps", "2", "--every", "1", "--methods", "sip", "adam"],
      "| sip, linear map |"),
+    ("sip_heat.py", ["--problem", "allen_cahn_1d", "--set", "n=16", "--steps", "2", "--every", "1",
+                     "--methods", "sip"], "| Gauss–Newton oracle (rel. α"),
     ("posterior.py", ["heat_1d", "--set", "n=16", "--set", "prior=grf", "--steps", "2", "--prior-fit", "0",
                       "--check", "50", "--draws", "512"], '"std_ratio_median"'),
 ])
