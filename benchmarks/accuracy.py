@@ -6,9 +6,9 @@
 Each cell runs ``pdeinv train SCENE --method M [--set noise=δ] --out DIR`` exactly as a user would
 (no other flags: the preset's steps, batch, optimizer, target and stopping rule), reads its
 ``metrics.json``, and computes Tikhonov with the oracle α (``pdeinv.training.references.tikhonov_best`` on a
-fine grid, α ≥ 1e-16·s_max²) on the same 128 held-out pairs the run was tested on
-(``problem.sample(128, seed_stream(0, TEST_DATA))``). Prints a markdown table and writes
-``OUT/accuracy.json``. One thread per run: timings are comparable within one invocation only.
+fine grid, α ≥ 1e-16·s_max²) on the same held-out pairs the run was tested on
+(``problem.sample(N_TEST, seed_stream(0, TEST_DATA))``, the default test rows). Prints a markdown table
+and writes ``OUT/accuracy.json``. One thread per run: timings are comparable within one invocation only.
 """
 
 from __future__ import annotations
@@ -29,10 +29,10 @@ GRID = tuple(10.0 ** (-k / 4) for k in range(0, 65))
 def tikhonov(scene: str, noise: float) -> float:
     import pdeinv
     from pdeinv.training import references
-    from pdeinv.training.trainset import TEST_DATA, seed_stream
+    from pdeinv.training.trainset import N_TEST, TEST_DATA, seed_stream
 
     p = pdeinv.load_problem(scene, noise=noise)
-    x, y = p.sample(128, seed_stream(0, TEST_DATA))
+    x, y = p.sample(N_TEST, seed_stream(0, TEST_DATA))
     return references.tikhonov_best(p, y, x, grid=GRID)["x_err"]
 
 

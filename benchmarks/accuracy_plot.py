@@ -100,7 +100,7 @@ def main(argv=None) -> int:
                         label=method + (" (default)" if method == "sip" else ""))
         ax.set_yscale("log")
         ax.set_xticks(list(xs), scenes, rotation=60, ha="right", fontsize=8)
-        ax.set_ylabel("relative L²(Ω) x-error, 128 test pairs")
+        ax.set_ylabel("relative L²(Ω) x-error on the test pairs")
         ax.set_title("noise-free" if noise == 0 else f"{noise:.0%} noise")
         ax.grid(axis="y", alpha=0.3)
     axes[0][0].legend(fontsize=8)

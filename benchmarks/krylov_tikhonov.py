@@ -8,7 +8,8 @@ Prints the held-out relative L²(Ω) x-error of best-α Tikhonov (``argmin ‖Px
 (:func:`pdeinv.training.references.tikhonov_best_krylov`; ``converged`` is the change when half the
 iterations are dropped; only α whose change is below 1 % count), its seconds, and each ``pdeinv train``
 run folder's network on the same rows
-(the first ``--n-test`` rows of the trainer's test stream are not the run's own unless ``--n-test 128``).
+(the first ``--n-test`` rows of the trainer's test stream are not the run's own unless ``--n-test 256``,
+the trainer's default).
 """
 
 import argparse

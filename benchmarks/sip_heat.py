@@ -3,7 +3,7 @@ elements: the same U-Net (``--net unet``, seed 0) trained on observations alone 
 "Adam + PG": Adam on the proxy loss), Adam on the y-loss and HIG, with the linear references beside it.
 
     OMP_NUM_THREADS=1 python benchmarks/sip_heat.py [--n 32] [--steps 1000] [--methods sip adam hig]
-        [--every 100] [--noise 0] [--rows R] [--problem heat_boxes] [--set KEY=VALUE]
+        [--every 100] [--noise 0] [--rows R] [--problem heat_boxes] [--set KEY=VALUE] [--stop none]
 
 heat_boxes (the paper's box prior, κT = 8 cells²) at ``--n`` cells per side (``--problem``: any scene
 with nodal unknowns, e.g. heat_plate on its unstructured mesh or the nonlinear allen_cahn_1d), no prior
@@ -43,7 +43,7 @@ def _mae(problem, model, test) -> float:
     return float(np.mean(np.abs(xhat - x)))
 
 
-def run(problem, method: str, steps: int, every: int, test, rows: int | None = None) -> dict:
+def run(problem, method: str, steps: int, every: int, test, rows: int | None = None, stop="auto") -> dict:
     import torch
 
     import pdeinv
@@ -61,7 +61,7 @@ def run(problem, method: str, steps: int, every: int, test, rows: int | None = N
     batch = 32
     data = {"fresh": True} if rows is None else {"n_train": rows}
     result = pdeinv.train(problem, method, model=model, prior=None, steps=steps, batch_size=batch,
-                          eval_every=every, callbacks=[mark], progress=False, **data)
+                          eval_every=every, callbacks=[mark], progress=False, stop=stop, **data)
     return {"method": method, "x_err": result.metrics["x_err"], "mae": _mae(problem, result.model, test),
             "wall": time.perf_counter() - start, "curve": curve}
 
@@ -106,6 +106,8 @@ def main(argv=None) -> None:
     parser.add_argument("--every", type=int, default=100)
     parser.add_argument("--noise", type=float, default=0.0)
     parser.add_argument("--methods", nargs="+", default=["sip", "adam", "hig"])
+    parser.add_argument("--stop", default="auto",
+                        help="the stopping rule, as pdeinv train --stop takes it ('none': all --steps)")
     parser.add_argument("--rows", type=int, default=None,
                         help="train on this many fixed rows instead of new draws each step")
     args = parser.parse_args(argv)
@@ -120,7 +122,7 @@ def main(argv=None) -> None:
     sets = {"n": args.n} if args.problem == "heat_boxes" else {}
     problem = pdeinv.load_problem(args.problem, **{**sets, "noise": args.noise, **parse_sets(args.set)})
     test = test_rows(problem, None, 128, 0)
-    rows = [run(problem, m, args.steps, args.every, test, args.rows) for m in args.methods]
+    rows = [run(problem, m, args.steps, args.every, test, args.rows, args.stop) for m in args.methods]
     data = "new prior draws each step" if args.rows is None else f"{args.rows} fixed rows"
     print(f"{args.problem} {problem.N} unknowns noise={args.noise:g}: U-Net (--net unet), {args.steps} "
           f"steps of 32 ({data}), observations only")

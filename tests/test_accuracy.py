@@ -15,7 +15,7 @@ import pdeinv
 from pdeinv.methods.presets import make_rule
 from pdeinv.training import references as refs
 from pdeinv.training.stopping import DiscrepancyStop
-from pdeinv.training.trainset import TEST_DATA, seed_stream
+from pdeinv.training.trainset import N_TEST, TEST_DATA, seed_stream
 
 GRID = tuple(10.0 ** (-k / 4) for k in range(0, 65))  # α / s_max² from 1 to 1e-16
 
@@ -30,7 +30,7 @@ def _cli_sip(problem, stop=None, steps=None):
 
 
 def _oracle(problem):
-    xt, yt = problem.sample(128, seed_stream(0, TEST_DATA))
+    xt, yt = problem.sample(N_TEST, seed_stream(0, TEST_DATA))  # the trainer's test rows
     return refs.tikhonov_best(problem, yt, xt, grid=GRID)["x_err"]
 
 
@@ -84,7 +84,7 @@ def _mmse(problem):
     from pdeinv.training.trainset import TRAIN_DATA
 
     xtr, _ = problem.sample(1024, seed_stream(0, TRAIN_DATA))
-    xt, yt = problem.sample(128, seed_stream(0, TEST_DATA))
+    xt, yt = problem.sample(N_TEST, seed_stream(0, TEST_DATA))  # the trainer's test rows
     est, _ = refs.mmse(problem, xtr)
     return float(problem.relative_error(est(yt), xt).mean())
 

@@ -12,6 +12,7 @@ from pdeinv.cli import main
 from pdeinv.nets.refine import PriorFit
 from pdeinv.training.plan import NEGLIGIBLE, PriorStage, draw_count
 from pdeinv.training.trainer import Trainer
+from pdeinv.training.trainset import N_TEST
 
 
 def test_python_and_the_cli_run_the_same_default_stages():
@@ -64,7 +65,8 @@ def test_the_plan_prices_what_the_guard_checks():
 
     p = pdeinv.load_problem("heat_boxes", n=16)
     chosen = plan(p, "sip")
-    assert chosen.memory == run_bytes(p, 1024, 128, 1024, None, "default", "sip", 128, draw_count(p.N), "sgd")
+    assert chosen.memory == run_bytes(p, 1024, N_TEST, 1024, None, "default", "sip", 128, draw_count(p.N),
+                                    "sgd")
     assert plan(p, "sip", prior=None).memory["data"] < chosen.memory["data"]
 
 

@@ -90,6 +90,36 @@ def test_calibration_on_known_residuals():
     assert np.allclose(np.median(q95, axis=1), 2.015, rtol=0.1)
 
 
+def test_sbc_in_chunks_is_the_sbc_of_all_samples(monkeypatch):
+    """The SBC draws are made a chunk of rows at a time; the ranks are those of ``samples`` at once."""
+    from pdeinv.posterior import diagnostics
+
+    rng = np.random.default_rng(3)
+    N, B = 30, 70
+    cal = Calibration.fit(rng.standard_normal((500, N)), rng.standard_normal((500, N)))
+    mean, x = rng.standard_normal((B, N)), rng.standard_normal((B, N))
+    chunked = report(cal, mean, x, seed=4)
+    monkeypatch.setattr(diagnostics, "SBC_ROWS", B)
+    assert report(cal, mean, x, seed=4) == chunked
+    draws = cal.samples(mean, diagnostics.SBC_SAMPLES, seed=5)  # the stream the report draws from
+    node = np.random.default_rng(4).integers(N, size=B)
+    r = np.random.default_rng(4)
+    r.integers(N, size=B)
+    ranks = diagnostics._ranks(x[np.arange(B), node], draws[np.arange(B), :, node], r)
+    assert chunked["sbc_p_node"] == diagnostics._ks(ranks)
+
+
+def test_default_test_rows_are_enough_for_sbc():
+    """256 drawn test rows by default (the SBC's ≥ 200), the last 128 rows of a user's file."""
+    from pdeinv.training.trainset import N_TEST, test_count
+
+    assert N_TEST >= 200 and test_count(None, False) == N_TEST and test_count(None, True) == 128
+    assert pdeinv.Trainer("heat_1d", "sip", progress=False).n_test == N_TEST
+    x, y = pdeinv.load_problem("heat_1d").sample(300, 0)
+    assert pdeinv.Trainer("heat_1d", "sip", data=y, data_x=x, progress=False).n_test == 128
+    assert pdeinv.Trainer("heat_1d", "sip", n_test=7, progress=False).n_test == 7
+
+
 def test_bad_levels():
     cal = Calibration.fit(np.ones((4, 3)), np.ones((4, 3)))
     for level in (0, 1, 1.5, -0.1):

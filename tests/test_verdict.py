@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import math
+import re
 
 import numpy as np
 import pytest
@@ -66,7 +67,8 @@ def test_cli_a_run_worse_than_zero_ends_with_exit_3_and_keeps_its_files(tmp_path
     assert main(["train", "--prior-fit", "0", "heat_1d", "--set", "n=16", *BAD, "--out", str(run)]) == 3
     err = said(capsys.readouterr().err)
     assert len(err) == 1 and err[0].startswith("pdeinv train: error: the run failed: ")
-    assert "the held-out x_err is 1.9" in err[0]
+    figure = re.search(r"the held-out x_err is (\d+\.\d+), at least 1", err[0])
+    assert figure and float(figure.group(1)) > 1.5, err[0]
     assert "--accept-bad" in err[0] and "Traceback" not in err[0]
     for name in ("metrics.json", "model.pt", "run.json", "history.csv", "training.png"):
         assert (run / name).exists(), name

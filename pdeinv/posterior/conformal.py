@@ -114,7 +114,15 @@ class Calibration:
     def samples(self, mean: np.ndarray, k: int, seed: int = 0) -> np.ndarray:
         """``k`` draws per row of ``mean`` ``(B, N)``: ``(B, k, N)`` (module docstring)."""
         mean = np.atleast_2d(mean)
-        pick = np.random.default_rng(seed).integers(len(self.residuals), size=(len(mean), k))
+        return self.drawn(mean, self.picks(len(mean), k, seed))
+
+    def picks(self, rows: int, k: int, seed: int = 0) -> np.ndarray:
+        """The kept residuals' indices ``(rows, k)`` that :meth:`samples` adds with ``seed``."""
+        return np.random.default_rng(seed).integers(len(self.residuals), size=(rows, k))
+
+    def drawn(self, mean: np.ndarray, pick: np.ndarray) -> np.ndarray:
+        """The draws ``(B, k, N)`` of rows ``mean`` ``(B, N)`` with residual indices ``pick`` ``(B, k)``
+        (:meth:`picks`): a part of the rows of :meth:`samples` at a time."""
         return mean[:, None, :] + self.scale * self.residuals[pick].astype(np.float64)
 
     def check_network(self, mean_of) -> None:

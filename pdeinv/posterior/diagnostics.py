@@ -20,6 +20,8 @@ import numpy as np
 LEVELS = (0.5, 0.9, 0.95)
 #: posterior samples per test row for SBC (ranks 0…K)
 SBC_SAMPLES = 99
+#: test rows whose posterior samples are drawn at a time (a chunk's draws: SBC_ROWS·K·N numbers)
+SBC_ROWS = 32
 
 
 def _ks(u: np.ndarray) -> float:
@@ -59,11 +61,16 @@ def report(posterior, mean: np.ndarray, x: np.ndarray, mass=None, seed: int = 0,
     norms = np.sqrt(np.einsum("bi,bi->b", dist, dist if mass is None else (mass @ dist.T).T))
     out["ball_coverage_90"] = float(np.mean(norms <= posterior.ball_radius(0.9, mass)))
     rng = np.random.default_rng(seed)
-    draws = posterior.samples(mean, samples, seed=seed + 1)  # (B, K, N)
+    pick = posterior.picks(len(x), samples, seed=seed + 1)  # the draws of posterior.samples(mean, …)
     node = rng.integers(x.shape[1], size=len(x))
-    rows = np.arange(len(x))
     weights = np.ones(x.shape[1]) if mass is None else np.asarray(mass @ np.ones(x.shape[1])).ravel()
     weights = weights / weights.sum()
-    out["sbc_p_node"] = _ks(_ranks(x[rows, node], draws[rows, :, node], rng))
-    out["sbc_p_mean"] = _ks(_ranks(x @ weights, draws @ weights, rng))
+    at_node, means = np.empty((len(x), samples)), np.empty((len(x), samples))
+    for start in range(0, len(x), SBC_ROWS):  # (B, K, N) at once: 0.8 GB for 256 rows of 3 969 nodes
+        rows = slice(start, start + SBC_ROWS)
+        draws = posterior.drawn(mean[rows], pick[rows])
+        at_node[rows] = draws[np.arange(len(draws)), :, node[rows]]
+        means[rows] = draws @ weights
+    out["sbc_p_node"] = _ks(_ranks(x[np.arange(len(x)), node], at_node, rng))
+    out["sbc_p_mean"] = _ks(_ranks(x @ weights, means, rng))
     return out

@@ -35,7 +35,7 @@ from ..nets import network_size
 from ..nets.refine import PriorFit, PriorFitted, Refined
 from ..posterior.stage import stage as calibration_stage
 from ..util.memory import GB, HIG_JACOBIAN_GB, check
-from .trainset import N_TRAIN, prior_rows
+from .trainset import N_TRAIN, prior_rows, test_count
 
 #: prior draws for the stage's decision, before any fitting (their own seed stream)
 PILOT = 64
@@ -302,7 +302,7 @@ def prior_part(problem, net: str = "default", hidden=None) -> bool:
 
 def plan(problem, rule: str = "sip", *, net: str = "default", hidden=None, prior="auto",
          n_train: int = N_TRAIN, steps: int | None = None, batch_size: int | None = None, own=None,
-         n_test: int = 128, fresh: bool = False, calibration="auto", **settings) -> Plan:
+         n_test: int | None = None, fresh: bool = False, calibration="auto", **settings) -> Plan:
     """The plan of ``Trainer(problem, rule, ...)`` / ``pdeinv train`` with these arguments (``problem`` a
     :class:`~pdeinv.Problem`, a name or a module path; ``rule`` a method name; ``settings`` the rule's, as
     :func:`pdeinv.methods.presets.make_rule` takes them; ``own``: a
@@ -314,6 +314,7 @@ def plan(problem, rule: str = "sip", *, net: str = "default", hidden=None, prior
     from ..physics.nonlinear import is_linear
     from ..problem import Problem, load_problem
 
+    n_test = test_count(n_test, own is not None)
     hidden, steps, batch_size, prior = _checked(net, hidden, n_train, steps, batch_size, own, n_test, prior)
     if not isinstance(problem, Problem):  # a name or a module path, as Trainer takes it
         problem = load_problem(problem)

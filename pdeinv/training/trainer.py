@@ -46,6 +46,7 @@ from .trainset import (
     fresh_rows,
     seed_stream,
     stop_rows,
+    test_count,
     test_rows,
     training_fields,
     training_rows,
@@ -173,7 +174,7 @@ class Trainer:
     steps: int | None | str = "preset"  # "preset": the rule's (presets.run_defaults); None: time_budget only
     time_budget: float | None = None
     n_train: int = N_TRAIN
-    n_test: int = 128
+    n_test: int | None = None  # None: 256 draws of the scene, 128 rows of own data (trainset.test_count)
     batch_size: int | None | str = "preset"  # None: every training row in each step (full batch)
     seed: int = 0
     eval_every: int = 50
@@ -219,7 +220,7 @@ class Trainer:
             raise ValueError("give steps=, time_budget= or both; otherwise training never stops")
         self.steps = None if self.steps is None else count(self.steps, "steps")
         self.time_budget is None or positive(self.time_budget, "time_budget")
-        self.n_test = count(self.n_test, "n_test")
+        self.n_test = count(test_count(self.n_test, self.data is not None), "n_test")
         if self.data is None and self.data_x is not None:  # it was ignored: the run trained on prior draws
             raise ValueError("data_x= was given without data=: data_x holds the true fields of the rows of "
                              "data= (for the errors only); pass the observations as data= too, or drop it")

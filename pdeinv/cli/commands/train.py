@@ -82,6 +82,9 @@ def _check_values(args) -> None:
                          "fits a covariance)")
     if args.n_test is not None and args.n_test < 1:
         raise UsageError(f"--n-test {args.n_test} is not allowed; expected an integer >= 1")
+    from pdeinv.training.trainset import test_count
+
+    args.n_test = test_count(args.n_test, bool(args.data))  # the default: 256 draws, 128 rows of a file
     if args.batch_size is not None and args.n_train is not None and args.batch_size > args.n_train:
         raise UsageError(f"--batch-size {args.batch_size} is larger than --n-train {args.n_train}; expected "
                          f"--batch-size <= {args.n_train}")
@@ -642,7 +645,7 @@ def _network_arguments(t) -> None:
 
 def _data_arguments(t) -> None:
     """Where the training and test rows come from, and how often the test errors are computed."""
-    from pdeinv.training.trainset import N_TRAIN
+    from pdeinv.training.trainset import N_TEST, N_TEST_FILE, N_TRAIN
 
     t.add_argument("--data", default=None, metavar="FILE.npz",
                    help="train on your own observations: an .npz with y (B, m), optionally x (B, N) "
@@ -655,8 +658,9 @@ def _data_arguments(t) -> None:
     t.add_argument("--fresh-draws", action="store_true",
                    help="train each step on new draws of the scene's prior, x in no loss (the SIP paper's "
                         "protocol; not with --data): the --n-train rows then only fit the input scaling")
-    t.add_argument("--n-test", type=int, default=128,
-                   help="test samples; with --data the last N rows of the file (default 128)")
+    t.add_argument("--n-test", type=int, default=None,
+                   help=f"test samples (default {N_TEST}); with --data the last N rows of the file "
+                        f"(default {N_TEST_FILE})")
     t.add_argument("--eval-every", type=int, default=50, metavar="K",
                    help="compute the held-out test errors (x_err, y_err in history.csv and training.png) "
                         "every K training steps, and after the first and the last (default 50; not counted "
