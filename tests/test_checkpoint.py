@@ -4,6 +4,8 @@ another run is refused naming both."""
 
 from __future__ import annotations
 
+import math
+
 import pytest
 import torch
 
@@ -11,6 +13,7 @@ import pdeinv
 from pdeinv import Checkpoint, Trainer
 from pdeinv.methods import GD, HIG, SIP, adam, sgd
 from pdeinv.nets import MLP
+from pdeinv.training.checkpoint import history_rows
 
 pytestmark = pytest.mark.usefixtures("one_thread")  # small dense work: one torch thread
 
@@ -271,3 +274,22 @@ def test_history_csv_grows_by_appending_and_reads_as_a_full_rewrite(tmp_path):
     rows.append({"step": 31, "loss": 0.2, "x_err": 1.0})
     log.write(len(rows), lambda start: rows[start:])
     assert same()
+
+
+def test_resumed_past_its_time_budget_ends_evaluated(heat, tmp_path):
+    """A checkpoint of an unevaluated step resumed with a time budget it has already spent trains no
+    step, and its last record is evaluated for metrics.json (it was a KeyError on 'y_err')."""
+    ckpt = Checkpoint(tmp_path / "c.pt", every=3)
+
+    def kill(record, model):
+        if record["step"] == 4:
+            raise KeyboardInterrupt
+
+    with pytest.raises(KeyboardInterrupt):
+        trainer(heat, GD(sgd(0.05)), 1000, ckpt, callbacks=[kill], eval_every=100).fit()
+    saved = history_rows(ckpt.load()["history"])
+    assert len(saved) == 3 and "y_err" not in saved[-1]
+    resumed = trainer(heat, GD(sgd(0.05)), None, ckpt, resume=True, time_budget=1e-9,
+                      eval_every=100).fit()
+    assert resumed.metrics["steps"] == 3 and resumed.metrics["stopped_by"] == "time_budget"
+    assert math.isfinite(resumed.metrics["y_err"]) and math.isfinite(resumed.metrics["x_err"])

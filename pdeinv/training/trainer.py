@@ -461,6 +461,8 @@ class Trainer:
             bar.update(1)
             bar.set_postfix(loss=f"{info['loss']:.3g}", refresh=False)
         bar.close()
+        if "y_err" not in self.history[-1]:  # resumed past its budget: its last step was not evaluated
+            self.history[-1].update(self.evaluate(run.model, run.test))
         stages = [self._rule_stage(run)]
         if self.prior is not None and self.prior.applies(run.model):
             stages.append(self._prior_stage(run))
