@@ -71,7 +71,7 @@ def test_write_fields_follows_the_output_path_policy(runs, tmp_path):
     p = pdeinv.load_problem("heat_1d", n=8)
     x, _ = p.sample(2)
     before = (runs / "base" / "fields.vtu").read_bytes()
-    with pytest.raises(ValueError, match="one of that run's own files"):
+    with pytest.raises(ValueError, match="one of a run's own files"):
         export.write_fields(runs / "base" / "fields.vtu", p, x, x)
     assert (runs / "base" / "fields.vtu").read_bytes() == before
     (tmp_path / "keep.vtu").write_text("mine")

@@ -124,10 +124,10 @@ def test_an_empty_folder_or_a_stale_lock_is_fine(here, capsys):
 @pytest.mark.parametrize("argv, needle", [
     (["classical", "heat_1d", "--set", "n=16", "--data", "obs.npz",
       "--out", "x/new/../../runs/h1/metrics.json"],
-     "one of that run's own files (metrics.json)"),
+     "one of a run's own files (metrics.json)"),
     (["predict", "runs/h1", "--data", "obs.npz", "--out", "p.npz", "--vtu", "x/new/../../runs/h1/fields.vtu"],
-     "one of that run's own files (fields.vtu)"),
-    (["show", "runs/h1", "--png", "x/new/../../runs/h1/training.png"], "one of that run's own files"),
+     "one of a run's own files (fields.vtu)"),
+    (["show", "runs/h1", "--png", "x/new/../../runs/h1/training.png"], "one of a run's own files"),
     (["predict", "runs/h1", "--data", "x/new/../../obs.npz", "--out", "obs.npz"], "same file as --data"),
 ], ids=["classical", "predict-vtu", "show-png", "predict-its-data"])
 def test_single_file_writers_resolve_before_checking(here, capsys, argv, needle):

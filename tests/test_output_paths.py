@@ -43,13 +43,13 @@ def _refused(capsys, argv, match, folder):
 
 
 @pytest.mark.parametrize("argv, match", [
-    (["show", "{run}", "--png", "{run}/training.png"], "is one of that run's own files (training.png)"),
-    (["show", "{run}", "--png", "{run}/metrics.json"], "is one of that run's own files (metrics.json)"),
+    (["show", "{run}", "--png", "{run}/training.png"], "is one of a run's own files (training.png)"),
+    (["show", "{run}", "--png", "{run}/metrics.json"], "is one of a run's own files (metrics.json)"),
     (["show", "{run}", "--png", "{run}/fields.vtu"], "is the same file as the fields file drawn"),
     (["predict", "{run}", "--data", "{d}/obs.npz", "--out", "{d}/p.npz", "--vtu", "{run}/fields.vtu"],
-     "--vtu '{run}/fields.vtu' is one of that run's own files"),
+     "--vtu '{run}/fields.vtu' is one of a run's own files"),
     (["classical", "heat_1d", "--set", "n=16", "--data", "{d}/obs.npz", "--out", "{run}/metrics.json"],
-     "is one of that run's own files (metrics.json)"),
+     "is one of a run's own files (metrics.json)"),
     (["classical", "heat_1d", "--set", "n=16", "--data", "{d}/obs.npz", "--out", "{d}/obs.npz"],
      "is the same file as --data"),
     (["show", "{run}", "--png", f"{READ_ONLY}/f.png"], f"--png '{READ_ONLY}/f.png': '{READ_ONLY}' is not a "
@@ -110,7 +110,7 @@ def test_the_policy_functions(tmp_path):
     (tmp_path / "run" / "notes.txt").write_text("a user's notes")
     with pytest.raises(OutputPathError, match=r"out '' is empty"):
         output_file("", "out")
-    with pytest.raises(OutputPathError, match=r"is one of that run's own files \(model\.pt\)"):
+    with pytest.raises(OutputPathError, match=r"is one of a run's own files \(model\.pt\)"):
         output_file(tmp_path / "run" / "model.pt")
     with pytest.raises(OutputPathError, match=r"notes\.txt"):  # whatever a run folder keeps
         output_file(tmp_path / "run" / "notes.txt")

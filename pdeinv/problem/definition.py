@@ -7,6 +7,7 @@ Contract (docs/design.md): ``points`` ``(dim, N)``; ``operator.forward/adjoint``
 from __future__ import annotations
 
 import importlib.util
+import inspect
 import os
 import sys
 from collections.abc import Callable
@@ -179,6 +180,9 @@ def find_module(name_or_path: str | os.PathLike) -> Path:
         if path.is_dir():
             raise ValueError(f"problem module {spec!r} is a directory; expected a .py file with "
                              "make(**overrides), or a problem name")
+        if path.exists() and not path.is_file():
+            raise ValueError(f"problem module {spec!r} is not a regular file (a device, a pipe or a socket); "
+                             "expected a .py file with make(**overrides), or a problem name")
         if not path.is_file():
             names = ", ".join(available()[:4])
             raise ProblemNotFoundError(f"problem module {spec!r} does not exist; expected the path of a .py "
@@ -324,8 +328,11 @@ def _run_module(path: Path, overrides: dict, where: str) -> Problem:
             raise
         raise _failure(path, err, where) from err
     if not isinstance(problem, Problem):
+        if inspect.iscoroutine(problem) or inspect.isgenerator(problem):  # never run: no "never awaited"
+            problem.close()
         raise ProblemModuleError(f"problem module {where}: make() returned {type(problem).__name__}; "
-                                 "expected a pdeinv.Problem")
+                                 "expected a pdeinv.Problem" + (" (make must be a plain function, not "
+                                 "async)" if inspect.iscoroutine(problem) else ""))
     ignored = [k for k, v in overrides.items() if k in problem.settings and _differs(problem.settings[k], v)]
     if ignored and not builtin:  # a run would record the override and train on the module's own value
         k = ignored[0]

@@ -47,7 +47,7 @@ def prior(points, cfg: dict):
 HEAT = {**COMMON, "kappa": (0.01, s.positive), "scheme": ("be", s.one_of("be", "cn")),
         "backend": ("auto", s.one_of("auto", "steps", "modal", "dense", "svd")),
         # the modal form's relative cut: modes amplified by less than tol·max gain are dropped
-        "tol": (1e-14, s.positive)}
+        "tol": (1e-14, s.fraction)}
 
 #: how a time-stepping operator is applied (pdeinv.physics.backends.compiled): 'auto' by the cost of a run
 COMPILED = {"backend": ("auto", s.one_of("auto", "steps", "dense", "svd"))}

@@ -64,6 +64,17 @@ positive = _number(float, _checks.positive)
 nonnegative = _number(float, _checks.nonnegative)
 
 
+def _below_one(value, name):
+    value = _checks.positive(value, name)
+    if value >= 1:
+        raise ValueError(f"{name}={value!r} is not allowed; expected a relative cut 0 < {name} < 1")
+    return value
+
+
+#: a relative tolerance or cut: a number in (0, 1)
+fraction = _number(float, _below_one)
+
+
 def one_of(*allowed):
     return lambda value, name: _checks.choice(value, name, allowed)
 

@@ -76,6 +76,17 @@ def resolve(path, flag: str = "out") -> Path:
     if any(os.path.islink(part) for part in (target, *target.parents)):  # realpath stops inside a loop
         raise OutputPathError(f"{flag} {_text(path)!r} leads into a loop of symbolic links (at "
                               f"{str(target)!r}); choose another {flag}")
+    longest = max((p for p in target.parts), key=lambda p: len(os.fsencode(p)))
+    if len(os.fsencode(longest)) > NAME_MAX:
+        raise OutputPathError(f"{flag} {_text(path)[:60]!r}…: the name {longest[:20]!r}… is "
+                              f"{len(os.fsencode(longest))} bytes long; expected at most {NAME_MAX} (the "
+                              f"file system's limit); choose another {flag}")
+    given = Path(os.path.abspath(os.fspath(path)))
+    for part in (*reversed(given.parents), given):  # mkdir -p refuses a dangling link; so does pdeinv
+        if os.path.islink(part) and not os.path.exists(part):
+            raise OutputPathError(f"{flag} {_text(path)!r} goes through {str(part)!r}, a symbolic link to "
+                                  f"{os.readlink(part)!r}, which does not exist; create it or choose "
+                                  f"another {flag}")
     return target
 
 
@@ -106,6 +117,8 @@ def contents(folder) -> list[str]:
 
 #: a listed name longer than this is cut (a cache folder's 64-digit hashes made a 767-character line)
 NAME_CHARS = 32
+#: the longest file or folder name, in bytes (NAME_MAX of the usual Linux and macOS file systems)
+NAME_MAX = 255
 
 
 def _listing(names: list[str]) -> str:
@@ -174,8 +187,9 @@ def output_file(path, flag: str = "out", inputs: Iterable = (), owns: Iterable[s
     _not_an_input(target, named, flag, inputs)
     in_run = is_run_folder(target.parent)
     if target.is_file() and in_run and target.name not in set(owns):
-        raise OutputPathError(f"{named} is one of that run's own files ({target.name}); "
-                              f"writing it would replace the run's result; choose another {flag}")
+        raise OutputPathError(f"{named} is one of a run's own files ({target.name}) in the run folder "
+                              f"{str(target.parent)!r}; writing it would replace that run's result; choose "
+                              f"another {flag}")
     suffixes = tuple(suffixes) if suffixes is not None else None
     if suffixes and target.suffix not in suffixes:
         raise OutputPathError(f"{named}: expected a file name ending in {' or '.join(suffixes)}")

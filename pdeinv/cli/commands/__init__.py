@@ -46,7 +46,11 @@ def parse_sets(pairs: list[str]) -> dict:
         key, sep, value = item.partition("=")
         if not sep or not key:
             raise UsageError(f"--set {item!r} is not KEY=VALUE")
-        out[key.strip()] = value.strip()
+        key = key.strip()
+        if key in out and out[key] != value.strip():  # which one the user meant is not ours to guess
+            raise UsageError(f"--set {key}= is given twice, as {out[key]!r} and {value.strip()!r}; "
+                             "expected one value per setting")
+        out[key] = value.strip()
     return out
 
 

@@ -53,7 +53,7 @@ def cmd_classical(args) -> int:
     from pdeinv.fem.forms import relative_norms
     from pdeinv.physics.nonlinear import is_linear
     from pdeinv.problem.units import units_of
-    from pdeinv.training.data import no_signal, read_meta, read_noise, read_npz
+    from pdeinv.training.data import model_mismatch, no_signal, read_meta, read_noise, read_npz
     from pdeinv.util.files import atomic_write
 
     # the one output-path policy (pdeinv.util.outpaths): resolved, folder created, never the --data file, a
@@ -71,6 +71,12 @@ def cmd_classical(args) -> int:
     # smoothing map leaves (none of a nonlinear map): the median singular value, signal where the rows' few
     # observations are all signal (heat_1d n=8 read 0.148 on exact data)
     guess = _from_mismatch(problem, x, y)
+    far = None  # y no closer to P x than to 0: every solve would be meaningless, the file's x too
+    if x is not None and guess is None and not args.accept_bad:
+        far = _failed(problem, {"model_mismatch": model_mismatch(problem.operator, x, y)}, x, y,
+                      problem.noise or declared or 0.0)
+    if far is not None:
+        raise BadData(f"{far}; nothing solved (--accept-bad solves anyway)")
     guess = read_noise(y, problem.operator) if guess is None else guess
     why = None if problem.noise or declared or chosen else no_signal(guess, len(y))
     if why is not None:

@@ -248,6 +248,7 @@ def _explain(args) -> int:
     _check_values(args)
     set_threads(args.threads)
     problem, _, y, x = _problem_and_data(args)
+    _refuse_mismatch(args, problem, y, x)  # the run's exit 3, in its words
     print(_plan(args, problem, y, x).explain())
     if y is None and problem.sampler is not None:  # the run's first draws, checked as the run checks them
         import numpy as np
