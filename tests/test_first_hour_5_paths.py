@@ -162,7 +162,7 @@ def test_show_redraws_its_own_picture_without_overwrite(here, capsys):
 def test_show_never_redraws_another_runs_picture(here, capsys, overwrite):
     shutil.copytree(here / "runs" / "h1", here / "runs" / "other")
     argv = ["show", "runs/h1", "--png", "runs/other/fields.png", *overwrite]
-    refused(capsys, argv, "one of that run's own", folder=here)
+    refused(capsys, argv, "one of a run's own", folder=here)
 
 
 def test_a_damaged_fields_file_is_one_line(here, capsys):

@@ -53,7 +53,7 @@ def cmd_classical(args) -> int:
     from pdeinv.fem.forms import relative_norms
     from pdeinv.physics.nonlinear import is_linear
     from pdeinv.problem.units import units_of
-    from pdeinv.training.data import model_mismatch, no_signal, read_meta, read_noise, read_npz
+    from pdeinv.training.data import no_signal, read_meta, read_noise, read_npz
     from pdeinv.util.files import atomic_write
 
     # the one output-path policy (pdeinv.util.outpaths): resolved, folder created, never the --data file, a
@@ -71,12 +71,7 @@ def cmd_classical(args) -> int:
     # smoothing map leaves (none of a nonlinear map): the median singular value, signal where the rows' few
     # observations are all signal (heat_1d n=8 read 0.148 on exact data)
     guess = _from_mismatch(problem, x, y)
-    far = None  # y no closer to P x than to 0: every solve would be meaningless, the file's x too
-    if x is not None and guess is None and not args.accept_bad:
-        far = _failed(problem, {"model_mismatch": model_mismatch(problem.operator, x, y)}, x, y,
-                      problem.noise or declared or 0.0)
-    if far is not None:
-        raise BadData(f"{far}; nothing solved (--accept-bad solves anyway)")
+    _unrelated(args, problem, x, y, guess, problem.noise or declared or 0.0)
     guess = read_noise(y, problem.operator) if guess is None else guess
     why = None if problem.noise or declared or chosen else no_signal(guess, len(y))
     if why is not None:
@@ -138,6 +133,20 @@ def _no_signal(args, why: str) -> int:
         raise BadData(f"{why}; --accept-bad ends with exit code 0")
     print(f"pdeinv classical: warning: {why}; nothing solved (--accept-bad)", file=sys.stderr)
     return 0
+
+
+def _unrelated(args, problem, x, y, guess, noise: float) -> None:
+    """y no closer to ``P x`` than to 0 (``guess``: :func:`_from_mismatch` read no level): every solve would
+    be meaningless, so :class:`BadData` (exit 3) before any, with :func:`_failed`'s line (not with
+    ``--accept-bad``)."""
+    from pdeinv.training.data import model_mismatch
+
+    if x is None or guess is not None or args.accept_bad:
+        return
+
+    why = _failed(problem, {"model_mismatch": model_mismatch(problem.operator, x, y)}, x, y, noise)
+    if why is not None:
+        raise BadData(f"{why}; nothing solved (--accept-bad solves anyway)")
 
 
 def _from_mismatch(problem, x, y) -> float | None:
