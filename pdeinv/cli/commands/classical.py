@@ -143,7 +143,6 @@ def _unrelated(args, problem, x, y, guess, noise: float) -> None:
 
     if x is None or guess is not None or args.accept_bad:
         return
-
     why = _failed(problem, {"model_mismatch": model_mismatch(problem.operator, x, y)}, x, y, noise)
     if why is not None:
         raise BadData(f"{why}; nothing solved (--accept-bad solves anyway)")
