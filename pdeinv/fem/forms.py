@@ -87,19 +87,20 @@ class Discretization:
         return self.extend(X)[:, self.basis.nodal_dofs[0]]
 
     def norm(self, X: np.ndarray) -> np.ndarray:
-        """L²(Ω) norm of each row, ``sqrt(xᵀ M x)``."""
-        X = np.atleast_2d(X)
-        return np.sqrt(np.einsum("bi,bi->b", X, (self.M @ X.T).T).clip(min=0))
+        """L²(Ω) norm of each row, ``sqrt(xᵀ M x)``, computed on the row divided by the power of two
+        nearest its ``max |x|`` (exact): a norm float64 holds is returned even where ``xᵀ M x`` is not."""
+        X = np.atleast_2d(np.asarray(X, dtype=float))
+        top = np.max(np.abs(X), axis=1) if X.shape[1] else np.zeros(len(X))
+        ok = (top > 0) & np.isfinite(top)
+        exp = np.where(ok, np.frexp(np.where(ok, top, 1.0))[1], 0)
+        Xs = np.ldexp(X, -exp[:, None])
+        return np.ldexp(np.sqrt(np.einsum("bi,bi->b", Xs, (self.M @ Xs.T).T).clip(min=0)), exp)
 
     def relative_error(self, Xhat: np.ndarray, X: np.ndarray) -> np.ndarray:
         """Relative L²(Ω) error per sample, ``‖x̂ − x‖_M / ‖x‖_M``; a row with ``x = 0`` is measured
-        against the batch's scale instead (:func:`relative_norms`). Both are first divided by the power of
-        two nearest ``max |x|`` (exact), so fields whose squares leave float64 (1e±200) are measured too."""
+        against the batch's scale instead (:func:`relative_norms`). Each norm is taken on a scaled row
+        (:meth:`norm`), so fields whose squares leave float64 (1e±200) are measured too."""
         Xhat, X = np.asarray(Xhat, dtype=float), np.asarray(X, dtype=float)
-        top = float(np.max(np.abs(X))) if X.size else 0.0
-        if 0 < top < np.inf:
-            two = np.ldexp(1.0, -np.frexp(top)[1])
-            Xhat, X = Xhat * two, X * two
         return relative_norms(self.norm(Xhat - X), self.norm(X))
 
 

@@ -68,21 +68,24 @@ def mmse(problem, X: np.ndarray, sigma2: float | None = None):
     if n < 2:
         raise ValueError(f"the MMSE needs at least 2 training samples; got {n}")
     mu = X.mean(0)
-    L = (X - mu).T / np.sqrt(n - 1)  # (N, n)
+    # W is the same for (a X, a Y, a² σ²): the factors are made from X / a, so that fields in any units
+    # (1e-200 or 1e200) neither underflow nor overflow in s²
+    a = float(np.max(np.abs(X - mu))) or 1.0
+    L = (X - mu).T / (a * np.sqrt(n - 1))  # (N, n), the prior's square root over a
     G = problem.operator.forward(L.T).T  # P L, (m, n)
     U, s, Vt = np.linalg.svd(G, full_matrices=False)
     if sigma2 is None:
         sigma2 = _noise_variance(problem, problem.operator.forward(X)) if problem.noise else 0.0
     floor = (TINY_SIGMA * s[0]) ** 2
-    used = max(float(sigma2), floor)
-    Wt = (U * (s / (s**2 + used))) @ (Vt @ L.T)  # Wᵀ = U diag(s/(s²+σ²)) Vᵀ Lᵀ
+    used = float(max(float(sigma2) / a / a, floor))
+    Wt = (U * (s / (s**2 + used))) @ (Vt @ L.T)  # Wᵀ = U diag(s/(s²+σ²)) Vᵀ Lᵀ, the same for every a
     Pmu = problem.operator.forward(mu[None])[0]
 
     def estimate(Y):
         return mu + (np.asarray(Y) - Pmu) @ Wt
 
-    info = {"sigma2": used, "sigma2_rule": "noise" if sigma2 >= floor else "tiny σ = 1e-8·s_max",
-            "n_train": n}
+    rule = "noise" if sigma2 / a / a >= floor else "tiny σ = 1e-8·s_max"
+    info = {"sigma2": used * a * a, "sigma2_rule": rule, "n_train": n}
     return estimate, info
 
 

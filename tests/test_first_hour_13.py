@@ -1,0 +1,57 @@
+"""Bad and odd inputs of the thirteenth round (issue 48), and what round twelve left: `classical
+--accept-bad` on a file whose y are 1e200 times its x (the linear MMSE's factors underflowed, the norms of
+fields at 1e-200 too: "X contains NaN" and a NaN x-error on finite data)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+import pdeinv
+from pdeinv.cli import main
+from pdeinv.training import references
+
+
+def test_classical_accept_bad_on_mismatched_units_reports_the_mismatch(tmp_path, capsys):
+    p = pdeinv.load_problem("heat_1d", n=16)
+    x, y = p.sample(200, 0)
+    np.savez(tmp_path / "units.npz", x=x, y=y * 1e200)
+    assert main(["classical", "heat_1d", "--set", "n=16", "--data", str(tmp_path / "units.npz"),
+                 "--accept-bad"]) == 0
+    out, err = capsys.readouterr()
+    assert "Traceback" not in err and "Warning" not in err and "NaN" not in out + err, err
+    assert "warning: the file's y differ from this problem's P x by 1" in err
+    # the estimates are in y's units, 1e200 times the file's x: their error says so
+    rows = {line.split(": ", 1)[0].split()[-1]: line.split(": ", 1)[1] for line in out.splitlines()}
+    assert 1e199 < eval(rows["mmse_file_x"].replace("null", "None"))["x_err"] < 1e201
+
+
+@pytest.mark.parametrize("a", [1e-150, 1.0, 1e150])  # a² σ² in float64
+def test_the_linear_mmse_is_the_same_in_any_units(a):
+    p = pdeinv.load_problem("heat_1d", n=16, noise=0.01)
+    x, y = p.sample(300, 0)
+    ref, info = references.mmse(p, x[:200])
+    est, scaled = references.mmse(p, a * x[:200], a * a * info["sigma2"])
+    np.testing.assert_allclose(est(a * y[200:]) / a, ref(y[200:]), rtol=1e-9, atol=1e-12)
+    assert scaled["sigma2_rule"] == info["sigma2_rule"] == "noise"
+
+
+@pytest.mark.parametrize("a", [1e-200, 1e200])
+def test_the_noise_free_linear_mmse_of_fields_whose_squares_leave_float64(a):
+    p = pdeinv.load_problem("heat_1d", n=16)
+    x, y = p.sample(300, 0)
+    ref, info = references.mmse(p, x[:200])
+    est, scaled = references.mmse(p, a * x[:200])
+    # σ = 1e-8 s_max: the solve amplifies rounding by up to 1e8, so the scaled factors agree to ~1e-8
+    np.testing.assert_allclose(est(a * y[200:]) / a, ref(y[200:]), rtol=1e-6, atol=1e-8)
+    assert scaled["sigma2_rule"] == info["sigma2_rule"] == "tiny σ = 1e-8·s_max"
+
+
+@pytest.mark.parametrize("a", [1e-300, 1e300])
+def test_the_l2_norm_of_fields_whose_squares_leave_float64(a):
+    p = pdeinv.load_problem("heat_2d", n=8)
+    x, _ = p.sample(4, 0)
+    np.testing.assert_allclose(p.disc.norm(a * x) / a, p.disc.norm(x), rtol=1e-14)
+    # an estimate 1e200 times the field: an error of 1e200, not NaN
+    np.testing.assert_allclose(p.relative_error(1e100 * x, 1e-100 * x), 1e200, rtol=1e-12)
+    assert np.array_equal(p.disc.norm(np.zeros((2, p.N))), [0.0, 0.0])
