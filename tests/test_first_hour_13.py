@@ -55,3 +55,17 @@ def test_the_l2_norm_of_fields_whose_squares_leave_float64(a):
     # an estimate 1e200 times the field: an error of 1e200, not NaN
     np.testing.assert_allclose(p.relative_error(1e100 * x, 1e-100 * x), 1e200, rtol=1e-12)
     assert np.array_equal(p.disc.norm(np.zeros((2, p.N))), [0.0, 0.0])
+
+
+def test_a_prior_fit_says_how_long_it_will_take_after_its_first_steps(tmp_path, capsys):
+    """The first held-out check comes after a pass over the draws (minutes at 64²): the pace comes
+    after :data:`pdeinv.nets.refine.PACE_STEPS`."""
+    from pdeinv.nets.refine import PACE_STEPS
+
+    args = ["train", "heat_2d", "--set", "n=8", "--set", "noise=0.01", "--steps", "2", "--n-train", "64",
+            "--n-test", "16", "--prior-fit", str(3 * PACE_STEPS), "--threads", "1"]
+    assert main([*args, "--out", str(tmp_path / "r")]) == 0
+    lines = [ln for ln in capsys.readouterr().err.splitlines() if "prior fit step" in ln]
+    assert f"prior fit step {PACE_STEPS}/{3 * PACE_STEPS}: " in lines[1] and "left at this pace" in lines[1]
+    assert main([*args, "-q", "--out", str(tmp_path / "q")]) == 0
+    assert "prior fit" not in capsys.readouterr().err

@@ -118,6 +118,10 @@ EPOCHS = 60
 #: :func:`pdeinv.training.plan.step_count`)
 MAX_STEPS = 8192
 
+#: the steps after which a logged fit says how long it will take (the first pass over the draws can last
+#: minutes; a check of the held-out error only comes after it)
+PACE_STEPS = 20
+
 
 #: :class:`_Feed` stores the base's estimates and the correction's inputs for all draws up to this many
 #: entries per array (2²⁶: 268 MB in float32), and computes them per batch beyond: heat_2d at 65 025
@@ -200,6 +204,13 @@ class _Best:
         self.before = self.best = before
         self.state, self.bad, self.decays, self.step, self.stopped = None, 0, 0, 0, False
         self.t0, self.mark = time.perf_counter(), 0  # the log's estimate of what is left; its next line
+
+    def pace(self, step: int, steps: int, log) -> None:
+        """One line with the fit's estimated time at the pace of its first ``step`` steps (a print:
+        nothing is decided by it)."""
+        rate = (time.perf_counter() - self.t0) / step
+        log(f"prior fit step {step}/{steps}: {rate:.2g} s a step, at most ~{rate * (steps - step):.0f} s "
+            "left at this pace")
 
     def checked(self, err: float, step: int, log=None, steps: int | None = None) -> bool:
         self.step = step
@@ -395,6 +406,7 @@ class Refined(Network):
         if feed.mix != 0.0:
             track.checked(error(held_out()), 0, log)  # b_λ with g = 0: kept if better than b alone
         g.requires_grad_(True)
+        track.t0 = time.perf_counter()  # the pace of the steps, without the checks before them
         try:
             while step < steps and len(tr):
                 rows = torch.as_tensor(tr[torch.randint(len(tr), (size,), generator=gen).numpy()])
@@ -404,6 +416,8 @@ class Refined(Network):
                 loss.backward()
                 opt.step()
                 step += 1
+                if step == PACE_STEPS and log is not None and steps >= 2 * PACE_STEPS:
+                    track.pace(step, steps, log)
                 if (step % every == 0 or step == steps) and track.checked(error(held_out()), step, log,
                                                                           steps):
                     break
