@@ -69,3 +69,26 @@ def test_a_prior_fit_says_how_long_it_will_take_after_its_first_steps(tmp_path, 
     assert f"prior fit step {PACE_STEPS}/{3 * PACE_STEPS}: " in lines[1] and "left at this pace" in lines[1]
     assert main([*args, "-q", "--out", str(tmp_path / "q")]) == 0
     assert "prior fit" not in capsys.readouterr().err
+
+
+def test_hig_names_the_route_it_falls_back_to_once_per_run():
+    """The warning came once per step wherever a step's warnings filters were reset (the CLI showed
+    it twice in a two-step run)."""
+    import warnings
+
+    import torch
+
+    p = pdeinv.load_problem("heat_1d", n=16)
+    torch.manual_seed(0)
+    model = pdeinv.nets.mlp((64, 64))(p)
+    rule = pdeinv.HIG(max_jacobian_gb=1e-4)  # the Gram route does not fit: a cheaper one is taken
+    state = rule.init(p, model)
+    _, y = p.sample(8, 0)
+    y = torch.as_tensor(y, dtype=torch.float32)
+    seen = []
+    for _ in range(2):
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            rule.update(state, model, y)
+        seen += [str(w.message) for w in caught if "taking the" in str(w.message)]
+    assert len(seen) == 1 and "max_jacobian_gb=0.0001" in seen[0]

@@ -185,14 +185,14 @@ class HIG(Rule):
             raise ValueError(f"HIG's Jacobian routes decompose J with numpy on the CPU; the model is on "
                              f"{device}: use a network linear in its parameters (the default networks: "
                              "the Kronecker route runs on any device) or train on the CPU")
-        return (op, *compress(op), kron)
+        return (op, *compress(op), set(), kron)  # set(): the route warnings already given in this run
 
     def update(self, state: State, model: torch.nn.Module, y_target: torch.Tensor,
                target: torch.Tensor | None = None) -> Update:
-        op, small, Q, kron = state.context
+        op, small, Q, said, kron = state.context
         goal = y_target if target is None else target
         b = Batch.of(model, small, y_target)
-        route = self._route(b, kron)  # the first of ROUTES' candidates within the memory budget
+        route = self._route(b, kron, said)  # the first of ROUTES' candidates within the memory budget
         return route.step(self, b, op, Q, goal, state.steps)
 
     def unit(self, info: dict) -> float:
@@ -200,10 +200,10 @@ class HIG(Rule):
         smax = info.get("sigma_max", 0.0)
         return smax ** -(1.0 + self.exponent) if self.normalize and smax > 0 else 1.0
 
-    def _route(self, b: Batch, kron: Kronecker | None):
+    def _route(self, b: Batch, kron: Kronecker | None, said: set | None = None):
         """The first candidate route within ``max_jacobian_gb``; a ``ValueError`` naming them if none fits.
         A route other than the first is taken with a warning that names it (never silently: the
-        last-layer route trains the last layer only)."""
+        last-layer route trains the last layer only), once per run (``said``: the warnings given)."""
         budget = self.max_jacobian_gb * 2**30
         first, *others = ROUTES[self.route](self, b, kron)
         for route in (first, *others):
@@ -211,9 +211,13 @@ class HIG(Rule):
                 if route is not first:
                     frozen = ("; only the last layer trains, the hidden layers stay as they are"
                               if route.name == "last_layer" else "")
-                    warnings.warn(f"HIG: route {first.name!r} needs about {first.memory(b) / 2**30:.3g} GB, "
-                                  f"above max_jacobian_gb={self.max_jacobian_gb:g}; taking the "
-                                  f"{route.describe(b)}{frozen}", stacklevel=2)
+                    text = (f"HIG: route {first.name!r} needs about {first.memory(b) / 2**30:.3g} GB, above "
+                            f"max_jacobian_gb={self.max_jacobian_gb:g}; taking the {route.describe(b)}"
+                            + frozen)
+                    if said is None or text not in said:
+                        warnings.warn(text, stacklevel=2)
+                    if said is not None:
+                        said.add(text)
                 return route
         also = "".join(f" (the {r.describe(b)})" for r in others)
         raise ValueError(
