@@ -11,6 +11,8 @@ import pdeinv
 from pdeinv.cli import main
 from pdeinv.training import references
 
+SMALL_RUN = ["--steps", "2", "--n-train", "32", "--n-test", "8", "--prior-fit", "0", "--threads", "1", "-q"]
+
 
 def test_classical_accept_bad_on_mismatched_units_reports_the_mismatch(tmp_path, capsys):
     p = pdeinv.load_problem("heat_1d", n=16)
@@ -92,3 +94,17 @@ def test_hig_names_the_route_it_falls_back_to_once_per_run():
             rule.update(state, model, y)
         seen += [str(w.message) for w in caught if "taking the" in str(w.message)]
     assert len(seen) == 1 and "max_jacobian_gb=0.0001" in seen[0]
+
+
+def test_a_thread_of_a_problem_module_that_raises_is_one_line(tmp_path, capsys):
+    module = tmp_path / "threads.py"
+    module.write_text("import threading\n"
+                      "import pdeinv\n\n"
+                      "def _bad():\n    raise RuntimeError('thread boom')\n\n"
+                      "def make(**kw):\n"
+                      "    t = threading.Thread(target=_bad, name='worker')\n    t.start()\n    t.join()\n"
+                      "    return pdeinv.load_problem('heat_1d', n=8)\n")
+    assert main(["train", str(module), *SMALL_RUN, "--out", str(tmp_path / "r")]) == 0
+    err = capsys.readouterr().err
+    assert "Traceback" not in err, err
+    assert f"warning: thread 'worker' ended at {module}, line 5, in _bad: RuntimeError: thread boom" in err

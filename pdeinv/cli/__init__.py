@@ -176,13 +176,34 @@ def _unexpected(args, err: Exception) -> int:
     return 1
 
 
+def _thread_failed(args, hook_args) -> None:
+    """``threading.excepthook`` of a command without ``-v``: an exception that ended a thread (a user's
+    module may start one) in one line, with the user's file and line where it was raised there."""
+    from ..problem.definition import first_line
+
+    err = hook_args.exc_value
+    if err is None or isinstance(err, SystemExit):
+        return
+    text = first_line(err)
+    frame = _user_frame(err)
+    where = "" if frame is None else f" at {frame.filename}, line {frame.lineno}, in {frame.name}"
+    name = getattr(hook_args.thread, "name", "a thread")
+    print(f"pdeinv {args.command}: warning: thread {name!r} ended{where}: {type(err).__name__}"
+          + (f": {text}" if text else "") + " (-v shows the traceback)", file=sys.stderr)
+
+
 def _main(argv=None) -> int:
     parser = build_parser()
     args, extra = parser.parse_known_args(argv)
     if extra:  # the subcommand's parser says it, so the message names `pdeinv train --help`
         parser.commands[args.command].error(f"unrecognized arguments: {' '.join(extra)}")
+    import threading
+
     from .logs import cli_logging
 
+    hook = threading.excepthook
+    if not getattr(args, "verbose", False):
+        threading.excepthook = lambda t: _thread_failed(args, t)
     try:
         check_numbers(parser, args)
         check_common(args)
@@ -217,6 +238,7 @@ def _main(argv=None) -> int:
     except Exception as err:  # noqa: BLE001  last: raised in a user's code (a problem module), or a bug
         return _unexpected(args, err)
     finally:
+        threading.excepthook = hook
         # --threads bounded the BLAS pools for this command only; a command that never set them (or was
         # interrupted while torch was being imported) must not import torch here: a second import of a
         # half-imported torch crashes the interpreter (measured: SIGSEGV after Ctrl-C at 0.6 s)
