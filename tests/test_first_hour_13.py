@@ -11,6 +11,13 @@ import pdeinv
 from pdeinv.cli import main
 from pdeinv.training import references
 
+
+def _one_error(capsys) -> str:
+    err = capsys.readouterr().err
+    assert "Traceback" not in err and "Warning" not in err and err.count("\n") == 1, err
+    return err
+
+
 SMALL_RUN = ["--steps", "2", "--n-train", "32", "--n-test", "8", "--prior-fit", "0", "--threads", "1", "-q"]
 
 
@@ -108,3 +115,44 @@ def test_a_thread_of_a_problem_module_that_raises_is_one_line(tmp_path, capsys):
     err = capsys.readouterr().err
     assert "Traceback" not in err, err
     assert f"warning: thread 'worker' ended at {module}, line 5, in _bad: RuntimeError: thread boom" in err
+
+
+@pytest.mark.parametrize("flag, argv", [
+    ("--steps", ["train", "heat_1d", "--steps", "2", "--steps", "3", "--explain"]),
+    ("--method", ["train", "heat_1d", "--method", "sip", "--method=adam", "--explain"]),
+    ("--seed", ["train", "heat_1d", "--seed", "1", "--seed", "1", "--explain"]),
+    ("--data", ["classical", "heat_1d", "--data", "a.npz", "--data", "b.npz"]),
+    ("--level", ["predict", "run", "--data", "a.npz", "--out", "p.npz", "--level", "0.9", "--level", "0.5"]),
+])
+def test_a_flag_given_twice_is_refused(flag, argv, tmp_path, monkeypatch, capsys):
+    monkeypatch.chdir(tmp_path)
+    with pytest.raises(SystemExit) as stop:
+        main(argv)
+    assert stop.value.code == 2
+    assert f"{flag} is given twice" in _one_error(capsys) and not list(tmp_path.iterdir())
+
+
+def test_a_second_stress_into_the_same_folder_needs_overwrite(tmp_path, capsys):
+    args = ["stress", "heat_1d", "--quick", "--set", "n=8", "--out", str(tmp_path / "s"), "-q"]
+    assert main(args) == 0
+    before = (tmp_path / "s" / "stress.json").read_bytes()
+    capsys.readouterr()
+    assert main(args) == 2
+    assert "holds this command's earlier results (stress.json); pass --overwrite" in _one_error(capsys)
+    assert (tmp_path / "s" / "stress.json").read_bytes() == before
+    assert main([*args, "--overwrite"]) == 0
+
+
+def test_bench_runs_on_nonlinear_physics(tmp_path, capsys):
+    """It called the adjoint of a linear operator (AttributeError), then the linear references."""
+    import json
+
+    args = ["bench", "sine_gordon_1d", "--quick", "--set", "n=8", "--out", str(tmp_path / "b"), "-q"]
+    assert main(args) == 0
+    out, err = capsys.readouterr()
+    assert "Traceback" not in err and "error" not in err, err
+    assert "reference: none (nonlinear physics)" in out
+    record = json.loads((tmp_path / "b" / "bench.json").read_text())
+    assert record["reference"] is None and record["ratios"]["adjoint_vs_forward"] > 0
+    assert any("nonlinear physics" in note for note in record["notes"])
+    assert record["methods"]["sip_cli_default"]["x_err"] < 1

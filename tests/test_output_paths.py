@@ -129,7 +129,11 @@ def test_the_policy_functions(tmp_path):
     with pytest.raises(OutputPathError, match=r"holds bench\.json: its bench\.json is not one this command"):
         output_folder(tmp_path / "user", record="bench.json")
     (tmp_path / "user" / "bench.json").write_text('{"format": "pdeinv-bench"}')  # bench's own: replaced
-    assert output_folder(tmp_path / "user", record="bench.json") == (tmp_path / "user").resolve()
+    with pytest.raises(OutputPathError, match=r"holds this command's earlier results \(bench\.json\); pass "
+                                              r"--overwrite"):
+        output_folder(tmp_path / "user", record="bench.json")  # only with --overwrite
+    replaced = output_folder(tmp_path / "user", record="bench.json", replace=True)
+    assert replaced == (tmp_path / "user").resolve()
 
 
 def test_a_problem_found_in_the_current_folder_is_stored_by_path(tmp_path, monkeypatch):

@@ -26,13 +26,15 @@ def forward_pareto(points: list[dict], front: list[int], path, title: str, dpi: 
     if fr:
         ax.loglog([p["time_s"] for p in fr], [p["error"] for p in fr], "k--", lw=0.8, label="Pareto front")
     ax.set(xlabel="forward time, batch of 16 [s]", ylabel="relative L²(Ω) error vs exact", title=title)
-    ax.legend(fontsize=8)
+    if ax.get_legend_handles_labels()[0]:  # no point with an error above 0: no legend (matplotlib warns)
+        ax.legend(fontsize=8)
     fig.savefig(path, dpi=dpi)
     plt.close(fig)
 
 
-def methods(results: dict, reference: dict, path, title: str, dpi: int = 80) -> None:
-    """Test x- and y-error against training wall time per method, references as horizontal lines."""
+def methods(results: dict, reference: dict | None, path, title: str, dpi: int = 80) -> None:
+    """Test x- and y-error against training wall time per method, references (``None``: none, nonlinear
+    physics) as horizontal lines."""
     plt = _plt()
     fig, (ax, ay) = plt.subplots(1, 2, figsize=(12, 4), layout="constrained")
     for name, r in results.items():
@@ -43,11 +45,12 @@ def methods(results: dict, reference: dict, path, title: str, dpi: int = 80) -> 
     lines = (("mmse_x_err", "--", "linear MMSE"), ("tikhonov_best_x_err", ":", "best-α Tikhonov"),
              ("filter_best_x_err", "-.", "best spectral filter"))
     for key, ls, label in lines:
-        v = reference.get(key)
+        v = (reference or {}).get(key)
         if v is not None and math.isfinite(v) and v > 0:
             ax.axhline(v, ls=ls, color="k", lw=1, label=label)
     ax.set(xlabel="training wall time [s]", ylabel="test x-error (relative L²(Ω))", title=title)
     ay.set(xlabel="training wall time [s]", ylabel="test y-error (relative L²(Ω))")
-    fig.legend(*ax.get_legend_handles_labels(), loc="outside right upper", fontsize=7)
+    if ax.get_legend_handles_labels()[0]:
+        fig.legend(*ax.get_legend_handles_labels(), loc="outside right upper", fontsize=7)
     fig.savefig(path, dpi=dpi)
     plt.close(fig)

@@ -32,7 +32,9 @@ def operator_ratios(problem, batch: int = 64, repeats: int = 5, seed: int = 0) -
     X, R = rng.standard_normal((batch, op.n_in)), rng.standard_normal((batch, op.n_out))
     stepped = stepping(op)
     out, run = {"batch": batch, "N": op.n_in}, op if stepped is None else stepped
-    fns = {"fwd": lambda: run.forward(X), "adj": lambda: run.adjoint(R)}
+    # nonlinear physics: its adjoint is the vector–Jacobian product at the forward's inputs
+    adjoint = (lambda: run.adjoint(R)) if hasattr(run, "adjoint") else (lambda: run.vjp(X, R))
+    fns = {"fwd": lambda: run.forward(X), "adj": adjoint}
     sc = None if stepped is None else stepped.scheme  # None: forward and adjoint only
 
     def own():  # the scheme's step in a plain loop

@@ -38,9 +38,28 @@ def command_modules() -> list:
     return sorted(found, key=lambda m: (getattr(m, "ORDER", 100), m.__name__))
 
 
+class _Once(argparse._StoreAction):
+    """argparse's ``store``, refusing a flag given twice (argparse keeps the last value silently: ``--steps
+    2 --steps 3`` or two ``--out`` folders are a typo or a pasted command, not a choice)."""
+
+    def __call__(self, parser, namespace, values, option_string=None):
+        given = self.__dict__.setdefault("_given", {})
+        if option_string is not None and id(namespace) in given:
+            parser.error(f"{option_string} is given twice, as {given[id(namespace)]!r} and {values!r}; "
+                         "give it once")
+        given[id(namespace)] = values
+        super().__call__(parser, namespace, values, option_string)
+
+
 class Parser(argparse.ArgumentParser):
-    """argparse's parser, with its errors (an unknown flag, a value of the wrong type) in one line, as every
-    other error of the CLI: argparse prints the whole usage block first (12 lines for ``train``)."""
+    """argparse's parser, with its errors (an unknown flag, a value of the wrong type, a flag given twice:
+    :class:`_Once`) in one line, as every other error of the CLI: argparse prints the whole usage block
+    first (12 lines for ``train``)."""
+
+    def __init__(self, *args, **kwargs):
+        super().__init__(*args, **kwargs)
+        self.register("action", None, _Once)
+        self.register("action", "store", _Once)
 
     def error(self, message):
         self.exit(2, f"{self.prog}: error: {message} (`{self.prog} --help` lists the arguments)\n")

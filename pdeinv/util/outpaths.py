@@ -220,12 +220,14 @@ def _own_record(path: Path) -> bool:
     return isinstance(held, dict) and held.get("format") == record_format(path.name)
 
 
-def output_folder(path, flag: str = "out", inputs: Iterable = (), record: str | None = None) -> Path:
+def output_folder(path, flag: str = "out", inputs: Iterable = (), record: str | None = None,
+                  replace: bool = False) -> Path:
     """``path`` resolved (:func:`resolve`), as a folder this command may write into (module docstring),
     created. ``record``: the file a sweep writes (``bench.json``, ``stress.json``): the folder must then be
-    new, empty, or hold that command's earlier results (its ``record``, recognised by its ``"format"``,
-    :func:`record_format`; whose files it replaces); a run folder or any other non-empty folder (a user's
-    own file of the record's name too) is refused, naming what it holds."""
+    new, empty, or, with ``replace`` (``--overwrite``), hold that command's earlier results (its
+    ``record``, recognised by its ``"format"``, :func:`record_format`; whose files it replaces); a run
+    folder or any other non-empty folder (a user's own file of the record's name too) is refused, naming
+    what it holds."""
     target = resolve(path, flag)
     named = _named(flag, path, target)
     if target.exists() and not target.is_dir():
@@ -236,6 +238,9 @@ def output_folder(path, flag: str = "out", inputs: Iterable = (), record: str | 
                else "it is not a folder of this command's earlier results")
         raise OutputPathError(f"{named} holds {_listing(held)}: {why}; its results go only into a new or "
                               f"empty folder, or one of its earlier results; choose another {flag}")
+    if held and not replace:
+        raise OutputPathError(f"{named} holds this command's earlier results ({_listing(held)}); pass "
+                              f"--overwrite to replace them, or choose another {flag}")
     _not_an_input(target, named, flag, inputs)
     _writable(target, flag, named, target)
     return target

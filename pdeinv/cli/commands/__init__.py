@@ -106,6 +106,8 @@ def run_parser(sub, name: str, help: str, quick: str):
     p.add_argument("--out", required=True, metavar="DIR",
                    help="folder for the results (created with its parents)")
     p.add_argument("--quick", action="store_true", help=quick)
+    p.add_argument("--overwrite", action="store_true",
+                   help=f"replace the earlier results of pdeinv {name} in --out (refused without it)")
     add_memory_argument(p)
     return p
 
@@ -117,13 +119,14 @@ def out_path(text: str, flag: str = "--out") -> Path:
     return Path(text)
 
 
-def prepare_out(out, record: str | None = None) -> None:
+def prepare_out(out, record: str | None = None, replace: bool = False) -> None:
     """Refuse an ``--out`` that is a file; create the folder and prove it writable before any work
     (:func:`pdeinv.util.outpaths.output_folder`, the policy of every output path). ``record``: the file a
-    sweep writes there (``bench.json``): a folder holding anything else is refused."""
+    sweep writes there (``bench.json``): a folder holding anything else is refused, one holding the
+    sweep's earlier results unless ``replace`` (``--overwrite``)."""
     from pdeinv.util.outpaths import output_folder
 
-    output_folder(out, "--out", record=record)
+    output_folder(out, "--out", record=record, replace=replace)
 
 
 #: the most ``--threads`` a command takes: beyond it the thread pools fail to start (measured: 100 000

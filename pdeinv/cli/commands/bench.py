@@ -19,7 +19,7 @@ def cmd_bench(args) -> int:
     no_cache(args)
     problem = build_problem("bench", args.problem, args.set)
     out = out_path(args.out)
-    prepare_out(out, record="bench.json")  # never a run's or a user's folder
+    prepare_out(out, record="bench.json", replace=args.overwrite)  # never a run's or a user's folder
     with RunLock(out):  # one run per --out: a second one is refused
         res = bench(problem, out, quick=args.quick, budget_s=args.budget_s, seed=args.seed,
                     threads=args.threads)

@@ -20,7 +20,7 @@ def cmd_stress(args) -> int:
     no_cache(args)
     todo = cases.cases(args.problem, parse_sets(args.set), quick=args.quick)
     out = out_path(args.out)
-    prepare_out(out, record="stress.json")  # never a run's or a user's folder
+    prepare_out(out, record="stress.json", replace=args.overwrite)  # never a run's or a user's folder
     with RunLock(out):  # one run per --out: a second one is refused
         rows = stress.run(todo, log=print)
         summary = stress.counts(rows)
