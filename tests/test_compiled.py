@@ -128,7 +128,7 @@ def test_hig_on_compressed_rows_takes_the_same_step(name, kw):
     y = torch.as_tensor(p.sample(3, seed=0)[1])
     rule = HIG(route="svd")
     state = rule.init(p, model)
-    full = state._replace(context=(p.operator, p.operator, None, None))
+    full = state._replace(context=(p.operator, p.operator, None, set(), None))
     a, b = rule.update(state, model, y), rule.update(full, model, y)
     for da, db in zip(a.direction, b.direction, strict=True):
         assert torch.allclose(da, db, rtol=1e-6, atol=1e-9 * db.abs().max())

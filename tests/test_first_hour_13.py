@@ -120,7 +120,7 @@ def test_a_thread_of_a_problem_module_that_raises_is_one_line(tmp_path, capsys):
 @pytest.mark.parametrize("flag, argv", [
     ("--steps", ["train", "heat_1d", "--steps", "2", "--steps", "3", "--explain"]),
     ("--method", ["train", "heat_1d", "--method", "sip", "--method=adam", "--explain"]),
-    ("--seed", ["train", "heat_1d", "--seed", "1", "--seed", "1", "--explain"]),
+    ("--seed", ["train", "heat_1d", "--seed", "1", "--seed", "2", "--explain"]),
     ("--data", ["classical", "heat_1d", "--data", "a.npz", "--data", "b.npz"]),
     ("--level", ["predict", "run", "--data", "a.npz", "--out", "p.npz", "--level", "0.9", "--level", "0.5"]),
 ])
@@ -130,6 +130,11 @@ def test_a_flag_given_twice_is_refused(flag, argv, tmp_path, monkeypatch, capsys
         main(argv)
     assert stop.value.code == 2
     assert f"{flag} is given twice" in _one_error(capsys) and not list(tmp_path.iterdir())
+
+
+def test_a_flag_given_twice_with_one_value_is_that_value(capsys):
+    assert main(["train", "heat_1d", "--seed", "1", "--seed", "01", "--steps", "2", "--explain"]) == 0
+    assert "2 steps" in capsys.readouterr().out
 
 
 def test_a_second_stress_into_the_same_folder_needs_overwrite(tmp_path, capsys):
@@ -156,3 +161,126 @@ def test_bench_runs_on_nonlinear_physics(tmp_path, capsys):
     assert record["reference"] is None and record["ratios"]["adjoint_vs_forward"] > 0
     assert any("nonlinear physics" in note for note in record["notes"])
     assert record["methods"]["sip_cli_default"]["x_err"] < 1
+
+
+def test_the_api_does_not_replace_another_runs_checkpoint(tmp_path):
+    p = pdeinv.load_problem("heat_1d", n=16)
+    kw = dict(steps=2, n_train=64, n_test=16, prior=None, calibration=None)
+    path = tmp_path / "run" / "checkpoint.pt"
+    pdeinv.Trainer(p, "sip", checkpoint=pdeinv.Checkpoint(path, 1), **kw).fit()
+    before = path.read_bytes()
+    with pytest.raises(ValueError, match=r"holds another run's checkpoint: resume=True continues it, "
+                                         r"Checkpoint\(.*, overwrite=True\) replaces it"):
+        pdeinv.Trainer(p, "adam", checkpoint=pdeinv.Checkpoint(path, 1), **kw)
+    assert path.read_bytes() == before
+    pdeinv.Trainer(p, "adam", checkpoint=pdeinv.Checkpoint(path, 1, overwrite=True), **kw).fit()
+    assert path.read_bytes() != before
+    with pytest.raises(TypeError, match=r"Checkpoint\(overwrite\)='yes' is str"):
+        pdeinv.Checkpoint(path, 1, overwrite="yes")
+
+
+def test_demo_of_a_field_carried_out_of_the_domain_has_a_finite_dot_product_test(capsys):
+    assert main(["demo", "advection_diffusion_2d", "--batch", "2", "--set", "n=4", "--set", "speed=1e6"]) == 0
+    out, err = capsys.readouterr()
+    assert "Warning" not in err, err
+    dot = float(next(line for line in out.splitlines() if "dot_product_test" in line).split(":")[1])
+    assert 0 <= dot < 1e-12
+
+
+@pytest.mark.parametrize("name, says", [("pred.npz/", "ends in '/', a folder; expected a file name"),
+                                        (".npz", "is an ending alone; expected a name before it")])
+def test_an_output_file_named_as_a_folder_or_an_ending_is_refused(name, says, tmp_path):
+    from pdeinv.util.outpaths import OutputPathError, output_file
+
+    with pytest.raises(OutputPathError, match=says):
+        output_file(str(tmp_path) + "/" + name, "--out", suffixes=(".npz",))
+    assert not list(tmp_path.iterdir())
+
+
+def _cli(shell: str, **env):
+    import os
+    import subprocess
+    import sys
+
+    return subprocess.run(["sh", "-c", shell.replace("PDEINV", f"{sys.executable} -m pdeinv.cli")],
+                          capture_output=True, text=True, env={**os.environ, **env}, timeout=120)
+
+
+def test_problems_on_an_ascii_terminal_escapes_what_it_cannot_print():
+    done = _cli("PDEINV problems", PYTHONIOENCODING="ascii")
+    assert done.returncode == 0, done.stderr
+    assert "Advection\\u2013diffusion" in done.stdout and not done.stderr
+
+
+def test_a_closed_stdout_is_an_error_not_a_silent_exit_0():
+    done = _cli("PDEINV problems >&-")
+    assert done.returncode == 1
+    assert done.stderr == "pdeinv problems: error: cannot write: standard output is closed\n"
+
+
+def test_hig_with_an_eta_of_1e308_fails_as_a_run_not_as_an_internal_error(tmp_path, capsys):
+    code = main(["train", "heat_1d", "--set", "n=16", *SMALL_RUN, "--method", "hig", "--eta", "1e308",
+                 "--out", str(tmp_path / "r")])
+    err = capsys.readouterr().err
+    assert code != 0 and "internal error" not in err and "OverflowError" not in err, err
+
+
+def test_a_sampler_that_takes_no_rng_is_named(tmp_path, capsys):
+    module = tmp_path / "lam.py"
+    module.write_text("import dataclasses\nimport pdeinv\n\n\ndef make(**kw):\n"
+                      "    p = pdeinv.load_problem('heat_1d', n=8)\n"
+                      "    return dataclasses.replace(p, sampler=lambda n: None)\n")
+    assert main(["train", str(module), *SMALL_RUN, "--out", str(tmp_path / "r")]) == 2
+    err = _one_error(capsys)
+    assert f"its sampler make.<locals>.<lambda> ({module}, line 7) cannot be called as sampler(n, rng)" in err
+    assert "internal error" not in err
+
+
+def test_save_run_refuses_a_network_load_run_could_not_rebuild(tmp_path):
+    import torch
+
+    p = pdeinv.load_problem("heat_1d", n=16)
+    with pytest.raises(ValueError, match=r"save_run: model \(Linear\) is not the network run.json would "
+                                         r"record \(\{\"kind\": \"default\"\}: model.pt has no 'active'"):
+        pdeinv.save_run(tmp_path / "r", p, model=torch.nn.Linear(15, 15))
+    assert not (tmp_path / "r").exists()
+    pdeinv.save_run(tmp_path / "d", p, model=p.model())  # the default network, built by hand: reloads
+    assert type(pdeinv.load_run(tmp_path / "d")[1]) is type(p.model())
+
+
+def test_a_rank_alone_in_its_group_is_told_to_launch_every_rank(tmp_path, monkeypatch, capsys):
+    import socket
+
+    with socket.socket() as free:
+        free.bind(("127.0.0.1", 0))
+        port = free.getsockname()[1]
+    for key, value in dict(WORLD_SIZE="2", RANK="0", LOCAL_RANK="0", PDEINV_DDP_TIMEOUT="2",
+                           MASTER_ADDR="127.0.0.1", MASTER_PORT=str(port)).items():
+        monkeypatch.setenv(key, value)
+    assert main(["train", "heat_1d", "--set", "n=16", *SMALL_RUN, "--out", str(tmp_path / "r")]) == 2
+    err = _one_error(capsys)
+    assert "did not form a group within PDEINV_DDP_TIMEOUT=2 s" in err
+    assert "torchrun --nproc-per-node 2" in err
+
+
+def test_a_warning_of_any_command_is_one_line(monkeypatch, capsys):
+    """Python's form adds the file and the echoed source line (stress showed them)."""
+    import warnings
+
+    import pdeinv.cli as cli
+
+    def noisy(args):
+        warnings.warn("the predictions carry 1e11× the prior's energy", RuntimeWarning)
+        return 0
+
+    real = cli.build_parser
+
+    def built():
+        parser = real()
+        parser.commands["problems"].set_defaults(func=noisy)
+        return parser
+
+    monkeypatch.setattr(cli, "build_parser", built)
+    assert main(["problems"]) == 0
+    says = "pdeinv problems: warning: the predictions carry 1e11× the prior's energy\n"
+    assert capsys.readouterr().err == says

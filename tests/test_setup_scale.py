@@ -50,7 +50,7 @@ def test_metrics_report_the_set_up_phases(tmp_path):
     out = tmp_path / "run"
     code = main(["train", "--prior-fit", "0",
                  "heat_1d", "--set", "n=16", "--set", "steps=10", "--steps", "2", "--n-train", "32",
-                 "--n-test", "8", "--prior-fit", "0", "--export-samples", "0", "--out", str(out)])
+                 "--n-test", "8", "--export-samples", "0", "--out", str(out)])
     assert code == 0
     metrics = json.loads((out / "metrics.json").read_text())
     for key in ("setup", "setup_cpu"):  # wall and CPU seconds

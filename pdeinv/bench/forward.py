@@ -79,8 +79,7 @@ def ladder(problem, ns, steps, repeats: int = 3, batch: int = 16) -> dict:
 def default_ladder(problem, quick: bool) -> tuple[list[int], list[int]]:
     """Meshes ``n/4, n/2, n`` and steps ``steps/10 … 3·steps`` (quick: ``n/2, n`` and ``steps/2, steps``);
     none finer than the scene's own (at 2n, heat_2d's modal setup alone took minutes)."""
-    steps = problem.settings.get("steps") or getattr(problem.operator, "steps", None) or 10  # None: by CFL
-    n, k = int(problem.settings.get("n", 8)), int(steps)
+    n, k = int(problem.settings.get("n", 8)), int(problem.settings.get("steps") or 10)  # None: by CFL
     if quick:
         return sorted({max(2, n // 2), n}), sorted({max(1, k // 2), k})
     return sorted({max(2, n // 4), max(2, n // 2), n}), sorted({max(1, k // 10), max(1, k // 3), k, 3 * k})

@@ -15,6 +15,7 @@ from ..errors import TooManyModes
 from ..methods.presets import make_rule
 from ..nets import fit_preconditioning
 from ..physics.capabilities import modal_basis
+from ..physics.nonlinear import is_linear
 from .timing import compiled, interleaved, stepping
 
 
@@ -33,7 +34,7 @@ def operator_ratios(problem, batch: int = 64, repeats: int = 5, seed: int = 0) -
     stepped = stepping(op)
     out, run = {"batch": batch, "N": op.n_in}, op if stepped is None else stepped
     # nonlinear physics: its adjoint is the vector–Jacobian product at the forward's inputs
-    adjoint = (lambda: run.adjoint(R)) if hasattr(run, "adjoint") else (lambda: run.vjp(X, R))
+    adjoint = (lambda: run.adjoint(R)) if is_linear(op) else (lambda: run.vjp(X, R))
     fns = {"fwd": lambda: run.forward(X), "adj": adjoint}
     sc = None if stepped is None else stepped.scheme  # None: forward and adjoint only
 

@@ -120,23 +120,29 @@ def _bench(problem, out, quick, budget_s, seed, log) -> dict:
                   f"{problem.name}: {budget_s:g} s per method")
     models = {name: m.pop("model", None) for name, m in res["methods"].items()}
 
-    net, wall_s = models.get("sip_cli_default"), res["methods"]["sip_cli_default"]["wall_s"]
-    linear = is_linear(problem.operator)
-    if linear:
-        log("[bench] amortization (trained network vs classical solves, per sample)")
-    else:  # the classical solves it compares with and the skips it counts are those of a matrix P
-        notes.append("amortization, skips: null, nonlinear physics (the classical solves and the adjoint "
-                     "skips measured there are those of a linear P)")
-    res["amortization"] = (None if net is None or not linear else  # None: the preset's run ended in NaN
-                           amortize.amortization(problem, net, wall_s, x_te, y_te, repeats=repeats))
-    if linear:
-        log("[bench] skips")
-    res["skips"] = skips.measure(problem, st, repeats=repeats, seed=seed, modal_info=op_r) if linear else None
+    _linear_parts(res, problem, models.get("sip_cli_default"), (x_te, y_te), st, op_r, repeats, seed, log)
     res["total_s"] = time.perf_counter() - t0
     res["peak_rss_mb"] = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024  # Linux: KiB
     text = json.dumps(jsonable(res), indent=2, default=str).encode()
     atomic_write(out / "bench.json", lambda fh: fh.write(text))  # a kill never leaves half a file
     return res
+
+
+def _linear_parts(res, problem, net, test, st, op_r, repeats, seed, log) -> None:
+    """``res["amortization"]`` (the trained ``net`` against classical solves per sample) and
+    ``res["skips"]``; both ``None`` on nonlinear physics, whose classical solves and adjoint skips are not
+    those of a matrix ``P``."""
+    if not is_linear(problem.operator):
+        res["notes"].append("amortization, skips: null, nonlinear physics (the classical solves and the "
+                            "adjoint skips measured there are those of a linear P)")
+        res["amortization"] = res["skips"] = None
+        return
+    log("[bench] amortization (trained network vs classical solves, per sample)")
+    wall_s = res["methods"]["sip_cli_default"]["wall_s"]
+    res["amortization"] = (None if net is None else  # None: the preset's run ended in NaN
+                           amortize.amortization(problem, net, wall_s, *test, repeats=repeats))
+    log("[bench] skips")
+    res["skips"] = skips.measure(problem, st, repeats=repeats, seed=seed, modal_info=op_r)
 
 
 def summary(res: dict) -> str:

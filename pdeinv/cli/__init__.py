@@ -39,12 +39,13 @@ def command_modules() -> list:
 
 
 class _Once(argparse._StoreAction):
-    """argparse's ``store``, refusing a flag given twice (argparse keeps the last value silently: ``--steps
-    2 --steps 3`` or two ``--out`` folders are a typo or a pasted command, not a choice)."""
+    """argparse's ``store``, refusing a flag given twice with two values (argparse keeps the last one
+    silently: ``--steps 2 --steps 3`` or two ``--out`` folders are a typo or a pasted command, not a
+    choice); the same value twice is that value."""
 
     def __call__(self, parser, namespace, values, option_string=None):
         given = self.__dict__.setdefault("_given", {})
-        if option_string is not None and id(namespace) in given:
+        if option_string is not None and id(namespace) in given and given[id(namespace)] != values:
             parser.error(f"{option_string} is given twice, as {given[id(namespace)]!r} and {values!r}; "
                          "give it once")
         given[id(namespace)] = values
@@ -138,7 +139,33 @@ def check_common(args) -> None:
     memory.set_budget(getattr(args, "max_memory_gb", None))  # None: the default (each call anew)
 
 
+class _Closed:
+    """``sys.stdout`` where the shell closed it (``>&-``: Python sets it to ``None`` and every print is
+    lost): a write fails as on a broken pipe, so the command says so and exits non-zero."""
+
+    def write(self, text):
+        import errno
+
+        raise OSError(errno.EBADF, "standard output is closed")
+
+    def flush(self):
+        pass
+
+
+def _streams() -> None:
+    """Characters the terminal's encoding lacks (κ, –) as escapes, not a UnicodeEncodeError; a closed
+    stdout as :class:`_Closed`."""
+    if sys.stdout is None:
+        sys.stdout = _Closed()
+    for stream in (sys.stdout, sys.stderr):
+        try:
+            stream.reconfigure(errors="backslashreplace")
+        except (AttributeError, ValueError, OSError):  # not a text file of io's (a test's capture)
+            pass
+
+
 def main(argv=None) -> int:
+    _streams()
     try:
         from .signals import terminate_as_interrupt
     except KeyboardInterrupt:  # Ctrl-C before the handlers are in place: quietly, as after
@@ -217,6 +244,7 @@ def _main(argv=None) -> int:
     if extra:  # the subcommand's parser says it, so the message names `pdeinv train --help`
         parser.commands[args.command].error(f"unrecognized arguments: {' '.join(extra)}")
     import threading
+    import warnings
 
     from .logs import cli_logging
 
@@ -226,7 +254,10 @@ def _main(argv=None) -> int:
     try:
         check_numbers(parser, args)
         check_common(args)
-        with cli_logging(args):
+        with cli_logging(args), warnings.catch_warnings():
+            # a warning in one line, as every message of the CLI (Python's adds its file and source line)
+            warnings.showwarning = lambda message, *_, **__: print(
+                f"pdeinv {args.command}: warning: {message}", file=sys.stderr)
             return args.func(args)
     except KeyboardInterrupt as err:  # first: the clauses below import numpy, which may be half-imported
         from .signals import exit_code, what  # `train` reports its checkpoint itself, 130 / 143

@@ -191,9 +191,12 @@ def save_run(out: str | os.PathLike, problem, overrides: dict | None = None, net
     problem, overrides = _saved_problem(out, problem, overrides)
     model = _arguments.model(model, optional=False)
     _arguments.flag(overwrite, "overwrite")
+    recorded = network_spec is not None or hasattr(_unwrapped(model), "network_spec")
     network_spec = _spec(network_spec, model)
     _refuse_another_run(run_folder(out, "out", replace=True, outputs=OUTPUTS, create=False), overwrite)
     overrides = _check_loads(problem, overrides, model, posterior, given)  # before the folder is created
+    if not recorded:  # a network no spec names: the default one must be what load_run rebuilds
+        _rebuilds(problem, overrides, network_spec, model)
     out = run_folder(out, "out", replace=True, outputs=OUTPUTS)
     buffer = io.BytesIO()
     torch.save(_folded(model).state_dict(), buffer)
@@ -236,6 +239,27 @@ def _saved_problem(out, problem, overrides) -> tuple:
     if not isinstance(overrides, dict):
         raise TypeError(f"overrides={overrides!r} is not allowed; expected a dict of the problem's settings")
     return problem, overrides
+
+
+def _unwrapped(model):
+    from ..problem.units import unwrap
+
+    return unwrap(model)[0]
+
+
+def _rebuilds(problem, overrides: dict, spec: dict, model) -> None:
+    """A ``ValueError`` unless the network ``spec`` builds takes ``model``'s state dict (what
+    :func:`load_run` will load into it)."""
+    from ..problem.definition import load_problem
+
+    try:
+        rebuilt = network(load_problem(problem, **overrides), spec)
+        _load_state(rebuilt, _folded(model).state_dict(), "save_run")
+    except ValueError as err:
+        why = str(err).split(" (", 1)[-1].rsplit("): ", 1)[0]
+        raise ValueError(f"save_run: model ({type(_unwrapped(model)).__name__}) is not the network run.json "
+                         f"would record ({json.dumps(spec)}: {why}), so load_run could not rebuild it; save "
+                         "a network of pdeinv.nets (or the Trainer's), or pass its network_spec") from None
 
 
 def _check_loads(problem, overrides: dict, model, posterior, given=None) -> dict:

@@ -99,7 +99,7 @@ class Problem:
         try:
             x = self.sampler(n, rng)
         except Exception as err:  # a user's sampler: one line, its file and line; pdeinv's own errors stand
-            raise _sampler_failure(self.name, err) or err
+            raise _sampler_failure(self.name, err) or _signature(self.name, self.sampler, err) or err
         x = _as_array(self.name, x, (n, self.N))
         shape = np.shape(x)
         if shape != (n, self.N):
@@ -216,6 +216,24 @@ def _as_array(name: str, x, shape: tuple) -> np.ndarray:
         raise ValueError(f"problem {name!r}: its sampler returned an array of {x.dtype}; {expected} of real "
                          "numbers")
     return x
+
+
+def _signature(name: str, sampler, err: Exception) -> ValueError | None:
+    """A ``ValueError`` naming ``sampler`` where ``err`` is the ``TypeError`` of calling it as
+    ``sampler(n, rng)`` (raised by the call itself: its traceback ends in this file), else None."""
+    import traceback
+
+    frames = traceback.extract_tb(err.__traceback__)
+    here = Path(__file__).resolve()
+    if not isinstance(err, TypeError) or not frames or Path(frames[-1].filename).resolve() != here:
+        return None
+    try:
+        line = inspect.getsourcelines(sampler)[1]
+        where = f"{sampler.__qualname__} ({inspect.getsourcefile(sampler)}, line {line})"
+    except (AttributeError, TypeError, OSError):  # a callable object, a builtin: its type
+        where = type(sampler).__name__
+    return ValueError(f"problem {name!r}: its sampler {where} cannot be called as sampler(n, rng): "
+                      f"{first_line(err)}; expected a function of the draw count and a numpy Generator")
 
 
 def _sampler_failure(name: str, err: Exception) -> ValueError | None:

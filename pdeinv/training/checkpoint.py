@@ -42,7 +42,7 @@ from typing import Protocol, runtime_checkable
 import numpy as np
 import torch
 
-from .._checks import count
+from .._checks import count, flag
 from ..util.files import atomic_write, plain, remove_stale_temporaries, same_row
 
 __all__ = ["Checkpoint", "check_identity", "network_identity", "load_to_resume", "Position",
@@ -54,7 +54,10 @@ VERSION = 2  # 2: rule state = transformation + steps; identity with hyper-param
 
 @runtime_checkable
 class Checkpointing(Protocol):
-    """What the trainer asks of a checkpoint: ``save``, ``load`` and ``exists``."""
+    """What the trainer asks of a checkpoint: ``save``, ``load`` and ``exists``, and ``overwrite``: whether
+    a run that does not resume may replace the checkpoint it finds there."""
+
+    overwrite: bool
 
     def save(self, *args, **kwargs): ...
 
@@ -68,11 +71,13 @@ class Checkpoint:
     """Where a run is checkpointed and how often: every ``every`` steps and after the last.
 
     ``Trainer(..., checkpoint=Checkpoint("run/checkpoint.pt", every=50), resume=True)``
-    continues from ``run/checkpoint.pt`` if it exists.
+    continues from ``run/checkpoint.pt`` if it exists. A run that does not resume refuses an existing
+    checkpoint there unless ``overwrite`` (it would replace another run's).
     """
 
     path: str | os.PathLike
     every: int = 100
+    overwrite: bool = False
 
     def __post_init__(self):
         """Creates the folder and proves it writable now, so a bad path fails before training
@@ -84,6 +89,7 @@ class Checkpoint:
                             "os.PathLike), e.g. Checkpoint('run/checkpoint.pt')")
         self.path = Path(self.path)
         self.every = count(self.every, "checkpoint every")
+        flag(self.overwrite, "Checkpoint(overwrite)")
         folder = self.path.parent
         if folder.exists() and not folder.is_dir():
             raise ValueError(f"checkpoint {str(self.path)!r}: {str(folder)!r} is a file; "

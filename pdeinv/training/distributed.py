@@ -294,5 +294,13 @@ def from_env(device: torch.device):
     if backend == "nccl":
         torch.cuda.set_device(int(os.environ.get("LOCAL_RANK", "0")))
     if not dist.is_initialized():
-        dist.init_process_group(backend, timeout=timedelta(seconds=timeout_s()))
+        try:
+            dist.init_process_group(backend, timeout=timedelta(seconds=timeout_s()))
+        except RuntimeError as err:  # torch.distributed.DistError: a store that timed out, a port in use
+            from ..problem.definition import first_line
+
+            raise ValueError(f"the {world} processes of WORLD_SIZE={world} did not form a group within "
+                             f"PDEINV_DDP_TIMEOUT={timeout_s():g} s ({type(err).__name__}: "
+                             f"{first_line(err)}): launch every rank, e.g. with `torchrun --nproc-per-node "
+                             f"{world} -m pdeinv.cli train …`") from err
     return DataParallel(dist.get_world_size(), dist.get_rank())

@@ -251,6 +251,11 @@ class Trainer:
         self._guard()  # checks its settings
         if self.resume and self.checkpoint is None:
             raise ValueError("resume=True needs checkpoint=Checkpoint(path) to resume from")
+        ck = self.checkpoint
+        if not self.resume and ck is not None and not ck.overwrite and ck.exists():
+            raise ValueError(f"checkpoint {str(ck.path)!r} holds another run's checkpoint: resume=True "
+                             f"continues it, Checkpoint({str(ck.path)!r}, overwrite=True) replaces it; or "
+                             "choose another path")
         self.device = resolve(self.device)
         self.parallel.check_batch(self.batch_size)
         self._rule = self.parallel.rule(self.rule)  # the rule on this process's shard

@@ -184,6 +184,8 @@ def output_file(path, flag: str = "out", inputs: Iterable = (), owns: Iterable[s
     """
     target = resolve(path, flag)
     named = _named(flag, path, target)
+    if str(os.fspath(path)).endswith(("/", os.sep)):  # resolve() drops the slash that names a folder
+        raise OutputPathError(f"{named} ends in '/', a folder; expected a file name")
     _not_an_input(target, named, flag, inputs)
     in_run = is_run_folder(target.parent)
     if target.is_file() and in_run and target.name not in set(owns):
@@ -191,6 +193,9 @@ def output_file(path, flag: str = "out", inputs: Iterable = (), owns: Iterable[s
                               f"{str(target.parent)!r}; writing it would replace that run's result; choose "
                               f"another {flag}")
     suffixes = tuple(suffixes) if suffixes is not None else None
+    if suffixes and target.name in suffixes:
+        raise OutputPathError(f"{named} is an ending alone; expected a name before it, e.g. "
+                              f"'results{target.name}'")
     if suffixes and target.suffix not in suffixes:
         raise OutputPathError(f"{named}: expected a file name ending in {' or '.join(suffixes)}")
     if target.is_dir():

@@ -41,6 +41,7 @@ class FolderCheckpoint:
         from pdeinv.util.files import CsvLog
 
         self.checkpoint, self.fresh = Checkpoint(path, every), fresh
+        self.overwrite = True  # the run folder's policy decided that (pdeinv.util.outpaths.run_folder)
         self.path, self.every = self.checkpoint.path, self.checkpoint.every
         self.log = CsvLog(self.path.parent / "history.csv")
 

@@ -179,7 +179,8 @@ class Carried:
         self.weight, self.M, self.coef = weight, M, -eta * unit
         MS = M * f.S
         dM = MS * f.AC  # ΔM per unit of coef; also ‖ΔW̃‖² = coef² Σ_kl MS·dM (V, W orthonormal)
-        energy = np.einsum("kl,kl->l", MS, dM) * self.coef**2  # ΔW̃'s energy per observation mode l
+        # ΔW̃'s energy per observation mode l (coef·coef, not coef**2: a float's power raises OverflowError)
+        energy = np.einsum("kl,kl->l", MS, dM) * self.coef * self.coef
         total = float(energy.sum())
         if not total > (np.finfo(weight.dtype).eps * self.norm) ** 2:  # nothing the weights can resolve
             self.dd = 0.0
