@@ -284,3 +284,20 @@ def test_a_warning_of_any_command_is_one_line(monkeypatch, capsys):
     assert main(["problems"]) == 0
     says = "pdeinv problems: warning: the predictions carry 1e11× the prior's energy\n"
     assert capsys.readouterr().err == says
+
+
+def test_an_unknown_mplbackend_is_refused_before_any_work(tmp_path):
+    done = _cli(f"cd {tmp_path} && PDEINV train heat_1d --set n=8 --steps 2 --prior-fit 0 -q --out r",
+                MPLBACKEND="bogus")
+    assert done.returncode == 2 and not list(tmp_path.iterdir())
+    assert done.stderr == ("pdeinv train: error: MPLBACKEND='bogus' is not a backend of matplotlib's; "
+                           "unset it, or set it to one such as 'Agg'\n")
+
+
+def test_settings_resolve_names_an_argument_that_is_no_dict():
+    from pdeinv.problem import settings
+
+    with pytest.raises(TypeError, match=r"settings.resolve\(spec=None\) is NoneType; expected a dict"):
+        settings.resolve(None, {}, "x")
+    with pytest.raises(TypeError, match=r"settings.resolve\(overrides=None\) is NoneType; expected a dict"):
+        settings.resolve({"n": (16, settings.positive_int)}, None, "x")

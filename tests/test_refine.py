@@ -100,7 +100,7 @@ def test_prior_comes_from_the_data_file_and_never_from_the_scene_sampler():
     assert with_x.metrics["stages"][1]["draws"] == 250
     only_y = pdeinv.train(p, rule, data=y, n_test=50, steps=2, batch_size=None, progress=False, prior=stage)
     assert only_y.metrics["stages"][1] == {"name": "prior", "kept": False,
-                                           "skipped": "no prior: none: the data file has no x",
+                                           "skipped": "no prior: the data file has no x",
                                            "seconds": only_y.metrics["stages"][1]["seconds"]}
     assert not bool(only_y.model.active)
 

@@ -1,11 +1,11 @@
-"""SIGTERM handled as Ctrl-C is: raised where the program is, as :class:`Terminated` (a
-``KeyboardInterrupt``), so every ``finally`` and ``except BaseException`` runs — an atomic write removes
-its temporary (:func:`pdeinv.util.files.atomic_write`), the run lock is released, ``pdeinv train`` names its
-last checkpoint — and the command exits with 143 (128 + SIGTERM; Ctrl-C: 130). Both are held back
-while a module is being imported (an interrupted C-extension import broke every later import of numpy
-and torch) and while a file is being written (:mod:`pdeinv.util.critical`: an interrupt inside
-``torch.save``'s C++ writer came out as ``RuntimeError: [enforce fail at inline_container.cc]``, exit 1),
-and raised as soon as the import or the write is done.
+"""SIGTERM (and SIGHUP, where nothing ignores it) handled as Ctrl-C is: raised where the program is, as
+:class:`Terminated` (a ``KeyboardInterrupt``), so every ``finally`` and ``except BaseException`` runs —
+an atomic write removes its temporary (:func:`pdeinv.util.files.atomic_write`), the run lock is released,
+``pdeinv train`` names its last checkpoint — and the command exits with 143 (128 + SIGTERM; Ctrl-C: 130).
+Both are held back while a module is being imported (an interrupted C-extension import broke every later
+import of numpy and torch) and while a file is being written (:mod:`pdeinv.util.critical`: an interrupt
+inside ``torch.save``'s C++ writer came out as ``RuntimeError: [enforce fail at inline_container.cc]``,
+exit 1), and raised as soon as the import or the write is done.
 
 Python's default for SIGTERM is to die on the spot: no cleanup, a stale ``.<name>.<random>.tmp`` left
 beside the file being written, and nothing said. ``kill``, ``timeout``, a batch scheduler's
@@ -26,6 +26,10 @@ INTERRUPTED, TERMINATED = 128 + signal.SIGINT, 128 + signal.SIGTERM
 
 class Terminated(KeyboardInterrupt):
     """SIGTERM, raised in the main thread wherever it was."""
+
+
+class HungUp(Terminated):
+    """SIGHUP (the terminal that started the command closed), handled as SIGTERM; exit 129."""
 
 
 #: the interruption held back while a module was being imported (None: none)
@@ -79,6 +83,10 @@ def _on_terminate(signum, frame):
     _deliver(Terminated, frame)
 
 
+def _on_hangup(signum, frame):
+    _deliver(HungUp, frame)
+
+
 def _on_retry(signum, frame):
     if _pending is not None:
         _deliver(_pending, frame)
@@ -96,6 +104,8 @@ def terminate_as_interrupt():
     handlers = {signal.SIGTERM: _on_terminate, signal.SIGINT: _on_interrupt}
     if hasattr(signal, "SIGALRM"):
         handlers[signal.SIGALRM] = _on_retry
+    if hasattr(signal, "SIGHUP") and signal.getsignal(signal.SIGHUP) is signal.SIG_DFL:  # not under nohup
+        handlers[signal.SIGHUP] = _on_hangup
     previous = {sig: signal.signal(sig, handler) for sig, handler in handlers.items()}
     try:
         yield
@@ -116,10 +126,15 @@ def from_signal(err: BaseException) -> bool:
 
 
 def exit_code(err: BaseException) -> int:
-    """143 for SIGTERM, 130 for Ctrl-C."""
+    """129 for SIGHUP, 143 for SIGTERM, 130 for Ctrl-C."""
+    if isinstance(err, HungUp):
+        return 128 + signal.SIGHUP
     return TERMINATED if isinstance(err, Terminated) else INTERRUPTED
 
 
 def what(err: BaseException) -> str:
-    """``"terminated (SIGTERM)"`` or ``"interrupted"``, for the one line a stopped command prints."""
+    """``"hung up (SIGHUP)"``, ``"terminated (SIGTERM)"`` or ``"interrupted"``, for the one line a stopped
+    command prints."""
+    if isinstance(err, HungUp):
+        return "hung up (SIGHUP)"
     return "terminated (SIGTERM)" if isinstance(err, Terminated) else "interrupted"

@@ -96,6 +96,12 @@ def resolve(spec: dict, overrides: dict, problem: str) -> dict:
     """Merge ``overrides`` into the defaults of ``spec``, checking every value. ``spec`` maps each name to a
     ``(default, rule)`` pair; anything else (a module's ``SETTINGS = dict(n=16)``) is a ``TypeError`` naming
     the entry, not an unpacking error from inside this function."""
+    from collections.abc import Mapping
+
+    for arg, value in (("spec", spec), ("overrides", overrides)):
+        if not isinstance(value, Mapping):
+            raise TypeError(f"settings.resolve({arg}={value!r:.60}) is {type(value).__name__}; expected a "
+                            "dict (the problem's SETTINGS, and the overrides of make(**overrides))")
     for name, entry in spec.items():
         if not (isinstance(entry, tuple) and len(entry) == 2 and callable(entry[1])):
             raise TypeError(f"settings of {problem!r}: {name!r}: {entry!r} is not a (default, rule) pair; "

@@ -95,7 +95,7 @@ def prior_rows(problem, own, n: int, seed: int, stream: int = 0) -> tuple[tuple 
 
     if own is not None:
         if own.x is None:
-            return None, "none: the data file has no x"
+            return None, "the data file has no x"
         return (own.x, own.y), f"the data file's x ({len(own.x)} training rows)"
     prior = problem.settings.get("prior", "the scene's sampler")
     first = seed_stream(seed, PRIOR_DATA)
