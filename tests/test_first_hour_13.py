@@ -301,3 +301,13 @@ def test_settings_resolve_names_an_argument_that_is_no_dict():
         settings.resolve(None, {}, "x")
     with pytest.raises(TypeError, match=r"settings.resolve\(overrides=None\) is NoneType; expected a dict"):
         settings.resolve({"n": (16, settings.positive_int)}, None, "x")
+
+
+def test_resuming_with_another_network_names_the_network_not_its_dtype(tmp_path, capsys):
+    args = ["train", "heat_1d", "--set", "n=16", "--method", "gd", "--prior-fit", "0", "--n-train", "64",
+            "--n-test", "16", "--checkpoint-every", "1", "--threads", "1", "-q", "--out", str(tmp_path / "r")]
+    assert main([*args, "--steps", "2"]) == 0
+    capsys.readouterr()
+    assert main([*args, "--steps", "4", "--resume", "--hidden", "8,8"]) == 2
+    err = _one_error(capsys)
+    assert "holds a Refined network; this run's is a MLP" in err and "dtype" not in err

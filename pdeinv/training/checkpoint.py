@@ -231,11 +231,21 @@ def check_identity(saved: dict, current: dict, path) -> None:
     where = f"checkpoint {str(path)!r}"
     check_problem(saved, current, path)
     _same_rule(saved["rule"], current["rule"], where)  # before the network, which another rule changes too
-    if saved["trainer"] != current["trainer"]:  # a data file builds its own network: said first
-        keys = [k for k in dict.fromkeys([*saved["trainer"], *current["trainer"]])
-                if saved["trainer"].get(k) != current["trainer"].get(k)]
+    keys = [k for k in dict.fromkeys([*saved["trainer"], *current["trainer"]])
+            if saved["trainer"].get(k) != current["trainer"].get(k)]
+    if keys and set(keys) != {"dtype"}:  # a data file builds its own network, n_train sizes it: said first
         _same_data(saved["trainer"], current["trainer"], ["data"] if "data" in keys else keys, where)
-    s_net, c_net = saved["network"], current["network"]
+    _same_network(saved["network"], current["network"], where)  # the dtype follows the network (--hidden)
+    if keys:
+        _same_data(saved["trainer"], current["trainer"], keys, where)
+    diff = _differences(saved["hyperparameters"], current["hyperparameters"])
+    if diff:
+        raise ValueError(f"{where} was written with rule {saved['rule']!r} and other hyper-parameters: "
+                         f"{diff}; resume with the same settings (only --steps / --time-budget may change)")
+
+
+def _same_network(s_net: dict, c_net: dict, where: str) -> None:
+    """Refuse a checkpoint of another network, naming what differs."""
     if s_net.get("class") != c_net.get("class"):  # another kind of network: its parts say nothing more
         raise ValueError(f"{where} holds a {s_net.get('class')} network; this run's is a "
                          f"{c_net.get('class')} (another --net, --hidden or data file?): resume with the "
@@ -244,10 +254,6 @@ def check_identity(saved: dict, current: dict, path) -> None:
         diff = _differences(s_net.get("architecture", {}), c_net.get("architecture", {}))
         raise ValueError(f"{where} holds network {_describe_network(s_net, c_net)}; this run's network is "
                          f"{_describe_network(c_net, s_net)}" + (f": {diff}" if diff else ""))
-    diff = _differences(saved["hyperparameters"], current["hyperparameters"])
-    if diff:
-        raise ValueError(f"{where} was written with rule {saved['rule']!r} and other hyper-parameters: "
-                         f"{diff}; resume with the same settings (only --steps / --time-budget may change)")
 
 
 def run_identity(problem, rule, model: torch.nn.Module, trainer: dict) -> dict:
