@@ -311,3 +311,10 @@ def test_resuming_with_another_network_names_the_network_not_its_dtype(tmp_path,
     assert main([*args, "--steps", "4", "--resume", "--hidden", "8,8"]) == 2
     err = _one_error(capsys)
     assert "holds a Refined network; this run's is a MLP" in err and "dtype" not in err
+
+
+def test_an_output_path_longer_than_the_system_takes_is_exit_2_in_one_short_line(tmp_path, capsys):
+    long = "/".join(["c" * 200] * 25)  # every name within NAME_MAX, the path beyond PATH_MAX
+    assert main(["train", "heat_1d", "--set", "n=8", *SMALL_RUN, "--out", str(tmp_path / long)]) == 2
+    err = _one_error(capsys)
+    assert "bytes long as a full path; expected fewer than 4096" in err and len(err) < 300

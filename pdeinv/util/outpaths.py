@@ -82,6 +82,10 @@ def resolve(path, flag: str = "out") -> Path:
                               f"{len(os.fsencode(longest))} bytes long; expected at most {NAME_MAX} (the "
                               f"file system's limit); choose another {flag}")
     given = Path(os.path.abspath(os.fspath(path)))
+    if len(os.fsencode(str(given))) >= PATH_MAX:
+        raise OutputPathError(f"{flag} {_text(path)[:60]!r}… is {len(os.fsencode(str(given)))} bytes long as "
+                              f"a full path; expected fewer than {PATH_MAX} (the system's limit); choose "
+                              f"another {flag}")
     for part in (*reversed(given.parents), given):  # mkdir -p refuses a dangling link; so does pdeinv
         if os.path.islink(part) and not os.path.exists(part):
             raise OutputPathError(f"{flag} {_text(path)!r} goes through {str(part)!r}, a symbolic link to "
@@ -119,6 +123,8 @@ def contents(folder) -> list[str]:
 NAME_CHARS = 32
 #: the longest file or folder name, in bytes (NAME_MAX of the usual Linux and macOS file systems)
 NAME_MAX = 255
+#: the bytes of a full path, its terminating zero included (PATH_MAX of Linux; macOS's is 1 024)
+PATH_MAX = 4096
 
 
 def _listing(names: list[str]) -> str:
