@@ -318,3 +318,16 @@ def test_an_output_path_longer_than_the_system_takes_is_exit_2_in_one_short_line
     assert main(["train", "heat_1d", "--set", "n=8", *SMALL_RUN, "--out", str(tmp_path / long)]) == 2
     err = _one_error(capsys)
     assert "bytes long as a full path; expected fewer than 4096" in err and len(err) < 300
+
+
+def test_a_module_whose_make_changes_folder_still_gives_a_whole_run(tmp_path, monkeypatch, capsys):
+    (tmp_path / "problems").mkdir()
+    (tmp_path / "elsewhere").mkdir()
+    (tmp_path / "problems" / "wander.py").write_text(
+        "import os\nimport pdeinv\n\n\ndef make(**kw):\n"
+        f"    os.chdir({str(tmp_path / 'elsewhere')!r})\n    return pdeinv.load_problem('heat_1d', n=8)\n")
+    monkeypatch.chdir(tmp_path)
+    assert main(["train", "problems/wander.py", *SMALL_RUN, "--out", "run"]) == 0
+    assert (tmp_path / "run" / "run.json").is_file() and (tmp_path / "run" / "model.pt").is_file()
+    monkeypatch.chdir(tmp_path)
+    assert pdeinv.load_run(tmp_path / "run")[0].N == 7

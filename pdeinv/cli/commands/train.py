@@ -140,8 +140,11 @@ def cmd_train(args) -> int:
     (checked); only rank 0 writes and reports, the others fail quietly with the same exit code
     (every check here runs identically on every rank, so rank 0's line speaks for all).
     """
+    from pdeinv.io.runs import problem_spec
     from pdeinv.training.distributed import rank_from_env
 
+    if str(args.problem).strip():  # what run.json records, read before a module's make() can chdir
+        args.problem_spec = problem_spec(args.problem)
     if rank_from_env() == 0:
         return _train(args)
     from pdeinv.errors import numerical_types
@@ -501,7 +504,7 @@ def _run(args, out, problem, overrides, net, hp, trainer, fresh, setup=None, cho
         write_csv(result.history, out / "history.csv")
         training_curves(result.history, out / "training.png", f"{problem.name}, {args.method}")
         # the folder was checked before the run (run_folder: new, or --overwrite / --resume of a run)
-        save_run(out, args.problem, overrides, net, result.model, result.posterior, overwrite=True)
+        save_run(out, args.problem_spec, overrides, net, result.model, result.posterior, overwrite=True)
         written = {"metrics.json", "history.csv", "training.png", "model.pt", RUN_FILE, "checkpoint.pt",
                    *([POSTERIOR_FILE] if result.posterior is not None else [])}
         x_test, y_test = trainer.held_out()
