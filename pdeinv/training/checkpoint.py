@@ -54,9 +54,11 @@ VERSION = 2  # 2: rule state = transformation + steps; identity with hyper-param
 
 @runtime_checkable
 class Checkpointing(Protocol):
-    """What the trainer asks of a checkpoint: ``save``, ``load`` and ``exists``, and ``overwrite``: whether
-    a run that does not resume may replace the checkpoint it finds there."""
+    """What the trainer asks of a checkpoint: ``save``, ``load`` and ``exists``, its ``path`` (named in
+    messages), and ``overwrite``: whether a run that does not resume may replace the checkpoint it finds
+    there."""
 
+    path: os.PathLike
     overwrite: bool
 
     def save(self, *args, **kwargs): ...
