@@ -179,19 +179,22 @@ def main(argv=None) -> int:
     except KeyboardInterrupt:  # Ctrl-C before the handlers are in place: quietly, as after
         return 130
 
+    import gc
+
+    from .signals import exit_code
+
     with terminate_as_interrupt():  # SIGTERM unwinds as Ctrl-C does (pdeinv.cli.signals)
         try:
-            return _main(argv)
+            code = _main(argv)
         except KeyboardInterrupt as err:  # during start-up (imports, parsing): quietly
-            from .signals import exit_code
-
-            return exit_code(err)
-        finally:
+            code = exit_code(err)
+        try:
             # the frames of an interrupted command form cycles that hold its solvers: freed now, not left
             # alive at exit, where nanobind reports each (a sparse Cholesky's) as "leaked" in 8 lines
-            import gc
-
             gc.collect()
+        except KeyboardInterrupt as err:  # a signal as the command ends: its work is done, quietly
+            code = exit_code(err)
+        return code
 
 
 def _user_frame(err: BaseException):
