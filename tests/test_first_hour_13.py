@@ -331,3 +331,14 @@ def test_a_module_whose_make_changes_folder_still_gives_a_whole_run(tmp_path, mo
     assert (tmp_path / "run" / "run.json").is_file() and (tmp_path / "run" / "model.pt").is_file()
     monkeypatch.chdir(tmp_path)
     assert pdeinv.load_run(tmp_path / "run")[0].N == 7
+
+
+@pytest.mark.parametrize("name, value, says", [("steps", -5, r"steps=-5 is not allowed"),
+                                               ("n_test", "abc", r"n_test='abc'"),
+                                               ("batch_size", 10_000, r"batch_size=10000 is larger")])
+def test_a_trainer_setting_changed_after_construction_is_checked_by_fit(name, value, says):
+    p = pdeinv.load_problem("heat_1d", n=16)
+    trainer = pdeinv.Trainer(p, "sip", steps=2, n_train=64, n_test=16, prior=None, calibration=None)
+    setattr(trainer, name, value)
+    with pytest.raises((ValueError, TypeError), match=says):
+        trainer.fit()

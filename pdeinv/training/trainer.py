@@ -441,7 +441,19 @@ class Trainer:
             self._saved_step = at.step
         return done
 
+    def _counts(self) -> None:
+        """The counts checked again as :meth:`fit` starts: an attribute set after construction
+        (``trainer.steps = -5``) ran one step."""
+        self.steps is None or count(self.steps, "steps")
+        self.time_budget is None or positive(self.time_budget, "time_budget")
+        count(self.n_test, "n_test"), count(self.eval_every, "eval_every")
+        count(self.batch_size, "batch_size")
+        if count(self.n_train, "n_train", minimum=2) < self.batch_size:
+            raise ValueError(f"batch_size={self.batch_size} is larger than n_train={self.n_train}; expected "
+                             f"batch_size <= {self.n_train}")
+
     def fit(self) -> Result:
+        self._counts()
         run = self._start()
         bar = progress(self.steps, self.progress if self.parallel.is_writer else False, run.at.step)
         done = finished(run.at, self.steps, self.time_budget)  # a resumed run that had finished
