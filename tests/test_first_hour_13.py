@@ -1,8 +1,13 @@
-"""Bad and odd inputs of the thirteenth round (issue 48), and what round twelve left: `classical
---accept-bad` on a file whose y are 1e200 times its x (the linear MMSE's factors underflowed, the norms of
-fields at 1e-200 too: "X contains NaN" and a NaN x-error on finite data)."""
+"""Bad and odd inputs of the thirteenth round (issue 48): a flag given twice, a sweep into its own earlier
+results, `bench` on nonlinear physics, another run's checkpoint under the API, a network `load_run` could
+not rebuild, a user's thread or sampler that fails, an ASCII or closed stdout, a rank alone in its group,
+SIGHUP, MPLBACKEND, a `make()` that changes folder, paths that name a folder or exceed PATH_MAX; and what
+round twelve left: `classical --accept-bad` on y 1e200 times x (the MMSE's factors and the norms of fields
+at 1e-200 underflowed: "X contains NaN" on finite data). Each failed on the code before."""
 
 from __future__ import annotations
+
+import json
 
 import numpy as np
 import pytest
@@ -32,7 +37,7 @@ def test_classical_accept_bad_on_mismatched_units_reports_the_mismatch(tmp_path,
     assert "warning: the file's y differ from this problem's P x by 1" in err
     # the estimates are in y's units, 1e200 times the file's x: their error says so
     rows = {line.split(": ", 1)[0].split()[-1]: line.split(": ", 1)[1] for line in out.splitlines()}
-    assert 1e199 < eval(rows["mmse_file_x"].replace("null", "None"))["x_err"] < 1e201
+    assert 1e199 < json.loads(rows["mmse_file_x"])["x_err"] < 1e201
 
 
 @pytest.mark.parametrize("a", [1e-150, 1.0, 1e150])  # a² σ² in float64
@@ -150,8 +155,6 @@ def test_a_second_stress_into_the_same_folder_needs_overwrite(tmp_path, capsys):
 
 def test_bench_runs_on_nonlinear_physics(tmp_path, capsys):
     """It called the adjoint of a linear operator (AttributeError), then the linear references."""
-    import json
-
     args = ["bench", "sine_gordon_1d", "--quick", "--set", "n=8", "--out", str(tmp_path / "b"), "-q"]
     assert main(args) == 0
     out, err = capsys.readouterr()
