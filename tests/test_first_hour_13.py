@@ -40,25 +40,19 @@ def test_classical_accept_bad_on_mismatched_units_reports_the_mismatch(tmp_path,
     assert 1e199 < json.loads(rows["mmse_file_x"])["x_err"] < 1e201
 
 
-@pytest.mark.parametrize("a", [1e-150, 1.0, 1e150])  # a² σ² in float64
-def test_the_linear_mmse_is_the_same_in_any_units(a):
-    p = pdeinv.load_problem("heat_1d", n=16, noise=0.01)
+# (units, noise, tolerance, rule): a² σ² must be a float64 for the noisy case; the noise-free solve at
+# σ = 1e-8 s_max amplifies rounding by up to 1e8, so its scaled factors agree to ~1e-8
+@pytest.mark.parametrize("a, noise, tol, rule", [
+    *[(a, 0.01, (1e-9, 1e-12), "noise") for a in (1e-150, 1.0, 1e150)],
+    *[(a, 0.0, (1e-6, 1e-8), "tiny σ = 1e-8·s_max") for a in (1e-200, 1e200)],
+])
+def test_the_linear_mmse_is_the_same_in_any_units(a, noise, tol, rule):
+    p = pdeinv.load_problem("heat_1d", n=16, noise=noise)
     x, y = p.sample(300, 0)
     ref, info = references.mmse(p, x[:200])
-    est, scaled = references.mmse(p, a * x[:200], a * a * info["sigma2"])
-    np.testing.assert_allclose(est(a * y[200:]) / a, ref(y[200:]), rtol=1e-9, atol=1e-12)
-    assert scaled["sigma2_rule"] == info["sigma2_rule"] == "noise"
-
-
-@pytest.mark.parametrize("a", [1e-200, 1e200])
-def test_the_noise_free_linear_mmse_of_fields_whose_squares_leave_float64(a):
-    p = pdeinv.load_problem("heat_1d", n=16)
-    x, y = p.sample(300, 0)
-    ref, info = references.mmse(p, x[:200])
-    est, scaled = references.mmse(p, a * x[:200])
-    # σ = 1e-8 s_max: the solve amplifies rounding by up to 1e8, so the scaled factors agree to ~1e-8
-    np.testing.assert_allclose(est(a * y[200:]) / a, ref(y[200:]), rtol=1e-6, atol=1e-8)
-    assert scaled["sigma2_rule"] == info["sigma2_rule"] == "tiny σ = 1e-8·s_max"
+    est, scaled = references.mmse(p, a * x[:200], a * a * info["sigma2"] if noise else None)
+    np.testing.assert_allclose(est(a * y[200:]) / a, ref(y[200:]), rtol=tol[0], atol=tol[1])
+    assert scaled["sigma2_rule"] == info["sigma2_rule"] == rule
 
 
 @pytest.mark.parametrize("a", [1e-300, 1e300])
