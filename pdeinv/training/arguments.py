@@ -127,6 +127,10 @@ def model(value, name: str = "model", optional: bool = True):
             raise ValueError(f"{name} has tensors on the 'meta' device (shapes only, no values); expected a "
                              "network with its weights on the cpu or a cuda device (Trainer(device=...) "
                              "moves it)")
+        low = {str(t.dtype) for t in value.parameters() if t.dtype in (torch.float16, torch.bfloat16)}
+        if low:
+            raise ValueError(f"{name} has {' and '.join(sorted(low))} parameters; expected torch.float32 or "
+                             f"torch.float64 ({name}.float() or {name}.double()), as for dtype=")
         return value
     if _is_result(value):
         raise TypeError(f"{name} is a training Result; expected its network: pass result.model")

@@ -57,7 +57,10 @@ def _numpy(a, name: str = "data") -> np.ndarray:
     if isinstance(a, torch.Tensor) and a.is_meta:
         raise ValueError(f"{name} is a tensor on the 'meta' device (shapes only, no values); expected "
                          "numbers: a numpy array or a tensor on the cpu or a cuda device")
-    return a.detach().cpu().numpy() if isinstance(a, torch.Tensor) else np.asarray(a)
+    if not isinstance(a, torch.Tensor):
+        return np.asarray(a)
+    a = a.detach().cpu()
+    return (a.float() if a.dtype == torch.bfloat16 else a).numpy()  # numpy has no bfloat16
 
 
 def _rows(a: np.ndarray, width: int, name: str) -> np.ndarray:
@@ -80,11 +83,15 @@ def rounding_level(a) -> float:
     """The relative noise level a floating dtype's rounding puts into data stored in it: its unit
     roundoff ``eps/2`` (float32: 6e-8, float16: 5e-4); 0 for float64 and wider. Information below it is
     gone, and a solve that assumes exact data amplifies it (heat_1d from a float32 file: SIP's x-error
-    17.7 against 0.02 with the same data in float64)."""
-    dtype = np.asarray(a).dtype
-    if not np.issubdtype(dtype, np.floating) or np.finfo(dtype).eps <= np.finfo(np.float64).eps:
-        return 0.0
-    return float(np.finfo(dtype).eps / 2)
+    17.7 against 0.02 with the same data in float64). ``a``: an array or a torch tensor."""
+    import torch
+
+    if isinstance(a, torch.Tensor):
+        eps = torch.finfo(a.dtype).eps if a.is_floating_point() else 0.0
+    else:
+        dtype = np.asarray(a).dtype
+        eps = float(np.finfo(dtype).eps) if np.issubdtype(dtype, np.floating) else 0.0
+    return float(eps / 2) if eps > np.finfo(np.float64).eps else 0.0
 
 
 #: an estimated relative noise level below this is read as clean data (rounding and the tail of a
@@ -430,6 +437,14 @@ def own_data(problem, data, data_x, n_test: int, n_val: int = 0, warn: bool = Tr
     ``accept_bad`` (the CLI's ``--accept-bad``)."""
     y = as_observations(data, problem.operator.n_out, "data")
     x = None if data_x is None else as_observations(data_x, problem.N, "data_x")
+    import torch
+
+    rounding = rounding_level(data) if isinstance(data, (np.ndarray, torch.Tensor)) else 0.0
+    if rounding > problem.noise and warn:  # the CLI trains with the level; a built problem keeps its own
+        warnings.warn(f"data is stored in {data.dtype}: its rounding is noise of relative level "
+                      f"{rounding:.2g}, above the problem's noise={problem.noise:g}, and is fitted as exact "
+                      f"data; build the problem with noise={rounding:.2g} or pass float64 rows",
+                      RuntimeWarning, stacklevel=3)
     if x is not None and len(x) != len(y):
         raise ValueError(f"data_x has {len(x)} rows but data has {len(y)}; expected one x per y")
     from ..problem.units import units_of
