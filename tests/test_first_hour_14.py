@@ -71,3 +71,38 @@ def test_a_user_setting_holding_an_object_trains_and_saves(tmp_path, monkeypatch
     assert main(["train", "rod.py", "--steps", "2", "--n-train", "32", "--n-test", "8", "--prior-fit", "0",
                  "--threads", "1", "-q", "--out", "run"]) == 0, capsys.readouterr().err
     assert (tmp_path / "run" / "model.pt").exists()
+
+
+@pytest.mark.parametrize("units", [1e-3, 1e3, 1e6])
+def test_classical_takes_y_only_data_in_other_units(tmp_path, capsys, units):
+    from pdeinv.cli import main
+
+    _, y = pdeinv.load_problem("heat_1d", n=16).sample(200, seed=2)
+    np.savez(tmp_path / "y.npz", y=y * units)
+    assert main(["classical", "heat_1d", "--set", "n=16", "-q", "--data", str(tmp_path / "y.npz")]) == 0, \
+        capsys.readouterr().err
+
+
+def test_classical_still_refuses_y_only_data_of_another_physics(tmp_path, capsys):
+    from pdeinv.cli import main
+
+    _, y = pdeinv.load_problem("wave_1d", n=16).sample(200, seed=2)
+    np.savez(tmp_path / "wave.npz", y=y * 1e3)
+    assert main(["classical", "heat_1d", "--set", "n=16", "-q", "--data", str(tmp_path / "wave.npz")]) == 3
+    assert "per unit of the observations'" in capsys.readouterr().err
+
+
+def test_adam_betas_of_the_wrong_length_is_a_named_value_error():
+    with pytest.raises(ValueError, match=r"pdeinv.adam\(betas=\(0.9,\)\) is not allowed"):
+        pdeinv.adam(1e-3, betas=(0.9,))
+
+
+def test_a_1d_mesh_whose_build_exceeds_the_budget_is_refused_before_building():
+    from pdeinv.util import memory
+
+    memory.set_budget(10.0)  # heat_1d at n = 2·10⁶ peaks at ~12 GB building its modal basis
+    try:
+        with pytest.raises(memory.MemoryBudgetError, match="2e\\+06 nodes"):
+            pdeinv.load_problem("heat_1d", n=2_000_000)
+    finally:
+        memory.set_budget(None)

@@ -38,8 +38,9 @@ GB = 1e9
 #: the route itself, so ``pdeinv train``'s step-time check leaves it to HIG)
 HIG_JACOBIAN_GB = 4.0
 
-#: bytes per mesh node (P1) for the mesh, matrices, factorization and modal basis, by dimension
-BYTES_PER_NODE = {1: 2_000, 2: 20_000, 3: 60_000}
+#: bytes per mesh node (P1) for the mesh, matrices, factorization and modal basis, by dimension; 1-D:
+#: the modal basis' block Krylov start peaks at ~5.9 kB a node (heat_1d n=10⁶, uncached: 6.08 GB RSS)
+BYTES_PER_NODE = {1: 8_000, 2: 20_000, 3: 60_000}
 
 #: the default budget's share of the memory available now (``MemAvailable``): the machine's free memory,
 #: less a margin for what the estimates do not count (Python, torch, the OS's caches)

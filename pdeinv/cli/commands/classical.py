@@ -272,12 +272,19 @@ def _failed(problem, rows: dict, x, y, noise: float, declared: float | None = No
     errs = {k: v["x_err"] for k, v in rows.items() if isinstance(v, dict) and v.get("x_err") is not None}
     if errs and min(errs.values()) >= WORSE_THAN_ZERO:
         return f"every classical estimate is no better than zero: x_err {min(errs.values()):.3g} at best"
-    if x is None and problem.sampler is not None:
-        ref = float(np.sqrt(np.mean(np.sum(problem.sample(len(y), 0)[0] ** 2, axis=1))))
+    if x is None and problem.sampler is not None:  # per unit of the observations' (a file in other units)
+
+        def rms(a):
+            return float(np.sqrt(np.mean(np.sum(np.asarray(a, dtype=float) ** 2, axis=1))))
+
+        x_ref, y_ref = problem.sample(len(y), 0)
+        units = rms(y) / max(rms(y_ref), 1e-300)
+        ref = rms(x_ref) * units
         worst = max((v.get("amplitude", 0.0) for v in rows.values() if isinstance(v, dict)), default=0.0)
         if worst / max(ref, 1e-300) >= AMPLITUDE:
-            return (f"the estimates reach {worst / ref:.3g}× the prior's rms amplitude: no field of this "
-                    "problem's prior explains these observations (another physics or settings?)")
+            return (f"the estimates reach {worst / ref:.3g}× the prior's rms amplitude, per unit of the "
+                    "observations': no field of this problem's prior explains these observations (another "
+                    "physics or settings?)")
     return None
 
 
