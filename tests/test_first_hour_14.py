@@ -106,3 +106,47 @@ def test_a_1d_mesh_whose_build_exceeds_the_budget_is_refused_before_building():
             pdeinv.load_problem("heat_1d", n=2_000_000)
     finally:
         memory.set_budget(None)
+
+
+def _exact_file(path):
+    x, y = pdeinv.load_problem("heat_1d", n=16).sample(200, seed=2)
+    np.savez(path, x=x, y=y)
+    return str(path)
+
+
+@pytest.mark.parametrize("command", ["train", "classical"])
+def test_a_noise_level_set_far_above_what_the_files_x_show_is_refused(tmp_path, capsys, command):
+    from pdeinv.cli import main
+
+    data = _exact_file(tmp_path / "exact.npz")
+    extra = ["--steps", "2", "--prior-fit", "0", "--n-test", "16", "--out", str(tmp_path / "r")] \
+        if command == "train" else []
+    assert main([command, "heat_1d", "--set", "n=16", "--set", "noise=0.05", "--data", data, "-q",
+                 *extra]) == 3
+    assert "--set noise=0.05 declares its noise, but its y differ from P x by 0" in capsys.readouterr().err
+
+
+def test_predict_refuses_a_file_whose_declared_noise_its_x_contradict(tmp_path, capsys):
+    from pdeinv.cli import main
+
+    assert main(["train", "heat_1d", "--set", "n=16", "--steps", "2", "--prior-fit", "0", "--n-train", "64",
+                 "--n-test", "16", "-q", "--out", str(tmp_path / "r")]) == 0
+    x, y = pdeinv.load_problem("heat_1d", n=16).sample(50, seed=3)
+    np.savez(tmp_path / "d.npz", x=x, y=y, noise=2.0)
+    assert main(["predict", str(tmp_path / "r"), "--data", str(tmp_path / "d.npz"), "-q",
+                 "--out", str(tmp_path / "p.npz")]) == 3
+    assert "has a wrong noise level: it declares noise=2" in capsys.readouterr().err
+    assert not (tmp_path / "p.npz").exists()
+
+
+def test_fresh_draws_take_batches_larger_than_the_training_rows(tmp_path, capsys):
+    from pdeinv.cli import main
+
+    p = pdeinv.load_problem("heat_1d", n=16)
+    t = pdeinv.Trainer(p, "sip", fresh=True, batch_size=128, n_train=64, steps=2, n_test=16, prior=None,
+                       calibration=None)
+    assert t.batch_size == 128
+    assert main(["train", "heat_1d", "--set", "n=16", "--steps", "2", "--prior-fit", "0", "--n-train", "64",
+                 "--n-test", "16", "--fresh-draws", "--batch-size", "128", "-q", "--accept-bad",
+                 "--out", str(tmp_path / "r")]) == 0, capsys.readouterr().err
+    assert '"draws": 256' in (tmp_path / "r" / "metrics.json").read_text()

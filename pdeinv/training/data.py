@@ -341,14 +341,15 @@ def beyond_noise(what: str, figure: float, noise: float, y=None, x=None) -> str 
 BELOW_FACTOR = 0.1
 
 
-def below_noise(figure: float, noise: float) -> str | None:
+def below_noise(figure: float, noise: float, by: str = "") -> str | None:
     """Why a model mismatch ``figure`` (:func:`model_mismatch`, the file has ``x``) contradicts a declared
     noise level ``noise``: far less than noise of that level leaves (a ``noise=1e6`` on noise-free data);
-    None where it does not."""
+    None where it does not. ``by``: who declared it (``"--set noise=0.05"``), else the file itself."""
     expected = noise / np.sqrt(1.0 + noise**2)
     if noise <= 0 or figure >= BELOW_FACTOR * expected:
         return None
-    return (f"it declares noise={noise:g}, but its y differ from P x by {figure:.3g} (mean ‖P x − y‖/‖y‖), "
+    said = f"{by} declares its noise" if by else f"it declares noise={noise:g}"
+    return (f"{said}, but its y differ from P x by {figure:.3g} (mean ‖P x − y‖/‖y‖), "
             f"below {BELOW_FACTOR:g}× the {expected:.3g} noise of that level leaves: a wrong noise level?")
 
 

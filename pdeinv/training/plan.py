@@ -252,7 +252,7 @@ def _stage_text(st: dict) -> str:
 NETS = ("default", "linear", "whitened", "reduced", "modal", "unet")
 
 
-def _checked(net, hidden, n_train, steps, batch_size, own, n_test, prior) -> tuple:
+def _checked(net, hidden, n_train, steps, batch_size, own, n_test, prior, fresh=False) -> tuple:
     """:func:`plan`'s arguments checked as :class:`~pdeinv.Trainer` checks them (the same messages), before
     anything is built: ``(hidden, steps, batch_size, prior)``, ``"preset"`` read as ``None``."""
     from numbers import Integral
@@ -280,10 +280,12 @@ def _checked(net, hidden, n_train, steps, batch_size, own, n_test, prior) -> tup
     count(n_test, "n_test")
     n_train = count(n_train, "n_train", minimum=2)  # the CLI's --n-train range: whitening
     batch_size = None if preset(batch_size) else count(batch_size, "batch_size")
-    if batch_size is not None and batch_size > n_train and own is None:
+    if fresh is True:  # each step's rows are new draws; n_train rows only fit the input scaling
+        pass
+    elif batch_size is not None and batch_size > n_train and own is None:
         raise ValueError(f"batch_size={batch_size} is larger than n_train={n_train}; expected batch_size <= "
                          f"{n_train}")
-    if batch_size is not None and batch_size > n_train:
+    elif batch_size is not None and batch_size > n_train:
         raise ValueError(f"batch_size={batch_size} (--batch-size) is larger than the {n_train} training rows "
                          f"of data (its rows less n_test={n_test} (--n-test) and the other held-out rows); "
                          f"expected at most {n_train}")
@@ -315,7 +317,8 @@ def plan(problem, rule: str = "sip", *, net: str = "default", hidden=None, prior
     from ..problem import Problem, load_problem
 
     n_test = test_count(n_test, own is not None)
-    hidden, steps, batch_size, prior = _checked(net, hidden, n_train, steps, batch_size, own, n_test, prior)
+    hidden, steps, batch_size, prior = _checked(net, hidden, n_train, steps, batch_size, own, n_test, prior,
+                                               fresh)
     if not isinstance(problem, Problem):  # a name or a module path, as Trainer takes it
         problem = load_problem(problem)
     from ..nets import NONLINEAR_KINDS

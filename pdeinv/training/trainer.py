@@ -240,7 +240,7 @@ class Trainer:
         self.batch_size = self.n_train if self.batch_size is None else count(self.batch_size, "batch_size")
         if self._batch_preset:  # gd's 32 rows on 16 training rows: all of them, not a refusal
             self.batch_size = min(self.batch_size, self.n_train)
-        if self.batch_size > self.n_train:
+        if self.batch_size > self.n_train and self.fresh is not True:  # fresh: n_train rows fit the scaling
             b, n = self.batch_size, self.n_train
             if self.data is None:
                 raise ValueError(f"batch_size={b} is larger than n_train={n}; expected batch_size <= {n}")
@@ -448,7 +448,7 @@ class Trainer:
         self.time_budget is None or positive(self.time_budget, "time_budget")
         count(self.n_test, "n_test"), count(self.eval_every, "eval_every")
         count(self.batch_size, "batch_size")
-        if count(self.n_train, "n_train", minimum=2) < self.batch_size:
+        if count(self.n_train, "n_train", minimum=2) < self.batch_size and self.fresh is not True:
             raise ValueError(f"batch_size={self.batch_size} is larger than n_train={self.n_train}; expected "
                              f"batch_size <= {self.n_train}")
 

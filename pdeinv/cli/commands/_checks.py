@@ -73,11 +73,13 @@ def check_run(problem, args, hp: dict) -> None:
     _prior_fit_applies(problem, args)
     # the trainer checks it under the API's names (a data file's rows: there, with the flags too)
     given = getattr(args, "batch_size", None) is not None  # a preset's rows per step are capped there
-    if given and not getattr(args, "data", None) and (hp["batch_size"] or 0) > n_train:
+    fresh = getattr(args, "fresh_draws", False)  # each step's rows are new draws: n_train fits the scaling
+    if given and not getattr(args, "data", None) and not fresh and (hp["batch_size"] or 0) > n_train:
         default = "" if args.n_train else " (its default)"
         raise UsageError(f"--batch-size {hp['batch_size']} is larger than --n-train {n_train}{default}; "
                          f"expected --batch-size <= {n_train}")
-    check_training(problem, n_train, args.n_test, min(hp["batch_size"] or n_train, n_train), hp["hidden"],
+    batch = (hp["batch_size"] or n_train) if fresh else min(hp["batch_size"] or n_train, n_train)
+    check_training(problem, n_train, args.n_test, batch, hp["hidden"],
                           net=getattr(args, "net", "default"), method=args.method, n_val=128,
                           prior_draws=_prior_draws(problem, args), optimizer=hp.get("optimizer") or "adam",
                           rows_per_component=hp.get("rows_per_component"))

@@ -92,7 +92,9 @@ def cmd_classical(args) -> int:
     rows = _solves(problem, y, x, noise, source, err)
     _finite(rows)
     assumed = problem.noise or declared or 0.0  # the level train and predict judge the mismatch at
-    failed = _failed(problem, rows, x, y, assumed, None if problem.noise else declared)
+    said = parse_sets(args.set).get("noise") if chosen and problem.noise and not declared else None
+    level = problem.noise if said else None if problem.noise else declared  # a level the user declared
+    failed = _failed(problem, rows, x, y, assumed, level, f"--set noise={said}" if said else "")
     _in_units(rows, c)
     for name, value in rows.items():
         print(f"{problem.name} {name}: {json.dumps(value)}")
@@ -246,7 +248,8 @@ def _finite(rows: dict) -> None:
                                      "check the data with numpy.isfinite)")
 
 
-def _failed(problem, rows: dict, x, y, noise: float, declared: float | None = None) -> str | None:
+def _failed(problem, rows: dict, x, y, noise: float, declared: float | None = None,
+            by: str = "") -> str | None:
     """Why the classical solves cannot be right, or None: with x, a model mismatch far above the noise
     level ``noise`` the problem or the file declares (beyond :func:`pdeinv.training.data.mismatch_limit`, the
     limit of ``train`` and ``predict`` too, which read no level off the file: a level estimated from the y
@@ -260,8 +263,8 @@ def _failed(problem, rows: dict, x, y, noise: float, declared: float | None = No
     from pdeinv.training.verdict import AMPLITUDE, WORSE_THAN_ZERO
 
     mismatch = rows.get("model_mismatch")
-    if mismatch is not None and declared and (why := below_noise(mismatch, declared)) is not None:
-        return f"the file's noise level: {why}"
+    if mismatch is not None and declared and (why := below_noise(mismatch, declared, by)) is not None:
+        return why if by else f"the file's noise level: {why}"
     if x is not None and (zero := zero_rows(y, x)) is not None:
         return f"in the file, {zero}: observations missing? (P x of a nonzero x is not zero); drop those rows"
     if mismatch is not None and not mismatch <= mismatch_limit(noise):

@@ -61,8 +61,8 @@ def cmd_predict(args) -> int:
     if args.seed < 0:
         raise UsageError(f"--seed {args.seed} is not allowed; expected an integer >= 0")
     y, x = read_npz(args.data, problem.operator.n_out, problem.N)
-    read_meta(args.data, problem.points)  # the file's points, if any, are the run's problem's
-    _check_data(args, problem, y, x, model)
+    declared = read_meta(args.data, problem.points).get("noise")  # its points, if any, are the run's
+    _check_data(args, problem, y, x, model, declared)
     _say_if_failed(run)  # after the checks: a refused input is one line
     xhat = predict(model, y)
     arrays = {"x": xhat} if posterior is None else \
@@ -97,19 +97,22 @@ def _say_if_failed(run: Path) -> None:
                                             f"({str(failed)[:160]}); its predictions are no better")
 
 
-def _check_data(args, problem, y, x, model) -> None:
-    """The observations against the run's physics (module docstring): :class:`BadData` beyond the limit or
-    without signal (pure noise, all zeros: the check of ``train`` and ``classical``), unless
-    ``--accept-bad``; a warning then, and where they are off by more than the run's noise level explains."""
+def _check_data(args, problem, y, x, model, declared=None) -> None:
+    """The observations against the run's physics (module docstring): :class:`BadData` beyond the limit,
+    far below the noise level the file ``declared`` (with x), or without signal (pure noise, all zeros:
+    the checks of ``train`` and ``classical``), unless ``--accept-bad``; a warning then, and where they are
+    off by more than the run's noise level explains."""
     import logging
 
-    from pdeinv.training.data import against, beyond_noise, explained, no_signal, read_noise
+    from pdeinv.training.data import against, below_noise, beyond_noise, explained, no_signal, read_noise
 
     _check_units(args, y, model)
     what, figure = against(problem, y, x, args.data)
     beyond = beyond_noise(what, figure, problem.noise, y, x)
+    low = below_noise(figure, declared) if declared and x is not None else None
     why = no_signal(read_noise(y, problem.operator), len(y)) if beyond is None else \
         f"is not of this run's physics (run {problem.name}): {beyond}"
+    why = f"has a wrong noise level: {low}" if low is not None and why is None else why
     if why is None and x is None:  # y alone: the verdict train gives such a file (pdeinv.training.verdict)
         why = _no_field(args, problem, y, model)
     if why is not None and not args.accept_bad:

@@ -85,7 +85,8 @@ def _check_values(args) -> None:
     from pdeinv.training.trainset import test_count
 
     args.n_test = test_count(args.n_test, bool(args.data))  # the default: 256 draws, 128 rows of a file
-    if args.batch_size is not None and args.n_train is not None and args.batch_size > args.n_train:
+    if args.batch_size is not None and args.n_train is not None and args.batch_size > args.n_train \
+            and not args.fresh_draws:  # fresh draws: each step's rows are new, --n-train fits the scaling
         raise UsageError(f"--batch-size {args.batch_size} is larger than --n-train {args.n_train}; expected "
                          f"--batch-size <= {args.n_train}")
     if args.data is not None and not str(args.data).strip():
@@ -414,6 +415,7 @@ def _problem_and_data(args):
     )
 
     overrides = parse_sets(args.set)
+    args.said_noise = overrides.get("noise")  # the user's level (checked against a file's x), before ours
     problem = build_problem("train", args.problem, args.set, steps=args.steps)  # says so when slow
     y, x = read_npz(args.data, problem.operator.n_out, problem.N) if args.data else (None, None)
     meta = read_meta(args.data, problem.points) if args.data else {}
@@ -457,8 +459,11 @@ def _refuse_mismatch(args, problem, y, x) -> None:
 
     what, figure = against(problem, y, x)  # one forward pass of the file's rows for both checks
     declared = read_meta(args.data, problem.points).get("noise")
+    said = getattr(args, "said_noise", None)
+    by = "" if declared or not said else f"--set noise={said}"
+    declared = declared or (problem.noise if said else None)
     why = beyond_noise(what, figure, problem.noise, y, x) or (
-        below_noise(figure, declared) if declared else None)
+        below_noise(figure, declared, by) if declared else None)
     if why is not None:
         raise BadData(f"--data {args.data!r}: {why}; --accept-bad trains on it anyway")
 
