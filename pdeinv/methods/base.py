@@ -105,7 +105,7 @@ def _checked(cls, name: str, **settings) -> OptimizerFactory:
         cls([torch.zeros(1, requires_grad=True)], **settings)
     except (ValueError, TypeError, IndexError) as err:  # IndexError: betas=(0.9,), which torch indexes
         shown = ", ".join(f"{k}={v!r}" for k, v in settings.items() if k != "lr")
-        err = err if str(err) and not isinstance(err, IndexError) else f"{type(err).__name__}: {err}"
+        err = f"{type(err).__name__}: {err}" if isinstance(err, IndexError) else err
         raise ValueError(f"pdeinv.{name}({shown}) is not allowed: {err}; expected the settings of "
                          f"torch.optim.{cls.__name__}") from None
     return partial(cls, **settings)

@@ -280,12 +280,11 @@ def _checked(net, hidden, n_train, steps, batch_size, own, n_test, prior, fresh=
     count(n_test, "n_test")
     n_train = count(n_train, "n_train", minimum=2)  # the CLI's --n-train range: whitening
     batch_size = None if preset(batch_size) else count(batch_size, "batch_size")
-    if fresh is True:  # each step's rows are new draws; n_train rows only fit the input scaling
-        pass
-    elif batch_size is not None and batch_size > n_train and own is None:
+    big = batch_size is not None and batch_size > n_train and fresh is not True  # fresh: new rows each step
+    if big and own is None:
         raise ValueError(f"batch_size={batch_size} is larger than n_train={n_train}; expected batch_size <= "
                          f"{n_train}")
-    elif batch_size is not None and batch_size > n_train:
+    if big:
         raise ValueError(f"batch_size={batch_size} (--batch-size) is larger than the {n_train} training rows "
                          f"of data (its rows less n_test={n_test} (--n-test) and the other held-out rows); "
                          f"expected at most {n_train}")
