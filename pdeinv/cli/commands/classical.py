@@ -92,9 +92,7 @@ def cmd_classical(args) -> int:
     rows = _solves(problem, y, x, noise, source, err)
     _finite(rows)
     assumed = problem.noise or declared or 0.0  # the level train and predict judge the mismatch at
-    said = parse_sets(args.set).get("noise") if chosen and problem.noise and not declared else None
-    level = problem.noise if said else None if problem.noise else declared  # a level the user declared
-    failed = _failed(problem, rows, x, y, assumed, level, f"--set noise={said}" if said else "")
+    failed = _failed(problem, rows, x, y, assumed, *_declared(args, problem, declared))
     _in_units(rows, c)
     for name, value in rows.items():
         print(f"{problem.name} {name}: {json.dumps(value)}")
@@ -246,6 +244,15 @@ def _finite(rows: dict) -> None:
                 what = f"{name} {key}".strip()
                 raise NumericalError(f"the {what} is {v}: that solve failed on this file (non-finite rows? "
                                      "check the data with numpy.isfinite)")
+
+
+def _declared(args, problem, declared) -> tuple[float | None, str]:
+    """``(level, by)``: the noise level the user declared, the file's or ``--set noise=…`` (``by`` names
+    the flag), which the file's x are checked against; ``(None, "")`` for none."""
+    said = parse_sets(args.set).get("noise") if problem.noise and not declared else None
+    if said:
+        return problem.noise, f"--set noise={said}"
+    return (None if problem.noise else declared), ""
 
 
 def _failed(problem, rows: dict, x, y, noise: float, declared: float | None = None,
