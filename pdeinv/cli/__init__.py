@@ -19,6 +19,7 @@ import argparse
 import importlib
 import os
 import pkgutil
+import re
 import sys
 
 from ..errors import numerical_types
@@ -255,9 +256,25 @@ def _thread_failed(args, hook_args) -> None:
           + (f": {text}" if text else "") + " (-v shows the traceback)", file=sys.stderr)
 
 
+#: a negative number with an exponent, which argparse takes for an option (it knows ``-1`` and ``-0.5`` only)
+_NEGATIVE_EXP = re.compile(r"-(\d+\.?\d*|\.\d+)[eE][-+]?\d+")
+
+
+def _joined(argv: list[str]) -> list[str]:
+    """``--lr -1e-3`` as ``--lr=-1e-3``, so the option's own check names the value."""
+    out: list[str] = []
+    for token in argv:
+        if (out and _NEGATIVE_EXP.fullmatch(token) and out[-1].startswith("--") and "=" not in out[-1]
+                and out[-1] != "--"):
+            out[-1] = f"{out[-1]}={token}"
+        else:
+            out.append(token)
+    return out
+
+
 def _main(argv=None) -> int:
     parser = build_parser()
-    args, extra = parser.parse_known_args(argv)
+    args, extra = parser.parse_known_args(_joined(sys.argv[1:] if argv is None else list(argv)))
     if extra:  # the subcommand's parser says it, so the message names `pdeinv train --help`
         parser.commands[args.command].error(f"unrecognized arguments: {' '.join(extra)}")
     import threading

@@ -139,16 +139,20 @@ class TrueFields:
         x = np.asarray(x, dtype=float)
         if len(x) != len(y):
             raise ValueError(f"TrueFields: {len(x)} fields for {len(y)} observations")
-        return _Fields(x)
+        return _Fields(x, np.asarray(y))
 
 
 class _Fields:
-    """A fitted :class:`TrueFields`: the training rows' ``x`` whatever ``y`` (rows aligned)."""
+    """A fitted :class:`TrueFields`: the training rows' ``x``, for those rows only."""
 
-    def __init__(self, x: np.ndarray):
-        self.x, self.info = x, {"name": "true_fields", "rows": len(x)}
+    def __init__(self, x: np.ndarray, y: np.ndarray):
+        self.x, self.y, self.info = x, y, {"name": "true_fields", "rows": len(x)}
 
     def __call__(self, y) -> np.ndarray:
+        if y is not self.y and not np.array_equal(np.asarray(y), self.y):  # fresh draws: x unknown
+            raise ValueError("target TrueFields (supervised training) knows the x of the training rows "
+                             "only, and fresh=True (--fresh-draws) trains on new observations whose x no "
+                             "loss sees: drop fresh draws, or use a physics-based rule (sip, adam, gd, hig)")
         return self.x
 
 

@@ -82,6 +82,16 @@ class Matrix(LinearOperator):
     """A dense or sparse matrix as an operator (tests and small references)."""
 
     def __init__(self, A):
+        import scipy.sparse as sp
+
+        A = A if sp.issparse(A) else np.asarray(A)
+        values = A.data if sp.issparse(A) else A
+        if A.ndim != 2 or not np.issubdtype(values.dtype, np.number):
+            raise ValueError(f"Matrix(A): A is {A.ndim}-D of {values.dtype}; expected a 2-D matrix of "
+                             "numbers")
+        if not np.isfinite(values).all():
+            bad = int((~np.isfinite(values)).sum())
+            raise ValueError(f"Matrix(A): A has {bad} NaN/Inf entries; expected finite numbers")
         self.A = A
         self.n_out, self.n_in = A.shape
 

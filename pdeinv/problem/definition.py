@@ -57,6 +57,8 @@ class Problem:
     model_factory: Callable | None = None
 
     def __post_init__(self):
+        if not isinstance(self.name, str) or not self.name.strip():  # runs, files and messages name it
+            raise ValueError(f"Problem(name={self.name!r}) is not allowed; expected a non-empty string")
         if not isinstance(self.operator, Physics):
             raise TypeError(f"operator={type(self.operator).__name__} is not allowed; expected a "
                             "pdeinv.physics.LinearOperator (e.g. pdeinv.physics.Matrix(A) or Heat(...)) or "
@@ -91,14 +93,19 @@ class Problem:
         check(8 * n * (self.N + self.operator.n_out), f"problem {self.name!r}: sample(n={n}) (x ({n}, "
               f"{self.N}) and y ({n}, {self.operator.n_out}) in float64)", "draw fewer rows, in chunks")
         x = self.draws(n, rng)
-        return x, add_noise(self.operator.forward(x), self.noise, rng)
+        y = self.operator.forward(x)
+        if not np.isfinite(y).all():  # finite fields in, so the physics made them
+            raise ValueError(f"problem {self.name!r}: its operator returned {int((~np.isfinite(y)).sum())} "
+                             f"NaN/Inf observations of finite fields; expected finite P x (check its physics "
+                             "and settings)")
+        return x, add_noise(y, self.noise, rng)
 
     def draws(self, n: int, rng: np.random.Generator) -> np.ndarray:
         """``n`` fields from the sampler, checked: shape ``(n, N)``, finite (a ``ValueError`` naming the
         problem otherwise)."""
         try:
             x = self.sampler(n, rng)
-        except Exception as err:  # a user's sampler: one line, its file and line; pdeinv's own errors stand
+        except (Exception, SystemExit) as err:  # a user's sampler: one line, file and line; pdeinv's stand
             raise _sampler_failure(self.name, err) or _signature(self.name, self.sampler, err) or err
         x = _as_array(self.name, x, (n, self.N))
         shape = np.shape(x)
@@ -236,7 +243,7 @@ def _signature(name: str, sampler, err: Exception) -> ValueError | None:
                       f"{first_line(err)}; expected a function of the draw count and a numpy Generator")
 
 
-def _sampler_failure(name: str, err: Exception) -> ValueError | None:
+def _sampler_failure(name: str, err: BaseException) -> ValueError | None:
     """``err`` raised in a user's sampler (its innermost frame outside pdeinv) as one line naming the
     sampler's file and line, or None (pdeinv's own error, whose message stands)."""
     import traceback
@@ -248,8 +255,10 @@ def _sampler_failure(name: str, err: Exception) -> ValueError | None:
     mine = [f for f in frames if not Path(f.filename).resolve().is_relative_to(package)]
     where = f"{mine[-1].filename}, line {mine[-1].lineno}, in {mine[-1].name}"
     text = first_line(err)
-    error = ValueError(f"{where}: {type(err).__name__}" + (f": {text}" if text else "")
-                       + f" (the sampler of problem {name!r})")
+    what = f"{type(err).__name__}" + (f": {text}" if text else "")
+    if isinstance(err, SystemExit):
+        what = f"called sys.exit({err.code!r}); expected the sampler to return the fields"
+    error = ValueError(f"{where}: {what} (the sampler of problem {name!r})")
     error.__cause__ = err
     return error
 
@@ -328,10 +337,15 @@ def import_module(path: Path):
     return module
 
 
+#: the modules whose change of numpy's error handling was undone and said (once per module)
+_RESTORED: set = set()
+
+
 def _run_module(path: Path, overrides: dict, where: str) -> Problem:
     """Import the module at ``path`` and call its ``make(**overrides)``. A user's module that fails is a
     :class:`ProblemModuleError` in one line; a built-in's failure keeps its own exception (a bug)."""
     builtin = path.parent == builtin_dir().resolve()
+    numerics = np.geterr()
     try:
         module = import_module(path)
         make = getattr(module, "make", None)
@@ -345,6 +359,16 @@ def _run_module(path: Path, overrides: dict, where: str) -> Problem:
                 isinstance(err, Exception) and _pdeinvs_own(path, err)):
             raise
         raise _failure(path, err, where) from err
+    finally:
+        changed = np.geterr() != numerics
+        np.seterr(**numerics)
+    if changed and path not in _RESTORED:  # np.seterr(all="raise") made the solvers' underflows errors
+        import warnings
+
+        _RESTORED.add(path)
+        warnings.warn(f"problem module {where} changed numpy's floating-point error handling "
+                      "(np.seterr); pdeinv restored it: its solvers rely on numpy's defaults",
+                      RuntimeWarning, stacklevel=3)
     if not isinstance(problem, Problem):
         if inspect.iscoroutine(problem) or inspect.isgenerator(problem):  # never run: no "never awaited"
             problem.close()

@@ -22,7 +22,8 @@ FLOAT_MAX = 1e150
 def _in_range(value, name, text):
     """``value`` unless an integer beyond :data:`INT_MAX` or a real beyond :data:`FLOAT_MAX` in
     magnitude, or a nonzero real below ``1 / FLOAT_MAX`` (``kappa=1e-320`` overflowed to a traceback
-    where the physics divides by it); NaN and Inf are left to the rule's own check, which names them."""
+    where the physics divides by it; ``1e-400``, read as 0, too); NaN and Inf are left to the rule's own
+    check, which names them."""
     if isinstance(value, bool):
         return value
     if isinstance(value, int) and abs(value) > INT_MAX:
@@ -30,7 +31,9 @@ def _in_range(value, name, text):
     if isinstance(value, float) and math.isfinite(value) and abs(value) > FLOAT_MAX:
         raise ValueError(f"{name}={text!r} is out of range; expected a number of magnitude at most "
                          f"{FLOAT_MAX:g}")
-    if isinstance(value, float) and 0 < abs(value) < 1 / FLOAT_MAX:
+    underflow = value == 0 and isinstance(text, str) and any(c in "123456789" for c in
+                                                             text.lower().partition("e")[0])  # 1e-400
+    if isinstance(value, float) and (0 < abs(value) < 1 / FLOAT_MAX or underflow):
         raise ValueError(f"{name}={text!r} is out of range; expected a magnitude of at least "
                          f"{1 / FLOAT_MAX:g} (or 0, where {name} may be 0)")
     return value

@@ -39,16 +39,42 @@ import numpy as np
 def as_observations(data, m: int, name: str = "data") -> np.ndarray:
     """``data`` (numpy array, torch tensor or torch ``Dataset``) as a float64 ``(B, m)`` array.
 
-    A Dataset item is one observation ``(m,)``, or a tuple whose first element is one
-    (``TensorDataset(y)``; further elements are ignored).
+    A Dataset item is one observation ``(m,)``, a tuple ``(y,)`` (``TensorDataset(y)``) or a pair
+    ``(y, x)`` (``TensorDataset(y, x)``; its ``x``: :func:`paired_fields`).
     """
     from torch.utils.data import Dataset
 
     if isinstance(data, Dataset):
-        items = [data[i] for i in range(len(data))]
-        items = [item[0] if isinstance(item, (tuple, list)) else item for item in items]
+        items = [item[0] for item in _items(data, name)]
         data = np.stack([_numpy(item, name) for item in items]) if items else np.zeros((0, m))
     return _rows(_numpy(data, name), m, name)
+
+
+def paired_fields(data, name: str = "data"):
+    """The fields ``x`` of a Dataset of ``(y, x)`` pairs as an array (None for anything else)."""
+    from torch.utils.data import Dataset
+
+    items = _items(data, name) if isinstance(data, Dataset) else []
+    if not items or len(items[0]) < 2:
+        return None
+    return np.stack([_numpy(item[1], name) for item in items])
+
+
+def _items(data, name: str) -> list[tuple]:
+    """A Dataset's items, each as ``(y,)`` or ``(y, x)``, all of one kind."""
+    items = [_item(data[i], name) for i in range(len(data))]
+    if len({len(item) for item in items}) > 1:
+        raise ValueError(f"{name}: a Dataset mixes items (y,) and pairs (y, x); expected one kind")
+    return items
+
+
+def _item(item, name: str) -> tuple:
+    """A Dataset item as ``(y,)`` or ``(y, x)``."""
+    item = tuple(item) if isinstance(item, (tuple, list)) else (item,)
+    if not 1 <= len(item) <= 2:
+        raise ValueError(f"{name}: a Dataset item has {len(item)} elements; expected one observation y, "
+                         "(y,) or a pair (y, x)")
+    return item
 
 
 def _numpy(a, name: str = "data") -> np.ndarray:
@@ -218,6 +244,13 @@ def _arrays(path, keys) -> dict:
     if not isinstance(f, np.lib.npyio.NpzFile):
         raise ValueError(f"{where} is not an .npz archive (a single .npy array); expected np.savez(file, "
                          "y=y[, x=x])")
+    from collections import Counter
+
+    twice = sorted(n for n, k in Counter(f.zip.namelist()).items() if k > 1)
+    if twice:  # numpy would read the last one silently
+        f.close()
+        raise ValueError(f"{where} holds {', '.join(twice)} more than once; expected one member per array "
+                         "(np.savez(file, y=y[, x=x]))")
     out = {}
     with f:
         for k in (k for k in f.files if k in keys):
@@ -245,8 +278,9 @@ def read_meta(path, points) -> dict:
     if "noise" in meta:
         v = meta["noise"]
         if v.size != 1 or not np.issubdtype(v.dtype, np.number) or not np.isfinite(v).all() or float(v) < 0:
-            raise ValueError(f"{where}: noise={v.tolist()!r} is not allowed; expected one number >= 0 "
-                             "(the relative noise level, as --set noise=)")
+            said = f"noise={v.tolist()!r}" if v.size == 1 else f"noise of shape {v.shape} ({v.size} values)"
+            raise ValueError(f"{where}: {said} is not allowed; expected one number >= 0 (the relative noise "
+                             "level, as --set noise=)")
         from ..problem.settings import _in_range
 
         out["noise"] = _in_range(float(v), f"{where}: noise", f"{float(v):g}")  # --set noise='s range
@@ -436,6 +470,10 @@ def own_data(problem, data, data_x, n_test: int, n_val: int = 0, warn: bool = Tr
     (``own_rows``) before the rules and the prior stage see any. A mismatch beyond what the noise explains
     (:func:`beyond_noise`, the limit ``pdeinv train --data`` refuses with exit 3) is a ``ValueError`` unless
     ``accept_bad`` (the CLI's ``--accept-bad``)."""
+    paired = paired_fields(data)
+    if paired is not None and data_x is not None:
+        raise ValueError("data= is a Dataset of (y, x) pairs and data_x= was given too; give the fields once")
+    data_x = paired if paired is not None else data_x
     y = as_observations(data, problem.operator.n_out, "data")
     x = None if data_x is None else as_observations(data_x, problem.N, "data_x")
     import torch

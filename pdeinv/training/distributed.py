@@ -255,9 +255,13 @@ def world_size_from_env() -> int:
     """``WORLD_SIZE`` as torchrun sets it (1 without torchrun)."""
     raw = os.environ.get("WORLD_SIZE", "1")
     try:
-        return int(raw)
+        world = int(raw)
     except ValueError:
         raise ValueError(f"WORLD_SIZE={raw!r} is not an integer; launch with torchrun") from None
+    if world < 1:  # torchrun sets at least 1
+        raise ValueError(f"WORLD_SIZE={raw!r} is not a number of processes; expected an integer >= 1 "
+                         "(torchrun sets it), or unset it for one process")
+    return world
 
 
 def rank_from_env() -> int:

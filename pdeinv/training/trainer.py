@@ -208,6 +208,7 @@ class Trainer:
     _rule: object = field(default=None, init=False, repr=False)
     _preset: dict = field(default_factory=dict, init=False, repr=False)
     _batch_preset: bool = field(default=False, init=False, repr=False)  # batch_size was the preset's
+    _given: tuple = field(default=(None, None), init=False, repr=False)  # data, data_x as constructed
     #: seconds of each set-up phase of the last :meth:`fit` (``metrics["setup"]``): network (when built
     #: here), samples (training and test draws), fit (input transform and target), rule (its state and
     #: calibration), stop (the stopping rule's held-out draws)
@@ -221,6 +222,7 @@ class Trainer:
         self.steps = None if self.steps is None else count(self.steps, "steps")
         self.time_budget is None or positive(self.time_budget, "time_budget")
         self.n_test = count(test_count(self.n_test, self.data is not None), "n_test")
+        self._given = (self.data, self.data_x)
         if self.data is None and self.data_x is not None:  # it was ignored: the run trained on prior draws
             raise ValueError("data_x= was given without data=: data_x holds the true fields of the rows of "
                              "data= (for the errors only); pass the observations as data= too, or drop it")
@@ -448,6 +450,9 @@ class Trainer:
         self.time_budget is None or positive(self.time_budget, "time_budget")
         count(self.n_test, "n_test"), count(self.eval_every, "eval_every")
         count(self.batch_size, "batch_size")
+        if self.data is not self._given[0] or self.data_x is not self._given[1]:  # checked and split once
+            raise ValueError("data= or data_x= was set after construction (trainer.data = …): own data is "
+                             "checked and split when the Trainer is built; pass it as Trainer(..., data=)")
         if count(self.n_train, "n_train", minimum=2) < self.batch_size and self.fresh is not True:
             raise ValueError(f"batch_size={self.batch_size} is larger than n_train={self.n_train}; expected "
                              f"batch_size <= {self.n_train}")

@@ -166,7 +166,11 @@ def _creatable(folder: Path, flag: str, named: str) -> None:
 
 def _not_an_input(target: Path, named: str, flag: str, inputs: Iterable) -> None:
     for name, p in inputs:
-        if p and _text(p).strip() and resolve(p) == target:
+        try:
+            same = bool(p and _text(p).strip()) and resolve(p, name) == target
+        except OutputPathError:  # a dangling link, a loop: no file the output could be; its reader says so
+            same = False
+        if same:
             raise OutputPathError(f"{named} is the same file as {name}: writing it would "
                                   f"destroy that input; choose another {flag}")
 

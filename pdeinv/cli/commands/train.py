@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import errno
 import json
 import logging
 import re
@@ -395,16 +396,23 @@ def _parallel_train(args, out, ckpt, device, parallel) -> int:
     except FileNotFoundError:  # e.g. --resume without a checkpoint: bad input (exit 2)
         raise
     except OSError as err:  # a full disk, no permission: not the input's fault, not numerical
-        where = f" ({err.filename})" if err.filename else ""
-        again = "; free space and continue with --resume" if (out / "checkpoint.pt").exists() else ""
-        print(f"pdeinv train: cannot write: {err.strerror or err}{where}{again}", file=sys.stderr)
-        return 1
+        return _cannot_write(err, out)
+
+
+def _cannot_write(err: OSError, out: Path) -> int:
+    """A write that failed, in one line: the reason, the file, and what resumes it (exit 1)."""
+    where = f" ({err.filename})" if err.filename else ""
+    fix = "free space" if err.errno in (errno.ENOSPC, errno.EDQUOT) else "fix it"
+    again = f"; {fix} and continue with --resume" if (out / "checkpoint.pt").exists() else ""
+    print(f"pdeinv train: cannot write: {err.strerror or err}{where}{again}", file=sys.stderr)
+    return 1
 
 
 def _problem_and_data(args):
     """``(problem, overrides, y, x)``: the problem built with the noise level the data declares or
     shows (``args.set`` gets it, so run.json and ``--resume`` see the level trained with) and the data
     file's rows (``None`` without ``--data``)."""
+    from pdeinv.problem.units import units_of
     from pdeinv.training.data import (
         no_signal,
         npz_rounding_level,
@@ -418,6 +426,8 @@ def _problem_and_data(args):
     args.said_noise = overrides.get("noise")  # the user's level (checked against a file's x), before ours
     problem = build_problem("train", args.problem, args.set, steps=args.steps)  # says so when slow
     y, x = read_npz(args.data, problem.operator.n_out, problem.N) if args.data else (None, None)
+    if args.data:  # nonlinear physics: data in its own units, before any check runs the physics on them
+        units_of(y, problem.operator, f"--data {args.data!r}")
     meta = read_meta(args.data, problem.points) if args.data else {}
     if "noise" in meta and "noise" in overrides and float(overrides["noise"]) != meta["noise"]:
         raise UsageError(f"--set noise={overrides['noise']} conflicts with the noise={meta['noise']:g} the "

@@ -1,0 +1,206 @@
+"""Bad and odd inputs of the fourteenth round (issue 48) that ended with exit 0 or a poor message: own data
+set after the trainer was built, a Dataset of (y, x) pairs, supervised training on fresh draws, an
+operator with NaN, a problem without a name, an archive holding one array twice, a WORLD_SIZE below one.
+Each failed on the code before."""
+
+from __future__ import annotations
+
+import io
+import zipfile
+
+import numpy as np
+import pytest
+import torch
+from torch.utils.data import TensorDataset
+
+import pdeinv
+from pdeinv.cli import main
+
+KW = dict(steps=2, n_test=16, prior=None, calibration=None)
+
+
+@pytest.fixture(scope="module")
+def rod():
+    p = pdeinv.load_problem("heat_1d", n=16)
+    return p, *p.sample(80, seed=0)
+
+
+def test_data_set_after_construction_is_refused_as_fit_starts(rod):
+    p, _, y = rod
+    t = pdeinv.Trainer(p, "sip", n_train=64, **KW)
+    t.data = y
+    with pytest.raises(ValueError, match=r"data= or data_x= was set after construction"):
+        t.fit()
+
+
+def test_a_dataset_of_pairs_gives_its_x_to_the_errors(rod):
+    p, x, y = rod
+    r = pdeinv.Trainer(p, "sip", data=TensorDataset(torch.tensor(y), torch.tensor(x)), **KW).fit()
+    same = pdeinv.Trainer(p, "sip", data=y, data_x=x, **KW).fit()
+    assert r.metrics["data"]["x"] is True and r.metrics["x_err"] == pytest.approx(same.metrics["x_err"])
+
+
+def test_a_dataset_of_pairs_and_data_x_too_is_refused(rod):
+    p, x, y = rod
+    with pytest.raises(ValueError, match=r"give the fields once"):
+        pdeinv.Trainer(p, "sip", data=TensorDataset(torch.tensor(y), torch.tensor(x)), data_x=x, **KW)
+    with pytest.raises(ValueError, match=r"a Dataset item has 3 elements"):
+        t = torch.tensor(y)
+        pdeinv.Trainer(p, "sip", data=TensorDataset(t, t, t), **KW)
+
+
+def test_supervised_training_on_fresh_draws_is_refused_before_a_step(rod):
+    p, _, _ = rod
+    with pytest.raises(ValueError, match=r"knows the x of the training rows only"):
+        pdeinv.train(p, "supervised", fresh=True, n_train=64, **KW)
+
+
+def test_cli_supervised_with_fresh_draws_exits_2_naming_fresh_draws(tmp_path, capsys):
+    code = main(["train", "heat_1d", "--set", "n=16", "--steps", "2", "--prior-fit", "0", "--n-train", "64",
+                 "--n-test", "16", "-q", "--method", "supervised", "--fresh-draws",
+                 "--out", str(tmp_path / "r")])
+    assert code == 2 and "--fresh-draws" in capsys.readouterr().err
+
+
+def test_a_matrix_with_nan_is_refused_where_it_is_built():
+    a = np.eye(4)
+    a[0, 0] = np.nan
+    with pytest.raises(ValueError, match=r"Matrix\(A\): A has 1 NaN/Inf entries"):
+        pdeinv.physics.Matrix(a)
+
+
+def test_an_operator_that_returns_nan_is_named_not_the_sampler(rod):
+    import dataclasses
+
+    class Broken(pdeinv.physics.Matrix):
+        def _forward(self, X):
+            return np.full((len(X), self.n_out), np.nan)
+
+    p = dataclasses.replace(rod[0], operator=Broken(np.eye(rod[0].N)), inverse_simulator=None)
+    with pytest.raises(ValueError, match=r"its operator returned .* NaN/Inf observations of finite fields"):
+        p.sample(4)
+
+
+def test_cli_demo_of_a_module_with_a_nan_operator_exits_2(tmp_path, capsys):
+    (tmp_path / "nan_op.py").write_text(
+        "import dataclasses\nimport numpy as np\nimport pdeinv\n\n"
+        "def make(**kw):\n    p = pdeinv.load_problem('heat_1d', n=16, **kw)\n"
+        "    a = np.eye(p.N)\n    a[0, 0] = np.nan\n"
+        "    return dataclasses.replace(p, operator=pdeinv.physics.Matrix(a), inverse_simulator=None)\n")
+    assert main(["demo", str(tmp_path / "nan_op.py"), "--batch", "2"]) == 2
+    assert "NaN/Inf entries" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("name", [None, "", "  ", 3])
+def test_a_problem_without_a_name_is_refused(rod, name):
+    import dataclasses
+
+    with pytest.raises(ValueError, match=r"expected a non-empty string"):
+        dataclasses.replace(rod[0], name=name)
+
+
+@pytest.mark.parametrize("command", ["train", "predict"])
+def test_an_archive_holding_y_twice_is_refused(tmp_path, capsys, rod, command):
+    _, _, y = rod
+    with zipfile.ZipFile(tmp_path / "dup.npz", "w") as z, pytest.warns(UserWarning, match="Duplicate name"):
+        for scale in (1.0, 1e6):
+            b = io.BytesIO()
+            np.save(b, y * scale)
+            z.writestr("y.npy", b.getvalue())
+    if command == "train":
+        args = ["train", "heat_1d", "--set", "n=16", "--steps", "2", "--prior-fit", "0", "--n-test", "16"]
+    else:
+        assert main(["train", "heat_1d", "--set", "n=16", "--steps", "2", "--prior-fit", "0",
+                     "--n-train", "64", "--n-test", "16", "-q", "--out", str(tmp_path / "r")]) == 0
+        args = ["predict", str(tmp_path / "r")]
+    code = main([*args, "-q", "--data", str(tmp_path / "dup.npz"), "--out", str(tmp_path / "o.npz")])
+    assert code == 2 and "holds y.npy more than once" in capsys.readouterr().err
+    assert not (tmp_path / "o.npz").exists()
+
+
+@pytest.mark.parametrize("world", ["0", "-1"])
+def test_a_world_size_below_one_is_refused(monkeypatch, world):
+    from pdeinv.training.distributed import world_size_from_env
+
+    monkeypatch.setenv("WORLD_SIZE", world)
+    with pytest.raises(ValueError, match=rf"WORLD_SIZE='{world}' is not a number of processes"):
+        world_size_from_env()
+
+
+def test_a_noise_array_is_refused_in_one_short_line(tmp_path, capsys, rod):
+    _, x, y = rod
+    np.savez(tmp_path / "rows.npz", y=y, x=x, noise=np.full(len(y), 0.01))
+    assert main(["train", "heat_1d", "--set", "n=16", "--steps", "2", "--prior-fit", "0", "--n-test", "16",
+                 "-q", "--data", str(tmp_path / "rows.npz"), "--out", str(tmp_path / "r")]) == 2
+    err = capsys.readouterr().err
+    assert f"noise of shape ({len(y)},) ({len(y)} values) is not allowed" in err and len(err) < 400, err
+
+
+def test_a_dangling_link_given_as_data_is_called_a_missing_data_file(tmp_path, capsys, rod):
+    (tmp_path / "dl.npz").symlink_to(tmp_path / "missing.npz")
+    assert main(["train", "heat_1d", "--set", "n=16", "--steps", "2", "--prior-fit", "0", "--n-train", "64",
+                 "--n-test", "16", "-q", "--out", str(tmp_path / "r")]) == 0
+    assert main(["predict", str(tmp_path / "r"), "-q", "--data", str(tmp_path / "dl.npz"),
+                 "--out", str(tmp_path / "p.npz")]) == 2
+    err = capsys.readouterr().err
+    assert "data file" in err and "does not exist" in err and "another out" not in err, err
+
+
+def test_nonlinear_data_in_other_units_is_refused_before_the_physics_runs(tmp_path, capsys):
+    x, y = pdeinv.load_problem("allen_cahn_1d", n=16).sample(40, seed=0)
+    np.savez(tmp_path / "big.npz", y=y * 1e100, x=x * 1e100)
+    assert main(["train", "allen_cahn_1d", "--set", "n=16", "--steps", "2", "--prior-fit", "0", "--n-test",
+                 "16", "-q", "--data", str(tmp_path / "big.npz"), "--out", str(tmp_path / "r")]) == 2
+    assert "physics is nonlinear, so its data must be in the problem's own units" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("flag, said", [("--lr", "--lr -0.001 is not allowed"),
+                                        ("--tau", "--tau -0.001 is not allowed")])
+def test_a_negative_number_with_an_exponent_reaches_the_options_check(tmp_path, capsys, flag, said):
+    assert main(["train", "heat_1d", "--set", "n=16", "--method", "hig", flag, "-1e-3", "--explain"]) == 2
+    assert said in capsys.readouterr().err
+
+
+def test_a_setting_that_underflows_to_zero_says_so(capsys):
+    assert main(["train", "heat_1d", "--set", "kappa=1e-400", "--explain"]) == 2
+    assert "kappa='1e-400' is out of range" in capsys.readouterr().err
+
+
+def _module(tmp_path, name, body):
+    head = "import dataclasses, sys\nimport numpy as np\nimport pdeinv\n\n"
+    (tmp_path / f"{name}.py").write_text(head + body)
+    return str(tmp_path / f"{name}.py")
+
+
+def test_a_module_that_changes_numpys_error_handling_is_restored_and_trains(tmp_path, capsys):
+    path = _module(tmp_path, "strict", "np.seterr(all='raise')\n\n"
+                   "def make(**kw):\n    return pdeinv.load_problem('heat_1d', n=16, **kw)\n")
+    before = np.geterr()
+    assert main(["train", path, "--steps", "2", "--prior-fit", "0", "--n-train", "64", "--n-test", "16",
+                 "-q", "--out", str(tmp_path / "r")]) == 0, capsys.readouterr().err
+    assert np.geterr() == before and capsys.readouterr().err.count("np.seterr") == 1
+
+
+def test_a_sampler_that_calls_sys_exit_is_named(tmp_path, capsys):
+    path = _module(tmp_path, "quits", "def make(**kw):\n"
+                   "    p = pdeinv.load_problem('heat_1d', n=16, **kw)\n"
+                   "    return dataclasses.replace(p, sampler=lambda n, rng: sys.exit(4))\n")
+    assert main(["train", path, "--steps", "2", "--prior-fit", "0", "--n-train", "64", "--n-test", "16",
+                 "-q", "--out", str(tmp_path / "r")]) == 2
+    assert "called sys.exit(4); expected the sampler to return the fields" in capsys.readouterr().err
+
+
+def test_a_write_refused_by_permissions_is_not_called_a_full_disk(tmp_path, capsys, monkeypatch):
+    import errno
+
+    from pdeinv.cli.commands import train as command
+
+    def refused(*a, **k):
+        (tmp_path / "r" / "checkpoint.pt").write_bytes(b"")
+        raise PermissionError(errno.EPERM, "Operation not permitted", str(tmp_path / "r" / "metrics.json"))
+
+    monkeypatch.setattr(command, "_run", refused)
+    assert main(["train", "heat_1d", "--set", "n=16", "--steps", "2", "--prior-fit", "0", "--n-train", "64",
+                 "--n-test", "16", "-q", "--out", str(tmp_path / "r")]) == 1
+    err = capsys.readouterr().err
+    assert "Operation not permitted" in err and "free space" not in err and "fix it and continue" in err
