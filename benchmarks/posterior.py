@@ -8,6 +8,8 @@ calibration stage), then, on ``--check`` fresh prior draws no stage saw (their o
 
 * the run's posterior: per-node coverage at 50/90/95 %, the 90 % L²(Ω) ball's coverage, SBC p-values,
   the mean 90 % interval width (:func:`pdeinv.posterior.diagnostics.report`);
+* the seconds of :func:`pdeinv.posterior.predictive` (mean, std, 90 % interval) for 128 of them, the
+  first call and the best of three;
 * the linear-Gaussian reference, for linear physics (:func:`pdeinv.training.references.gaussian_posterior`,
   as ``pdeinv classical`` reports it): prior mean and covariance from ``--draws`` draws, the noise as
   one Gaussian (noise-free: a 1e-10 floor), the exact low-rank posterior. Printed: the median over
@@ -56,7 +58,7 @@ def main(argv=None) -> dict:
     import pdeinv
     from pdeinv.physics.nonlinear import is_linear
     from pdeinv.posterior.diagnostics import report
-    from pdeinv.posterior.predictive import forward
+    from pdeinv.posterior.predictive import forward, predictive
 
     overrides = dict(kv.split("=", 1) for kv in args.set)
     problem = pdeinv.load_problem(args.problem, **overrides)
@@ -68,10 +70,18 @@ def main(argv=None) -> dict:
     cal_stage = result.metrics["stages"][-1]
     x, y = problem.sample(args.check, seed=args.seed + 2000)
     mean = forward(result.model, y)
+    rows = y[:128]
+    seconds = []
+    for _ in range(3):  # the first call, then two more: mean, std and 90 % interval of 128 observations
+        t0 = time.perf_counter()
+        predictive(result.model, result.posterior, rows)
+        seconds.append(time.perf_counter() - t0)
     mass = problem.disc.M
     row = {"problem": args.problem, "settings": overrides, "method": args.method, "seed": args.seed,
            "x_err": float(np.mean(problem.relative_error(mean, x))), "train_s": round(wall, 1),
            "calibration_s": round(cal_stage["seconds"], 2),
+           "predict_128_s": {"first": round(seconds[0], 3), "best": round(min(seconds), 3)},
+           "parameters": sum(q.numel() for q in result.model.parameters()),
            "check": report(result.posterior, mean, x, mass, seed=args.seed)}
     if is_linear(problem.operator):
         from pdeinv.training.references import gaussian_posterior

@@ -204,3 +204,20 @@ def test_a_write_refused_by_permissions_is_not_called_a_full_disk(tmp_path, caps
                  "--n-test", "16", "-q", "--out", str(tmp_path / "r")]) == 1
     err = capsys.readouterr().err
     assert "Operation not permitted" in err and "free space" not in err and "fix it and continue" in err
+
+
+def test_a_setting_named_in_other_letter_case_is_the_one_it_spells():
+    p = pdeinv.load_problem("heat_1d", n=16, scheme="BE", backend="Dense")
+    assert p.settings["scheme"] == "be" and p.settings["backend"] == "dense"
+    with pytest.raises(ValueError, match=r"scheme='B' is not allowed; expected one of 'be', 'cn'"):
+        pdeinv.load_problem("heat_1d", n=16, scheme="B")
+
+
+def test_a_file_noise_level_below_the_range_is_named_once(tmp_path, capsys, rod):
+    _, x, y = rod
+    np.savez(tmp_path / "tiny.npz", y=y, x=x, noise=1e-200)
+    assert main(["train", "heat_1d", "--set", "n=16", "--steps", "2", "--prior-fit", "0", "--n-test", "16",
+                 "-q", "--data", str(tmp_path / "tiny.npz"), "--out", str(tmp_path / "r")]) == 2
+    err = capsys.readouterr().err
+    assert "noise=1e-200 is out of range; expected 0 or a level between 1e-150 and 1e+150" in err
+    assert err.count("tiny.npz") == 1, err

@@ -79,7 +79,14 @@ fraction = _number(float, _below_one)
 
 
 def one_of(*allowed):
-    return lambda value, name: _checks.choice(value, name, allowed)
+    """A rule taking one of ``allowed``; a name in other letter case (``BE`` for ``be``) is the one it
+    spells when exactly one matches."""
+    def rule(value, name):
+        text = value.lower() if isinstance(value, str) else None
+        same = [a for a in allowed if isinstance(a, str) and a.lower() == text]
+        return _checks.choice(same[0] if len(same) == 1 else value, name, allowed)
+
+    return rule
 
 
 def optional_path(value, name):

@@ -281,9 +281,13 @@ def read_meta(path, points) -> dict:
             said = f"noise={v.tolist()!r}" if v.size == 1 else f"noise of shape {v.shape} ({v.size} values)"
             raise ValueError(f"{where}: {said} is not allowed; expected one number >= 0 (the relative noise "
                              "level, as --set noise=)")
-        from ..problem.settings import _in_range
+        from ..problem.settings import FLOAT_MAX, _in_range
 
-        out["noise"] = _in_range(float(v), f"{where}: noise", f"{float(v):g}")  # --set noise='s range
+        try:
+            out["noise"] = _in_range(float(v), "noise", f"{float(v):g}")  # --set noise='s range
+        except ValueError:
+            raise ValueError(f"{where}: noise={float(v):g} is out of range; expected 0 or a level between "
+                             f"{1 / FLOAT_MAX:g} and {FLOAT_MAX:g}") from None
     if "points" in meta:
         got, ref = meta["points"], np.asarray(points, dtype=float)
         if got.shape != ref.shape or not np.issubdtype(got.dtype, np.number):
