@@ -221,3 +221,13 @@ def test_a_file_noise_level_below_the_range_is_named_once(tmp_path, capsys, rod)
     err = capsys.readouterr().err
     assert "noise=1e-200 is out of range; expected 0 or a level between 1e-150 and 1e+150" in err
     assert err.count("tiny.npz") == 1, err
+
+
+def test_sip_on_fresh_draws_with_few_training_rows_does_not_diverge(rod):
+    """64 rows whiten 15 observations: a fresh row's variance along a whitened direction is up to 3.7×
+    what those rows show, so a curvature measured on them stepped 2× too far (x_err 1.2, 5.0, … 25)."""
+    p = rod[0]
+    r = pdeinv.train(p, "sip", steps=10, n_train=64, fresh=True, eval_every=1, progress=False, **{
+        k: v for k, v in KW.items() if k != "steps"})
+    errs = [h["x_err"] for h in r.history if h.get("x_err") is not None]
+    assert max(errs) < 1.0 and errs[-1] < 0.2 and not r.metrics["failed"], errs
