@@ -51,15 +51,20 @@ def test_a_dataset_of_pairs_and_data_x_too_is_refused(rod):
 
 def test_supervised_training_on_fresh_draws_is_refused_before_a_step(rod):
     p, _, _ = rod
-    with pytest.raises(ValueError, match=r"knows the x of the training rows only"):
-        pdeinv.train(p, "supervised", fresh=True, n_train=64, **KW)
+    with pytest.raises(ValueError, match=r"rule 'supervised' fits the true fields x of its training rows"):
+        pdeinv.Trainer(p, "supervised", fresh=True, n_train=64, **KW)
+    with pytest.raises(ValueError, match=r"knows the x of the training rows only"):  # the target's own
+        pdeinv.train(p, "sip", fresh=True, n_train=64, target=pdeinv.methods.targets.TrueFields(), **KW)
 
 
 def test_cli_supervised_with_fresh_draws_exits_2_naming_fresh_draws(tmp_path, capsys):
     code = main(["train", "heat_1d", "--set", "n=16", "--steps", "2", "--prior-fit", "0", "--n-train", "64",
                  "--n-test", "16", "-q", "--method", "supervised", "--fresh-draws",
                  "--out", str(tmp_path / "r")])
-    assert code == 2 and "--fresh-draws" in capsys.readouterr().err
+    assert code == 2 and "--fresh-draws trains on new observations" in capsys.readouterr().err
+    assert not (tmp_path / "r").exists()
+    assert main(["train", "heat_1d", "--method", "supervised", "--fresh-draws", "--explain"]) == 2
+    assert "--fresh-draws trains on new observations" in capsys.readouterr().err
 
 
 def test_a_matrix_with_nan_is_refused_where_it_is_built():
@@ -231,3 +236,15 @@ def test_sip_on_fresh_draws_with_few_training_rows_does_not_diverge(rod):
         k: v for k, v in KW.items() if k != "steps"})
     errs = [h["x_err"] for h in r.history if h.get("x_err") is not None]
     assert max(errs) < 1.0 and errs[-1] < 0.2 and not r.metrics["failed"], errs
+
+
+def test_output_names_with_upper_case_endings_are_written_in_their_format(tmp_path, capsys, rod):
+    _, x, y = rod
+    np.savez(tmp_path / "d.npz", y=y, x=x)
+    assert main(["train", "heat_1d", "--set", "n=16", "--steps", "2", "--prior-fit", "0", "--n-train", "64",
+                 "--n-test", "16", "-q", "--out", str(tmp_path / "r")]) == 0
+    assert main(["predict", str(tmp_path / "r"), "-q", "--data", str(tmp_path / "d.npz"),
+                 "--out", str(tmp_path / "p.NPZ"), "--vtu", str(tmp_path / "f.VTU")]) == 0
+    assert main(["show", str(tmp_path / "r"), "-q", "--png", str(tmp_path / "s.PNG")]) == 0
+    assert np.load(tmp_path / "p.NPZ")["x"].shape == x.shape
+    assert (tmp_path / "s.PNG").read_bytes()[:4] == b"\x89PNG" and (tmp_path / "f.VTU").stat().st_size > 0

@@ -114,7 +114,7 @@ def _write(path: Path, problem, data: dict) -> Path:
     import meshio
 
     mesh = problem.disc.basis.mesh
-    if path.suffix == ".xdmf":
+    if path.suffix.lower() == ".xdmf":
         with meshio.xdmf.TimeSeriesWriter(os.fspath(path), data_format="XML") as w:
             w.write_points_cells(points_3d(mesh), _cells(mesh))
             w.write_data(0.0, point_data=data)

@@ -216,6 +216,8 @@ class Rule:
     accepts_target: ClassVar[bool] = True
     #: ``state_dict`` / ``load_state_dict`` / ``hyperparameters`` restore a run
     resumable: ClassVar[bool] = True
+    #: it fits the rows' true fields ``x`` (no fresh draws, whose ``x`` no loss sees)
+    needs_fields: ClassVar[bool] = False
 
     def default_target(self):
         """The target strategy ``target="auto"`` means for this rule; ``None``: the trainer's default

@@ -8,6 +8,7 @@ Supervised) declares the rest, with these defaults:
 ========================  ===================================================================
 ``accepts_target``        True: ``update(..., target=)`` fits ``P f(y)`` to a denoised target
 ``resumable``             True: ``state_dict`` / ``load_state_dict`` / ``hyperparameters``
+``needs_fields``          False: it fits the rows' true fields ``x`` (Supervised: no fresh draws)
 ``calibrate(state, …)``   measures what it needs on the first batch; default: nothing
 ``default_target()``      the target ``target="auto"`` means; ``None``: the trainer's Wiener filter
 ``data_parallel(sum, n)`` the rule on each of n ranks (directions averaged); default itself

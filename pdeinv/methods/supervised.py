@@ -21,6 +21,7 @@ this one is not offered yet.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import ClassVar
 
 import numpy as np
 import torch
@@ -35,6 +36,7 @@ class Supervised(SIP):
 
     optimizer: OptimizerFactory = field(default_factory=lambda: sgd(1.0))
     name: str = "supervised"
+    needs_fields: ClassVar[bool] = True
 
     def settings(self) -> dict:
         return {"normalize": self.normalize}

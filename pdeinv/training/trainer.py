@@ -238,6 +238,10 @@ class Trainer:
             if self.fresh:
                 raise ValueError("fresh=True draws new observations of the scene's prior each step; data= "
                                  "gives fixed rows: drop one of them")
+        if self.fresh and self.rule.needs_fields:  # before any draw: the target exists for fixed rows only
+            raise ValueError(f"rule {self.rule.name!r} fits the true fields x of its training rows, and "
+                             "fresh=True (--fresh-draws) trains on new observations whose x no loss sees: "
+                             "drop fresh, or use a physics-based rule (sip, adam, gd, hig)")
         self.n_train = count(self.n_train, "n_train", minimum=2)  # the CLI's --n-train range: whitening
         self.batch_size = self.n_train if self.batch_size is None else count(self.batch_size, "batch_size")
         if self._batch_preset:  # gd's 32 rows on 16 training rows: all of them, not a refusal

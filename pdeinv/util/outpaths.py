@@ -203,10 +203,10 @@ def output_file(path, flag: str = "out", inputs: Iterable = (), owns: Iterable[s
                               f"{str(target.parent)!r}; writing it would replace that run's result; choose "
                               f"another {flag}")
     suffixes = tuple(suffixes) if suffixes is not None else None
-    if suffixes and target.name in suffixes:
+    if suffixes and target.name.lower() in suffixes:
         raise OutputPathError(f"{named} is an ending alone; expected a name before it, e.g. "
                               f"'results{target.name}'")
-    if suffixes and target.suffix not in suffixes:
+    if suffixes and target.suffix.lower() not in suffixes:  # p.NPZ, s.PNG: the same formats
         raise OutputPathError(f"{named}: expected a file name ending in {' or '.join(suffixes)}")
     if target.is_dir():
         raise OutputPathError(f"{named} is a directory; expected a file name"

@@ -62,6 +62,14 @@ def n_parameters(problem, hidden, net: str = "default") -> int:
     return network_parameters(m, n, hidden) if hidden else m * m + m * n + n
 
 
+def check_rule(rule, args) -> None:
+    """Refuse a rule that fits true fields (its declaration ``needs_fields``) with ``--fresh-draws``."""
+    if rule.needs_fields and getattr(args, "fresh_draws", False):
+        raise UsageError(f"--method {args.method} fits the true fields x of its training rows, and "
+                         "--fresh-draws trains on new observations whose x no loss sees: drop one of them, "
+                         "or use a physics-based rule (sip, adam, gd, hig)")
+
+
 def check_run(problem, args, hp: dict) -> None:
     """Refuse a run that would not fit in memory (:func:`pdeinv.training.plan.check_training`) or a HIG
     run whose step would take longer than :data:`HIG_MAX_STEP_S` (unless ``--allow-slow``);

@@ -265,9 +265,10 @@ def _explain(args) -> int:
         resumable_for(Checkpoint(out / "checkpoint.pt"), problem, args.method, args.steps,
                       {"seed": args.seed, "n_test": args.n_test, "fresh": args.fresh_draws})
     hidden = _hidden(args.hidden) if args.hidden is not None else None
-    _, hp = make_rule(args.method, problem, problem.noise, linear_net=args.net not in NONLINEAR_KINDS,
-                      lr=args.lr, eta=args.eta, tau=args.tau, batch_size=args.batch_size, hidden=hidden,
-                      optimizer=args.optimizer)
+    rule, hp = make_rule(args.method, problem, problem.noise, linear_net=args.net not in NONLINEAR_KINDS,
+                         lr=args.lr, eta=args.eta, tau=args.tau, batch_size=args.batch_size, hidden=hidden,
+                         optimizer=args.optimizer)
+    _checks.check_rule(rule, args)
     _checks.check_run(problem, args, hp)
     _device(args)
     return 0
@@ -365,6 +366,7 @@ def _parallel_train(args, out, ckpt, device, parallel) -> int:
     rule, hp = make_rule(args.method, problem, problem.noise, linear_net=args.net not in NONLINEAR_KINDS,
                          lr=args.lr, eta=args.eta, tau=args.tau, batch_size=args.batch_size, hidden=hidden,
                          optimizer=args.optimizer)
+    _checks.check_rule(rule, args)
     _checks.check_run(problem, args, hp)  # memory, HIG step time, --export-samples (before allocating)
     logging.getLogger("pdeinv").debug(f"pdeinv train: --method {args.method} with {hp}")
     torch.manual_seed(args.seed)
