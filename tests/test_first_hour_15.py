@@ -29,7 +29,7 @@ def test_data_set_after_construction_is_refused_as_fit_starts(rod):
     p, _, y = rod
     t = pdeinv.Trainer(p, "sip", n_train=64, **KW)
     t.data = y
-    with pytest.raises(ValueError, match=r"data= or data_x= was set after construction"):
+    with pytest.raises(ValueError, match=r"trainer.data was set after construction"):
         t.fit()
 
 
@@ -248,3 +248,107 @@ def test_output_names_with_upper_case_endings_are_written_in_their_format(tmp_pa
     assert main(["show", str(tmp_path / "r"), "-q", "--png", str(tmp_path / "s.PNG")]) == 0
     assert np.load(tmp_path / "p.NPZ")["x"].shape == x.shape
     assert (tmp_path / "s.PNG").read_bytes()[:4] == b"\x89PNG" and (tmp_path / "f.VTU").stat().st_size > 0
+
+
+@pytest.mark.parametrize("name, value", [("stop", "bogus"), ("prior", "bogus"), ("calibration", 5),
+                                         ("device", "meta"), ("rule", "adam"), ("dtype", torch.float64)])
+def test_any_setting_set_after_construction_is_refused_as_fit_starts(rod, name, value):
+    t = pdeinv.Trainer(rod[0], "sip", n_train=64, **KW)
+    setattr(t, name, value)
+    with pytest.raises(ValueError, match=rf"trainer.{name} was set after construction"):
+        t.fit()
+
+
+def test_counts_and_equal_numbers_may_be_set_again_and_fit_twice(rod):
+    t = pdeinv.Trainer(rod[0], "sip", n_train=64, **KW)
+    t.steps, t.max_failures, t.seed = 3, 5, 1
+    assert len(t.fit().history) >= 1 and len(t.fit().history) >= 1  # the built network is kept
+
+
+def test_dataset_items_that_are_lists_of_numbers_are_observations(rod):
+    p, _, y = rod
+
+    class Rows(torch.utils.data.Dataset):
+        def __len__(self):
+            return len(y)
+
+        def __getitem__(self, i):
+            return list(y[i])
+
+    t = pdeinv.Trainer(p, "sip", data=Rows(), **KW)
+    assert np.allclose(t.held_out()[1], y[-16:])
+
+
+def test_a_dataset_whose_items_fail_is_named_by_item(rod):
+    p, _, y = rod
+
+    class Short(torch.utils.data.Dataset):
+        def __len__(self):
+            return 100
+
+        def __getitem__(self, i):
+            if i >= len(y):
+                raise IndexError(i)
+            return torch.tensor(y[i])
+
+    with pytest.raises(ValueError, match=r"item 80 of the Dataset \(len 100\) raised IndexError"):
+        pdeinv.Trainer(p, "sip", data=Short(), **KW)
+
+
+def test_masked_and_complex_inputs_are_refused(rod):
+    p, _, y = rod
+    with pytest.raises(ValueError, match=r"masked array with 15 masked values"):
+        pdeinv.Trainer(p, "sip", data=np.ma.masked_array(y, mask=np.eye(80, 15, dtype=bool)), **KW)
+    with pytest.raises(ValueError, match=r"expected a 2-D matrix of real numbers"):
+        pdeinv.physics.Matrix(np.eye(4) * (1 + 1j))
+
+
+@pytest.mark.parametrize("name", ["two\nlines", "x" * 201])
+def test_problem_names_that_break_lines_or_file_names_are_refused(rod, name):
+    import dataclasses
+
+    with pytest.raises(ValueError, match=r"at most 200 printable characters"):
+        dataclasses.replace(rod[0], name=name)
+
+
+def test_a_numpy_string_name_is_kept_as_a_plain_string(rod):
+    import dataclasses
+
+    assert type(dataclasses.replace(rod[0], name=np.str_("heat_1d")).name) is str
+
+
+@pytest.mark.parametrize("body", ["np.seterr(all='raise')\n    return rng.random((n, 15))",
+                                  "raise GeneratorExit"])
+def test_a_sampler_that_changes_numpy_or_raises_generator_exit(tmp_path, capsys, body):
+    path = _module(tmp_path, "odd", f"def _s(n, rng):\n    {body}\n\n"
+                   "def make(**kw):\n    p = pdeinv.load_problem('heat_1d', n=16, **kw)\n"
+                   "    return dataclasses.replace(p, sampler=_s)\n")
+    code = main(["train", path, "--steps", "2", "--prior-fit", "0", "--n-train", "64", "--n-test", "16", "-q",
+                 "--out", str(tmp_path / "r")])
+    err = capsys.readouterr().err
+    assert (code == 0) if "seterr" in body else (code == 2 and "GeneratorExit (the sampler" in err), err
+    assert np.geterr()["under"] == "ignore"
+
+
+def test_a_module_that_lowers_the_recursion_limit_is_restored(tmp_path, capsys):
+    import sys
+
+    limit = sys.getrecursionlimit()
+    path = _module(tmp_path, "shallow", "import inspect\n\n"  # 30 frames above make's: the run needs more
+                   "def make(**kw):\n    p = pdeinv.load_problem('heat_1d', n=16, **kw)\n"
+                   "    sys.setrecursionlimit(len(inspect.stack()) + 30)\n    return p\n")
+    assert main(["train", path, "--steps", "2", "--prior-fit", "0", "--n-train", "64", "--n-test", "16", "-q",
+                 "--out", str(tmp_path / "r")]) == 0, capsys.readouterr().err
+    assert sys.getrecursionlimit() == limit and "recursion limit" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("value", ["16_0", "１６"])
+def test_numbers_python_reads_loosely_are_refused_as_settings(value):
+    with pytest.raises(ValueError, match=r"is not a number; expected plain digits"):
+        pdeinv.load_problem("heat_1d", n=value)
+
+
+def test_optimizer_flags_must_be_booleans_and_lr_may_be_a_0d_tensor():
+    with pytest.raises(ValueError, match=r"amsgrad='yes' is not True or False"):
+        pdeinv.adam(1e-3, amsgrad="yes")
+    assert pdeinv.adam(torch.tensor(1e-3)).keywords["lr"] == pytest.approx(1e-3)

@@ -88,23 +88,38 @@ class Resumable(Protocol):
 def adam(lr: float = 1e-3, **kw) -> OptimizerFactory:
     """``params -> torch.optim.Adam(params, lr=lr, **kw)``; ``lr`` a finite number > 0 and ``kw`` what
     Adam takes (checked here, not at the first step)."""
-    return _checked(torch.optim.Adam, "adam", lr=positive(lr, "adam lr"), **kw)
+    return _checked(torch.optim.Adam, "adam", lr=positive(_scalar(lr), "adam lr"), **kw)
 
 
 def sgd(lr: float = 1e-2, **kw) -> OptimizerFactory:
     """``params -> torch.optim.SGD(params, lr=lr, **kw)``; ``lr`` a finite number > 0 and ``kw`` what SGD
     takes (checked here, not at the first step)."""
-    return _checked(torch.optim.SGD, "sgd", lr=positive(lr, "sgd lr"), **kw)
+    return _checked(torch.optim.SGD, "sgd", lr=positive(_scalar(lr), "sgd lr"), **kw)
+
+
+def _scalar(value):
+    """A 0-d tensor as its number (``lr=torch.tensor(1e-3)``); anything else as it is."""
+    return value.item() if isinstance(value, torch.Tensor) and value.ndim == 0 else value
+
+
+#: torch.optim's switches: True or False (``foreach`` and ``fused`` also None, torch's choice)
+FLAGS = {"amsgrad", "maximize", "foreach", "capturable", "differentiable", "fused", "nesterov",
+         "decoupled_weight_decay"}
 
 
 def _checked(cls, name: str, **settings) -> OptimizerFactory:
     """``partial(cls, **settings)`` once ``cls`` has accepted ``settings`` on one scalar parameter: torch
     checks ``betas``, ``weight_decay``, ``momentum`` … only when the optimizer is built, at the first step of
     a run; here a bad one is a ``ValueError`` naming the call and the setting."""
+    shown = ", ".join(f"{k}={v!r}" for k, v in settings.items() if k != "lr")
+    for k in FLAGS & set(settings):
+        if not isinstance(settings[k], bool) and not (settings[k] is None and k in ("foreach", "fused")):
+            # amsgrad='yes' would be taken as True
+            raise ValueError(f"pdeinv.{name}({shown}) is not allowed: {k}={settings[k]!r} is not True or "
+                             "False")
     try:
         cls([torch.zeros(1, requires_grad=True)], **settings)
     except (ValueError, TypeError, IndexError) as err:  # IndexError: betas=(0.9,), which torch indexes
-        shown = ", ".join(f"{k}={v!r}" for k, v in settings.items() if k != "lr")
         err = f"{type(err).__name__}: {err}" if isinstance(err, IndexError) else err
         raise ValueError(f"pdeinv.{name}({shown}) is not allowed: {err}; expected the settings of "
                          f"torch.optim.{cls.__name__}") from None

@@ -86,8 +86,8 @@ class Matrix(LinearOperator):
 
         A = A if sp.issparse(A) else np.asarray(A)
         values = A.data if sp.issparse(A) else A
-        if A.ndim != 2 or not np.issubdtype(values.dtype, np.number):
-            raise ValueError(f"Matrix(A): A is {A.ndim}-D of {values.dtype}; expected a 2-D matrix of "
+        if A.ndim != 2 or not np.issubdtype(values.dtype, np.number) or np.iscomplexobj(values):
+            raise ValueError(f"Matrix(A): A is {A.ndim}-D of {values.dtype}; expected a 2-D matrix of real "
                              "numbers")
         if not np.isfinite(values).all():
             bad = int((~np.isfinite(values)).sum())

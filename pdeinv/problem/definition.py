@@ -57,8 +57,11 @@ class Problem:
     model_factory: Callable | None = None
 
     def __post_init__(self):
-        if not isinstance(self.name, str) or not self.name.strip():  # runs, files and messages name it
-            raise ValueError(f"Problem(name={self.name!r}) is not allowed; expected a non-empty string")
+        if not isinstance(self.name, str) or not self.name.strip() or not self.name.isprintable() \
+                or len(self.name) > NAME_CHARS:  # runs, files and one-line messages name it
+            raise ValueError(f"Problem(name={self.name!r:.80}) is not allowed; expected a non-empty string "
+                             f"of at most {NAME_CHARS} printable characters")
+        self.name = str(self.name)  # np.str_('heat'): a plain string in run.json
         if not isinstance(self.operator, Physics):
             raise TypeError(f"operator={type(self.operator).__name__} is not allowed; expected a "
                             "pdeinv.physics.LinearOperator (e.g. pdeinv.physics.Matrix(A) or Heat(...)) or "
@@ -103,10 +106,15 @@ class Problem:
     def draws(self, n: int, rng: np.random.Generator) -> np.ndarray:
         """``n`` fields from the sampler, checked: shape ``(n, N)``, finite (a ``ValueError`` naming the
         problem otherwise)."""
+        numerics = np.geterr()
         try:
             x = self.sampler(n, rng)
-        except (Exception, SystemExit) as err:  # a user's sampler: one line, file and line; pdeinv's stand
+        except KeyboardInterrupt:
+            raise
+        except BaseException as err:  # a user's sampler: one line, file and line; pdeinv's own stand
             raise _sampler_failure(self.name, err) or _signature(self.name, self.sampler, err) or err
+        finally:  # np.seterr(all="raise") inside it: pdeinv's solvers keep numpy's defaults
+            np.seterr(**numerics)
         x = _as_array(self.name, x, (n, self.N))
         shape = np.shape(x)
         if shape != (n, self.N):
@@ -337,6 +345,9 @@ def import_module(path: Path):
     return module
 
 
+#: the longest problem name: it names files (``<name>.py``) within the file system's 255 bytes
+NAME_CHARS = 200
+
 #: the modules whose change of numpy's error handling was undone and said (once per module)
 _RESTORED: set = set()
 
@@ -345,7 +356,7 @@ def _run_module(path: Path, overrides: dict, where: str) -> Problem:
     """Import the module at ``path`` and call its ``make(**overrides)``. A user's module that fails is a
     :class:`ProblemModuleError` in one line; a built-in's failure keeps its own exception (a bug)."""
     builtin = path.parent == builtin_dir().resolve()
-    numerics = np.geterr()
+    numerics, depth = np.geterr(), sys.getrecursionlimit()
     try:
         module = import_module(path)
         make = getattr(module, "make", None)
@@ -359,16 +370,19 @@ def _run_module(path: Path, overrides: dict, where: str) -> Problem:
                 isinstance(err, Exception) and _pdeinvs_own(path, err)):
             raise
         raise _failure(path, err, where) from err
-    finally:
-        changed = np.geterr() != numerics
+    finally:  # np.seterr(all="raise") made the solvers' underflows errors; a low recursion limit, torch's
+        changed = [what for what, moved in (("numpy's floating-point error handling (np.seterr)",
+                                              np.geterr() != numerics),
+                                             ("Python's recursion limit", sys.getrecursionlimit() != depth))
+                   if moved]
         np.seterr(**numerics)
-    if changed and path not in _RESTORED:  # np.seterr(all="raise") made the solvers' underflows errors
+        sys.setrecursionlimit(depth)
+    if changed and path not in _RESTORED:
         import warnings
 
         _RESTORED.add(path)
-        warnings.warn(f"problem module {where} changed numpy's floating-point error handling "
-                      "(np.seterr); pdeinv restored it: its solvers rely on numpy's defaults",
-                      RuntimeWarning, stacklevel=3)
+        warnings.warn(f"problem module {where} changed {' and '.join(changed)}; pdeinv restored it: its "
+                      "solvers rely on the defaults", RuntimeWarning, stacklevel=3)
     if not isinstance(problem, Problem):
         if inspect.iscoroutine(problem) or inspect.isgenerator(problem):  # never run: no "never awaited"
             problem.close()

@@ -47,6 +47,9 @@ def _number(cast, check):
         elif isinstance(value, numbers.Real) and not isinstance(value, int | float):  # np.float32(8)
             value = float(value)
         if isinstance(value, str):
+            if "_" in value or not value.isascii():  # Python's float reads '16_0' as 160 and '１６' as 16
+                raise ValueError(f"{name}={value!r} is not a number; expected plain digits (e.g. 16, 0.01, "
+                                 "1e-3)")
             try:
                 value = float(value)  # "1e2" is a number too; an int rule takes it if it is whole
             except ValueError:

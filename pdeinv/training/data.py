@@ -62,15 +62,26 @@ def paired_fields(data, name: str = "data"):
 
 def _items(data, name: str) -> list[tuple]:
     """A Dataset's items, each as ``(y,)`` or ``(y, x)``, all of one kind."""
-    items = [_item(data[i], name) for i in range(len(data))]
+    items = [_item(_read(data, i, name), name) for i in range(len(data))]
     if len({len(item) for item in items}) > 1:
         raise ValueError(f"{name}: a Dataset mixes items (y,) and pairs (y, x); expected one kind")
     return items
 
 
+def _read(data, i: int, name: str):
+    """Item ``i`` of a user's Dataset; its failure a ``ValueError`` naming the item (a ``__len__`` larger
+    than what ``__getitem__`` serves, a file that went away)."""
+    try:
+        return data[i]
+    except Exception as err:  # noqa: BLE001  a user's __getitem__
+        raise ValueError(f"{name}: item {i} of the Dataset (len {len(data)}) raised {type(err).__name__}: "
+                         f"{str(err)[:120]}; expected every item 0 … len - 1 to be readable") from err
+
+
 def _item(item, name: str) -> tuple:
-    """A Dataset item as ``(y,)`` or ``(y, x)``."""
-    item = tuple(item) if isinstance(item, (tuple, list)) else (item,)
+    """A Dataset item as ``(y,)`` or ``(y, x)``; a list of numbers is one observation."""
+    whole = isinstance(item, (tuple, list)) and all(np.ndim(e) == 0 for e in item)
+    item = tuple(item) if isinstance(item, (tuple, list)) and not whole else (item,)
     if not 1 <= len(item) <= 2:
         raise ValueError(f"{name}: a Dataset item has {len(item)} elements; expected one observation y, "
                          "(y,) or a pair (y, x)")
@@ -83,6 +94,9 @@ def _numpy(a, name: str = "data") -> np.ndarray:
     if isinstance(a, torch.Tensor) and a.is_meta:
         raise ValueError(f"{name} is a tensor on the 'meta' device (shapes only, no values); expected "
                          "numbers: a numpy array or a tensor on the cpu or a cuda device")
+    if isinstance(a, np.ma.MaskedArray) and np.ma.getmaskarray(a).any():  # the mask would be dropped
+        raise ValueError(f"{name} is a masked array with {int(np.ma.getmaskarray(a).sum())} masked values; "
+                         "expected every value observed: drop those rows or fill them")
     if not isinstance(a, torch.Tensor):
         return np.asarray(a)
     a = a.detach().cpu()

@@ -91,6 +91,16 @@ class _Run:
         return (y, t) if size == n else (y[rows], None if t is None else t[rows])
 
 
+#: the settings :meth:`Trainer.fit` checks again, which may change between construction and ``fit()``
+COUNTS = ("steps", "time_budget", "n_train", "n_test", "batch_size", "eval_every", "seed")
+
+
+def _same_number(a, b) -> bool:
+    """``a == b`` for plain numbers and strings (``trainer.max_failures = 5`` again is no change)."""
+    plain = (bool, int, float, str, type(None))
+    return type(a) in plain and type(b) in plain and a == b
+
+
 @dataclass
 class Trainer:
     """Train ``model`` on ``problem`` with ``rule`` (a :class:`~pdeinv.methods.GD`, ``SIP``, ``HIG``, …).
@@ -208,7 +218,7 @@ class Trainer:
     _rule: object = field(default=None, init=False, repr=False)
     _preset: dict = field(default_factory=dict, init=False, repr=False)
     _batch_preset: bool = field(default=False, init=False, repr=False)  # batch_size was the preset's
-    _given: tuple = field(default=(None, None), init=False, repr=False)  # data, data_x as constructed
+    _given: dict = field(default_factory=dict, init=False, repr=False)  # the settings as checked
     #: seconds of each set-up phase of the last :meth:`fit` (``metrics["setup"]``): network (when built
     #: here), samples (training and test draws), fit (input transform and target), rule (its state and
     #: calibration), stop (the stopping rule's held-out draws)
@@ -222,7 +232,6 @@ class Trainer:
         self.steps = None if self.steps is None else count(self.steps, "steps")
         self.time_budget is None or positive(self.time_budget, "time_budget")
         self.n_test = count(test_count(self.n_test, self.data is not None), "n_test")
-        self._given = (self.data, self.data_x)
         if self.data is None and self.data_x is not None:  # it was ignored: the run trained on prior draws
             raise ValueError("data_x= was given without data=: data_x holds the true fields of the rows of "
                              "data= (for the errors only); pass the observations as data= too, or drop it")
@@ -265,6 +274,12 @@ class Trainer:
         self.device = resolve(self.device)
         self.parallel.check_batch(self.batch_size)
         self._rule = self.parallel.rule(self.rule)  # the rule on this process's shard
+        self._given = self._settings()
+
+    def _settings(self) -> dict:
+        """The constructor's arguments other than the counts (which :meth:`_counts` checks again), as
+        checked and turned into objects: an attribute set after that is refused by :meth:`fit`."""
+        return {f.name: vars(self)[f.name] for f in fields(self) if f.init and f.name not in COUNTS}
 
     def _check_arguments(self) -> None:
         """The kinds of the arguments (:mod:`pdeinv.training.arguments`), names turned into objects, and the
@@ -453,14 +468,20 @@ class Trainer:
 
     def _counts(self) -> None:
         """The counts checked again as :meth:`fit` starts: an attribute set after construction
-        (``trainer.steps = -5``) ran one step."""
+        (``trainer.steps = -5``) ran one step; any other setting set after construction is refused."""
         self.steps is None or count(self.steps, "steps")
         self.time_budget is None or positive(self.time_budget, "time_budget")
         count(self.n_test, "n_test"), count(self.eval_every, "eval_every")
         count(self.batch_size, "batch_size")
-        if self.data is not self._given[0] or self.data_x is not self._given[1]:  # checked and split once
-            raise ValueError("data= or data_x= was set after construction (trainer.data = …): own data is "
-                             "checked and split when the Trainer is built; pass it as Trainer(..., data=)")
+        self.seed = args.seed(self.seed)
+        now = self._settings()
+        changed = [k for k, v in now.items() if v is not self._given[k]
+                   and not _same_number(v, self._given[k])]
+        if changed:  # names became objects, data was checked and split: once, as the Trainer was built
+            k = changed[0]
+            raise ValueError(f"trainer.{k} was set after construction ({k}={now[k]!r:.60}): the Trainer "
+                             "checks its settings when it is built (own data split, names made objects); "
+                             f"pass it as Trainer(..., {k}=...)")
         if count(self.n_train, "n_train", minimum=2) < self.batch_size and self.fresh is not True:
             raise ValueError(f"batch_size={self.batch_size} is larger than n_train={self.n_train}; expected "
                              f"batch_size <= {self.n_train}")
@@ -468,6 +489,7 @@ class Trainer:
     def fit(self) -> Result:
         self._counts()
         run = self._start()
+        self._given = self._settings()  # the network it built, the dtype it chose: a second fit() keeps them
         bar = progress(self.steps, self.progress if self.parallel.is_writer else False, run.at.step)
         done = finished(run.at, self.steps, self.time_budget)  # a resumed run that had finished
         while not done:
