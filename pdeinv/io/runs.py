@@ -9,6 +9,8 @@
                 (+ "units": c when the data were divided by c: pdeinv.problem.units),
      "model_sha256": "<hex digest of model.pt>",
      "posterior_sha256": "<hex digest of posterior.npz>" | null,
+     "fingerprint": {"unknowns": N, "observations": m, "x": [...], "y": [...]}
+                (pdeinv.problem.fingerprint: load_run refuses a module edited into another problem),
      "record_sha256": "<hex digest of the fields above>"}
 
 and ``DIR/model.pt`` the network's state dict, the fitted whitening / input scaling
@@ -184,6 +186,7 @@ def save_run(out: str | os.PathLike, problem, overrides: dict | None = None, net
     import torch
 
     from ..problem.definition import Problem
+    from ..problem.fingerprint import fingerprint
     from ..training import arguments as _arguments
     from ..util.outpaths import run_folder
 
@@ -194,7 +197,7 @@ def save_run(out: str | os.PathLike, problem, overrides: dict | None = None, net
     recorded = network_spec is not None or hasattr(_unwrapped(model), "network_spec")
     network_spec = _spec(network_spec, model)
     _refuse_another_run(run_folder(out, "out", replace=True, outputs=OUTPUTS, create=False), overwrite)
-    overrides = _check_loads(problem, overrides, model, posterior, given)  # before the folder is created
+    overrides, built = _check_loads(problem, overrides, model, posterior, given)  # before the folder is made
     if not recorded:  # a network no spec names: the default one must be what load_run rebuilds
         _rebuilds(problem, overrides, network_spec, model)
     out = run_folder(out, "out", replace=True, outputs=OUTPUTS)
@@ -205,7 +208,8 @@ def save_run(out: str | os.PathLike, problem, overrides: dict | None = None, net
     record = {"format": FORMAT, "version": VERSION, "problem": problem_spec(problem),
               "overrides": {k: str(v) for k, v in overrides.items()}, "network": network_spec,
               "model_sha256": hashlib.sha256(weights).hexdigest(),
-              "posterior_sha256": None if data is None else hashlib.sha256(data).hexdigest()}
+              "posterior_sha256": None if data is None else hashlib.sha256(data).hexdigest(),
+              "fingerprint": fingerprint(built)}  # load_run refuses the name once it makes another problem
     record["record_sha256"] = _record_digest(record)
     text = json.dumps(record, indent=2).encode()
     atomic_write(out / MODEL_FILE, lambda fh: fh.write(weights))
@@ -262,12 +266,13 @@ def _rebuilds(problem, overrides: dict, spec: dict, model) -> None:
                          "a network of pdeinv.nets (or the Trainer's), or pass its network_spec") from None
 
 
-def _check_loads(problem, overrides: dict, model, posterior, given=None) -> dict:
+def _check_loads(problem, overrides: dict, model, posterior, given=None) -> tuple:
     """What :func:`load_run` will check, checked before anything is written: the problem loads with
     ``overrides`` (its settings' names and values), ``model`` maps its observations to its unknowns (two
     zero rows through it: :func:`pdeinv.training.arguments.fits`), ``posterior`` is for them. ``given``: the
     :class:`~pdeinv.Problem` passed without overrides, whose settings that differ from its module's
-    defaults become the overrides (``load_problem('heat_1d', n=8)`` is saved as ``n=8``); the overrides."""
+    defaults become the overrides (``load_problem('heat_1d', n=8)`` is saved as ``n=8``); ``(overrides,
+    problem)``, the problem as load_run rebuilds it."""
     from ..posterior.conformal import Calibration
     from ..problem.definition import first_line, load_problem
     from ..problem.trained import differ, trained_for
@@ -297,7 +302,7 @@ def _check_loads(problem, overrides: dict, model, posterior, given=None) -> dict
         from ..posterior.predictive import forward
 
         posterior.check_network(lambda rows: forward(model, rows))
-    return overrides
+    return overrides, built
 
 
 def _record_digest(record: dict) -> str:
@@ -305,6 +310,7 @@ def _record_digest(record: dict) -> str:
     ``model.pt`` and ``posterior.npz``): an edit of any (another κ for the trained model, a digest deleted)
     is refused by :func:`load_run`."""
     fields = ("problem", "overrides", "network", "model_sha256", "posterior_sha256")
+    fields += ("fingerprint",) if "fingerprint" in record else ()  # records before it keep their digest
     return hashlib.sha256(json.dumps({k: record.get(k) for k in fields}, sort_keys=True).encode()).hexdigest()
 
 
@@ -366,6 +372,7 @@ def load_run(run_dir):
     import torch
 
     from ..problem.definition import load_problem
+    from ..problem.fingerprint import changed
 
     run = _run_path(run_dir, "run_dir")
     where = f"run folder {os.fspath(run)!r}"
@@ -377,6 +384,11 @@ def load_run(run_dir):
                          "(is it the --out DIR of a finished `pdeinv train`?)")
     record = _record(run, where)
     problem = load_problem(record["problem"], **record["overrides"])
+    why = None if record.get("fingerprint") is None else changed(problem, record["fingerprint"])
+    if why is not None:  # before the model: its shapes would blame model.pt, or fit another physics
+        raise ValueError(f"{where}: problem {record['problem']!r} with {RUN_FILE}'s settings is not the "
+                         f"one the run was trained on ({why}: an edited module, setting or mesh?); restore "
+                         "it, or rerun `pdeinv train`")
     try:
         spec = record["network"]
         legacy = isinstance(spec, dict) and spec.get("kind") == "unet" and "depth" not in spec
@@ -404,6 +416,14 @@ def load_run(run_dir):
 
     mark_trained(model, problem)  # save_run and predict refuse it with another problem
     return problem, model.eval()
+
+
+def _fingerprint_like(value) -> bool:
+    numbers = (int, float)
+    return (isinstance(value, dict) and all(type(value.get(k)) is int for k in ("unknowns", "observations"))
+            and all(isinstance(value.get(k), list) and len(value[k]) == 3
+                    and all(isinstance(v, numbers) and not isinstance(v, bool) for v in value[k])
+                    for k in ("x", "y")))
 
 
 def _run_path(value, name: str) -> Path:
@@ -441,6 +461,8 @@ def _record(run: Path, where: str) -> dict:
         ("record_sha256", record.get("record_sha256"),
          "the sha256 of its other fields (a str of 64 hex digits)",
          record.get("record_sha256") is None or isinstance(record.get("record_sha256"), str)),
+        ("fingerprint", record.get("fingerprint"), "the problem's sizes and numbers written by pdeinv train",
+         record.get("fingerprint") is None or _fingerprint_like(record["fingerprint"])),
         ("posterior_sha256", record.get("posterior_sha256"),
          "the sha256 of posterior.npz (a str of 64 hex digits), or null for a run without one",
          record.get("posterior_sha256") is None or isinstance(record.get("posterior_sha256"), str)),

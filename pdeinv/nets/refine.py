@@ -51,6 +51,7 @@ from ..fem.grid import GridMap
 from .consistency import DataConsistency
 from .corrections import DenseCorrection, GridCorrection, SpanCorrection, SpectralFilter, UNet
 from .protocol import Network, declared
+from .schedules import Constant, Cosine
 
 __all__ = ["DataConsistency", "DenseCorrection", "GridCorrection", "PriorFit", "PriorFitted", "Refined",
            "SpanCorrection", "SpectralFilter", "UNet"]
@@ -63,7 +64,9 @@ class PriorFit:
     :data:`MAX_STEPS`), the held-out error checked once per pass over the training draws on ``held_out``
     of them; after ``patience`` checks without a relative improvement of ``min_gain`` over the best so far
     it restarts from that best at a quarter of the lr, at most ``decays`` times, then stops; the best is
-    what is kept. The same settings and seed give the same network on any machine and any load."""
+    what is kept. ``schedule`` multiplies the lr at step ``t`` of the fit's ``T``
+    (:mod:`pdeinv.nets.schedules`: a half-cosine from 1 to 0 by default). The same settings and seed give
+    the same network on any machine and any load."""
 
     steps: int | None = None
     lr: float = 1e-3
@@ -73,9 +76,15 @@ class PriorFit:
     min_gain: float = 0.005
     decays: int = 2
     seed: int = 0
+    schedule: Constant | Cosine = Cosine()
 
     def __post_init__(self):
         from .._checks import count, seed
+
+        if not callable(self.schedule):
+            raise TypeError(f"PriorFit(schedule={self.schedule!r}) is not allowed; expected a schedule of "
+                            "pdeinv.nets.schedules (Cosine(), Constant()): a callable (step, steps) -> "
+                            "factor")
 
         if self.steps is not None:  # 0: the blend and the data-consistency layer only
             count(self.steps, "PriorFit(steps)", minimum=0)
@@ -202,6 +211,7 @@ class _Best:
     def __init__(self, g, opt, settings: PriorFit, before: float):
         self.g, self.opt, self.settings = g, opt, settings
         self.before = self.best = before
+        self.lr = settings.lr  # before the schedule's factor; a quarter of it after each restart
         self.state, self.bad, self.decays, self.step, self.stopped = None, 0, 0, 0, False
         self.t0, self.mark = time.perf_counter(), 0  # the log's estimate of what is left; its next line
 
@@ -234,9 +244,13 @@ class _Best:
             return True
         self.decays, self.bad = self.decays + 1, 0  # from the best so far at a quarter of the lr
         self.g.load_state_dict(self.state)
-        for group in self.opt.param_groups:
-            group["lr"] /= 4
+        self.lr /= 4
         return False
+
+    def set_lr(self, step: int, steps: int) -> None:
+        """The lr of step ``step`` of ``steps``: the restarts' lr times the schedule's factor."""
+        for group in self.opt.param_groups:
+            group["lr"] = self.lr * self.settings.schedule(step, steps)
 
 
 def _adam(params: list, lr: float) -> torch.optim.Adam:
@@ -414,6 +428,7 @@ class Refined(Network):
                 loss = ((xb + g(inputs) - torch.as_tensor(x[rows], dtype=torch.float32)) ** 2).mean() / unit
                 opt.zero_grad(set_to_none=True)
                 loss.backward()
+                track.set_lr(step, steps)
                 opt.step()
                 step += 1
                 if step == PACE_STEPS and log is not None and steps >= 2 * PACE_STEPS:

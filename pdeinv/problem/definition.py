@@ -31,8 +31,8 @@ from .sampling import add_noise
 BUILTIN_PACKAGE = "pdeinv.problems"
 
 
-#: the magnitudes a scene's sampler may return: a network trains on them in float32, whose squares of a
-#: batch stay finite within (pdeinv.problem.units.AS_IS, the window own data is rescaled into)
+#: the magnitudes a scene's sampler and operator may return: a network trains on them in float32, whose
+#: squares of a batch stay finite within (pdeinv.problem.units.AS_IS, the window own data is rescaled into)
 DRAWS_AS_IS = (1e-12, 1e12)
 
 
@@ -101,6 +101,13 @@ class Problem:
             raise ValueError(f"problem {self.name!r}: its operator returned {int((~np.isfinite(y)).sum())} "
                              f"NaN/Inf observations of finite fields; expected finite P x (check its physics "
                              "and settings)")
+        top = float(np.max(np.abs(y))) if y.size else 0.0
+        if top > DRAWS_AS_IS[1] or 0 < top < DRAWS_AS_IS[0]:  # the network's float32 holds neither
+            raise ValueError(f"problem {self.name!r}: its operator returned observations up to {top:.3g} of "
+                             f"fields up to {float(np.max(np.abs(x))):.3g}; expected magnitudes between "
+                             f"{DRAWS_AS_IS[0]:g} and {DRAWS_AS_IS[1]:g} ("
+                             + ("rescale its operator)" if top > 1 else "the physics leaves nothing to "
+                                "observe: settings such as a smaller κ or T, or rescale its operator)"))
         return x, add_noise(y, self.noise, rng)
 
     def draws(self, n: int, rng: np.random.Generator) -> np.ndarray:
@@ -192,6 +199,13 @@ def find_module(name_or_path: str | os.PathLike) -> Path:
     spec = os.fspath(name_or_path)
     if spec.endswith(".py") or os.sep in spec or "/" in spec:
         path = Path(spec)
+        try:
+            path.stat()
+        except OSError as err:  # too long a name, no permission: said before any is_file() raises it
+            if not isinstance(err, (FileNotFoundError, NotADirectoryError)):
+                shown = spec if len(spec) <= 80 else spec[:77] + "..."
+                raise ValueError(f"problem module {shown!r} cannot be looked up ({err.strerror}); expected "
+                                 "the path of a readable .py file, or a problem name") from None
         if path.is_dir():
             raise ValueError(f"problem module {spec!r} is a directory; expected a .py file with "
                              "make(**overrides), or a problem name")
@@ -207,6 +221,10 @@ def find_module(name_or_path: str | os.PathLike) -> Path:
             raise ValueError(f"problem module {spec!r} is not a .py file; expected a Python module "
                              "with make(**overrides), or a problem name")
     else:
+        if len(spec) > NAME_CHARS:  # no file of that name can exist: the file system's 255 bytes
+            raise ValueError(f"unknown problem {spec[:40] + '...'!r} ({len(spec)} characters); a problem "
+                             f"name has at most {NAME_CHARS}: a built-in ({', '.join(available()[:4])}, "
+                             "...), a module's name or the path of a module file")
         found = [d / f"{spec}.py" for d in _problem_dirs() if (d / f"{spec}.py").is_file()]
         if not found:
             raise ValueError(f"unknown problem {spec!r}; available: {', '.join(available())} "
