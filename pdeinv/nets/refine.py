@@ -59,24 +59,26 @@ __all__ = ["DataConsistency", "DenseCorrection", "GridCorrection", "PriorFit", "
 
 @dataclass(frozen=True)
 class PriorFit:
-    """How :meth:`Refined.fit_prior` fits the correction, in counts: Adam at ``lr``, ``batch`` draws per
+    """How :meth:`Refined.fit_prior` fits the correction, in counts: Adam at ``lr`` (``None``: the
+    correction's own ``fit_lr``), ``batch`` draws per
     step, at most ``steps`` steps (``None``: :data:`EPOCHS` passes over the training draws, at most
     :data:`MAX_STEPS`), the held-out error checked once per pass over the training draws on ``held_out``
     of them; after ``patience`` checks without a relative improvement of ``min_gain`` over the best so far
     it restarts from that best at a quarter of the lr, at most ``decays`` times, then stops; the best is
     what is kept. ``schedule`` multiplies the lr at step ``t`` of the fit's ``T``
-    (:mod:`pdeinv.nets.schedules`: a half-cosine from 1 to 0 by default). The same settings and seed give
+    (:mod:`pdeinv.nets.schedules`: constant by default; a fit the count ends before its plateau gains
+    from the larger steps a decay would take away). The same settings and seed give
     the same network on any machine and any load."""
 
     steps: int | None = None
-    lr: float = 1e-3
+    lr: float | None = None  # None: the correction's own (``fit_lr``: U-Net 4e-3, dense 1e-3)
     batch: int | None = None  # None: the correction's own (``fit_batch``: U-Net 32, dense 128)
     held_out: float = 0.125
     patience: int = 5
     min_gain: float = 0.005
     decays: int = 2
     seed: int = 0
-    schedule: Constant | Cosine = Cosine()
+    schedule: Constant | Cosine = Constant()
 
     def __post_init__(self):
         from .._checks import count, seed
@@ -85,7 +87,6 @@ class PriorFit:
             raise TypeError(f"PriorFit(schedule={self.schedule!r}) is not allowed; expected a schedule of "
                             "pdeinv.nets.schedules (Cosine(), Constant()): a callable (step, steps) -> "
                             "factor")
-
         if self.steps is not None:  # 0: the blend and the data-consistency layer only
             count(self.steps, "PriorFit(steps)", minimum=0)
         seed(self.seed, "PriorFit(seed)")
@@ -93,8 +94,11 @@ class PriorFit:
         count(self.decays, "PriorFit(decays)", minimum=0)
         if self.batch is not None:
             count(self.batch, "PriorFit(batch)")
-        if not (isinstance(self.lr, float | int) and self.lr > 0):
-            raise ValueError(f"PriorFit(lr={self.lr!r}) is not allowed; expected a number > 0")
+        lr = self.lr
+        if lr is not None and (isinstance(lr, bool) or not isinstance(lr, float | int)
+                               or not (math.isfinite(lr) and lr > 0)):
+            raise ValueError(f"PriorFit(lr={lr!r}) is not allowed; expected a finite number > 0, or None "
+                             "(the correction's own)")
         if not 0 < self.held_out < 1:
             raise ValueError(f"PriorFit(held_out={self.held_out!r}) is not allowed; expected a fraction in "
                              "(0, 1)")
@@ -208,10 +212,10 @@ class _Best:
     after ``patience`` checks without a relative gain of ``min_gain``, restart from the best at a quarter of
     the lr, at most ``decays`` times, then stop (:meth:`checked` returns True)."""
 
-    def __init__(self, g, opt, settings: PriorFit, before: float):
+    def __init__(self, g, opt, settings: PriorFit, before: float, lr: float):
         self.g, self.opt, self.settings = g, opt, settings
         self.before = self.best = before
-        self.lr = settings.lr  # before the schedule's factor; a quarter of it after each restart
+        self.lr = lr  # before the schedule's factor; a quarter of it after each restart
         self.state, self.bad, self.decays, self.step, self.stopped = None, 0, 0, 0, False
         self.t0, self.mark = time.perf_counter(), 0  # the log's estimate of what is left; its next line
 
@@ -414,8 +418,9 @@ class Refined(Network):
         before = error(held_out(correct=False))
         # the loss in units of the draws' mean square: Adam's steps (its ε is absolute) the same in any units
         unit = (float(np.mean(x[tr] ** 2)) if len(tr) else 0.0) or 1.0
-        opt = _adam(list(g.parameters()), settings.lr)
-        track, step = _Best(g, opt, settings, before), 0
+        lr = settings.lr or g.fit_lr
+        opt = _adam(list(g.parameters()), lr)
+        track, step = _Best(g, opt, settings, before, lr), 0
         feed.mix = _blend(feed, x, tr if feed.stored else tr[:PREPARE_ROWS])
         if feed.mix != 0.0:
             track.checked(error(held_out()), 0, log)  # b_λ with g = 0: kept if better than b alone

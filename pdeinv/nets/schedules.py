@@ -1,13 +1,14 @@
 """Learning-rate schedules of a counted fit: the factor ``s(t, T)`` the fit's lr is multiplied by at step
 ``t`` of ``T`` (:class:`~pdeinv.nets.refine.PriorFit`'s ``schedule``).
 
-:class:`Cosine` (the default) is the half-cosine of Loshchilov & Hutter (2017) without restarts,
+:class:`Cosine` is the half-cosine of Loshchilov & Hutter (2017) without restarts,
 
     s(t, T) = floor + (1 − floor) · ½ (1 + cos(π t / T)),
 
 from 1 at the first step to ``floor`` at the last: the budget is a count, so the schedule knows where
 it ends, and the small steps at its end average out the noise of the mini-batch gradients that a constant
-lr keeps to the last step. :class:`Constant` is ``s ≡ 1``.
+lr keeps to the last step. :class:`Constant` (the default) is ``s ≡ 1``: the prior fits that a count ends
+before their plateau (heat_boxes) lose more by the smaller steps than they gain by the averaging.
 """
 
 from __future__ import annotations

@@ -69,9 +69,12 @@ def boxes(points: np.ndarray, n: int, rng: np.random.Generator, count=(4, 10),
     c = lo + span * rng.uniform(0.1, 0.9, size=(n, m, dim))
     h = span * rng.uniform(*half, size=(n, m, dim))
     x = np.empty((n, points.shape[1]))
-    for i in range(n):  # (m, N) per sample: memory stays O(m·N) whatever n
-        inside = (np.abs(points.T[None, :, :] - c[i, :, None, :]) <= h[i, :, None, :]).all(-1)
-        x[i] = a[i] @ inside
+    for s in range(0, n, 64):  # (64, m, N) per chunk: memory stays O(m·N) whatever n
+        e = slice(s, s + 64)
+        inside = np.abs(points[0][None, None, :] - c[e, :, 0, None]) <= h[e, :, 0, None]
+        for d in range(1, dim):  # one axis at a time: no (m, N, dim) array
+            inside &= np.abs(points[d][None, None, :] - c[e, :, d, None]) <= h[e, :, d, None]
+        x[e] = np.einsum("bm,bmn->bn", a[e], inside)
     return x
 
 

@@ -53,9 +53,9 @@ ENTRIES_4K = 50_000_000
 
 
 #: multiply-adds a default stage's fit may spend (forward and backward, ~3× a forward pass per draw), a
-#: count, the same on every machine: ~1 000 U-Net steps of 32 draws on heat_boxes' 63×63 grid (0.64 s each
-#: on one core, ~1.5·10¹⁰ multiply-adds per second), which reach 0.042 there; half of it reached 0.050
-FIT_MACS = 9e12
+#: count, the same on every machine: ~500 U-Net steps of 32 draws on heat_boxes' 63×63 grid (~0.13 s each
+#: on one core), which reach 0.037 there at the U-Net's lr 4e-3 (1 000 steps at 1e-3 reached 0.041)
+FIT_MACS = 4.5e12
 
 
 def step_count(problem, kind: str, batch: int, n_train: int, fit: PriorFit) -> int:
