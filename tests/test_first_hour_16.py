@@ -108,3 +108,21 @@ def test_a_module_path_longer_than_a_file_name_is_one_line(tmp_path, capsys):
     assert main(["train", str(tmp_path / ("a" * 300 + ".py")), "--out", str(tmp_path / "r")]) == 2
     err = capsys.readouterr().err
     assert "cannot be looked up (File name too long)" in err and len(err) < 400
+
+
+@pytest.mark.parametrize("flag, text", [("--steps", "２"), ("--steps", "1_000"), ("--steps", " 2"),
+                                        ("--seed", "２"), ("--lr", "1e-3 ")])
+def test_numeric_flags_take_plain_ascii_numbers_only(tmp_path, capsys, flag, text):
+    rest = ["--prior-fit", "0", "--n-train", "64", "--n-test", "16", "-q", "--out", str(tmp_path / "r")]
+    args = ["train", "heat_1d", *rest, *([] if flag == "--steps" else ["--steps", "2"]), flag, text]
+    with pytest.raises(SystemExit) as exit_:  # argparse's usage error
+        main(args)
+    assert exit_.value.code == 2
+    assert f"argument {flag}: {text!r} is not a plain number" in capsys.readouterr().err
+    assert not (tmp_path / "r").exists()
+
+
+@pytest.mark.parametrize("item", ["kappa= 0.02", "kappa =0.02", "kappa=0.02 "])
+def test_a_setting_with_spaces_around_is_refused(capsys, item):
+    assert main(["train", "heat_1d", "--set", item, "--explain"]) == 2
+    assert "has spaces around its key or value" in capsys.readouterr().err

@@ -7,6 +7,7 @@ Modules import their heavy dependencies inside ``func`` so ``pdeinv --help`` sta
 
 from __future__ import annotations
 
+import argparse
 import os
 from pathlib import Path
 
@@ -39,6 +40,23 @@ def declare_ranges(parser, ranges: dict) -> None:
             ranged(action, **ranges[action.dest])
 
 
+def _plain(cast):
+    """An argparse ``type``: ``cast(text)`` for plain ASCII numbers only; ``'２'``, ``'1_000'`` or ``' 2'``
+    (which Python's ``int``/``float`` read as 2, 1000 and 2) are refused, as the settings refuse them."""
+    def parse(text: str):
+        if text != text.strip() or "_" in text or not text.isascii():
+            raise argparse.ArgumentTypeError(f"{text!r} is not a plain number; expected ASCII digits such as "
+                                             "16, 0.01 or 1e-3")
+        return cast(text)
+
+    parse.__name__ = cast.__name__  # argparse's "invalid int value: 'x'" for the rest
+    return parse
+
+
+#: the numeric flags' argparse types (:func:`_plain`)
+PLAIN_INT, PLAIN_FLOAT = _plain(int), _plain(float)
+
+
 def parse_sets(pairs: list[str]) -> dict:
     """``["kappa=0.02", "mesh=f.msh"]`` -> ``{"kappa": "0.02", ...}`` (problems coerce types)."""
     out = {}
@@ -46,7 +64,9 @@ def parse_sets(pairs: list[str]) -> dict:
         key, sep, value = item.partition("=")
         if not sep or not key:
             raise UsageError(f"--set {item!r} is not KEY=VALUE")
-        key = key.strip()
+        if value != value.strip() or key != key.strip():  # as the numeric flags: ' 2' is not a value
+            raise UsageError(f"--set {item!r} has spaces around its key or value; expected KEY=VALUE without "
+                             "them (e.g. --set kappa=0.02)")
         if key in out and out[key] != value.strip():  # which one the user meant is not ours to guess
             raise UsageError(f"--set {key}= is given twice, as {out[key]!r} and {value.strip()!r}; "
                              "expected one value per setting")
@@ -60,7 +80,7 @@ def add_set_argument(parser) -> None:
 
 
 def add_memory_argument(parser) -> None:
-    parser.add_argument("--max-memory-gb", type=float, default=None, metavar="GB",
+    parser.add_argument("--max-memory-gb", type=PLAIN_FLOAT, default=None, metavar="GB",
                         help="refuse a run whose estimated memory exceeds GB (default: 90%% of the "
                              "available memory; see pdeinv/util/memory.py)")
 

@@ -2,7 +2,17 @@
 
 from __future__ import annotations
 
-from . import UsageError, add_set_argument, build_problem, no_cache, out_path, prepare_out, run_parser
+from . import (
+    PLAIN_FLOAT,
+    PLAIN_INT,
+    UsageError,
+    add_set_argument,
+    build_problem,
+    no_cache,
+    out_path,
+    prepare_out,
+    run_parser,
+)
 
 ORDER = 2
 
@@ -32,12 +42,12 @@ def add_parser(sub) -> None:
     b = run_parser(sub, "bench", "benchmark run time against error; write DIR/bench.json and plots",
                    quick="tiny sizes, no sweeps, one repeat, 1 s per method (CI smoke test, "
                          "27 s on heat_2d)")
-    b.add_argument("--budget-s", type=float, default=None, metavar="S",
+    b.add_argument("--budget-s", type=PLAIN_FLOAT, default=None, metavar="S",
                    help="training wall time per method (default 20, 1 with --quick)")
-    b.add_argument("--seed", type=int, default=0,
+    b.add_argument("--seed", type=PLAIN_INT, default=0,
                    help="seed of the draws, batch orders and initial weights (0 to 2^32-1; default 0)")
     b.add_argument("--no-cache", action="store_true", help="no disk cache of factorizations")
-    b.add_argument("--threads", type=int, default=1,
+    b.add_argument("--threads", type=PLAIN_INT, default=1,
                    help="threads of torch and of numpy/scipy's BLAS during the run (default 1: steadier "
                         "timings on a shared machine)")
     add_set_argument(b)

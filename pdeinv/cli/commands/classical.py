@@ -42,7 +42,15 @@ import sys
 
 from pdeinv.util.outpaths import output_file
 
-from . import FAILED, BadData, add_set_argument, build_problem, parse_sets, set_threads
+from . import (
+    FAILED,
+    PLAIN_INT,
+    BadData,
+    add_set_argument,
+    build_problem,
+    parse_sets,
+    set_threads,
+)
 
 ORDER = 2
 
@@ -307,7 +315,7 @@ def add_parser(sub) -> None:
     c.add_argument("--out", default=None, metavar="FILE.json", help="also write the numbers as JSON")
     c.add_argument("--overwrite", action="store_true", help="replace an existing --out file")
     add_set_argument(c)
-    c.add_argument("--threads", type=int, default=1, help="threads of torch and of numpy/scipy's BLAS")
+    c.add_argument("--threads", type=PLAIN_INT, default=1, help="threads of torch and of numpy/scipy's BLAS")
     c.add_argument("--accept-bad", action="store_true",
                    help="exit 0 even when the solves cannot be right (else exit code 3 and one line: a model "
                         "mismatch far above the noise, every estimate no better than zero, estimates over "

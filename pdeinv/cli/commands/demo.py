@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import time
 
-from . import UsageError, add_memory_argument, add_set_argument, build_problem
+from . import PLAIN_INT, UsageError, add_memory_argument, add_set_argument, build_problem
 
 ORDER = 0
 
@@ -74,7 +74,7 @@ def cmd_demo(args) -> int:
 def add_parser(sub) -> None:
     d = sub.add_parser("demo", help="forward + adjoint on a sample batch, with timings")
     d.add_argument("problem", nargs="?", default="heat_2d")
-    d.add_argument("--batch", type=int, default=64, help="samples in the timed batch (default 64)")
+    d.add_argument("--batch", type=PLAIN_INT, default=64, help="samples in the timed batch (default 64)")
     add_set_argument(d)
     add_memory_argument(d)
     d.set_defaults(func=cmd_demo)

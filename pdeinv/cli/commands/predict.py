@@ -21,7 +21,7 @@ from pathlib import Path
 
 from pdeinv.util.outpaths import output_file
 
-from . import BadData, UsageError, set_threads
+from . import PLAIN_FLOAT, PLAIN_INT, BadData, UsageError, set_threads
 
 ORDER = 2
 
@@ -191,14 +191,14 @@ def add_parser(sub) -> None:
                    help="also write the predicted fields (and true ones and errors, with x) for ParaView")
     p.add_argument("--overwrite", action="store_true",
                    help="replace an existing --out or --vtu file (never a run's own files nor an input)")
-    p.add_argument("--level", type=float, default=None, metavar="L",
+    p.add_argument("--level", type=PLAIN_FLOAT, default=None, metavar="L",
                    help="central interval level in (0, 1) for lo and hi (default 0.9)")
-    p.add_argument("--samples", type=int, default=None, metavar="K",
+    p.add_argument("--samples", type=PLAIN_INT, default=None, metavar="K",
                    help="also write K posterior samples per observation, samples (B, K, N)")
-    p.add_argument("--seed", type=int, default=0, help="seed of the samples (default 0)")
+    p.add_argument("--seed", type=PLAIN_INT, default=0, help="seed of the samples (default 0)")
     p.add_argument("--accept-bad", action="store_true",
                    help="predict even on observations beyond what the run's noise explains (another physics "
                         "or settings: else exit code 3 and one line), with a warning")
-    p.add_argument("--threads", type=int, default=1,
+    p.add_argument("--threads", type=PLAIN_INT, default=1,
                    help="threads of torch and of numpy/scipy's BLAS (default 1)")
     p.set_defaults(func=cmd_predict)

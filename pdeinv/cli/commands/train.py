@@ -13,6 +13,8 @@ from pathlib import Path
 
 from . import (
     FAILED,
+    PLAIN_FLOAT,
+    PLAIN_INT,
     BadData,
     UsageError,
     _checks,
@@ -593,13 +595,13 @@ def add_parser(sub) -> None:
     t.add_argument("problem")
     t.add_argument("--method", choices=sorted(METHODS), default="sip",
                    help="update rule (default: sip, the most accurate; methods/presets.py)")
-    t.add_argument("--steps", type=int, default=None,
+    t.add_argument("--steps", type=PLAIN_INT, default=None,
                    help="training steps, i.e. updates of the network (default: the method's preset: 30 "
                         "full-batch steps for sip, 1000 (hig: full-batch) otherwise; no limit when "
                         "--time-budget is given); not the physics' time steps, which are --set steps=N")
-    t.add_argument("--time-budget", type=float, default=None, metavar="SECONDS",
+    t.add_argument("--time-budget", type=PLAIN_FLOAT, default=None, metavar="SECONDS",
                    help="also stop once training wall time exceeds this")
-    t.add_argument("--seed", type=int, default=0,
+    t.add_argument("--seed", type=PLAIN_INT, default=0,
                    help="seed of everything random: the training and test draws, the batch order, the "
                         "network's initial weights (an integer from 0 to 2^32-1; default 0)")
     t.add_argument("--no-cache", action="store_true", help="no disk cache of factorizations")
@@ -629,10 +631,10 @@ RANGES = {"steps": dict(low=1), "lr": dict(above=0), "eta": dict(above=0), "tau"
 
 def _rule_arguments(t) -> None:
     """The update rule's settings (their defaults: the presets, methods/presets.py)."""
-    t.add_argument("--lr", type=float, default=None, help="optimizer learning rate (gd, adam, sip)")
-    t.add_argument("--eta", type=float, default=None, help="step scale η (sip, hig)")
-    t.add_argument("--tau", type=float, default=None, help="relative singular-value cut (hig)")
-    t.add_argument("--batch-size", type=int, default=None,
+    t.add_argument("--lr", type=PLAIN_FLOAT, default=None, help="optimizer learning rate (gd, adam, sip)")
+    t.add_argument("--eta", type=PLAIN_FLOAT, default=None, help="step scale η (sip, hig)")
+    t.add_argument("--tau", type=PLAIN_FLOAT, default=None, help="relative singular-value cut (hig)")
+    t.add_argument("--batch-size", type=PLAIN_INT, default=None,
                    help="samples per step (default: the method's preset; sip: every training sample, "
                         "32 with --hidden)")
     t.add_argument("--optimizer", choices=("adam", "sgd"), default=None,
@@ -656,7 +658,7 @@ def _network_arguments(t) -> None:
                         "scenes), pdeinv.nets.modal; unet: the SIP paper's U-Net on the observations and the "
                         "physics' linear estimate, trained by the rule end to end, pdeinv.nets.unet; "
                         "pdeinv.nets.default_model)")
-    t.add_argument("--prior-fit", type=int, default=None, metavar="N",
+    t.add_argument("--prior-fit", type=PLAIN_INT, default=None, metavar="N",
                    help="the prior stage after the rule: fit the default network's nonlinear correction on "
                         "draws of the prior (the scene's sampler, or the rows of --data that carry x) for at "
                         "most N steps, then its data-consistency layer (default: 60 passes over the draws, "
@@ -674,15 +676,15 @@ def _data_arguments(t) -> None:
                         "are the test set, the stopping rule's 128 rows (when it is on) come before "
                         "them, the rest train; shuffle the rows first if the file is sorted. The noise "
                         "level is the problem's (--set noise=...)")
-    t.add_argument("--n-train", type=int, default=None,
+    t.add_argument("--n-train", type=PLAIN_INT, default=None,
                    help=f"training samples (default {N_TRAIN}; not with --data)")
     t.add_argument("--fresh-draws", action="store_true",
                    help="train each step on new draws of the scene's prior, x in no loss (the SIP paper's "
                         "protocol; not with --data): the --n-train rows then only fit the input scaling")
-    t.add_argument("--n-test", type=int, default=None,
+    t.add_argument("--n-test", type=PLAIN_INT, default=None,
                    help=f"test samples (default {N_TEST}); with --data the last N rows of the file "
                         f"(default {N_TEST_FILE})")
-    t.add_argument("--eval-every", type=int, default=50, metavar="K",
+    t.add_argument("--eval-every", type=PLAIN_INT, default=50, metavar="K",
                    help="compute the held-out test errors (x_err, y_err in history.csv and training.png) "
                         "every K training steps, and after the first and the last (default 50; not counted "
                         "as training time)")
@@ -695,23 +697,23 @@ def _run_arguments(t) -> None:
                         "cuda, cuda:N (time stepping stays on the CPU). Data parallel: torchrun "
                         "--nproc_per_node=P -m pdeinv train ... (gloo on cpu, NCCL on cuda; the batch "
                         "is the global one and must divide by P; hig on the default networks only)")
-    t.add_argument("--threads", type=int, default=1,
+    t.add_argument("--threads", type=PLAIN_INT, default=1,
                    help="threads of torch and of numpy/scipy's BLAS/OpenMP pools (default 1: on 2 cores a "
                         "heat_2d step of an MLP took 6.8 ms with one thread and 18-20 ms with two, idle "
                         "machine; pdeinv.util.threads)")
-    t.add_argument("--export-samples", type=int, default=None, metavar="K",
+    t.add_argument("--export-samples", type=PLAIN_INT, default=None, metavar="K",
                    help=f"write fields.vtu (ParaView) and fields.png for K test samples (default "
                         f"{EXPORT_SAMPLES}, at most --n-test; 0: none)")
     t.add_argument("--overwrite", action="store_true",
                    help="delete the previous run's files in DIR first (only files pdeinv train writes: "
                         "metrics.json, checkpoint.pt, model.pt, fields.vtu, ...; only in a folder pdeinv "
                         "marked as a run's, never another non-empty folder); not with --resume")
-    t.add_argument("--checkpoint-every", type=int, default=100, metavar="K",
+    t.add_argument("--checkpoint-every", type=PLAIN_INT, default=100, metavar="K",
                    help="save DIR/checkpoint.pt atomically every K steps and at the end (0: never)")
     t.add_argument("--resume", action="store_true",
                    help="continue from DIR/checkpoint.pt (same problem, settings, network, seed and "
                         "data); --steps may grow, not shrink below the steps done")
-    t.add_argument("--max-failures", type=int, default=5, metavar="K",
+    t.add_argument("--max-failures", type=PLAIN_INT, default=5, metavar="K",
                    help="stop after K consecutive rejected steps (a NaN/Inf loss or update, or a loss "
                         "over 1000x the lowest so far; redoing the rolled-back step does not end a "
                         "streak); each rejection restores the last good state and halves the learning "
