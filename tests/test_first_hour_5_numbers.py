@@ -30,8 +30,9 @@ def numeric_flags():
             elif action.required:
                 base += [action.option_strings[0], "x.npz"]
         for action in p._actions:
-            if action.type in (int, float) and action.option_strings and action.dest != "seed":
-                found.append((command, base, max(action.option_strings, key=len), action.type))
+            kind = getattr(action.type, "cast", action.type)  # PLAIN_INT reads as int
+            if kind in (int, float) and action.option_strings and action.dest != "seed":
+                found.append((command, base, max(action.option_strings, key=len), kind))
     return found
 
 

@@ -1,4 +1,4 @@
-"""PriorFit's lr schedules and the correction's own lr (pdeinv.nets.schedules, PriorFit(lr=None))."""
+"""PriorFit's lr schedules and the correction's own lr (pdeinv.util.schedules, PriorFit(lr=None))."""
 
 from __future__ import annotations
 
@@ -8,7 +8,7 @@ import pytest
 
 from pdeinv.nets.corrections import DenseCorrection, GridCorrection
 from pdeinv.nets.refine import PriorFit
-from pdeinv.nets.schedules import Constant, Cosine
+from pdeinv.util.schedules import Constant, Cosine
 
 
 def test_cosine_runs_from_one_to_its_floor_through_the_half_cosine():

@@ -98,16 +98,21 @@ def check_numbers(parser, args) -> None:
 
     subparsers = next(a for a in parser._actions if isinstance(a, argparse._SubParsersAction))
     for action in subparsers.choices[args.command]._actions:
-        value = getattr(args, action.dest, None)
-        if value is None or action.type not in (int, float) or not action.option_strings \
+        value, cast = getattr(args, action.dest, None), _cast(action)
+        if value is None or cast not in (int, float) or not action.option_strings \
                 or action.dest == "seed":  # --seed: 0 to 2^32 - 1 (check_common)
             continue
         flag = max(action.option_strings, key=len)
-        if action.type is float and not math.isfinite(value):
+        if cast is float and not math.isfinite(value):
             raise UsageError(f"{flag} {value} is not allowed; expected a finite number")
-        if action.type is int and abs(value) > INT_MAX:
+        if cast is int and abs(value) > INT_MAX:
             raise UsageError(f"{flag} {value} is out of range; expected an integer of at most {INT_MAX}")
         _in_range(action, flag, value)
+
+
+def _cast(action):
+    """The number type a flag's argparse ``type`` reads (``int`` for ``PLAIN_INT``)."""
+    return getattr(action.type, "cast", action.type)
 
 
 def _in_range(action, flag: str, value) -> None:
@@ -116,7 +121,7 @@ def _in_range(action, flag: str, value) -> None:
     if (low is None or value >= low) and (above is None or value > above) \
             and (below is None or value < below) and (high is None or value <= high):
         return
-    kind = "an integer" if action.type is int else "a number"
+    kind = "an integer" if _cast(action) is int else "a number"
     parts = [f">= {low}" if low is not None else "", f"> {above}" if above is not None else "",
              f"< {below}" if below is not None else "", f"<= {high}" if high is not None else ""]
     allowed = " and ".join(p for p in parts if p)

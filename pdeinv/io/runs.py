@@ -384,7 +384,11 @@ def load_run(run_dir):
                          "(is it the --out DIR of a finished `pdeinv train`?)")
     record = _record(run, where)
     problem = load_problem(record["problem"], **record["overrides"])
+    digest = record.get("record_sha256")  # records of earlier pdeinv versions have none
+    edited = digest is not None and digest != _record_digest(record)
     why = None if record.get("fingerprint") is None else changed(problem, record["fingerprint"])
+    if why is not None and edited:  # the record's own settings changed: say so, with what they now build
+        raise ValueError(_edited(where, f"; its settings now build another problem: {why}"))
     if why is not None:  # before the model: its shapes would blame model.pt, or fit another physics
         raise ValueError(f"{where}: problem {record['problem']!r} with {RUN_FILE}'s settings is not the "
                          f"one the run was trained on ({why}: an edited module, setting or mesh?); restore "
@@ -406,16 +410,19 @@ def load_run(run_dir):
                          "file pdeinv wrote); rerun `pdeinv train`") from None
     _check_model_file(run / MODEL_FILE, record.get("model_sha256"), where)
     _load_state(model, state, where)
-    digest = record.get("record_sha256")  # records of earlier pdeinv versions have none
-    if digest is not None and digest != _record_digest(record):  # an edit the checks above let through
-        raise ValueError(f"{where}: {RUN_FILE} was edited after the run (its problem, overrides, network or "
-                         "file digests no longer match its record_sha256): the model was trained with the "
-                         f"ones recorded; restore {RUN_FILE}, or rerun `pdeinv train` with the settings you "
-                         "want")
+    if edited:  # an edit the checks above let through
+        raise ValueError(_edited(where))
     from ..problem.trained import mark_trained
 
     mark_trained(model, problem)  # save_run and predict refuse it with another problem
     return problem, model.eval()
+
+
+def _edited(where: str, what: str = "") -> str:
+    """The one line for a ``run.json`` whose fields no longer match its ``record_sha256``."""
+    return (f"{where}: {RUN_FILE} was edited after the run (its problem, overrides, network or file digests "
+            f"no longer match its record_sha256{what}): the model was trained with the ones recorded; "
+            f"restore {RUN_FILE}, or rerun `pdeinv train` with the settings you want")
 
 
 def _fingerprint_like(value) -> bool:

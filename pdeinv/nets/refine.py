@@ -48,10 +48,10 @@ import torch
 from torch import nn
 
 from ..fem.grid import GridMap
+from ..util.schedules import Constant, Cosine
 from .consistency import DataConsistency
 from .corrections import DenseCorrection, GridCorrection, SpanCorrection, SpectralFilter, UNet
 from .protocol import Network, declared
-from .schedules import Constant, Cosine
 
 __all__ = ["DataConsistency", "DenseCorrection", "GridCorrection", "PriorFit", "PriorFitted", "Refined",
            "SpanCorrection", "SpectralFilter", "UNet"]
@@ -66,7 +66,7 @@ class PriorFit:
     of them; after ``patience`` checks without a relative improvement of ``min_gain`` over the best so far
     it restarts from that best at a quarter of the lr, at most ``decays`` times, then stops; the best is
     what is kept. ``schedule`` multiplies the lr at step ``t`` of the fit's ``T``
-    (:mod:`pdeinv.nets.schedules`: constant by default; a fit the count ends before its plateau gains
+    (:mod:`pdeinv.util.schedules`: constant by default; a fit the count ends before its plateau gains
     from the larger steps a decay would take away). The same settings and seed give
     the same network on any machine and any load."""
 
@@ -85,7 +85,7 @@ class PriorFit:
 
         if not callable(self.schedule):
             raise TypeError(f"PriorFit(schedule={self.schedule!r}) is not allowed; expected a schedule of "
-                            "pdeinv.nets.schedules (Cosine(), Constant()): a callable (step, steps) -> "
+                            "pdeinv.util.schedules (Cosine(), Constant()): a callable (step, steps) -> "
                             "factor")
         if self.steps is not None:  # 0: the blend and the data-consistency layer only
             count(self.steps, "PriorFit(steps)", minimum=0)
@@ -399,10 +399,7 @@ class Refined(Network):
         ``relative_error(xhat, x)`` is the problem's per-sample relative L²(Ω) error (numpy). Returns
         what was done (``kept``, held-out errors before and after, draws, steps)."""
         x, n = np.asarray(x, dtype=float), len(x)
-        gen = torch.Generator().manual_seed(settings.seed)
-        perm = torch.randperm(n, generator=gen).numpy()
-        n_val = max(1, int(round(settings.held_out * n)))
-        val, tr = perm[:n_val], perm[n_val:]
+        gen, val, tr = _split(n, settings)
         g, feed = self.correction, self._fit_inputs(y, tr)
         size = min(settings.batch or g.fit_batch, max(len(tr), 1))
         every = max(1, math.ceil(len(tr) / size))  # once per pass over the training draws
@@ -450,8 +447,17 @@ class Refined(Network):
         after = track.best
         if kept and self.consistency is not None:  # the observations get back what the correction took
             after = error(self._consistent(y[val], held_out(), x[val], feed.dtype))
-        self.prior_info = {"kept": kept, "draws": n, "held_out": int(n_val), "error_before": before,
+        self.prior_info = {"kept": kept, "draws": n, "held_out": len(val), "error_before": before,
                            "mix": float(self.mix), "error_corrected": track.best, "error_after": after,
                            "consistency": kept and self.consistency is not None, "steps": step,
                            "max_steps": steps}
         return self.prior_info
+
+
+def _split(n: int, settings: PriorFit):
+    """The seeded generator of the fit and its held-out / training rows: a ``settings.held_out`` share of
+    the ``n`` draws (at least one) held out."""
+    gen = torch.Generator().manual_seed(settings.seed)
+    perm = torch.randperm(n, generator=gen).numpy()
+    n_val = max(1, int(round(settings.held_out * n)))
+    return gen, perm[:n_val], perm[n_val:]

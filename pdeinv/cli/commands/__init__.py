@@ -50,6 +50,7 @@ def _plain(cast):
         return cast(text)
 
     parse.__name__ = cast.__name__  # argparse's "invalid int value: 'x'" for the rest
+    parse.cast = cast  # what check_numbers checks the value as
     return parse
 
 
