@@ -277,6 +277,30 @@ def test_a_feed_computed_per_batch_fits_the_same_correction(monkeypatch, name, k
     np.testing.assert_allclose(out_a, out_b, rtol=1e-4, atol=atol * np.abs(out_a).max())
 
 
+def test_prior_draws_are_priced_by_the_operators_forward_cost():
+    """A costly forward caps the stage's draws at DRAW_FLOPS' worth (never below 256); the linear scenes'
+    compiled draws are too cheap to be capped; the cost models grow with the time steps."""
+    from pdeinv.training.plan import DRAW_FLOPS, FEWEST_DRAWS, PriorStage, draw_count
+
+    assert draw_count(225, None) == draw_count(225) == 65536
+    assert draw_count(225, DRAW_FLOPS / 1000) == 1000 and draw_count(225, DRAW_FLOPS) == FEWEST_DRAWS
+    ac = pdeinv.load_problem("allen_cahn_2d")
+    flops = ac.operator.forward_flops()
+    assert PriorStage().draw_count(ac) == int(DRAW_FLOPS // flops) < 20_000
+    ac2 = pdeinv.load_problem("allen_cahn_2d", steps=100)
+    assert ac2.operator.forward_flops() == pytest.approx(2 * flops)
+    sg = pdeinv.load_problem("sine_gordon_1d")
+    sg2 = pdeinv.load_problem("sine_gordon_1d", T=2.0)
+    assert sg2.operator.forward_flops() > 1.9 * sg.operator.forward_flops() > 0
+    for name in ("heat_1d", "heat_boxes", "wave_2d"):  # compiled: BLAS products of the stored map
+        p = pdeinv.load_problem(name)
+        assert p.operator.backend is not None
+        assert 0 < p.operator.forward_flops() < p.operator.step_flops()
+        assert PriorStage().draw_count(p) == draw_count(p.N)
+    assert pdeinv.load_problem("heat_1d").operator.stepping().forward_flops() == pytest.approx(
+        pdeinv.load_problem("heat_1d").operator.step_flops())
+
+
 def test_prior_draws_are_a_count_of_the_unknowns_and_the_same_for_the_same_seed(monkeypatch):
     from pdeinv.training.plan import draw_count
     from pdeinv.training.trainset import prior_rows

@@ -33,6 +33,10 @@ class Spectral:
     def adjoint(self, R):
         return ((R @ self.out) * self.g) @ self.In.T
 
+    def flops(self) -> float:
+        """One column's :meth:`forward`: ``2k(N + m)``."""
+        return 2.0 * self.k * (self.In.shape[0] + self.out.shape[0])
+
 
 def observes_field(op) -> bool:
     """Whether ``op``'s observations are fields on the mesh (declared ``output_space == "field"``)."""

@@ -63,6 +63,12 @@ class Physics:
         """The memory of :attr:`jacobian` on ``B`` rows, about (its result in float64)."""
         return 8 * B * self.n_out * self.n_in
 
+    def forward_flops(self) -> float | None:
+        """The flops of one row's :meth:`forward` by the operator's own cost model (sparse solves and
+        products; BLAS products discounted by :data:`~pdeinv.physics.backends.compiled.BLAS_ADVANTAGE`),
+        or None: not declared (a count priced by it, e.g. the prior stage's draws, is then not capped)."""
+        return None
+
     def stepping(self):
         """The same map applied by time stepping (a :class:`.propagator.Propagator`), or None: this
         operator has no time-stepping form."""

@@ -133,6 +133,13 @@ class Propagator(LinearOperator):
         scheme's declared cost of a step (``scheme.flops()``, :mod:`.schemes`)."""
         return self.steps * self.scheme.flops()
 
+    def forward_flops(self) -> float:
+        """One column's forward: :meth:`step_flops` when stepping, else the compiled backend's products
+        (its ``flops()``) discounted by :data:`~.backends.compiled.BLAS_ADVANTAGE`."""
+        from .backends.compiled import BLAS_ADVANTAGE
+
+        return self.step_flops() if self.backend is None else self.backend.flops() / BLAS_ADVANTAGE
+
     def count_modes(self, mu: float) -> float:
         """How many eigenvalues of the scheme's ``L φ = λ M φ`` lie below ``mu`` (sizes the modal
         eigensolve): exact for a symmetric θ-scheme beyond ``modes.DENSE_MAX`` unknowns

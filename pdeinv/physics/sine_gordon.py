@@ -121,6 +121,11 @@ class SineGordon(Physics):
         a1 = self.accel(U1)
         return U1, Vh - 0.5 * h * a1, a1
 
+    def forward_flops(self) -> float:
+        """One column's forward, by a cost model: ``steps · (2·nnz K + 10 N)`` (the product by ``K``, the
+        sine and the updates of an explicit step)."""
+        return self.steps * (2.0 * self.K.nnz + 10.0 * self.n_in)
+
     def _march(self, U, V, sign: float = 1.0, keep: list | None = None):
         if keep is None:
             return self._by_columns(lambda u, v: self._march_block(u, v, sign), U, V)

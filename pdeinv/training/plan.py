@@ -72,12 +72,23 @@ def step_count(problem, kind: str, batch: int, n_train: int, fit: PriorFit) -> i
     return int(max(1, min(fit.step_count(n_train, batch), FIT_MACS // (3 * macs * batch))))
 
 
-def draw_count(N: int) -> int:
+def draw_count(N: int, flops: float | None = None) -> int:
     """The default stage's prior draws for ``N`` unknowns: ``min(65 536, 2·10⁷/N)``, at least
-    ``min(4 096, 5·10⁷/N)`` and 256 (heat_boxes 64²: 5 039; heat_1d: 65 536; 30 k unknowns: 1 670).
-    A dense correction on 4 096 sine_gordon_1d draws early-stopped at 0.094, on 16 384 it reached 0.064."""
+    ``min(4 096, 5·10⁷/N)`` and 256 (heat_boxes 64²: 5 039; heat_1d: 65 536; 30 k unknowns: 1 670), and at
+    most what :data:`DRAW_FLOPS` buys at ``flops`` per draw (the operator's ``forward_flops()``; None: not
+    priced), never fewer than 256. A dense correction on 4 096 sine_gordon_1d draws early-stopped at
+    0.094, on 16 384 it reached 0.064."""
     N = max(int(N), 1)
-    return int(max(FEWEST_DRAWS, min(4096, ENTRIES_4K // N), min(MOST_DRAWS, ENTRIES // N)))
+    n = int(max(FEWEST_DRAWS, min(4096, ENTRIES_4K // N), min(MOST_DRAWS, ENTRIES // N)))
+    if flops is not None and flops > 0:
+        n = min(n, max(FEWEST_DRAWS, int(DRAW_FLOPS // flops)))
+    return n
+
+
+#: flops the default stage's prior draws may spend by the operator's cost model (a count, the same on
+#: every machine): ~10 k allen_cahn_2d draws (9.6e6 each, ~30 s of chord solves on one core); the
+#: linear scenes' compiled draws cost 10³–10⁷ each and stay uncapped
+DRAW_FLOPS = 1e11
 
 
 @dataclass(frozen=True)
@@ -107,7 +118,7 @@ class PriorStage:
         return isinstance(model, PriorFitted)
 
     def draw_count(self, problem) -> int:
-        return self.draws if self.draws is not None else draw_count(problem.N)
+        return self.draws if self.draws is not None else draw_count(problem.N, problem.operator.forward_flops())
 
     def planned(self, problem, kind: str, own=None) -> dict:
         """What the stage will do for a correction of ``kind`` (:func:`pdeinv.nets.defaults.correction_kind`),

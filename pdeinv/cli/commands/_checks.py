@@ -150,7 +150,7 @@ def _prior_draws(problem, args) -> int:
 
     if args.prior_fit == 0 or not prior_part(problem, getattr(args, "net", "default"), args.hidden):
         return 0
-    return draw_count(problem.N)
+    return draw_count(problem.N, problem.operator.forward_flops())
 
 
 def steps(args, hp: dict | None = None) -> int | None:

@@ -102,6 +102,10 @@ class Dense:
     def forward(self, X):
         return X @ self.PT
 
+    def flops(self) -> float:
+        """One column's :meth:`forward`: ``2mN``."""
+        return 2.0 * self.P.size
+
     def adjoint(self, R):
         return R @ self.P
 
