@@ -166,6 +166,20 @@ def test_a_negative_number_with_an_exponent_reaches_the_options_check(tmp_path, 
     assert said in capsys.readouterr().err
 
 
+@pytest.mark.parametrize("flag, value, said", [("--steps", "-inf", "invalid int value: '-inf'"),
+                                               ("--seed", "-NaN", "invalid int value: '-NaN'"),
+                                               ("--lr", "-Infinity", "--lr -inf is not allowed")])
+def test_a_negative_infinity_or_nan_is_read_as_the_options_value(capsys, flag, value, said):
+    """argparse takes ``-inf`` for an option ("expected one argument"); the value's own check names it."""
+    try:
+        code = main(["train", "heat_1d", "--set", "n=16", flag, value, "--explain"])
+    except SystemExit as stop:  # argparse's own errors exit from the parser
+        code = stop.code
+    err = capsys.readouterr().err
+    assert code == 2
+    assert said in err and "expected one argument" not in err
+
+
 def test_a_setting_that_underflows_to_zero_says_so(capsys):
     assert main(["train", "heat_1d", "--set", "kappa=1e-400", "--explain"]) == 2
     assert "kappa='1e-400' is out of range" in capsys.readouterr().err

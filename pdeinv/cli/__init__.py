@@ -261,12 +261,13 @@ def _thread_failed(args, hook_args) -> None:
           + (f": {text}" if text else "") + " (-v shows the traceback)", file=sys.stderr)
 
 
-#: a negative number with an exponent, which argparse takes for an option (it knows ``-1`` and ``-0.5`` only)
-_NEGATIVE_EXP = re.compile(r"-(\d+\.?\d*|\.\d+)[eE][-+]?\d+")
+#: a negative number with an exponent, or ``-inf``/``-nan``, which argparse takes for an option (it knows
+#: ``-1`` and ``-0.5`` only)
+_NEGATIVE_EXP = re.compile(r"-((\d+\.?\d*|\.\d+)e[-+]?\d+|inf|infinity|nan)", re.IGNORECASE)
 
 
 def _joined(argv: list[str]) -> list[str]:
-    """``--lr -1e-3`` as ``--lr=-1e-3``, so the option's own check names the value."""
+    """``--lr -1e-3`` (or ``-inf``) as ``--lr=-1e-3``, so the option's own check names the value."""
     out: list[str] = []
     for token in argv:
         if (out and _NEGATIVE_EXP.fullmatch(token) and out[-1].startswith("--") and "=" not in out[-1]
