@@ -94,6 +94,20 @@ def test_missing_folders_are_created_for_every_command(run, tmp_path, capsys):
     assert main(["show", r]) == 0  # the default DIR/fields.png is show's own file: redrawn
 
 
+def test_a_prediction_kept_in_a_run_folder_is_replaced_with_overwrite(run, capsys):
+    """An earlier ``predict --out RUN/p.npz`` is not one of the run's own files: refused without
+    --overwrite as any existing file, replaced with it; the run's files stay as they were."""
+    d, r = str(run), str(run / "run")
+    own = {p: p.read_bytes() for p in (run / "run").iterdir() if p.is_file()}
+    argv = ["predict", r, "--data", f"{d}/obs.npz", "--out", f"{r}/kept.npz", "-q"]
+    assert main(argv) == 0
+    assert main(argv) == 2
+    assert "kept.npz' exists; pass --overwrite" in capsys.readouterr().err
+    assert main([*argv, "--overwrite"]) == 0
+    assert all(p.read_bytes() == b for p, b in own.items())
+    (run / "run" / "kept.npz").unlink()
+
+
 def test_save_run_creates_its_folder_and_loads_back(tmp_path):
     p = pdeinv.load_problem("heat_1d", n=8)
     result = pdeinv.train(p, "sip", n_train=8, n_test=4, steps=1, progress=False, prior=None)
@@ -112,8 +126,11 @@ def test_the_policy_functions(tmp_path):
         output_file("", "out")
     with pytest.raises(OutputPathError, match=r"is one of a run's own files \(model\.pt\)"):
         output_file(tmp_path / "run" / "model.pt")
-    with pytest.raises(OutputPathError, match=r"notes\.txt"):  # whatever a run folder keeps
-        output_file(tmp_path / "run" / "notes.txt")
+    with pytest.raises(OutputPathError, match=r"notes\.txt' exists; pass overwrite=True"):
+        output_file(tmp_path / "run" / "notes.txt")  # not the run's own: the rule of every other file
+    assert output_file(tmp_path / "run" / "notes.txt", overwrite=True).name == "notes.txt"
+    with pytest.raises(OutputPathError, match=r"is one of a run's own files \(model\.pt\)"):
+        output_file(tmp_path / "run" / "model.pt", overwrite=True)
     assert output_file(tmp_path / "run" / "fields.png", owns=("fields.png",)).parent.is_dir()
     assert output_file(tmp_path / "run" / "new.png")  # a new file beside the run's is fine
     with pytest.raises(OutputPathError, match=r"expected a file name ending in \.npz"):

@@ -13,10 +13,10 @@
   takes a new or empty folder, or a run folder; a run folder holding a run's files only with
   ``--overwrite`` (which then removes only :data:`pdeinv.io.runs.OUTPUTS`) or ``--resume``. Any other
   non-empty folder is refused, ``--overwrite`` or not, naming what it holds;
-* a single file (:func:`output_file`): an existing file inside a run folder (the run's own outputs and
-  whatever else is kept there) is refused unless the command owns that file (``pdeinv show`` redraws
-  ``fields.png``); any other existing file is replaced only with ``--overwrite``; something that is not a
-  regular file (a device, a pipe) never;
+* a single file (:func:`output_file`): one of a run's own files (:data:`pdeinv.io.runs.OUTPUTS`, its
+  marker and lock, in a run folder) is refused unless the command owns that file (``pdeinv show`` redraws
+  ``fields.png``); any other existing file (an earlier prediction kept in a run folder included) is
+  replaced only with ``--overwrite``; something that is not a regular file (a device, a pipe) never;
 * missing parent folders are created; a folder that cannot be created or written (read-only, under a
   file, no permission) is refused, naming the folder;
 * a file path that is an existing folder is refused (and the other way round);
@@ -175,6 +175,14 @@ def _not_an_input(target: Path, named: str, flag: str, inputs: Iterable) -> None
                                   f"destroy that input; choose another {flag}")
 
 
+def _run_file(target: Path) -> bool:
+    """Whether ``target`` is a file ``pdeinv train`` writes in a run folder (:data:`pdeinv.io.runs.OUTPUTS`,
+    its marker, its lock): never replaced by another command."""
+    from ..io.runs import OUTPUTS
+
+    return target.name in {*OUTPUTS, RUN_MARKER, *IGNORED} and is_run_folder(target.parent)
+
+
 def run_output(path) -> bool:
     """Whether ``path`` (resolved) is an existing file of a run folder (:func:`is_run_folder`): the run's
     own results (``training.png``, ``metrics.json``, ``model.pt``, … :data:`pdeinv.io.runs.OUTPUTS`) or
@@ -197,8 +205,8 @@ def output_file(path, flag: str = "out", inputs: Iterable = (), owns: Iterable[s
     if str(os.fspath(path)).endswith(("/", os.sep)):  # resolve() drops the slash that names a folder
         raise OutputPathError(f"{named} ends in '/', a folder; expected a file name")
     _not_an_input(target, named, flag, inputs)
-    in_run = is_run_folder(target.parent)
-    if target.is_file() and in_run and target.name not in set(owns):
+    owned = _run_file(target) and target.name in set(owns)
+    if target.is_file() and _run_file(target) and not owned:
         raise OutputPathError(f"{named} is one of a run's own files ({target.name}) in the run folder "
                               f"{str(target.parent)!r}; writing it would replace that run's result; choose "
                               f"another {flag}")
@@ -214,7 +222,7 @@ def output_file(path, flag: str = "out", inputs: Iterable = (), owns: Iterable[s
     if target.exists() and not target.is_file():
         raise OutputPathError(f"{named} is not a regular file (a device, a pipe or a socket); "
                               f"choose another {flag}")
-    if target.is_file() and not in_run and not overwrite:
+    if target.is_file() and not owned and not overwrite:
         how = "--overwrite" if flag.startswith("--") else "overwrite=True"  # a flag, or a Python argument
         raise OutputPathError(f"{named} exists; pass {how} to replace it, or choose another {flag}")
     _writable(target.parent, flag, named, target)
