@@ -366,3 +366,21 @@ def test_optimizer_flags_must_be_booleans_and_lr_may_be_a_0d_tensor():
     with pytest.raises(ValueError, match=r"amsgrad='yes' is not True or False"):
         pdeinv.adam(1e-3, amsgrad="yes")
     assert pdeinv.adam(torch.tensor(1e-3)).keywords["lr"] == pytest.approx(1e-3)
+
+
+def test_predict_names_a_low_precision_file_as_a_possible_cause(tmp_path, capsys):
+    """float16 observations refused by predict name their storage (train names it too), not only the physics."""
+    run = tmp_path / "run"
+    assert main(["train", "heat_1d", "--set", "n=16", "--steps", "3", "--prior-fit", "0", "--n-train", "32",
+                 "--n-test", "16", "-q", "--out", str(run)]) == 0
+    _, y = pdeinv.load_problem("heat_1d", n=16).sample(20, seed=3)
+    np.savez(tmp_path / "f16.npz", y=y.astype(np.float16))
+    np.savez(tmp_path / "f64.npz", y=y)
+    capsys.readouterr()
+    assert main(["predict", str(run), "-q", "--data", str(tmp_path / "f16.npz"), "--out",
+                 str(tmp_path / "p16.npz")]) == 3
+    err = capsys.readouterr().err
+    assert "stored in lower precision than float64" in err and "save it in float64" in err
+    assert err.count("\n") == 1
+    assert main(["predict", str(run), "-q", "--data", str(tmp_path / "f64.npz"), "--out",
+                 str(tmp_path / "p64.npz")]) == 0

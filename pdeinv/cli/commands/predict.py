@@ -104,7 +104,8 @@ def _check_data(args, problem, y, x, model, declared=None) -> None:
     off by more than the run's noise level explains."""
     import logging
 
-    from pdeinv.training.data import against, below_noise, beyond_noise, explained, no_signal, read_noise
+    from pdeinv.training.data import (against, below_noise, beyond_noise, explained, no_signal,
+                                      npz_rounding_level, read_noise)
 
     _check_units(args, y, model)
     what, figure = against(problem, y, x, args.data)
@@ -115,6 +116,11 @@ def _check_data(args, problem, y, x, model, declared=None) -> None:
     why = f"has a wrong noise level: {low}" if low is not None and why is None else why
     if why is None and x is None:  # y alone: the verdict train gives such a file (pdeinv.training.verdict)
         why = _no_field(args, problem, y, model)
+    rounding = npz_rounding_level(args.data)
+    if why is not None and rounding > problem.noise:  # the file's storage may be the cause (train names it)
+        why += (f" (or its storage: y is stored in lower precision than float64, whose rounding is noise of "
+                f"relative level {rounding:.2g}, above the run's noise level {problem.noise:g}: save it in "
+                "float64)")
     if why is not None and not args.accept_bad:
         raise BadData(f"--data {args.data!r} {why}; --accept-bad predicts anyway")
     if why is not None or not explained(figure, problem.noise):
