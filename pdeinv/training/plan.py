@@ -53,9 +53,10 @@ ENTRIES_4K = 50_000_000
 
 
 #: multiply-adds a default stage's fit may spend (forward and backward, ~3× a forward pass per draw), a
-#: count, the same on every machine: ~500 U-Net steps of 32 draws on heat_boxes' 63×63 grid (~0.13 s each
-#: on one core), which reach 0.037 there at the U-Net's lr 4e-3 (1 000 steps at 1e-3 reached 0.041)
-FIT_MACS = 4.5e12
+#: count, the same on every machine, sized so that the scenes' defaults end within 2 min on one core:
+#: ~250 U-Net steps of 32 draws on heat_boxes' 63×63 grid (held-out 0.047; twice as many reached 0.037–0.044)
+#: or ~2 900 steps of sine_gordon_2d's dense MLP (~25 ms each: dense products run slower per multiply-add)
+FIT_MACS = 2.25e12
 
 
 def step_count(problem, kind: str, batch: int, n_train: int, fit: PriorFit) -> int:
