@@ -384,3 +384,25 @@ def test_predict_names_a_low_precision_file_as_a_possible_cause(tmp_path, capsys
     assert err.count("\n") == 1
     assert main(["predict", str(run), "-q", "--data", str(tmp_path / "f64.npz"), "--out",
                  str(tmp_path / "p64.npz")]) == 0
+
+
+def test_predict_takes_the_units_train_took_and_never_writes_nan(tmp_path, capsys):
+    """A file at 1e300 trains (pdeinv.problem.units) and predicts with the same run (its amplitude check
+    overflowed); a run trained in the problem's units, given that file with --accept-bad, refuses to write
+    NaN predictions (exit 3, nothing written)."""
+    _, y = pdeinv.load_problem("heat_1d", n=16).sample(120, seed=7)
+    np.savez(tmp_path / "huge.npz", y=y * 1e300)
+    np.savez(tmp_path / "plain.npz", y=y)
+    small = ["--set", "n=16", "--steps", "3", "--prior-fit", "0", "--n-test", "32", "-q"]
+    assert main(["train", "heat_1d", *small, "--data", str(tmp_path / "huge.npz"), "--out", str(tmp_path / "h")]) == 0
+    assert main(["predict", str(tmp_path / "h"), "-q", "--data", str(tmp_path / "huge.npz"), "--out",
+                 str(tmp_path / "ph.npz")]) == 0
+    xh = np.load(tmp_path / "ph.npz")["x"]
+    assert np.isfinite(xh).all() and np.abs(xh).max() > 1e290
+    assert main(["train", "heat_1d", *small, "--data", str(tmp_path / "plain.npz"), "--out",
+                 str(tmp_path / "u")]) == 0
+    capsys.readouterr()
+    assert main(["predict", str(tmp_path / "u"), "-q", "--accept-bad", "--data", str(tmp_path / "huge.npz"),
+                 "--out", str(tmp_path / "pu.npz")]) == 3
+    assert "predictions of it are not finite" in capsys.readouterr().err
+    assert not (tmp_path / "pu.npz").exists()

@@ -159,13 +159,15 @@ def amplitude(problem, model, test: tuple, seed: int) -> float:
     x = np.asarray(x, dtype=float)
     xhat = model(y_t).double().cpu().numpy()
 
-    def ms(a):  # mean squared norm of the rows
-        return float(np.mean(np.sum(np.asarray(a, dtype=float) ** 2, axis=1)))
+    def rms(a):  # root-mean-square norm of the rows, scaled first: no overflow for data at 1e±300
+        a = np.asarray(a, dtype=float)
+        top = float(np.max(np.abs(a))) if a.size else 0.0
+        return top * math.sqrt(float(np.mean(np.sum((a / top) ** 2, axis=1)))) if top > 0 else 0.0
 
     tiny = np.finfo(float).tiny
-    ratio = math.sqrt(ms(xhat) / max(ms(x), tiny))
-    y_obs, y_ref = ms(y), ms(problem.operator.forward(x))
-    return ratio / math.sqrt(y_obs / y_ref) if y_obs > 0 and y_ref > 0 else ratio
+    ratio = rms(xhat) / max(rms(x), tiny)
+    y_obs, y_ref = rms(y), rms(problem.operator.forward(x))
+    return ratio / (y_obs / y_ref) if y_obs > 0 and y_ref > 0 else ratio
 
 
 @torch.no_grad()

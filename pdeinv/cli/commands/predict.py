@@ -65,6 +65,11 @@ def cmd_predict(args) -> int:
     _check_data(args, problem, y, x, model, declared)
     _say_if_failed(run)  # after the checks: a refused input is one line
     xhat = predict(model, y)
+    if not np.isfinite(xhat).all():  # --accept-bad keeps odd data, never NaN/Inf answers
+        bad = int((~np.isfinite(xhat)).sum())
+        raise BadData(f"--data {args.data!r}: the run's predictions of it are not finite ({bad} of {xhat.size} "
+                      "values NaN or Inf): the observations lie far outside what the run was trained on (in "
+                      "other units?); nothing was written")
     arrays = {"x": xhat} if posterior is None else \
         predictive(model, posterior, y, level, args.samples or 0, seed=args.seed)
     buffer = io.BytesIO()
