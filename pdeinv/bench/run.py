@@ -148,7 +148,7 @@ def _linear_parts(res, problem, net, test, st, op_r, repeats, seed, log) -> None
 def summary(res: dict) -> str:
     """A few lines for the terminal."""
     r, ref = res["ratios"], res["reference"]
-    fmt = lambda v: "null" if v is None else f"{v:.3g}"  # noqa: E731
+    fmt = lambda v: "n/a" if v is None else f"{v:.3g}"  # noqa: E731
     keys = ("forward_vs_splu", "adjoint_vs_forward", "modal_speedup", "sip_vs_gd_step", "hig_step_s")
     lines = [f"{res['problem']}: " + ", ".join(f"{k} {fmt(r.get(k))}" for k in keys),
              "reference: none (nonlinear physics)" if ref is None else
@@ -156,7 +156,8 @@ def summary(res: dict) -> str:
              f"{ref['tikhonov_best_x_err']:.4f}, best spectral filter x_err {ref['filter_best_x_err']:.4f}"]
     for name, b in (res.get("backends") or {}).get("lines", {}).items():
         ok = b["outcome"] == "ok"
-        text = (f"build {fmt(b['build_s'])} s  apply {b['apply_s'] * 1e3:.2f} ms  {b['memory_mb']:.1f} MB  "
+        build = "build n/a (none needed)" if b["build_s"] is None else f"build {fmt(b['build_s'])} s"
+        text = (f"{build}  apply {b['apply_s'] * 1e3:.2f} ms  {b['memory_mb']:.1f} MB  "
                 f"agreement {b['agreement']:.1e}") if ok else b["outcome"]
         lines.append(f"  backend {name:6s} {text}")
     for name, m in res["methods"].items():
@@ -164,5 +165,7 @@ def summary(res: dict) -> str:
                      f"wall {fmt(m['wall_s'])} s  steps {m.get('steps')} ({m.get('stopped_by')})")
     for name, row in ((res.get("amortization") or {}).get("rows") or {}).items():
         lines.append(f"  amortization {name:15s} {row['s_per_sample'] * 1e3:.3f} ms/sample  x_err "
-                     f"{row['x_err']:.4f}  break-even {row['break_even_samples']} samples")
+                     f"{row['x_err']:.4f}  " + ("" if name == "network" else "never breaks even (the network is "
+                                "not faster per sample)" if row["break_even_samples"] is None
+                                else f"break-even {row['break_even_samples']} samples"))
     return "\n".join(lines)
