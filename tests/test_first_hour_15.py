@@ -369,7 +369,7 @@ def test_optimizer_flags_must_be_booleans_and_lr_may_be_a_0d_tensor():
 
 
 def test_predict_names_a_low_precision_file_as_a_possible_cause(tmp_path, capsys):
-    """float16 observations refused by predict name their storage (train names it too), not only the physics."""
+    """float16 observations refused by predict name their storage (as train does), not only the physics."""
     run = tmp_path / "run"
     assert main(["train", "heat_1d", "--set", "n=16", "--steps", "3", "--prior-fit", "0", "--n-train", "32",
                  "--n-test", "16", "-q", "--out", str(run)]) == 0
@@ -394,7 +394,8 @@ def test_predict_takes_the_units_train_took_and_never_writes_nan(tmp_path, capsy
     np.savez(tmp_path / "huge.npz", y=y * 1e300)
     np.savez(tmp_path / "plain.npz", y=y)
     small = ["--set", "n=16", "--steps", "3", "--prior-fit", "0", "--n-test", "32", "-q"]
-    assert main(["train", "heat_1d", *small, "--data", str(tmp_path / "huge.npz"), "--out", str(tmp_path / "h")]) == 0
+    assert main(["train", "heat_1d", *small, "--data", str(tmp_path / "huge.npz"), "--out",
+                 str(tmp_path / "h")]) == 0
     assert main(["predict", str(tmp_path / "h"), "-q", "--data", str(tmp_path / "huge.npz"), "--out",
                  str(tmp_path / "ph.npz")]) == 0
     xh = np.load(tmp_path / "ph.npz")["x"]

@@ -165,7 +165,12 @@ def summary(res: dict) -> str:
                      f"wall {fmt(m['wall_s'])} s  steps {m.get('steps')} ({m.get('stopped_by')})")
     for name, row in ((res.get("amortization") or {}).get("rows") or {}).items():
         lines.append(f"  amortization {name:15s} {row['s_per_sample'] * 1e3:.3f} ms/sample  x_err "
-                     f"{row['x_err']:.4f}  " + ("" if name == "network" else "never breaks even (the network is "
-                                "not faster per sample)" if row["break_even_samples"] is None
-                                else f"break-even {row['break_even_samples']} samples"))
+                     f"{row['x_err']:.4f}  " + _break_even(name, row["break_even_samples"]))
     return "\n".join(lines)
+
+
+def _break_even(name: str, samples) -> str:
+    if name == "network":
+        return ""
+    return ("never breaks even (the network is not faster per sample)" if samples is None
+            else f"break-even {samples} samples")

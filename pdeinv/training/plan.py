@@ -119,7 +119,9 @@ class PriorStage:
         return isinstance(model, PriorFitted)
 
     def draw_count(self, problem) -> int:
-        return self.draws if self.draws is not None else draw_count(problem.N, problem.operator.forward_flops())
+        if self.draws is not None:
+            return self.draws
+        return draw_count(problem.N, problem.operator.forward_flops())
 
     def planned(self, problem, kind: str, own=None) -> dict:
         """What the stage will do for a correction of ``kind`` (:func:`pdeinv.nets.defaults.correction_kind`),

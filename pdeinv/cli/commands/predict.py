@@ -67,9 +67,9 @@ def cmd_predict(args) -> int:
     xhat = predict(model, y)
     if not np.isfinite(xhat).all():  # --accept-bad keeps odd data, never NaN/Inf answers
         bad = int((~np.isfinite(xhat)).sum())
-        raise BadData(f"--data {args.data!r}: the run's predictions of it are not finite ({bad} of {xhat.size} "
-                      "values NaN or Inf): the observations lie far outside what the run was trained on (in "
-                      "other units?); nothing was written")
+        raise BadData(f"--data {args.data!r}: the run's predictions of it are not finite ({bad} of "
+                      f"{xhat.size} values NaN or Inf): the observations lie far outside what the run was "
+                      "trained on (in other units?); nothing was written")
     arrays = {"x": xhat} if posterior is None else \
         predictive(model, posterior, y, level, args.samples or 0, seed=args.seed)
     buffer = io.BytesIO()
@@ -109,8 +109,15 @@ def _check_data(args, problem, y, x, model, declared=None) -> None:
     off by more than the run's noise level explains."""
     import logging
 
-    from pdeinv.training.data import (against, below_noise, beyond_noise, explained, no_signal,
-                                      npz_rounding_level, read_noise)
+    from pdeinv.training.data import (
+        against,
+        below_noise,
+        beyond_noise,
+        explained,
+        no_signal,
+        npz_rounding_level,
+        read_noise,
+    )
 
     _check_units(args, y, model)
     what, figure = against(problem, y, x, args.data)
