@@ -35,7 +35,7 @@ import warnings
 from pathlib import Path
 
 from ..util.files import atomic_write, remove_stale_temporaries
-from ..util.outpaths import RUN_FORMAT
+from ..util.outpaths import RUN_FORMAT, RUN_OUTPUTS
 
 FORMAT, VERSION = RUN_FORMAT, 1
 RUN_FILE, MODEL_FILE = "run.json", "model.pt"
@@ -44,9 +44,10 @@ RUN_FILE, MODEL_FILE = "run.json", "model.pt"
 POSTERIOR_FILE = "posterior.npz"
 
 #: every file ``pdeinv train`` writes into its ``--out`` folder (``.lock`` is the run lock's own, the
-#: marker :data:`pdeinv.util.outpaths.RUN_MARKER` the folder's: it stays when ``--overwrite`` clears these)
-OUTPUTS = ("metrics.json", "history.csv", "training.png", MODEL_FILE, RUN_FILE, POSTERIOR_FILE,
-           "checkpoint.pt", "fields.vtu", "fields.xdmf", "fields.png", "sensors.vtu")
+#: marker :data:`pdeinv.util.outpaths.RUN_MARKER` the folder's: it stays when ``--overwrite`` clears these);
+#: the output policy's own list (:data:`pdeinv.util.outpaths.RUN_OUTPUTS`), which names these files too
+OUTPUTS = RUN_OUTPUTS
+assert {MODEL_FILE, RUN_FILE, POSTERIOR_FILE} <= set(OUTPUTS)
 
 
 def _mlp(problem, hidden):

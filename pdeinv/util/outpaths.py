@@ -13,7 +13,7 @@
   takes a new or empty folder, or a run folder; a run folder holding a run's files only with
   ``--overwrite`` (which then removes only :data:`pdeinv.io.runs.OUTPUTS`) or ``--resume``. Any other
   non-empty folder is refused, ``--overwrite`` or not, naming what it holds;
-* a single file (:func:`output_file`): one of a run's own files (:data:`pdeinv.io.runs.OUTPUTS`, its
+* a single file (:func:`output_file`): one of a run's own files (:data:`RUN_OUTPUTS`, its
   marker and lock, in a run folder) is refused unless the command owns that file (``pdeinv show`` redraws
   ``fields.png``); any other existing file (an earlier prediction kept in a run folder included) is
   replaced only with ``--overwrite``; something that is not a regular file (a device, a pipe) never;
@@ -44,6 +44,9 @@ class OutputPathError(ValueError):
 RUN_MARKER = ".pdeinv-run"
 #: ``run.json``'s ``"format"`` (:mod:`pdeinv.io.runs`): a run folder written before :data:`RUN_MARKER` existed
 RUN_FORMAT = "pdeinv-run"
+#: every file ``pdeinv train`` writes into a run folder (:data:`pdeinv.io.runs.OUTPUTS` is this list)
+RUN_OUTPUTS = ("metrics.json", "history.csv", "training.png", "model.pt", "run.json", "posterior.npz",
+               "checkpoint.pt", "fields.vtu", "fields.xdmf", "fields.png", "sensors.vtu")
 #: what an otherwise empty folder may hold: a killed run's lock (:mod:`pdeinv.util.runlock`), Finder's file
 IGNORED = (".lock", ".DS_Store")
 #: names a refusal lists before "and N more"
@@ -176,11 +179,9 @@ def _not_an_input(target: Path, named: str, flag: str, inputs: Iterable) -> None
 
 
 def _run_file(target: Path) -> bool:
-    """Whether ``target`` is a file ``pdeinv train`` writes in a run folder (:data:`pdeinv.io.runs.OUTPUTS`,
-    its marker, its lock): never replaced by another command."""
-    from ..io.runs import OUTPUTS
-
-    return target.name in {*OUTPUTS, RUN_MARKER, *IGNORED} and is_run_folder(target.parent)
+    """Whether ``target`` is a file ``pdeinv train`` writes in a run folder (:data:`RUN_OUTPUTS`, its marker,
+    its lock): never replaced by another command."""
+    return target.name in {*RUN_OUTPUTS, RUN_MARKER, *IGNORED} and is_run_folder(target.parent)
 
 
 def run_output(path) -> bool:
