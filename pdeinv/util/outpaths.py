@@ -206,8 +206,9 @@ def output_file(path, flag: str = "out", inputs: Iterable = (), owns: Iterable[s
     if str(os.fspath(path)).endswith(("/", os.sep)):  # resolve() drops the slash that names a folder
         raise OutputPathError(f"{named} ends in '/', a folder; expected a file name")
     _not_an_input(target, named, flag, inputs)
-    owned = _run_file(target) and target.name in set(owns)
-    if target.is_file() and _run_file(target) and not owned:
+    own_file = target.is_file() and _run_file(target)  # one look at the folder's marker
+    owned = own_file and target.name in set(owns)
+    if own_file and not owned:
         raise OutputPathError(f"{named} is one of a run's own files ({target.name}) in the run folder "
                               f"{str(target.parent)!r}; writing it would replace that run's result; choose "
                               f"another {flag}")
